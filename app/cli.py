@@ -1,0 +1,234 @@
+"""The `vslam` command line (thin: parse options, wire a source, the engine and a recorder)."""
+
+from __future__ import annotations
+
+import json
+import signal
+import sys
+import uuid
+from datetime import datetime
+from enum import Enum
+from pathlib import Path
+from types import FrameType
+from typing import Annotated, NoReturn
+
+import numpy as np
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+from app.recording import Recorder, version_properties
+from vslam_core.config import EngineConfig, load_config
+from vslam_core.errors import VslamError
+from vslam_core.metrics import kitti_errors, paper_rms_error
+from vslam_core.pipeline import RunResult, run_odometry
+from vslam_core.results import FrameResult
+from vslam_core.sources.base import Frame, FrameRange, FrameSource
+from vslam_core.sources.open import open_source
+from vslam_core.trajectory_io import write_kitti_poses, write_tum_poses
+
+app = typer.Typer(
+    name="vslam",
+    help="Monocular visual odometry with every intermediate step recorded to Rerun.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+err = Console(stderr=True)
+out = Console()
+RECORDINGS = Path("recordings")
+
+
+@app.callback()
+def _root() -> None:
+    """Monocular visual odometry with every intermediate step recorded to Rerun."""
+
+
+class Scale(str, Enum):
+    gt = "gt"
+    none = "none"
+
+
+class TrajectoryFormat(str, Enum):
+    kitti = "kitti"
+    tum = "tum"
+
+
+class Interrupted(Exception):
+    """The run was stopped by a signal; `code` is the conventional exit code (128 + signal number)."""
+
+    def __init__(self, code: int, name: str) -> None:
+        super().__init__(name)
+        self.code = code
+
+
+def fail(message: str, code: int = 2) -> NoReturn:
+    """One line on stderr, a non-zero exit, no traceback."""
+    err.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    raise typer.Exit(code)
+
+
+def _check_new_file(path: Path, force: bool, what: str) -> None:
+    if path.exists() and not force:
+        fail(f"{path}: {what} exists already (use --force to replace it)")
+    if path.exists() and path.is_dir():
+        fail(f"{path}: is a folder, not a {what} file")
+    parent = path.parent if str(path.parent) else Path(".")
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        fail(f"{parent}: cannot create output folder ({exc.strerror})")
+    if not _writable(parent):
+        fail(f"{parent}: output folder is not writable")
+
+
+def _writable(folder: Path) -> bool:
+    probe = folder / f".vslam-write-test-{uuid.uuid4().hex}"
+    try:
+        probe.touch()
+        probe.unlink()
+    except OSError:
+        return False
+    return True
+
+
+def _default_output(source: FrameSource, frames: FrameRange) -> Path:
+    selection = "" if str(frames) == ":" else "_" + str(frames).replace(":", "-")
+    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+    return RECORDINGS / f"{source.name}{selection}_{stamp}.rrd"
+
+
+def _recording_id(source: FrameSource, frames: FrameRange, config: EngineConfig) -> str:
+    """Same input and config → same recording id, so two runs' files compare equal."""
+    key = json.dumps([source.name, str(frames), len(source), config.to_dict()], sort_keys=True)
+    return str(uuid.uuid5(uuid.NAMESPACE_URL, "vslam:" + key))
+
+
+def _on_signal(signum: int, _frame: FrameType | None) -> None:
+    raise Interrupted(128 + signum, signal.Signals(signum).name)
+
+
+def _write_trajectory(path: Path, run: RunResult, fmt: TrajectoryFormat) -> None:
+    if fmt is TrajectoryFormat.kitti:
+        write_kitti_poses(path, run.pose_array())
+    else:
+        stamps = np.array([t if t is not None else float(i) for t, i in zip(run.timestamps, run.indices, strict=True)])
+        write_tum_poses(path, stamps, run.pose_array())
+
+
+def _summary(source: FrameSource, run: RunResult, config: EngineConfig) -> None:
+    fps = run.frames / run.seconds if run.seconds > 0 else float("nan")
+    lines = [
+        f"frames      {run.frames} ({run.held} held the previous pose)",
+        f"time        {run.seconds:.1f} s, {fps:.1f} frames/s",
+        f"scale       {config.scale}",
+    ]
+    gt = source.ground_truth
+    if gt is not None and run.frames > 1:
+        gt = gt[: run.frames]
+        t_err, r_err = kitti_errors(gt, run.pose_array())
+        lines.append(f"KITTI       t_err {t_err:.2f} %   r_err {r_err:.2f} °/100 m"
+                     + ("   (path < 100 m: no segment)" if np.isnan(t_err) else ""))
+        lines.append(f"paper RMS   {paper_rms_error(gt, run.pose_array()):.2f} m (x–z, no alignment)")
+    out.print("\n".join(lines), highlight=False)
+
+
+@app.command()
+def run(
+    source: Annotated[str | None, typer.Argument(help="KITTI root or sequence folder, image folder, video "
+                                                 "file, or 'synthetic' (the default: no download)")] = None,
+    sequence: Annotated[str | None, typer.Option("--sequence", "-s", help="KITTI sequence, e.g. 00")] = None,
+    frames: Annotated[str | None, typer.Option(help="START:END[:STEP] of the source's frames (END excluded)")] = None,
+    scale: Annotated[Scale | None, typer.Option(help="translation length: gt = ground truth, none = unit "
+                                                "steps [default: gt when the source has ground truth]")] = None,
+    config_file: Annotated[Path | None, typer.Option("--config", help="engine config (TOML)")] = None,
+    output: Annotated[Path | None, typer.Option("--output", "-o", help="recording (.rrd) to write "
+                                                "[default: recordings/<source>_<time>.rrd]")] = None,
+    no_recording: Annotated[bool, typer.Option("--no-recording", help="write no .rrd file")] = False,
+    trajectory_out: Annotated[Path | None, typer.Option(help="write one pose per input frame here")] = None,
+    trajectory_format: Annotated[TrajectoryFormat, typer.Option(help="kitti or tum")] = TrajectoryFormat.kitti,
+    intrinsics: Annotated[str | None, typer.Option(help="fx,fy,cx,cy for image folders and videos")] = None,
+    calib: Annotated[Path | None, typer.Option(help="KITTI-style calib file (P0 line) instead")] = None,
+    gt: Annotated[Path | None, typer.Option(help="ground-truth poses (KITTI or TUM) for folders/videos")] = None,
+    force: Annotated[bool, typer.Option("--force", help="replace existing output files")] = False,
+) -> None:
+    """Run the odometry on a source and write a Rerun recording (and optionally the trajectory)."""
+    frame_range = FrameRange.parse(frames)
+    config = load_config(config_file) if config_file is not None else EngineConfig()
+    src = open_source(source, sequence=sequence, frames=frame_range, intrinsics=intrinsics, calib=calib,
+                      ground_truth=gt)
+    if scale is not None:
+        config = config.with_scale(scale.value)
+    elif config_file is None and src.ground_truth is None:
+        config = config.with_scale("none")
+
+    rrd = None if no_recording else (output or _default_output(src, frame_range))
+    if rrd is not None:
+        if rrd.suffix != ".rrd":
+            fail(f"{rrd}: a recording must end in .rrd")
+        _check_new_file(rrd, force, "recording")
+    if trajectory_out is not None:
+        _check_new_file(trajectory_out, force, "trajectory")
+
+    recorder = None
+    if rrd is not None:
+        properties = {
+            "name": f"vslam {src.name} frames {frame_range} scale {config.scale}",
+            "recording_id": _recording_id(src, frame_range, config),
+            "source": src.name,
+            "source_path": source or "synthetic",
+            "frames": str(frame_range),
+            "frame_count": str(len(src)),
+            "scale": config.scale,
+            **version_properties(),
+        }
+        recorder = Recorder(rrd, src, config, properties)
+
+    result = RunResult([], [], [])
+    previous = {s: signal.signal(s, _on_signal) for s in (signal.SIGTERM,)}
+    interrupted: Interrupted | None = None
+    with Progress(TextColumn("[progress.description]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                  TimeRemainingColumn(), console=err, transient=True) as progress:
+        task = progress.add_task(src.name, total=len(src))
+
+        def advance(_frame: Frame, _result: FrameResult) -> None:
+            progress.advance(task)
+
+        sinks = (recorder.log_frame, advance) if recorder is not None else (advance,)
+        try:
+            run_odometry(src, config, sinks, result)
+        except KeyboardInterrupt:
+            interrupted = Interrupted(130, "SIGINT")
+        except Interrupted as exc:
+            interrupted = exc
+        finally:
+            for s, handler in previous.items():
+                signal.signal(s, handler)
+            if recorder is not None:
+                recorder.close()
+            if trajectory_out is not None and result.frames:
+                _write_trajectory(trajectory_out, result, trajectory_format)
+
+    _summary(src, result, config)
+    if rrd is not None:
+        out.print(f"recording   {rrd}", highlight=False)
+    if trajectory_out is not None:
+        out.print(f"trajectory  {trajectory_out} ({trajectory_format.value}, {result.frames} poses)", highlight=False)
+    if interrupted is not None:
+        last = result.indices[-1] if result.indices else None
+        fail(f"interrupted by {interrupted} after {result.frames} frames"
+             + (f" (last frame {last})" if last is not None else "") + "; outputs hold the frames processed",
+             interrupted.code)
+
+
+def main() -> None:
+    """Entry point: every `VslamError` becomes one line on stderr and exit code 2."""
+    try:
+        app()
+    except VslamError as exc:
+        err.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
+        sys.exit(2)
+
+
+if __name__ == "__main__":
+    main()

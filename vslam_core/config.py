@@ -1,0 +1,176 @@
+"""The engine's one typed config, with defaults, loadable from TOML.
+
+A TOML file mirrors the dataclasses: top-level keys of `EngineConfig` plus one table per section::
+
+    scale = "gt"
+    [detector]
+    fast_threshold = 20
+    [pose]
+    ransac_threshold_px = 0.5
+
+Unknown keys and wrong types raise `ConfigError` naming the key.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal, get_args, get_origin, get_type_hints
+
+from vslam_core.errors import ConfigError
+
+ScaleSource = Literal["gt", "none"]
+RansacMethod = Literal["ransac", "magsac"]
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    """FAST corners, spread over the image by grid bucketing and a mask around live tracks."""
+
+    fast_threshold: int = 20
+    target_tracks: int = 2000  # detect up to this many live tracks
+    redetect_below: int = 1500  # re-detect when live tracks fall under this
+    grid_rows: int = 4
+    grid_cols: int = 10
+    min_distance_px: int = 8  # no new corner within this distance of a live track
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Pyramidal Lucas–Kanade with a forward–backward check."""
+
+    window_px: int = 21
+    max_level: int = 3  # OpenCV's maxLevel: pyramid levels above the full image
+    max_iterations: int = 30
+    epsilon: float = 0.01
+    fb_threshold_px: float = 1.0  # forward–backward round trip must land this close
+    border_px: int = 2  # tracks closer than this to the border are dropped
+
+
+@dataclass(frozen=True)
+class PoseConfig:
+    """Essential matrix (5-point in RANSAC), chirality, and the checks that reject a frame."""
+
+    ransac_method: RansacMethod = "ransac"
+    ransac_probability: float = 0.999
+    ransac_threshold_px: float = 1.0
+    ransac_max_iterations: int = 1000
+    seed: int = 0  # seeds RANSAC through a fixed shuffle of the correspondences
+    refine: bool = True  # Gauss–Newton on the Sampson error of the inliers after RANSAC
+    drop_outliers: bool = True  # RANSAC outliers stop being tracked
+    chirality_max_depth: float = 50.0  # in baselines, like cv2.recoverPose's distanceThresh
+    min_tracks: int = 30  # fewer tracks from the keyframe: re-initialise
+    min_inliers: int = 20
+    min_parallax_px: float = 1.0  # median flow from the keyframe below this: standing still
+
+
+@dataclass(frozen=True)
+class EngineConfig:
+    """Everything that decides the trajectory. Same config + same input = same trajectory."""
+
+    scale: ScaleSource = "gt"
+    threads: int = 1  # OpenCV threads inside the engine; 1 keeps results bit-identical
+    detector: DetectorConfig = field(default_factory=DetectorConfig)
+    tracker: TrackerConfig = field(default_factory=TrackerConfig)
+    pose: PoseConfig = field(default_factory=PoseConfig)
+
+    def with_scale(self, scale: ScaleSource) -> EngineConfig:
+        return dataclasses.replace(self, scale=scale)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+def paper_config() -> EngineConfig:
+    """The published method's settings (FAST 20, KLT 21x21 over 3 pyramid levels, RANSAC 0.999 / 1 px,
+    re-detect under 2000 tracks) with none of vslam's additions: no bucketing beyond a 1x1 grid, no
+    forward–backward check, no refinement, outliers kept."""
+    return EngineConfig(
+        detector=DetectorConfig(
+            fast_threshold=20, target_tracks=100_000, redetect_below=2000, grid_rows=1, grid_cols=1,
+            min_distance_px=0,
+        ),
+        tracker=TrackerConfig(window_px=21, max_level=3, fb_threshold_px=float("inf")),
+        pose=PoseConfig(ransac_method="ransac", ransac_probability=0.999, ransac_threshold_px=1.0,
+                        refine=False, drop_outliers=False, min_parallax_px=0.0),
+    )
+
+
+def _check_value(key: str, value: Any, annotation: Any) -> Any:
+    """Check one TOML value against a dataclass field's annotation; ints are accepted for floats."""
+    origin = get_origin(annotation)
+    if origin is Literal:
+        allowed = get_args(annotation)
+        if value not in allowed:
+            raise ConfigError(f"config key {key!r}: {value!r} is not one of {', '.join(map(repr, allowed))}")
+        return value
+    if origin in (typing.Union, types.UnionType):
+        for option in get_args(annotation):
+            try:
+                return _check_value(key, value, option)
+            except ConfigError:
+                continue
+        raise ConfigError(f"config key {key!r}: {value!r} has the wrong type")
+    if annotation is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ConfigError(f"config key {key!r}: expected a number, got {type(value).__name__}")
+        return float(value)
+    if annotation is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"config key {key!r}: expected an integer, got {type(value).__name__}")
+        return value
+    if annotation is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"config key {key!r}: expected true or false, got {type(value).__name__}")
+        return value
+    if annotation is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"config key {key!r}: expected a string, got {type(value).__name__}")
+        return value
+    raise ConfigError(f"config key {key!r}: unsupported type")  # pragma: no cover - all fields covered
+
+
+def _build(cls: type, data: dict[str, Any], prefix: str) -> Any:
+    """Build dataclass `cls` from a TOML table, recursing into nested dataclass fields."""
+    hints = get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise ConfigError(f"unknown config key {prefix + unknown[0]!r} (known: {', '.join(sorted(names))})")
+    values: dict[str, Any] = {}
+    for name, value in data.items():
+        annotation = hints[name]
+        if dataclasses.is_dataclass(annotation):
+            if not isinstance(value, dict):
+                raise ConfigError(f"config key {prefix + name!r}: expected a table [{prefix + name}]")
+            values[name] = _build(annotation, value, f"{prefix}{name}.")  # type: ignore[arg-type]
+        else:
+            values[name] = _check_value(prefix + name, value, annotation)
+    return cls(**values)
+
+
+def config_from_dict(data: dict[str, Any]) -> EngineConfig:
+    """Build an `EngineConfig` from nested dicts (as TOML gives them), checking every key."""
+    config: EngineConfig = _build(EngineConfig, data, "")
+    return config
+
+
+def load_config(path: str | Path) -> EngineConfig:
+    """Read an `EngineConfig` from a TOML file; keys left out keep their defaults."""
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: config file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: cannot read config ({exc.__class__.__name__})") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML ({exc})") from None
+    try:
+        return config_from_dict(data)
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None

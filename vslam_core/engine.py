@@ -1,0 +1,305 @@
+"""The odometry engine: one frame in, one `FrameResult` out (pure computation, no I/O, no Rerun).
+
+Per frame: KLT-track the live tracks (forward–backward checked) → 5-point essential matrix in RANSAC
+between the keyframe and this frame → the four candidate poses and their chirality counts → (refined)
+winner → scale → T_w_cur = T_w_key · T_key_cur → re-detect FAST corners where tracks are missing.
+The keyframe is the last frame whose motion was accepted: a frame that cannot be trusted (too little
+parallax, too few inliers, …) keeps the previous pose, and the next frame is measured from the keyframe
+with a longer baseline.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from vslam_core.config import EngineConfig
+from vslam_core.features import detect_corners, track_points
+from vslam_core.geometry import (
+    CandidatePose,
+    chirality_check,
+    in_front_mask,
+    normalise_points,
+    pose_matrix,
+    refine_relative_pose,
+    triangulate,
+)
+from vslam_core.results import FrameResult, FrameStatus, Reason, TrackFate
+from vslam_core.scale import ScaleProvider
+from vslam_core.sources.base import CameraIntrinsics, Frame
+
+
+@dataclass
+class _Tracks:
+    """Live tracks as parallel arrays (struct of arrays, N tracks)."""
+
+    ids: np.ndarray  # (N,) int64
+    points: np.ndarray  # (N, 2) float32, position in the last processed frame
+    ages: np.ndarray  # (N,) int32
+    key_points: np.ndarray  # (N, 2) float32, position in the keyframe; NaN if born after it
+
+    @classmethod
+    def empty(cls) -> _Tracks:
+        return cls(np.zeros(0, np.int64), np.zeros((0, 2), np.float32), np.zeros(0, np.int32),
+                   np.zeros((0, 2), np.float32))
+
+    def select(self, keep: np.ndarray) -> _Tracks:
+        return _Tracks(self.ids[keep], self.points[keep], self.ages[keep], self.key_points[keep])
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+
+@dataclass(frozen=True)
+class _Motion:
+    """Outcome of the two-view step between keyframe and current frame."""
+
+    essential: np.ndarray | None = None
+    inlier_mask: np.ndarray | None = None  # over the used correspondences
+    candidates: tuple[CandidatePose, ...] = ()
+    chosen: int | None = None
+    rotation: np.ndarray | None = None
+    translation: np.ndarray | None = None  # unit
+    in_front: np.ndarray | None = None  # over the used correspondences
+    points_cur: np.ndarray | None = None  # (P, 3) in front, current frame, unit baseline
+    reason: Reason | None = None
+
+
+class Odometry:
+    """Monocular visual odometry over a stream of frames from one camera."""
+
+    def __init__(self, intrinsics: CameraIntrinsics, config: EngineConfig, scale: ScaleProvider) -> None:
+        cv2.setNumThreads(config.threads)
+        self.config = config
+        self.intrinsics = intrinsics
+        self._K = intrinsics.K
+        self._scale = scale
+        self._tracks = _Tracks.empty()
+        self._next_id = 0
+        self._previous: np.ndarray | None = None
+        self._position = 0
+        self._key_position = 0
+        self._T_w_key = np.eye(4)
+
+    def run(self, frames: Iterable[Frame]) -> Iterator[FrameResult]:
+        """Process frames in order, yielding one result per frame."""
+        for frame in frames:
+            yield self.process(frame)
+
+    def process(self, frame: Frame) -> FrameResult:
+        """Estimate this frame's pose from the previous ones."""
+        cfg = self.config
+        timings: dict[str, float] = {}
+        clock = time.perf_counter()
+        image = frame.image
+        tracks = self._tracks
+        fate = np.full(len(tracks), TrackFate.LOST, np.uint8)
+        tracked = tracks.points.copy()
+        status = FrameStatus.INIT
+        motion = _Motion()
+        parallax = 0.0
+        scale: float | None = None
+        T_key_cur: np.ndarray | None = None  # noqa: N806
+        points_world = np.zeros((0, 3))
+        keyframe_used = self._key_position
+        advance_keyframe = True
+
+        if self._previous is not None:
+            tracked, ok, fb_error = track_points(self._previous, image, tracks.points, cfg.tracker)
+            survived = ok & (fb_error <= cfg.tracker.fb_threshold_px)
+            fate[ok & ~survived] = TrackFate.FB_REJECTED
+            has_key = ~np.isnan(tracks.key_points[:, 0])
+            used = survived & has_key
+            fate[survived & ~has_key] = TrackFate.NOT_USED
+            timings["track"] = _lap(clock)
+            clock = time.perf_counter()
+
+            status = FrameStatus.HELD
+            if used.sum() < cfg.pose.min_tracks:
+                motion = _Motion(reason=Reason.TOO_FEW_TRACKS)  # re-initialise from this frame
+            else:
+                p_cur, p_key = tracked[used], tracks.key_points[used]
+                parallax = float(np.median(np.linalg.norm(p_cur - p_key, axis=1)))
+                if parallax < cfg.pose.min_parallax_px:
+                    motion = _Motion(reason=Reason.LOW_PARALLAX)
+                    advance_keyframe = False
+                else:
+                    motion = self._two_view(p_cur, p_key, timings)
+                    advance_keyframe = motion.reason is None or motion.reason == Reason.TOO_FEW_TRACKS
+                    if motion.reason is not None:
+                        advance_keyframe = False
+                if motion.inlier_mask is not None:
+                    used_fate = np.where(motion.inlier_mask, TrackFate.RANSAC_OUTLIER, TrackFate.RANSAC_OUTLIER)
+                    if motion.in_front is not None:
+                        used_fate = np.where(
+                            motion.inlier_mask,
+                            np.where(motion.in_front, TrackFate.INLIER, TrackFate.CHIRALITY_FAILED),
+                            TrackFate.RANSAC_OUTLIER,
+                        )
+                    fate[used] = used_fate
+                else:
+                    fate[used] = TrackFate.NOT_USED
+            clock = time.perf_counter()
+
+            if motion.reason is None and motion.rotation is not None and motion.translation is not None:
+                status = FrameStatus.OK
+                scale = self._scale.step_length(self._key_position, self._position)
+                T_key_cur = pose_matrix(motion.rotation, scale * motion.translation)  # noqa: N806
+                T_w_cur = self._T_w_key @ T_key_cur  # noqa: N806
+                if motion.points_cur is not None and len(motion.points_cur):
+                    points_world = (scale * motion.points_cur) @ T_w_cur[:3, :3].T + T_w_cur[:3, 3]
+            else:
+                T_w_cur = self._T_w_key.copy()  # noqa: N806
+
+            # Carry surviving tracks on; RANSAC outliers (moving objects, bad tracks) are dropped.
+            keep = fate >= TrackFate.NOT_USED
+            if cfg.pose.drop_outliers:
+                keep &= fate != TrackFate.RANSAC_OUTLIER
+            self._tracks = _Tracks(tracks.ids[keep], tracked[keep], tracks.ages[keep] + 1, tracks.key_points[keep])
+        else:
+            T_w_cur = np.eye(4)  # noqa: N806
+            self._T_w_key = T_w_cur
+
+        if advance_keyframe:
+            self._T_w_key = T_w_cur
+            self._key_position = self._position
+            self._tracks.key_points = self._tracks.points.copy()
+
+        new_ids, new_corners = self._replenish(image, timings)
+        result = FrameResult(
+            position=self._position,
+            index=frame.index,
+            timestamp=frame.timestamp,
+            T_world_cam=T_w_cur,
+            status=status,
+            reason=motion.reason,
+            keyframe_position=keyframe_used,
+            image_shape=(int(image.shape[0]), int(image.shape[1])),
+            track_ids=tracks.ids,
+            track_prev=tracks.points,
+            track_cur=tracked,
+            track_age=tracks.ages + 1,
+            track_fate=fate,
+            new_corner_ids=new_ids,
+            new_corners=new_corners,
+            live_tracks=len(self._tracks),
+            essential=motion.essential,
+            candidate_poses=motion.candidates,
+            chosen_candidate=motion.chosen,
+            T_key_cur=T_key_cur,
+            points_world=points_world,
+            scale=scale,
+            parallax_px=parallax,
+            timings_ms=timings,
+        )
+        self._previous = image
+        self._position += 1
+        return result
+
+    def _two_view(self, p_cur: np.ndarray, p_key: np.ndarray, timings: dict[str, float]) -> _Motion:
+        """Essential matrix (5-point RANSAC), four candidates, chirality, refinement."""
+        cfg = self.config.pose
+        clock = time.perf_counter()
+        # Seeded shuffle: OpenCV's RANSAC draws from a fixed RNG, so the input order is the seed.
+        order = np.random.default_rng((cfg.seed, self._position)).permutation(len(p_cur))
+        essential, shuffled_mask = _find_essential(p_cur[order], p_key[order], self._K, self.config)
+        timings["essential"] = _lap(clock)
+        clock = time.perf_counter()
+        if essential is None or shuffled_mask is None:
+            return _Motion(reason=Reason.NO_ESSENTIAL)
+        inlier_mask = np.zeros(len(p_cur), bool)
+        inlier_mask[order] = shuffled_mask
+        if inlier_mask.sum() < cfg.min_inliers:
+            return _Motion(essential=essential, inlier_mask=inlier_mask, reason=Reason.TOO_FEW_INLIERS)
+        x_cur = normalise_points(p_cur, self._K)
+        x_key = normalise_points(p_key, self._K)
+        candidates, best = chirality_check(essential, x_cur[inlier_mask], x_key[inlier_mask],
+                                           cfg.chirality_max_depth)
+        rotation, translation = candidates[best].rotation, candidates[best].translation
+        if candidates[best].in_front < cfg.min_inliers:
+            timings["chirality"] = _lap(clock)
+            return _Motion(essential=essential, inlier_mask=inlier_mask, candidates=tuple(candidates),
+                           chosen=best, reason=Reason.CHIRALITY)
+        if cfg.refine:
+            focal = 0.5 * (self._K[0, 0] + self._K[1, 1])
+            rotation, translation = refine_relative_pose(
+                rotation, translation, x_cur[inlier_mask], x_key[inlier_mask],
+                robust_scale=cfg.ransac_threshold_px / focal,
+            )
+        points = triangulate(rotation, translation, x_cur, x_key)
+        in_front = in_front_mask(rotation, translation, points, cfg.chirality_max_depth)
+        timings["chirality"] = _lap(clock)
+        return _Motion(
+            essential=essential,
+            inlier_mask=inlier_mask,
+            candidates=tuple(candidates),
+            chosen=best,
+            rotation=rotation,
+            translation=translation,
+            in_front=in_front,
+            points_cur=points[inlier_mask & in_front],
+        )
+
+    def _replenish(self, image: np.ndarray, timings: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
+        """Detect new corners away from live tracks when too few are left; they start new tracks."""
+        cfg = self.config.detector
+        clock = time.perf_counter()
+        tracks = self._tracks
+        if len(tracks) >= cfg.redetect_below and self._previous is not None:
+            return np.zeros(0, np.int64), np.zeros((0, 2), np.float32)
+        corners = detect_corners(image, tracks.points, cfg.target_tracks - len(tracks), cfg)
+        ids = np.arange(self._next_id, self._next_id + len(corners), dtype=np.int64)
+        self._next_id += len(corners)
+        at_keyframe = self._key_position == self._position
+        key_points = corners.copy() if at_keyframe else np.full_like(corners, np.nan)
+        self._tracks = _Tracks(
+            np.concatenate((tracks.ids, ids)),
+            np.concatenate((tracks.points, corners)),
+            np.concatenate((tracks.ages, np.ones(len(corners), np.int32))),
+            np.concatenate((tracks.key_points, key_points)),
+        )
+        timings["detect"] = _lap(clock)
+        return ids, corners
+
+
+def _find_essential(
+    p_cur: np.ndarray, p_key: np.ndarray, K: np.ndarray, config: EngineConfig  # noqa: N803
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """cv2.findEssentialMat(p_cur, p_key) with the configured robust estimator. Returns (E (3, 3), inlier
+    mask (N,) bool), or (None, None) when no model was found."""
+    cfg = config.pose
+    if len(p_cur) < 5:
+        return None, None
+    a = p_cur.astype(np.float64)
+    b = p_key.astype(np.float64)
+    if cfg.ransac_method == "magsac":
+        params = cv2.UsacParams()
+        params.confidence = cfg.ransac_probability
+        params.threshold = cfg.ransac_threshold_px
+        params.maxIterations = cfg.ransac_max_iterations
+        params.randomGeneratorState = cfg.seed
+        params.sampler = cv2.SAMPLING_UNIFORM
+        params.score = cv2.SCORE_METHOD_MAGSAC
+        params.loMethod = cv2.LOCAL_OPTIM_SIGMA
+        params.loIterations = 10
+        params.loSampleSize = 20
+        params.final_polisher = cv2.MAGSAC
+        params.final_polisher_iterations = 10
+        params.isParallel = False
+        essential, mask = cv2.findEssentialMat(a, b, K, K, np.zeros((1, 5)), np.zeros((1, 5)), params)
+    else:
+        essential, mask = cv2.findEssentialMat(
+            a, b, K, method=cv2.RANSAC, prob=cfg.ransac_probability, threshold=cfg.ransac_threshold_px,
+            maxIters=cfg.ransac_max_iterations,
+        )
+    if essential is None or mask is None or essential.shape[0] < 3:
+        return None, None
+    return essential[:3, :3], mask.reshape(-1).astype(bool)
+
+
+def _lap(start: float) -> float:
+    return (time.perf_counter() - start) * 1000.0

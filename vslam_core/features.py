@@ -1,0 +1,88 @@
+"""FAST corners spread over the image, and pyramidal KLT tracking with a forward–backward check.
+
+Images are (H, W) uint8 grey. Points are (N, 2) float32 pixel coordinates (x right, y down).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from vslam_core.config import DetectorConfig, TrackerConfig
+
+def detect_corners(
+    image: np.ndarray, existing: np.ndarray, wanted: int, config: DetectorConfig
+) -> np.ndarray:
+    """Up to `wanted` FAST corners, strongest first within each cell of a grid_rows x grid_cols grid and
+    at least `min_distance_px` from every `existing` (M, 2) point, so new corners fill the empty parts of
+    the image instead of piling up on one façade. Returns (K, 2) float32, K ≤ wanted."""
+    if wanted <= 0:
+        return np.zeros((0, 2), np.float32)
+    height, width = image.shape
+    mask = None
+    if config.min_distance_px > 0 and len(existing):
+        mask = np.full((height, width), 255, np.uint8)
+        for x, y in np.round(existing).astype(np.int32):
+            cv2.circle(mask, (int(x), int(y)), config.min_distance_px, 0, -1)
+    detector = cv2.FastFeatureDetector_create(threshold=config.fast_threshold, nonmaxSuppression=True)
+    keypoints = detector.detect(image, mask)
+    if not keypoints:
+        return np.zeros((0, 2), np.float32)
+    points = np.array([kp.pt for kp in keypoints], np.float32)
+    response = np.array([kp.response for kp in keypoints], np.float32)
+    cells = config.grid_rows * config.grid_cols
+    if cells == 1:
+        order = np.argsort(-response, kind="stable")[:wanted]
+        return points[order]
+    cell = (
+        np.minimum((points[:, 1] * config.grid_rows / height).astype(np.int64), config.grid_rows - 1)
+        * config.grid_cols
+        + np.minimum((points[:, 0] * config.grid_cols / width).astype(np.int64), config.grid_cols - 1)
+    )
+    # Rank of each corner inside its cell by response; take rank 0 of every cell, then rank 1, ...
+    order = np.lexsort((-response, cell))
+    sorted_cell = cell[order]
+    first_of_cell = np.searchsorted(sorted_cell, sorted_cell, side="left")
+    rank = np.arange(len(order)) - first_of_cell
+    by_rank = order[np.lexsort((-response[order], rank))]
+    return points[by_rank[:wanted]]
+
+
+def track_points(
+    previous: np.ndarray, current: np.ndarray, points: np.ndarray, config: TrackerConfig
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Track (N, 2) float32 points from the previous into the current (H, W) uint8 frame.
+
+    Returns (tracked (N, 2) float32, ok (N,) bool — KLT converged and the point stays inside the image,
+    fb_error (N,) float32 — distance between a point and its forward-then-backward track, inf where the
+    forward track failed). The forward–backward check itself (fb_error ≤ threshold) is the caller's.
+    """
+    if len(points) == 0:
+        return np.zeros((0, 2), np.float32), np.zeros(0, bool), np.zeros(0, np.float32)
+    window = (config.window_px, config.window_px)
+    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, config.max_iterations, config.epsilon)
+    p0 = points.reshape(-1, 1, 2).astype(np.float32)
+    p1, status, _ = cv2.calcOpticalFlowPyrLK(
+        previous, current, p0, None, winSize=window, maxLevel=config.max_level, criteria=criteria
+    )
+    tracked = p1.reshape(-1, 2)
+    ok = status.reshape(-1).astype(bool)
+    height, width = current.shape
+    border = config.border_px
+    ok &= (
+        (tracked[:, 0] >= border)
+        & (tracked[:, 0] < width - border)
+        & (tracked[:, 1] >= border)
+        & (tracked[:, 1] < height - border)
+    )
+    fb_error = np.full(len(points), np.inf, np.float32)
+    if np.isfinite(config.fb_threshold_px) and ok.any():
+        back, back_status, _ = cv2.calcOpticalFlowPyrLK(
+            current, previous, p1[ok], None, winSize=window, maxLevel=config.max_level, criteria=criteria
+        )
+        err = np.linalg.norm(back.reshape(-1, 2) - points[ok], axis=1)
+        err[~back_status.reshape(-1).astype(bool)] = np.inf
+        fb_error[ok] = err
+    elif ok.any():
+        fb_error[ok] = 0.0  # check disabled
+    return tracked, ok, fb_error

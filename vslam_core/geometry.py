@@ -1,0 +1,243 @@
+"""Two-view geometry, pure numpy (+ OpenCV's decomposition/triangulation kernels).
+
+Conventions (../shared/docs/conventions.md): camera frame x right, y down, z forward. Relative motion
+between the current and the previous (key)frame is T_prev_cur = [R | t] with X_prev = R·X_cur + t, which
+is what ``cv2.findEssentialMat(p_cur, p_prev)`` + ``cv2.recoverPose`` return; the essential matrix
+satisfies x_prevᵀ·E·x_cur = 0 with E = [t]ₓR. Points are (N, 2) arrays; "normalised" means
+K⁻¹-multiplied image coordinates.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from vslam_core.errors import GeometryError
+
+
+def _check_points(name: str, points: np.ndarray) -> None:
+    if points.ndim != 2 or points.shape[1] != 2:
+        raise GeometryError(f"{name}: expected (N, 2) points, got shape {points.shape}")
+
+
+def pose_matrix(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
+    """(3, 3) R and (3,) t -> (4, 4) homogeneous transform [R | t]."""
+    pose = np.eye(4)
+    pose[:3, :3] = rotation
+    pose[:3, 3] = np.asarray(translation).reshape(3)
+    return pose
+
+
+def chain(T_w_prev: np.ndarray, T_prev_cur: np.ndarray) -> np.ndarray:  # noqa: N803
+    """T_w_cur = T_w_prev · T_prev_cur: the new pose is the relative motion applied in the previous
+    camera's frame (t_w += R_w·t, R_w = R_w·R). The reverse order (mono-vo's R_w = R·R_w) is wrong as soon
+    as the camera pitches or rolls while turning."""
+    return T_w_prev @ T_prev_cur
+
+
+def invert_pose(pose: np.ndarray) -> np.ndarray:
+    """Inverse of a (4, 4) rigid transform, using Rᵀ instead of a general inverse."""
+    inverse = np.eye(4)
+    inverse[:3, :3] = pose[:3, :3].T
+    inverse[:3, 3] = -pose[:3, :3].T @ pose[:3, 3]
+    return inverse
+
+
+def rotation_angle(rotation: np.ndarray) -> float:
+    """Angle (radians) of a (3, 3) rotation: acos((tr R − 1) / 2), clamped."""
+    return float(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0)))
+
+
+def angle_between(a: np.ndarray, b: np.ndarray) -> float:
+    """Angle (radians) between two 3-vectors; 0 if either is zero."""
+    na, nb = np.linalg.norm(a), np.linalg.norm(b)
+    if na == 0 or nb == 0:
+        return 0.0
+    return float(np.arccos(np.clip(np.dot(a, b) / (na * nb), -1.0, 1.0)))
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """[v]ₓ: the (3, 3) matrix with [v]ₓ·w = v × w."""
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def so3_exp(omega: np.ndarray) -> np.ndarray:
+    """Rodrigues' formula: axis-angle (3,) -> (3, 3) rotation."""
+    rotation, _ = cv2.Rodrigues(np.asarray(omega, dtype=np.float64).reshape(3, 1))
+    return np.asarray(rotation)
+
+
+def essential_from_pose(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
+    """E = [t]ₓR for X_prev = R·X_cur + t."""
+    return skew(np.asarray(translation).reshape(3)) @ rotation
+
+
+def normalise_points(points: np.ndarray, K: np.ndarray) -> np.ndarray:  # noqa: N803
+    """(N, 2) pixel coordinates -> (N, 2) normalised coordinates ((u − cx)/fx, (v − cy)/fy)."""
+    _check_points("points", points)
+    return np.column_stack(
+        ((points[:, 0] - K[0, 2]) / K[0, 0], (points[:, 1] - K[1, 2]) / K[1, 1])
+    ).astype(np.float64)
+
+
+def candidate_poses(essential: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The four (R, t) that an essential matrix E = U·diag(1, 1, 0)·Vᵀ admits (Hartley & Zisserman,
+    Result 9.19): (R1, t), (R1, −t), (R2, t), (R2, −t) with R1 = U·W·Vᵀ, R2 = U·Wᵀ·Vᵀ, t = u3 (unit)."""
+    if essential.shape != (3, 3) or not np.all(np.isfinite(essential)):
+        raise GeometryError(f"essential matrix must be a finite (3, 3) array, got {essential.shape}")
+    r1, r2, t = cv2.decomposeEssentialMat(essential)
+    t = t.reshape(3)
+    return [(r1, t.copy()), (r1, -t), (r2, t.copy()), (r2, -t)]
+
+
+def triangulate(
+    rotation: np.ndarray, translation: np.ndarray, x_cur: np.ndarray, x_prev: np.ndarray
+) -> np.ndarray:
+    """Linear (DLT) triangulation of normalised correspondences.
+
+    Cameras: current P_cur = [I | 0], previous P_prev = [R | t] (X_prev = R·X_cur + t).
+    Returns (N, 3) points in the CURRENT camera frame, in units of |t|; rows are NaN where the point is at
+    infinity (homogeneous w ≈ 0).
+    """
+    _check_points("x_cur", x_cur)
+    _check_points("x_prev", x_prev)
+    if len(x_cur) == 0:
+        return np.zeros((0, 3))
+    P_cur = np.hstack((np.eye(3), np.zeros((3, 1))))  # noqa: N806
+    P_prev = np.hstack((rotation, np.asarray(translation).reshape(3, 1)))  # noqa: N806
+    homogeneous = cv2.triangulatePoints(P_cur, P_prev, x_cur.T.astype(np.float64), x_prev.T.astype(np.float64))
+    w = homogeneous[3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        points = (homogeneous[:3] / w).T
+    points[np.abs(w) < 1e-12] = np.nan
+    return np.asarray(points)
+
+
+def in_front_mask(
+    rotation: np.ndarray, translation: np.ndarray, points_cur: np.ndarray, max_depth: float
+) -> np.ndarray:
+    """(N,) bool: the (N, 3) points (current frame) have 0 < depth < max_depth in BOTH cameras."""
+    points_prev = points_cur @ rotation.T + np.asarray(translation).reshape(1, 3)
+    with np.errstate(invalid="ignore"):
+        return np.asarray(
+            (points_cur[:, 2] > 0)
+            & (points_cur[:, 2] < max_depth)
+            & (points_prev[:, 2] > 0)
+            & (points_prev[:, 2] < max_depth)
+        )
+
+
+@dataclass(frozen=True)
+class CandidatePose:
+    """One of the four decompositions of E, with its chirality count."""
+
+    rotation: np.ndarray  # (3, 3), X_prev = R·X_cur + t
+    translation: np.ndarray  # (3,), unit length
+    in_front: int  # inliers triangulated in front of both cameras
+
+
+def chirality_check(
+    essential: np.ndarray, x_cur: np.ndarray, x_prev: np.ndarray, max_depth: float = 50.0
+) -> tuple[list[CandidatePose], int]:
+    """Triangulate the (N, 2) normalised inlier correspondences under each of the four candidates and
+    count the points in front of both cameras (Hartley & Zisserman §9.6.3). Returns the four candidates in
+    `candidate_poses` order and the index of the winner (most points in front; first on ties, like
+    cv2.recoverPose)."""
+    candidates = []
+    for rotation, translation in candidate_poses(essential):
+        points = triangulate(rotation, translation, x_cur, x_prev)
+        count = int(in_front_mask(rotation, translation, points, max_depth).sum())
+        candidates.append(CandidatePose(rotation, translation, count))
+    best = int(np.argmax([c.in_front for c in candidates]))
+    return candidates, best
+
+
+def sampson_errors(
+    essential: np.ndarray, x_cur: np.ndarray, x_prev: np.ndarray
+) -> np.ndarray:
+    """(N,) signed first-order geometric (Sampson) error of x_prevᵀ·E·x_cur = 0, in normalised units
+    (Hartley & Zisserman eq. 11.9). Multiply by the focal length for pixels."""
+    ones = np.ones((len(x_cur), 1))
+    h_cur = np.hstack((x_cur, ones))
+    h_prev = np.hstack((x_prev, ones))
+    e_cur = h_cur @ essential.T  # rows: E·x_cur
+    et_prev = h_prev @ essential  # rows: Eᵀ·x_prev
+    algebraic = np.einsum("ij,ij->i", h_prev, e_cur)
+    denominator = np.sqrt(e_cur[:, 0] ** 2 + e_cur[:, 1] ** 2 + et_prev[:, 0] ** 2 + et_prev[:, 1] ** 2)
+    return np.asarray(algebraic / np.maximum(denominator, 1e-15))
+
+
+def _tangent_basis(t: np.ndarray) -> np.ndarray:
+    """(3, 2) orthonormal basis of the plane perpendicular to unit vector t."""
+    helper = np.array([1.0, 0.0, 0.0]) if abs(t[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    b1 = np.cross(t, helper)
+    b1 /= np.linalg.norm(b1)
+    b2 = np.cross(t, b1)
+    return np.column_stack((b1, b2))
+
+
+def refine_relative_pose(
+    rotation: np.ndarray,
+    translation: np.ndarray,
+    x_cur: np.ndarray,
+    x_prev: np.ndarray,
+    robust_scale: float,
+    iterations: int = 10,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Minimise the robust (Cauchy) sum of squared Sampson errors over the 5-DoF relative pose with
+    Levenberg–Marquardt: R ← R·exp(ω), t ← normalise(t + B·β) with B a basis of t's tangent plane.
+
+    x_cur, x_prev: (N, 2) normalised inlier correspondences; robust_scale: Cauchy scale in normalised
+    units (e.g. 1 px / f). Returns the refined (R, t) with |t| = 1; the input if nothing improves.
+    """
+    rotation = np.asarray(rotation, dtype=np.float64)
+    translation = np.asarray(translation, dtype=np.float64).reshape(3)
+    translation = translation / np.linalg.norm(translation)
+    if len(x_cur) < 6:
+        return rotation, translation
+    c2 = robust_scale**2
+
+    def params_to_pose(p: np.ndarray, r0: np.ndarray, t0: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        r = r0 @ so3_exp(p[:3])
+        t = t0 + b @ p[3:]
+        return r, t / np.linalg.norm(t)
+
+    def residuals(r: np.ndarray, t: np.ndarray) -> np.ndarray:
+        return sampson_errors(essential_from_pose(r, t), x_cur, x_prev)
+
+    def cost(res: np.ndarray) -> float:
+        return float(np.sum(np.log1p(res**2 / c2)))
+
+    damping = 1e-3
+    current = residuals(rotation, translation)
+    current_cost = cost(current)
+    for _ in range(iterations):
+        basis = _tangent_basis(translation)
+        zero = np.zeros(5)
+        eps = 1e-7
+        jacobian = np.empty((len(x_cur), 5))
+        for k in range(5):
+            step = zero.copy()
+            step[k] = eps
+            jacobian[:, k] = (residuals(*params_to_pose(step, rotation, translation, basis)) - current) / eps
+        weights = 1.0 / (1.0 + current**2 / c2)  # IRLS weights of the Cauchy loss
+        jtw = jacobian.T * weights
+        hessian = jtw @ jacobian
+        gradient = jtw @ current
+        improved = False
+        for _ in range(5):
+            delta = -np.linalg.solve(hessian + damping * np.diag(np.diag(hessian) + 1e-12), gradient)
+            r_new, t_new = params_to_pose(delta, rotation, translation, basis)
+            candidate = residuals(r_new, t_new)
+            candidate_cost = cost(candidate)
+            if candidate_cost < current_cost:
+                rotation, translation, current, current_cost = r_new, t_new, candidate, candidate_cost
+                damping = max(damping / 10, 1e-9)
+                improved = True
+                break
+            damping *= 10
+        if not improved or np.linalg.norm(delta) < 1e-10:
+            break
+    return rotation, translation

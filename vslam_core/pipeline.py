@@ -1,0 +1,78 @@
+"""Run a source through the engine: one `FrameResult` per input frame, handed to optional sinks.
+
+No I/O beyond reading the source, no Rerun: the CLI passes a recorder as a sink.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+from vslam_core.config import EngineConfig
+from vslam_core.engine import Odometry
+from vslam_core.results import FrameResult, FrameStatus
+from vslam_core.scale import make_scale_provider
+from vslam_core.sources.base import Frame, FrameSource
+
+FrameSink = Callable[[Frame, FrameResult], None]
+
+
+@dataclass
+class RunResult:
+    """The trajectory of a run so far (complete once `run_odometry` returned)."""
+
+    indices: list[int]  # source frame indices, one per processed frame
+    timestamps: list[float | None]
+    poses: list[np.ndarray]  # (4, 4) T_world_cam per processed frame
+    held: int = 0  # frames that kept the previous pose
+    seconds: float = 0.0  # wall time of the whole run, decoding and sinks included
+
+    @property
+    def frames(self) -> int:
+        return len(self.poses)
+
+    def pose_array(self) -> np.ndarray:
+        """(N, 4, 4) poses of the processed frames."""
+        return np.array(self.poses).reshape(-1, 4, 4)
+
+
+def iterate_timed(source: FrameSource) -> Iterator[tuple[Frame, float]]:
+    """The source's frames with the milliseconds spent decoding each."""
+    iterator = iter(source)
+    while True:
+        start = time.perf_counter()
+        try:
+            frame = next(iterator)
+        except StopIteration:
+            return
+        yield frame, (time.perf_counter() - start) * 1000.0
+
+
+def run_odometry(
+    source: FrameSource,
+    config: EngineConfig,
+    sinks: tuple[FrameSink, ...] = (),
+    result: RunResult | None = None,
+) -> RunResult:
+    """Estimate one pose per source frame. Fills `result` as it goes (pass one in to keep the frames
+    processed so far if the run is interrupted)."""
+    scale = make_scale_provider(config.scale, source.ground_truth)
+    engine = Odometry(source.intrinsics, config, scale)
+    run = result if result is not None else RunResult([], [], [])
+    start = time.perf_counter()
+    try:
+        for frame, decode_ms in iterate_timed(source):
+            frame_result = engine.process(frame)
+            frame_result.timings_ms["decode"] = decode_ms
+            run.indices.append(frame.index)
+            run.timestamps.append(frame.timestamp)
+            run.poses.append(frame_result.T_world_cam)
+            run.held += frame_result.status == FrameStatus.HELD
+            for sink in sinks:
+                sink(frame, frame_result)
+    finally:
+        run.seconds = time.perf_counter() - start
+    return run

@@ -1,0 +1,81 @@
+"""The typed per-frame result: every intermediate the engine computed, for the recording and debuggers.
+
+Shapes: M = tracks that reached this frame's tracking step, K = corners detected in this frame,
+P = triangulated points. Pixel coordinates are (x right, y down). Poses are 4x4 camera-to-world.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import IntEnum, StrEnum
+
+import numpy as np
+
+from vslam_core.geometry import CandidatePose
+
+
+class TrackFate(IntEnum):
+    """What happened to a track in this frame (also the class ids of the recording's legend)."""
+
+    LOST = 0  # KLT failed or the point left the image
+    FB_REJECTED = 1  # failed the forward–backward check
+    NOT_USED = 2  # tracked, but born after the keyframe (no reference position yet)
+    RANSAC_OUTLIER = 3
+    CHIRALITY_FAILED = 4  # RANSAC inlier, triangulated behind a camera under the chosen pose
+    INLIER = 5
+
+
+class FrameStatus(StrEnum):
+    INIT = "init"  # first frame: identity pose, corners detected
+    OK = "ok"  # motion estimated, keyframe advanced
+    HELD = "held"  # motion not trusted: previous pose kept (see reason)
+
+
+class Reason(StrEnum):
+    """Why a frame held its pose."""
+
+    TOO_FEW_TRACKS = "too_few_tracks"
+    LOW_PARALLAX = "low_parallax"
+    NO_ESSENTIAL = "no_essential_matrix"
+    TOO_FEW_INLIERS = "too_few_inliers"
+    CHIRALITY = "ambiguous_chirality"
+
+
+@dataclass(frozen=True)
+class FrameResult:
+    """Everything the engine knows about one frame."""
+
+    position: int  # 0-based position of the frame in this run
+    index: int  # the frame's index in its source
+    timestamp: float | None
+    T_world_cam: np.ndarray  # (4, 4) pose of this frame  # noqa: N815
+    status: FrameStatus
+    reason: Reason | None
+    keyframe_position: int  # run position of the reference frame the motion was measured from
+    image_shape: tuple[int, int]
+    # Tracking, frame to frame (M tracks that entered this step)
+    track_ids: np.ndarray  # (M,) int64
+    track_prev: np.ndarray  # (M, 2) float32 position in the previous frame
+    track_cur: np.ndarray  # (M, 2) float32 position in this frame (meaningless where LOST)
+    track_age: np.ndarray  # (M,) int32 frames the track has lived, this one included
+    track_fate: np.ndarray  # (M,) uint8 TrackFate
+    # Detection (after the pose step): K new corners that start tracks in this frame
+    new_corner_ids: np.ndarray  # (K,) int64
+    new_corners: np.ndarray  # (K, 2) float32
+    live_tracks: int  # tracks alive at the end of the frame
+    # Two-view geometry (keyframe -> this frame); None / empty when not reached
+    essential: np.ndarray | None  # (3, 3)
+    candidate_poses: tuple[CandidatePose, ...]  # the four decompositions of E with chirality counts
+    chosen_candidate: int | None
+    T_key_cur: np.ndarray | None  # (4, 4) scaled relative motion, X_key = R·X_cur + t  # noqa: N815
+    points_world: np.ndarray  # (P, 3) triangulated inliers in world coordinates (scaled)
+    scale: float | None  # length of this step's translation (metres with gt scale)
+    parallax_px: float  # median displacement keyframe -> this frame of the tracks used
+    timings_ms: dict[str, float] = field(default_factory=dict)  # stage -> milliseconds
+
+    @property
+    def inlier_count(self) -> int:
+        return int(np.count_nonzero(self.track_fate == TrackFate.INLIER))
+
+    def fate_counts(self) -> dict[str, int]:
+        return {fate.name.lower(): int(np.count_nonzero(self.track_fate == fate)) for fate in TrackFate}

@@ -1,0 +1,131 @@
+"""The one small interface every data source implements.
+
+A source yields `Frame`s (index in the source, timestamp, grey image), knows its camera intrinsics and
+may know ground truth. Frames are selected with a `FrameRange` (Python slice semantics on the source's
+own frame indices: ``0:300`` is frames 0..299).
+
+Ground truth, when present, is an (N, 4, 4) array of camera-to-world poses T_w_c for the N *selected*
+frames, re-based so that the first selected frame is the identity (world = camera frame of the first
+frame, see ../shared/docs/conventions.md).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from vslam_core.errors import SourceError
+
+
+@dataclass(frozen=True)
+class CameraIntrinsics:
+    """Pinhole intrinsics of a rectified camera (pixels)."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+
+    @property
+    def K(self) -> np.ndarray:  # noqa: N802 - the standard name of the matrix
+        """(3, 3) float64 camera matrix."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One input frame.
+
+    index: the frame's index in its source (KITTI image number, video frame number).
+    timestamp: seconds since the start of the source, or None when the source has no clock.
+    image: (H, W) uint8 grey image.
+    """
+
+    index: int
+    timestamp: float | None
+    image: np.ndarray
+
+
+@dataclass(frozen=True)
+class FrameRange:
+    """A START:END[:STEP] selection of a source's frames (end exclusive, like a Python slice)."""
+
+    start: int | None = None
+    end: int | None = None
+    step: int = 1
+
+    @classmethod
+    def parse(cls, text: str | None) -> FrameRange:
+        """Parse ``"A:B"``, ``"A:B:S"``, ``":B"``, ``"A:"``; None or empty means every frame."""
+        if text is None or text.strip() == "":
+            return cls()
+        parts = text.strip().split(":")
+        if len(parts) not in (2, 3):
+            raise SourceError(f"--frames {text!r}: expected START:END[:STEP], e.g. 0:300 or 0:300:2")
+        try:
+            values = [int(p) if p.strip() else None for p in parts]
+        except ValueError:
+            raise SourceError(f"--frames {text!r}: START, END and STEP must be integers") from None
+        start, end = values[0], values[1]
+        step = values[2] if len(values) == 3 and values[2] is not None else 1
+        if step < 1:
+            raise SourceError(f"--frames {text!r}: STEP must be at least 1")
+        if (start is not None and start < 0) or (end is not None and end < 0):
+            raise SourceError(f"--frames {text!r}: negative frame numbers are not supported")
+        if start is not None and end is not None and end <= start:
+            raise SourceError(f"--frames {text!r}: END must be greater than START")
+        return cls(start, end, step)
+
+    def indices(self, available: int) -> list[int]:
+        """The selected source indices among ``range(available)``; an error if the range is out of it."""
+        start = 0 if self.start is None else self.start
+        end = available if self.end is None else self.end
+        if start >= available or end > available:
+            raise SourceError(
+                f"--frames {self}: out of range, the source has {available} frames (0:{available})"
+            )
+        return list(range(start, end, self.step))
+
+    def __str__(self) -> str:
+        start = "" if self.start is None else str(self.start)
+        end = "" if self.end is None else str(self.end)
+        return f"{start}:{end}" + (f":{self.step}" if self.step != 1 else "")
+
+
+@runtime_checkable
+class FrameSource(Protocol):
+    """What the engine and the CLI need from any source of frames."""
+
+    @property
+    def name(self) -> str:
+        """Short name for file names and recording titles, e.g. ``kitti-00`` or ``synthetic-street``."""
+        ...
+
+    @property
+    def intrinsics(self) -> CameraIntrinsics: ...
+
+    @property
+    def ground_truth(self) -> np.ndarray | None:
+        """(N, 4, 4) T_w_c for the selected frames (first = identity), or None."""
+        ...
+
+    def __len__(self) -> int:
+        """Number of selected frames."""
+        ...
+
+    def __iter__(self) -> Iterator[Frame]: ...
+
+
+def rebase_poses(poses: np.ndarray) -> np.ndarray:
+    """Express (N, 4, 4) camera-to-world poses in the camera frame of the first one: T_0^-1 · T_i."""
+    if poses.ndim != 3 or poses.shape[1:] != (4, 4):
+        raise ValueError(f"expected (N, 4, 4) poses, got {poses.shape}")
+    if len(poses) == 0:
+        return poses.copy()
+    first_inv = np.linalg.inv(poses[0])
+    return np.einsum("ij,njk->nik", first_inv, poses)

@@ -1,0 +1,176 @@
+"""A folder of images (any camera), with intrinsics given or from a KITTI-style calib file.
+
+Images are the folder's ``.png .jpg .jpeg .bmp .tif .tiff`` files sorted by name; colour images are
+converted to grey. Intrinsics: an ``--intrinsics fx,fy,cx,cy`` string (`parse_intrinsics`, the image size
+is filled from the first image), a full `CameraIntrinsics`, or the ``P0:`` line of a KITTI ``calib.txt``
+(given, or found in the folder or its parent). Timestamps come from a ``times.txt`` in the folder or its
+parent, else None. Optional ground truth in KITTI or TUM format (row i = image i).
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterator
+from dataclasses import replace
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from vslam_core.errors import SourceError
+from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange
+from vslam_core.sources.kitti import (
+    GroundTruthFormat,
+    list_images,
+    read_grey_image,
+    read_ground_truth,
+    read_p0_intrinsics,
+    read_times,
+    select,
+    select_ground_truth,
+)
+
+
+class PartialIntrinsics(NamedTuple):
+    """Pinhole intrinsics without the image size (pixels); `complete` adds it."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+
+    def complete(self, width: int, height: int) -> CameraIntrinsics:
+        """The full `CameraIntrinsics` for images of ``width`` x ``height`` pixels."""
+        return CameraIntrinsics(self.fx, self.fy, self.cx, self.cy, width=width, height=height)
+
+
+def parse_intrinsics(text: str) -> PartialIntrinsics:
+    """Parse ``"fx,fy,cx,cy"`` (commas and/or spaces) into `PartialIntrinsics`; `SourceError` if malformed."""
+    fields = [f for f in re.split(r"[,\s]+", text.strip()) if f]
+    if len(fields) != 4:
+        raise SourceError(f"--intrinsics {text!r}: expected 4 numbers fx,fy,cx,cy, found {len(fields)}")
+    try:
+        fx, fy, cx, cy = (float(f) for f in fields)
+    except ValueError:
+        raise SourceError(f"--intrinsics {text!r}: fx, fy, cx and cy must be numbers") from None
+    if not all(np.isfinite([fx, fy, cx, cy])) or fx <= 0 or fy <= 0:
+        raise SourceError(f"--intrinsics {text!r}: fx and fy must be positive, every value finite")
+    return PartialIntrinsics(fx, fy, cx, cy)
+
+
+def complete_intrinsics(
+    intrinsics: CameraIntrinsics | PartialIntrinsics, width: int, height: int, where: object
+) -> CameraIntrinsics:
+    """Intrinsics for images of ``width`` x ``height``: a `PartialIntrinsics` is completed, a
+    `CameraIntrinsics` with width/height 0 gets the size, one with another size is a `SourceError`."""
+    if isinstance(intrinsics, PartialIntrinsics):
+        return intrinsics.complete(width, height)
+    if intrinsics.width == 0 and intrinsics.height == 0:
+        return replace(intrinsics, width=width, height=height)
+    if (intrinsics.width, intrinsics.height) != (width, height):
+        raise SourceError(
+            f"{where}: images are {width}x{height} but the intrinsics are for "
+            f"{intrinsics.width}x{intrinsics.height}"
+        )
+    return intrinsics
+
+
+def _beside(folder: Path, name: str) -> Path | None:
+    """``folder/name`` or ``folder/../name``, whichever exists first (None if neither)."""
+    for candidate in (folder / name, folder.resolve().parent / name):
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+def _short_name(folder: Path) -> str:
+    """A file-name-safe name for the folder (``seq/image_0`` -> ``seq-image_0``)."""
+    resolved = folder.resolve()
+    name = resolved.name
+    if re.fullmatch(r"image_?\d*|images?|frames?", name, flags=re.IGNORECASE) and resolved.parent.name:
+        name = f"{resolved.parent.name}-{name}"
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", name) or "folder"
+
+
+class ImageFolderSource:
+    """Frames from a folder of images.
+
+    intrinsics: `CameraIntrinsics` or `PartialIntrinsics` (e.g. from `parse_intrinsics`); the size is
+    taken from the first selected image. calib: a KITTI-style calib file (``P0:`` line) instead. With
+    neither, a ``calib.txt`` in the folder or its parent is used if there is one; giving both is an error.
+    ground_truth: optional KITTI or TUM poses file (``gt_format`` "auto" guesses from the columns), one
+    row per image in file order (extra rows ignored, fewer is an error), re-based to the first selected
+    frame. Images are decoded lazily; one of another size than the first selected is a `SourceError`.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        intrinsics: CameraIntrinsics | PartialIntrinsics | None = None,
+        calib: str | Path | None = None,
+        ground_truth: str | Path | None = None,
+        gt_format: GroundTruthFormat = "auto",
+        frames: FrameRange | None = None,
+    ):
+        self.folder = Path(path)
+        self._files = list_images(self.folder)
+        self._indices = select(frames, len(self._files), self.folder)
+        first = read_grey_image(self._files[self._indices[0]])
+        self._size = (first.shape[1], first.shape[0])
+
+        if intrinsics is not None and calib is not None:
+            raise SourceError(f"{self.folder}: give either intrinsics or a calib file, not both")
+        if intrinsics is None:
+            calib_file = Path(calib) if calib is not None else _beside(self.folder, "calib.txt")
+            if calib_file is None:
+                raise SourceError(
+                    f"{self.folder}: no camera intrinsics: give --intrinsics fx,fy,cx,cy or a calib file"
+                )
+            intrinsics = PartialIntrinsics(*read_p0_intrinsics(calib_file))
+        self._intrinsics = complete_intrinsics(intrinsics, self._size[0], self._size[1], self.folder)
+
+        times_file = _beside(self.folder, "times.txt")
+        self._times = None if times_file is None else read_times(times_file, len(self._files))
+        self._ground_truth = (
+            None
+            if ground_truth is None
+            else select_ground_truth(
+                read_ground_truth(Path(ground_truth), len(self._files), gt_format), self._indices
+            )
+        )
+        self._name = _short_name(self.folder)
+
+    @property
+    def name(self) -> str:
+        return self._name
+
+    @property
+    def intrinsics(self) -> CameraIntrinsics:
+        return self._intrinsics
+
+    @property
+    def ground_truth(self) -> np.ndarray | None:
+        """(N, 4, 4) T_w_c of the selected frames (first = identity), or None."""
+        return None if self._ground_truth is None else self._ground_truth.copy()
+
+    @property
+    def files(self) -> list[Path]:
+        """Every image file of the folder, sorted (source index i = files[i])."""
+        return list(self._files)
+
+    @property
+    def indices(self) -> list[int]:
+        """The selected source indices."""
+        return list(self._indices)
+
+    def __len__(self) -> int:
+        return len(self._indices)
+
+    def __iter__(self) -> Iterator[Frame]:
+        for index in self._indices:
+            image = read_grey_image(self._files[index], self._size)
+            stamp = None if self._times is None else self._times[index]
+            yield Frame(index=index, timestamp=stamp, image=image)
+
+    def __repr__(self) -> str:
+        return f"ImageFolderSource({str(self.folder)!r}, frames={len(self)})"

@@ -1,0 +1,238 @@
+"""KITTI odometry sequences, and the file readers the other sources share.
+
+Layout (the official ``data_odometry_gray`` + ``data_odometry_poses``)::
+
+    ROOT/sequences/NN/image_0/000000.png …   left grey camera
+    ROOT/sequences/NN/calib.txt              ``P0: `` + 12 numbers (3x4 projection matrix, row-major)
+    ROOT/sequences/NN/times.txt              one timestamp (s) per image (optional)
+    ROOT/poses/NN.txt                        ground truth, KITTI format (optional; may hold more rows)
+
+The readers here (`read_p0_intrinsics`, `read_times`, `read_ground_truth`, `list_images`,
+`read_grey_image`) are also used by `ImageFolderSource` and `VideoSource`; every problem is a one-line
+`SourceError` (or `TrajectoryFormatError` for a malformed poses file) naming the file.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Literal
+
+import cv2
+import numpy as np
+
+from vslam_core.errors import SourceError
+from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange, rebase_poses
+from vslam_core.trajectory_io import detect_format, read_kitti_poses, read_tum_poses
+
+GroundTruthFormat = Literal["kitti", "tum", "auto"]
+
+#: Image file extensions a folder of frames may hold (compared case-insensitively).
+IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+
+
+# --------------------------------------------------------------------------------------------------
+# shared readers
+
+
+def read_p0_intrinsics(calib: Path) -> tuple[float, float, float, float]:
+    """(fx, fy, cx, cy) from the ``P0:`` line of a KITTI ``calib.txt`` (fx=P[0,0], fy=P[1,1], cx=P[0,2],
+    cy=P[1,2] of the row-major 3x4 matrix). Raises `SourceError` naming the file when it is missing, has
+    no ``P0:`` line, or the line does not hold 12 numbers."""
+    try:
+        lines = calib.read_text().splitlines()
+    except FileNotFoundError:
+        raise SourceError(f"{calib}: calibration file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SourceError(f"{calib}: cannot read calibration file ({exc.__class__.__name__})") from None
+    for number, line in enumerate(lines, start=1):
+        key, colon, rest = line.strip().partition(":")
+        if key.strip() != "P0" or not colon:
+            continue
+        fields = rest.split()
+        if len(fields) != 12:
+            raise SourceError(f"{calib}:{number}: P0 needs 12 numbers (3x4 matrix), found {len(fields)}")
+        try:
+            p = np.array([float(v) for v in fields]).reshape(3, 4)
+        except ValueError:
+            raise SourceError(f"{calib}:{number}: P0 holds something that is not a number") from None
+        if not np.all(np.isfinite(p)) or p[0, 0] <= 0 or p[1, 1] <= 0:
+            raise SourceError(f"{calib}:{number}: P0 focal lengths must be finite and positive")
+        return float(p[0, 0]), float(p[1, 1]), float(p[0, 2]), float(p[1, 2])
+    raise SourceError(f"{calib}: no 'P0:' line (expected 'P0: ' followed by 12 numbers)")
+
+
+def read_times(path: Path, count: int) -> list[float]:
+    """The first ``count`` timestamps (seconds, one a line) of a KITTI ``times.txt``.
+
+    Raises `SourceError` naming the file for a non-number or fewer than ``count`` lines."""
+    try:
+        lines = path.read_text().splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SourceError(f"{path}: cannot read timestamps ({exc.__class__.__name__})") from None
+    times: list[float] = []
+    for number, line in enumerate(lines, start=1):
+        stripped = line.strip()
+        if not stripped or stripped.startswith("#"):
+            continue
+        if len(times) == count:
+            break
+        try:
+            times.append(float(stripped.split()[0]))
+        except ValueError:
+            raise SourceError(f"{path}:{number}: timestamp {stripped[:40]!r} is not a number") from None
+    if len(times) < count:
+        raise SourceError(f"{path}: {len(times)} timestamps for {count} images")
+    return times
+
+
+def read_ground_truth(path: Path, count: int, fmt: GroundTruthFormat = "auto") -> np.ndarray:
+    """The first ``count`` poses (count, 4, 4) of a KITTI or TUM trajectory file, in file order.
+
+    ``fmt="auto"`` guesses from the column count. The file may hold more rows than ``count`` (only the
+    first are kept); fewer is a `SourceError`, a malformed file a `TrajectoryFormatError` (both name
+    the file). TUM timestamps are ignored: row i belongs to frame i.
+    """
+    if not path.is_file():
+        raise SourceError(f"{path}: ground-truth file not found")
+    kind = detect_format(path) if fmt == "auto" else fmt
+    if kind == "kitti":
+        poses = read_kitti_poses(path, max_rows=count)
+    elif kind == "tum":
+        poses = read_tum_poses(path)[1][:count]
+    else:
+        raise SourceError(f"{path}: unknown ground-truth format {fmt!r} (kitti, tum or auto)")
+    if len(poses) < count:
+        raise SourceError(f"{path}: {len(poses)} poses for {count} frames (need one pose per frame)")
+    return poses
+
+
+def list_images(folder: Path, what: str = "image folder") -> list[Path]:
+    """The image files of ``folder`` sorted by name; `SourceError` when it is missing or holds none."""
+    if not folder.exists():
+        raise SourceError(f"{folder}: {what} not found")
+    if not folder.is_dir():
+        raise SourceError(f"{folder}: {what} is not a folder")
+    images = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS and p.is_file())
+    if not images:
+        raise SourceError(f"{folder}: no images ({', '.join(IMAGE_EXTENSIONS)}) in the {what}")
+    return images
+
+
+def read_grey_image(path: Path, size: tuple[int, int] | None = None) -> np.ndarray:
+    """Decode one image as (H, W) uint8 grey (colour is converted). ``size`` = (width, height) expected.
+
+    Raises `SourceError` naming the file when it cannot be decoded or has another size."""
+    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if image is None or image.size == 0:
+        raise SourceError(f"{path}: cannot read image (missing, corrupt or not an image)")
+    if size is not None and (image.shape[1], image.shape[0]) != size:
+        raise SourceError(
+            f"{path}: image is {image.shape[1]}x{image.shape[0]}, the first frame is {size[0]}x{size[1]}"
+        )
+    return image
+
+
+def select(frames: FrameRange | None, available: int, where: object) -> list[int]:
+    """``frames.indices(available)`` (every frame when None); `SourceError` if nothing is selected."""
+    try:
+        indices = (frames or FrameRange()).indices(available)
+    except SourceError as exc:
+        raise SourceError(f"{where}: {exc}") from None
+    if not indices:
+        raise SourceError(f"{where}: --frames {frames} selects no frame")
+    return indices
+
+
+def select_ground_truth(poses: np.ndarray, indices: list[int]) -> np.ndarray:
+    """The poses of the selected frames, re-based so that the first selected frame is the identity."""
+    return rebase_poses(poses[np.asarray(indices)])
+
+
+def normalise_sequence(sequence: str) -> str:
+    """``"0"`` / ``"00"`` / ``" 5 "`` -> ``"00"`` / ``"05"``; other names are kept as they are."""
+    text = sequence.strip()
+    if not text:
+        raise SourceError("KITTI sequence name is empty (expected e.g. 00 or 05)")
+    return f"{int(text):02d}" if text.isdigit() else text
+
+
+# --------------------------------------------------------------------------------------------------
+# the source
+
+
+class KittiSource:
+    """Frames of one KITTI odometry sequence (left grey camera ``image_0``).
+
+    path: the dataset root (then ``sequence`` is required, "0" or "00" both mean ``sequences/00``) or a
+    sequence folder (``…/sequences/NN``; the ground truth is then ``../../poses/NN.txt`` when present).
+    frames: the selection (default all). Intrinsics come from ``calib.txt`` (P0), the image size from
+    the first selected image; timestamps from ``times.txt`` when present (else None); ground truth
+    from ``poses/NN.txt`` when present (its first N rows, N = number of images), re-based to the first
+    selected frame. Images are decoded lazily, one per iteration step.
+    """
+
+    def __init__(self, path: str | Path, sequence: str | None = None, frames: FrameRange | None = None):
+        root = Path(path)
+        if not root.exists():
+            raise SourceError(f"{root}: KITTI folder not found")
+        if sequence is not None:
+            self.sequence = normalise_sequence(sequence)
+            self.folder = root / "sequences" / self.sequence
+            if not self.folder.is_dir():
+                raise SourceError(f"{self.folder}: KITTI sequence {self.sequence} not found")
+            poses_file = root / "poses" / f"{self.sequence}.txt"
+        elif (root / "image_0").is_dir():
+            self.folder = root
+            self.sequence = normalise_sequence(root.resolve().name)
+            poses_file = root.resolve().parent.parent / "poses" / f"{self.sequence}.txt"
+        elif (root / "sequences").is_dir():
+            raise SourceError(f"{root}: a KITTI dataset root; say which sequence (e.g. sequence 00)")
+        else:
+            raise SourceError(f"{root}: not a KITTI sequence folder (no image_0/) nor a dataset root")
+
+        self._files = list_images(self.folder / "image_0", "KITTI image folder")
+        self._indices = select(frames, len(self._files), self.folder)
+        fx, fy, cx, cy = read_p0_intrinsics(self.folder / "calib.txt")
+        first = read_grey_image(self._files[self._indices[0]])
+        self._size = (first.shape[1], first.shape[0])
+        self._intrinsics = CameraIntrinsics(fx, fy, cx, cy, width=self._size[0], height=self._size[1])
+
+        times_file = self.folder / "times.txt"
+        self._times = read_times(times_file, len(self._files)) if times_file.is_file() else None
+        self.poses_file = poses_file if poses_file.is_file() else None
+        self._ground_truth = (
+            select_ground_truth(read_ground_truth(poses_file, len(self._files), "kitti"), self._indices)
+            if self.poses_file is not None
+            else None
+        )
+
+    @property
+    def name(self) -> str:
+        return f"kitti-{self.sequence}"
+
+    @property
+    def intrinsics(self) -> CameraIntrinsics:
+        return self._intrinsics
+
+    @property
+    def ground_truth(self) -> np.ndarray | None:
+        """(N, 4, 4) T_w_c of the selected frames (first = identity), or None without a poses file."""
+        return None if self._ground_truth is None else self._ground_truth.copy()
+
+    @property
+    def indices(self) -> list[int]:
+        """The selected source indices (image numbers)."""
+        return list(self._indices)
+
+    def __len__(self) -> int:
+        return len(self._indices)
+
+    def __iter__(self) -> Iterator[Frame]:
+        for index in self._indices:
+            image = read_grey_image(self._files[index], self._size)
+            stamp = None if self._times is None else self._times[index]
+            yield Frame(index=index, timestamp=stamp, image=image)
+
+    def __repr__(self) -> str:
+        return f"KittiSource({str(self.folder)!r}, frames={len(self)})"

@@ -1,0 +1,60 @@
+"""Pick the right source for what a user pointed at (used by the CLI)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from vslam_core.errors import SourceError
+from vslam_core.sources.base import FrameRange, FrameSource
+from vslam_core.sources.folder import ImageFolderSource, PartialIntrinsics, parse_intrinsics
+from vslam_core.sources.kitti import GroundTruthFormat, KittiSource, read_p0_intrinsics
+from vslam_core.sources.synthetic import SyntheticStreet
+from vslam_core.sources.video import VideoSource
+
+VIDEO_SUFFIXES = {".mp4", ".avi", ".mkv", ".mov", ".webm", ".m4v", ".mpg", ".mpeg"}
+SYNTHETIC = "synthetic"
+
+
+def open_source(
+    spec: str | None,
+    *,
+    sequence: str | None = None,
+    frames: FrameRange | None = None,
+    intrinsics: str | None = None,
+    calib: Path | None = None,
+    ground_truth: Path | None = None,
+    gt_format: GroundTruthFormat = "auto",
+) -> FrameSource:
+    """None or "synthetic": the embedded synthetic street. A video file: `VideoSource`. A folder with
+    ``sequences/`` or ``image_0/``: KITTI. Any other folder: `ImageFolderSource`."""
+    if spec is None or spec == SYNTHETIC:
+        return SyntheticStreet(frames=frames)
+    path = Path(spec)
+    if not path.exists():
+        raise SourceError(f"{path}: no such file or folder")
+    if path.is_file():
+        if path.suffix.lower() not in VIDEO_SUFFIXES:
+            raise SourceError(f"{path}: not a video ({', '.join(sorted(VIDEO_SUFFIXES))}) nor a folder")
+        if intrinsics is None and calib is None:
+            raise SourceError(f"{path}: a video needs --intrinsics fx,fy,cx,cy")
+        return VideoSource(path, _intrinsics(intrinsics, calib), frames=frames, ground_truth=ground_truth,
+                           gt_format=gt_format)
+    if (path / "sequences").is_dir() or (path / "image_0").is_dir():
+        return KittiSource(path, sequence=sequence, frames=frames)
+    return ImageFolderSource(
+        path,
+        intrinsics=parse_intrinsics(intrinsics) if intrinsics is not None else None,
+        calib=calib,
+        ground_truth=ground_truth,
+        gt_format=gt_format,
+        frames=frames,
+    )
+
+
+def _intrinsics(text: str | None, calib: Path | None) -> PartialIntrinsics:
+    """Intrinsics from an "fx,fy,cx,cy" string, else from a calib file's P0 line."""
+    if text is not None:
+        return parse_intrinsics(text)
+    if calib is None:
+        raise SourceError("camera intrinsics needed: --intrinsics fx,fy,cx,cy or --calib FILE")
+    return PartialIntrinsics(*read_p0_intrinsics(calib))

@@ -1,0 +1,789 @@
+"""Synthetic street: a deterministic procedural renderer, the project's embedded default data source.
+
+Nothing is downloaded: the scene is generated from a seed and rendered on demand.
+
+Scene, in an internal *map* frame M (x east, y north, z up, metres; never exposed):
+
+- the ground plane z = 0: asphalt road with lane markings, kerbs, sidewalks and repair patches along
+  a smooth centreline with left and right curves, plus a fine, non-repeating speckle;
+- building façades on both sides of the road at varying setbacks (5..12 m from the centreline), in
+  blocks of 10..25 m with gaps; each building is a chain of planar textured rectangles following the
+  road plus two side walls;
+- a panorama at infinity (hills with trees, sky) seen above and between the buildings.
+
+The camera (OpenCV/KITTI axes: x right, y down, z forward) drives in the right lane, ``camera_height``
+above the road, at 0.83..1.17 m per frame, with small pitch and roll oscillations (< 1 degree).
+
+Rendering is exact per-pixel ray casting with a z-buffer: for a plane, the pixel -> surface mapping
+is a homography whose third row is the inverse depth 1/z, affine in the pixel coordinates. Each
+rectangle is tested only inside the bounding box of its near-clipped projection; textures are
+sampled with bilinear interpolation from mip-map pyramids (trilinear filtering), so there is no
+aliasing. Ground truth is the exact poses used for rendering.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange, rebase_poses
+
+_INTRINSICS = CameraIntrinsics(fx=718.856, fy=718.856, cx=607.1928, cy=185.2157, width=1241, height=376)
+_FRAME_DT = 0.1  # seconds between frames
+
+# Road and path (metres).
+_ROAD_HALF_WIDTH = 3.5
+_SIDEWALK_HALF_WIDTH = 5.0
+_LANE_OFFSET = -1.6  # camera's lateral offset from the centreline (+ = left): the right lane
+_START_S = 20.0  # arc length of the first camera position (buildings exist behind it)
+_CENTRELINE_STEP = 0.25
+_LOOK_AHEAD = 130.0  # scene generated beyond the last camera position
+
+# Rendering.
+_NEAR = 0.05  # metres; rectangles are clipped at this camera depth
+_FAR = 100.0  # metres; rectangles whose nearest point is farther are culled
+_GROUND_FAR = 300.0  # metres; farther ground shows the panorama (hills) instead
+_FACADE_RES = 0.04  # metres per texel
+_SIDEWALL_RES = 0.06
+_COARSE_RES = 0.1  # ground layout texture (road, markings, patches)
+_FINE_RES = 0.015  # ground speckle tile
+_FINE_TILE = 1024
+_ATLAS_WIDTH = 4096
+_ATLAS_PAD = 16
+_MIP_LEVELS = 7
+_PANO_ELEV_MIN = -0.12  # radians
+_PANO_ELEV_MAX = 0.6
+
+
+# ----------------------------------------------------------------------------------------------------
+# Road centreline and camera path
+# ----------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Centreline:
+    """Road centreline sampled every `_CENTRELINE_STEP` metres of arc length (map frame, z = 0).
+
+    s: (M,) arc length; xy: (M, 2) positions; heading: (M,) radians counter-clockwise from map x;
+    curvature: (M,) 1/m, positive = turning left.
+    """
+
+    s: np.ndarray
+    xy: np.ndarray
+    heading: np.ndarray
+    curvature: np.ndarray
+
+    def frame_at(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(n,) arc lengths -> positions (n, 2), headings (n,), left unit normals (n, 2)."""
+        xy = np.stack([np.interp(s, self.s, self.xy[:, 0]), np.interp(s, self.s, self.xy[:, 1])], axis=1)
+        heading = np.interp(s, self.s, self.heading)
+        normal = np.stack([-np.sin(heading), np.cos(heading)], axis=1)
+        return xy, heading, normal
+
+    def curvature_at(self, s: float) -> float:
+        """Curvature (1/m) at arc length s."""
+        return float(np.interp(s, self.s, self.curvature))
+
+
+def _make_centreline(length: float, rng: np.random.Generator) -> _Centreline:
+    """A smooth road of the given length: straights and 60..90 degree curves, alternating left/right.
+
+    Curvature ramps in and out smoothly (sin^2), so the heading is smooth; the tightest radius is ~28 m.
+    """
+    plan = [(35.0, 0.0), (60.0, 90.0), (45.0, 0.0), (70.0, -90.0), (35.0, 0.0), (50.0, 60.0),
+            (40.0, 0.0), (60.0, -75.0)]  # (segment length m, heading change deg)
+    s = np.arange(0.0, length + _CENTRELINE_STEP, _CENTRELINE_STEP)
+    curvature = np.zeros_like(s)
+    start, k = 0.0, 0
+    while start < length:
+        seg_len, angle = plan[k % len(plan)]
+        seg_len *= rng.uniform(0.9, 1.1)
+        if angle != 0.0:
+            total = math.radians(angle) * rng.uniform(0.85, 1.05)
+            t = (s - start) / seg_len
+            inside = (t >= 0.0) & (t < 1.0)
+            ramp = 0.25  # sin^2 ramps over the first and last quarter, constant in between
+            shape = np.sin(0.5 * np.pi * np.minimum(np.minimum(t, 1.0 - t) / ramp, 1.0)) ** 2
+            curvature[inside] = total / (seg_len * (1.0 - ramp)) * shape[inside]
+        start += seg_len
+        k += 1
+    heading = np.concatenate([[0.0], np.cumsum(0.5 * (curvature[1:] + curvature[:-1]) * _CENTRELINE_STEP)])
+    direction = np.stack([np.cos(heading), np.sin(heading)], axis=1)
+    steps = 0.5 * (direction[1:] + direction[:-1]) * _CENTRELINE_STEP
+    xy = np.concatenate([np.zeros((1, 2)), np.cumsum(steps, axis=0)])
+    return _Centreline(s=s, xy=xy, heading=heading, curvature=curvature)
+
+
+def _rotation_x(angle: float) -> np.ndarray:
+    """(3, 3) rotation about x by `angle` radians."""
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def _rotation_z(angle: float) -> np.ndarray:
+    """(3, 3) rotation about z by `angle` radians."""
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _camera_path(line: _Centreline, n_frames: int, camera_height: float, rng: np.random.Generator) -> np.ndarray:
+    """Camera poses T_m_c (n_frames, 4, 4) in the map frame.
+
+    The camera follows the right lane at `camera_height` above the road (z = 0), looking along the road
+    tangent, with speed 0.83..1.17 m/frame (measured along its own lane) and pitch/roll oscillations.
+    """
+    phase = rng.uniform(0.0, 2.0 * np.pi, 5)
+    i = np.arange(n_frames, dtype=np.float64)
+    speed = 1.0 + 0.12 * np.sin(2 * np.pi * i / 83 + phase[0]) + 0.05 * np.sin(2 * np.pi * i / 19 + phase[1])
+    pitch = np.radians(0.6) * np.sin(2 * np.pi * i / 41 + phase[2]) + np.radians(0.2) * np.sin(
+        2 * np.pi * i / 11 + phase[3]
+    )
+    roll = np.radians(0.6) * np.sin(2 * np.pi * i / 29 + phase[4])
+    arc = np.empty(n_frames)
+    arc[0] = _START_S
+    for k in range(1, n_frames):  # lane arc length = (1 - offset * curvature) * centreline arc length
+        arc[k] = arc[k - 1] + speed[k - 1] / (1.0 - _LANE_OFFSET * line.curvature_at(arc[k - 1]))
+    xy, heading, normal = line.frame_at(arc)
+    position = xy + _LANE_OFFSET * normal
+    poses = np.tile(np.eye(4), (n_frames, 1, 1))
+    for k in range(n_frames):
+        c, s = math.cos(heading[k]), math.sin(heading[k])
+        # Columns: camera x (right), y (down), z (forward) in map coordinates.
+        base = np.array([[s, 0.0, c], [-c, 0.0, s], [0.0, -1.0, 0.0]])
+        poses[k, :3, :3] = base @ _rotation_x(pitch[k]) @ _rotation_z(roll[k])
+        poses[k, :3, 3] = (position[k, 0], position[k, 1], camera_height)
+    return poses
+
+
+# ----------------------------------------------------------------------------------------------------
+# Textures
+# ----------------------------------------------------------------------------------------------------
+
+
+def _periodic_noise(
+    shape: tuple[int, int], rng: np.random.Generator, min_wavelength: float, max_wavelength: float
+) -> np.ndarray:
+    """(H, W) float32 tileable band-pass noise (zero mean, unit std), wavelengths in texels, ~1/f spectrum."""
+    h, w = shape
+    spectrum = np.fft.rfft2(rng.standard_normal(shape))
+    k = np.hypot(np.fft.fftfreq(h)[:, None], np.fft.rfftfreq(w)[None, :])
+    band = (k >= 1.0 / max_wavelength) & (k <= 1.0 / min_wavelength)
+    noise = np.fft.irfft2(spectrum * band / np.sqrt(np.maximum(k, 1e-6)), s=shape)
+    return ((noise - noise.mean()) / (noise.std() + 1e-12)).astype(np.float32)
+
+
+def _smooth_field(shape: tuple[int, int], cell: int, rng: np.random.Generator) -> np.ndarray:
+    """(H, W) float32 smooth random field (unit-ish std) varying over about `cell` texels."""
+    h, w = shape
+    small = rng.standard_normal((h // cell + 2, w // cell + 2)).astype(np.float32)
+    return cv2.resize(small, (w, h), interpolation=cv2.INTER_CUBIC)
+
+
+def _rect(img: np.ndarray, x0: float, y0: float, x1: float, y1: float, value: float, res: float) -> None:
+    """Fill the rectangle [x0, x1] x [y0, y1] (metres; y down from the texture top) with `value`."""
+    cv2.rectangle(img, (round(x0 / res), round(y0 / res)), (round(x1 / res) - 1, round(y1 / res) - 1),
+                  float(value), thickness=-1)
+
+
+def _window(img: np.ndarray, x: float, y: float, w: float, h: float, wall: float,
+            rng: np.random.Generator, res: float) -> None:
+    """Draw one window (frame, glass, mullions, curtain, sill) with its top-left at (x, y) metres."""
+    frame = float(np.clip(wall + rng.choice([-1.0, 1.0]) * rng.uniform(45, 90), 0, 255))
+    _rect(img, x, y, x + w, y + h, frame, res)
+    glass = rng.uniform(10, 70) if rng.random() < 0.7 else rng.uniform(150, 245)
+    b = 0.08
+    _rect(img, x + b, y + b, x + w - b, y + h - b, glass, res)
+    if rng.random() < 0.45:  # curtain or blind
+        depth = rng.uniform(0.15, 0.7) * h
+        left = rng.random() < 0.5
+        cx0, cx1 = (x + b, x + b + rng.uniform(0.3, 1.0) * (w - 2 * b)) if left else (x + b, x + w - b)
+        _rect(img, cx0, y + b, cx1, y + b + depth, rng.uniform(90, 235), res)
+    if rng.random() < 0.6:  # mullions
+        _rect(img, x + w / 2 - 0.03, y, x + w / 2 + 0.03, y + h, frame, res)
+        if rng.random() < 0.5:
+            ym = y + h * rng.uniform(0.25, 0.45)
+            _rect(img, x, ym - 0.03, x + w, ym + 0.03, frame, res)
+    if rng.random() < 0.7:  # sill
+        _rect(img, x - 0.1, y + h, x + w + 0.1, y + h + 0.1, np.clip(wall + rng.uniform(-70, 70), 0, 255), res)
+
+
+def _facade_texture(length: float, height: float, rng: np.random.Generator) -> np.ndarray:
+    """(H, W) float32 texture of a street façade `length` x `height` metres (row 0 = top of building).
+
+    Random bays and floors; every window differs (glass, curtains, mullions), shops on the ground floor.
+    """
+    res = _FACADE_RES
+    w, h = max(8, math.ceil(length / res)), max(8, math.ceil(height / res))
+    wall = rng.uniform(80, 200)
+    img = np.full((h, w), wall, np.float32) + 14.0 * _smooth_field((h, w), 40, rng)
+    ground_floor = rng.uniform(3.6, 4.6)
+    floor_h = rng.uniform(2.8, 3.5)
+    ratio_w, ratio_h = rng.uniform(0.4, 0.65), rng.uniform(0.45, 0.62)
+    bays: list[tuple[float, float]] = []
+    x = rng.uniform(0.3, 1.2)
+    while x < length - 1.2:
+        bay = min(rng.uniform(1.8, 3.4), length - x - 0.3)
+        bays.append((x, bay))
+        x += bay
+    cornice = rng.random() < 0.6
+    top = rng.uniform(0.4, 1.0)  # parapet
+    floor_top = top
+    while floor_top + floor_h < height - ground_floor:
+        if cornice:
+            _rect(img, 0.0, floor_top - 0.12, length, floor_top, np.clip(wall + rng.uniform(-60, 60), 0, 255), res)
+        for bx, bw in bays:
+            if rng.random() < 0.08:
+                continue
+            ww = bw * ratio_w * rng.uniform(0.92, 1.08)
+            _window(img, bx + (bw - ww) / 2, floor_top + floor_h * 0.28, ww, floor_h * ratio_h, wall, rng, res)
+        floor_top += floor_h
+    # Ground floor: shop fronts with a sign band, a big window and a door.
+    y_shop = height - ground_floor
+    x = 0.0
+    while x < length - 0.5:
+        shop = min(rng.uniform(3.0, 7.0), length - x)
+        sign = rng.uniform(20, 240)
+        _rect(img, x + 0.2, y_shop + 0.2, x + shop - 0.2, y_shop + 0.8, sign, res)
+        for _ in range(int(shop * 2.5)):  # "letters"
+            lx = x + rng.uniform(0.35, max(0.4, shop - 0.6))
+            _rect(img, lx, y_shop + 0.3, lx + rng.uniform(0.08, 0.3), y_shop + 0.7,
+                  255.0 - sign + rng.uniform(-30, 30), res)
+        door = rng.uniform(0.9, 1.4)
+        door_x = x + rng.uniform(0.3, max(0.35, shop - door - 0.3))
+        _rect(img, x + 0.25, y_shop + 1.0, x + shop - 0.25, height - 0.4, rng.uniform(15, 90), res)
+        _rect(img, x + 0.35, y_shop + 1.1, x + shop - 0.35, y_shop + 1.1 + rng.uniform(0.3, 1.2),
+              rng.uniform(120, 240), res)  # display / reflections
+        _rect(img, door_x, y_shop + 1.2, door_x + door, height, rng.uniform(0, 60), res)
+        _rect(img, door_x + 0.1, y_shop + 1.3, door_x + door - 0.1, y_shop + 1.6, rng.uniform(150, 250), res)
+        x += shop
+    _rect(img, 0.0, height - 0.3, length, height, np.clip(wall - 50, 0, 255), res)  # plinth
+    return img
+
+
+def _sidewall_texture(depth: float, height: float, rng: np.random.Generator) -> np.ndarray:
+    """(H, W) float32 texture of a building's side wall: plaster, a few windows, a drain pipe."""
+    res = _SIDEWALL_RES
+    w, h = max(8, math.ceil(depth / res)), max(8, math.ceil(height / res))
+    wall = rng.uniform(70, 190)
+    img = np.full((h, w), wall, np.float32) + 18.0 * _smooth_field((h, w), 25, rng)
+    for _ in range(rng.integers(2, 8)):
+        ww, wh = rng.uniform(0.6, 1.4), rng.uniform(0.8, 1.6)
+        _window(img, rng.uniform(0.2, max(0.3, depth - ww - 0.2)), rng.uniform(0.5, max(0.6, height - wh - 1.0)),
+                ww, wh, wall, rng, res)
+    px = rng.uniform(0.3, depth - 0.3)
+    _rect(img, px, 0.0, px + 0.12, height, np.clip(wall + rng.uniform(-80, 80), 0, 255), res)
+    return img
+
+
+def _pack_atlas(textures: list[np.ndarray], rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Shelf-pack float32 textures into one uint8 atlas; adds a fine grain and a slight blur.
+
+    Returns the atlas (H_a, _ATLAS_WIDTH) uint8 and each texture's top-left texel (n, 2) as (x, y).
+    Textures are separated by `_ATLAS_PAD` texels of replicated border (limits mip-map bleeding).
+    """
+    offsets = np.zeros((len(textures), 2), np.int64)
+    x = y = shelf = 0
+    for k, tex in enumerate(textures):
+        h, w = tex.shape
+        if x + w + 2 * _ATLAS_PAD > _ATLAS_WIDTH:
+            x, y, shelf = 0, y + shelf, 0
+        offsets[k] = (x + _ATLAS_PAD, y + _ATLAS_PAD)
+        x += w + 2 * _ATLAS_PAD
+        shelf = max(shelf, h + 2 * _ATLAS_PAD)
+    height = -(-(y + shelf) // 64) * 64
+    atlas = np.full((height, _ATLAS_WIDTH), 128, np.uint8)
+    grain = rng.normal(0.0, 7.0, (1024, 1024)).astype(np.float32)
+    for (ox, oy), tex in zip(offsets, textures, strict=True):
+        h, w = tex.shape
+        gy, gx = (int(g) for g in rng.integers(0, 1024, 2))  # a random window of the tiled grain
+        noise = np.tile(grain, (h // 1024 + 2, w // 1024 + 2))[gy:gy + h, gx:gx + w]
+        tex8 = np.clip(cv2.GaussianBlur(tex + noise, (0, 0), 0.7), 0, 255).astype(np.uint8)
+        padded = cv2.copyMakeBorder(tex8, _ATLAS_PAD, _ATLAS_PAD, _ATLAS_PAD, _ATLAS_PAD, cv2.BORDER_REPLICATE)
+        atlas[oy - _ATLAS_PAD:oy + h + _ATLAS_PAD, ox - _ATLAS_PAD:ox + w + _ATLAS_PAD] = padded
+    return atlas, offsets
+
+
+def _ground_fine_tile(rng: np.random.Generator) -> np.ndarray:
+    """(_FINE_TILE, _FINE_TILE) uint8 tileable high-contrast mottled speckle (asphalt grain), ~128 mean."""
+    blobs = _periodic_noise((_FINE_TILE, _FINE_TILE), rng, 3.0, 60.0)
+    grain = _periodic_noise((_FINE_TILE, _FINE_TILE), rng, 2.0, 5.0)
+    value = 128.0 + 110.0 * np.tanh(1.3 * blobs) + 18.0 * grain
+    return np.clip(value, 0, 255).astype(np.uint8)
+
+
+@dataclass(frozen=True)
+class _GroundLayout:
+    """Ground layout texture in the map frame: texel (x, y) covers map point origin + (x, y) * res.
+
+    image: (H, W) uint8; origin: (2,) map x, y of texel (0, 0).
+    """
+
+    image: np.ndarray
+    origin: np.ndarray
+
+
+def _ground_layout(line: _Centreline, rng: np.random.Generator) -> _GroundLayout:
+    """Draw verges, sidewalks, the road, repair patches, manholes, cracks and lane markings (map frame)."""
+    res = _COARSE_RES
+    origin = line.xy.min(axis=0) - 40.0
+    extent = np.ceil((line.xy.max(axis=0) + 40.0 - origin) / res / 64).astype(int) * 64
+    w, h = int(extent[0]), int(extent[1])
+    base = 105.0 + 22.0 * _smooth_field((h, w), 30, rng) + 10.0 * _smooth_field((h, w), 6, rng)
+    img = np.clip(base, 0, 255).astype(np.uint8)  # drawn on uint8: OpenCV anti-aliases only 8-bit images
+
+    def to_px(xy: np.ndarray) -> np.ndarray:
+        """(n, 2) map points -> (n, 1, 2) int32 fixed-point (4 fractional bits) texel coordinates."""
+        return np.round((xy - origin) / res * 16).astype(np.int32).reshape(-1, 1, 2)
+
+    def offset_curve(lateral: float, mask: np.ndarray | None = None) -> np.ndarray:
+        xy, _, normal = line.frame_at(line.s if mask is None else line.s[mask])
+        return xy + lateral * normal
+
+    def thick(pts: np.ndarray, value: float, width_m: float) -> None:
+        cv2.polylines(img, [to_px(pts)], False, round(value), max(1, round(width_m / res)), cv2.LINE_AA, 4)
+
+    thick(offset_curve(0.0), 150.0, 2 * _SIDEWALK_HALF_WIDTH)  # sidewalks
+    thick(offset_curve(0.0), 75.0, 2 * _ROAD_HALF_WIDTH)  # asphalt
+    thick(offset_curve(_ROAD_HALF_WIDTH + 0.1), 190.0, 0.2)  # kerbs
+    thick(offset_curve(-_ROAD_HALF_WIDTH - 0.1), 190.0, 0.2)
+    length = float(line.s[-1])
+    for _ in range(int(length / 3)):  # asphalt repairs
+        s = rng.uniform(0, length)
+        xy, heading, normal = line.frame_at(np.array([s]))
+        centre = xy[0] + rng.uniform(-3.0, 3.0) * normal[0]
+        box = cv2.boxPoints(((0.0, 0.0), (rng.uniform(0.4, 3.0), rng.uniform(0.3, 1.6)),
+                             float(np.degrees(heading[0])) + rng.uniform(-30, 30)))
+        cv2.fillConvexPoly(img, to_px(centre + box), round(75 + rng.uniform(-35, 45)), cv2.LINE_AA, 4)
+    for _ in range(int(length / 12)):  # manholes
+        xy, _, normal = line.frame_at(np.array([rng.uniform(0, length)]))
+        centre = to_px(xy + rng.uniform(-2.5, 2.5) * normal)[0, 0]
+        cv2.circle(img, (int(centre[0]), int(centre[1])), round(0.35 / res * 16), round(rng.uniform(20, 50)), -1,
+                   cv2.LINE_AA, 4)
+    for _ in range(int(length / 4)):  # cracks
+        xy, heading, normal = line.frame_at(np.array([rng.uniform(0, length)]))
+        steps = np.cumsum(rng.normal(0, 0.3, (8, 2)) + 0.3 * np.array([math.cos(heading[0]), math.sin(heading[0])]),
+                          axis=0)
+        thick(xy + rng.uniform(-3.2, 3.2) * normal + steps, 35.0, 0.05)
+    for lateral in (-_ROAD_HALF_WIDTH + 0.25, _ROAD_HALF_WIDTH - 0.25):  # edge lines
+        thick(offset_curve(lateral), 215.0, 0.15)
+    dash = (line.s % 9.0) < 3.0  # centre line: 3 m dashes every 9 m
+    starts = np.flatnonzero(dash[1:] & ~dash[:-1]) + 1
+    for start in starts:
+        stop = start + int(3.0 / _CENTRELINE_STEP)
+        thick(line.xy[start:stop], 225.0, 0.15)
+    return _GroundLayout(image=img, origin=origin)
+
+
+def _panorama(rng: np.random.Generator, fx: float) -> np.ndarray:
+    """(H_p, W_p) uint8 panorama at infinity: columns = azimuth 0..2 pi, rows = elevation max..min.
+
+    Sampled at about one texel per pixel (W_p = 2 pi fx). Sky gradient with soft clouds, hills with trees.
+    """
+    wp = round(2 * np.pi * fx)
+    hp = round((_PANO_ELEV_MAX - _PANO_ELEV_MIN) * fx)
+    elev = _PANO_ELEV_MAX - (np.arange(hp) + 0.5) / fx  # (hp,) radians per row
+    az = np.arange(wp) / wp * 2 * np.pi
+    sky = 235.0 - 70.0 * np.clip(elev / _PANO_ELEV_MAX, 0, 1)[:, None] + np.zeros((1, wp))
+    sky += 14.0 * cv2.resize(_periodic_noise((32, 256), rng, 2.0, 40.0), (wp, hp), interpolation=cv2.INTER_CUBIC)
+    silhouette = np.full(wp, 0.03)
+    for k in range(1, 40):
+        silhouette += 0.035 / k * np.sin(k * az + rng.uniform(0, 2 * np.pi))
+    silhouette = np.maximum(silhouette, 0.005)
+    hills = 90.0 + 25.0 * cv2.resize(_periodic_noise((64, 512), rng, 2.0, 30.0), (wp, hp))
+    img = np.clip(np.where(elev[:, None] < silhouette[None, :], hills, sky), 0, 255).astype(np.uint8)
+    for _ in range(int(wp * 1.5)):  # trees on the hills, drawn twice across the azimuth seam
+        col = int(rng.integers(0, wp))
+        top = _PANO_ELEV_MAX - silhouette[col]
+        row = int(top * fx + rng.uniform(-3, 25))
+        radius = int(rng.integers(2, 9))
+        value = round(rng.uniform(25, 150))
+        for shift in (-wp, 0, wp):
+            cv2.circle(img, (col + shift, row), radius, value, -1, cv2.LINE_AA)
+    return cv2.GaussianBlur(img, (0, 0), 0.6)
+
+
+def _mip_pyramid(image: np.ndarray, levels: int) -> list[np.ndarray]:
+    """Box-filtered mip-map pyramid: level l is (H / 2^l, W / 2^l); stops before a side gets below 4."""
+    pyramid = [image]
+    while len(pyramid) < levels and min(pyramid[-1].shape) >= 8:
+        h, w = pyramid[-1].shape
+        pyramid.append(cv2.resize(pyramid[-1], (w // 2, h // 2), interpolation=cv2.INTER_AREA))
+    return pyramid
+
+
+# ----------------------------------------------------------------------------------------------------
+# Scene geometry
+# ----------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Quads:
+    """Q textured rectangles in the map frame.
+
+    Point (a, b) of rectangle q (metres, 0 <= a <= size[q, 0], 0 <= b <= size[q, 1]) is
+    origin[q] + a * axis_a[q] + b * axis_b[q]; axis_b points down (texture rows). It has atlas texel
+    coordinates texel0[q] + (a, b) / res[q]. corners: (Q, 4, 3); rect: (Q, 4) atlas clamp box
+    x0, y0, x1, y1 (texels); shade: (Q,) brightness factor.
+    """
+
+    origin: np.ndarray
+    axis_a: np.ndarray
+    axis_b: np.ndarray
+    size: np.ndarray
+    texel0: np.ndarray
+    res: np.ndarray
+    rect: np.ndarray
+    shade: np.ndarray
+    corners: np.ndarray
+
+
+def _build_street(line: _Centreline, rng: np.random.Generator) -> tuple[_Quads, np.ndarray]:
+    """Buildings on both sides of the road -> their rectangles and the packed texture atlas (uint8)."""
+    sun = np.array([0.6, -0.5, 0.62])
+    sun /= np.linalg.norm(sun)
+    length = float(line.s[-1])
+    textures: list[np.ndarray] = []
+    quads: list[tuple[np.ndarray, np.ndarray, np.ndarray, float, int, float, float]] = []
+    # quad = (origin, axis_a, size (2,), texture index, texel offset along a, res, shade)
+    down = np.array([0.0, 0.0, -1.0])
+    for side in (1.0, -1.0):
+        s = 0.0
+        while s < length:
+            if rng.random() < 0.22:
+                s += rng.uniform(4.0, 10.0)
+                continue
+            blen = min(rng.uniform(10.0, 25.0), length - s)
+            if blen < 4.0:
+                break
+            offset, height = rng.uniform(5.0, 12.0), rng.uniform(6.0, 22.0)
+            kappa = float(np.max(np.abs(line.curvature[(line.s >= s) & (line.s <= s + blen)]), initial=0.0))
+            kappa /= 1.0 - offset * kappa  # worst case: the inside of the curve
+            max_panel = math.sqrt(8.0 * 0.05 / kappa) if kappa > 1e-6 else blen  # sagitta <= 5 cm
+            knots = np.linspace(s, s + blen, max(1, math.ceil(blen / max_panel)) + 1)
+            xy, _, normal = line.frame_at(knots)
+            facade = xy + side * offset * normal  # (k, 2)
+            chords = np.linalg.norm(np.diff(facade, axis=0), axis=1)
+            tex_index = len(textures)
+            textures.append(_facade_texture(float(chords.sum()), height, rng))
+            along = 0.0
+            for k, chord in enumerate(chords):
+                axis = np.append((facade[k + 1] - facade[k]) / chord, 0.0)
+                facing = -side * np.append(normal[k], 0.0)  # the façade faces the road
+                shade = 0.7 + 0.35 * max(0.0, float(np.dot(facing, sun)))
+                quads.append((np.append(facade[k], height), axis, np.array([chord, height]), tex_index,
+                              along, _FACADE_RES, shade))
+                along += chord
+            depth = rng.uniform(6.0, 10.0)
+            for end in (0, -1):  # side walls, perpendicular to the road, going away from it
+                tex_index = len(textures)
+                textures.append(_sidewall_texture(depth, height, rng))
+                axis = np.append(side * normal[end], 0.0)
+                shade = 0.65 + 0.4 * abs(float(np.dot(np.cross(axis, down), sun)))
+                quads.append((np.append(facade[end], height), axis, np.array([depth, height]), tex_index,
+                              0.0, _SIDEWALL_RES, shade))
+            s += blen
+    atlas, offsets = _pack_atlas(textures, rng)
+    n = len(quads)
+    origin = np.array([q[0] for q in quads])
+    axis_a = np.array([q[1] for q in quads])
+    axis_b = np.tile(down, (n, 1))
+    size = np.array([q[2] for q in quads])
+    tex = np.array([q[3] for q in quads])
+    res = np.array([q[5] for q in quads])
+    texel0 = offsets[tex].astype(np.float64) + np.stack([np.array([q[4] for q in quads]) / res, np.zeros(n)], 1)
+    tex_sizes = np.array([t.shape[::-1] for t in textures])[tex]  # (w, h)
+    rect = np.concatenate([offsets[tex], offsets[tex] + tex_sizes - 1], axis=1).astype(np.float64)
+    corners = np.stack([origin, origin + size[:, :1] * axis_a, origin + size[:, :1] * axis_a + size[:, 1:] * axis_b,
+                        origin + size[:, 1:] * axis_b], axis=1)
+    shade = np.array([q[6] for q in quads])
+    return _Quads(origin, axis_a, axis_b, size, texel0, res, rect, shade, corners), atlas
+
+
+# ----------------------------------------------------------------------------------------------------
+# Rendering helpers
+# ----------------------------------------------------------------------------------------------------
+
+
+def _surface_homography(k: np.ndarray, r_cm: np.ndarray, t_cm: np.ndarray, origin: np.ndarray,
+                        axis_a: np.ndarray, axis_b: np.ndarray) -> np.ndarray | None:
+    """(3, 3) G mapping pixel (u, v, 1) to (a, b, 1) / z for the plane origin + a axis_a + b axis_b.
+
+    r_cm, t_cm: map -> camera transform. The third component of G (u, v, 1) is the inverse depth 1/z
+    of the ray's hit point (negative = behind the camera). None when the plane contains the camera.
+    """
+    m = np.column_stack([r_cm @ axis_a, r_cm @ axis_b, r_cm @ origin + t_cm])
+    h = k @ m
+    if abs(np.linalg.det(h)) < 1e-12:
+        return None
+    return np.linalg.inv(h)
+
+
+def _surface_coords(g: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Surface coordinates and footprint per pixel.
+
+    g: (9, n) or (9, 1) float32 row-major homographies (pixel -> surface coordinates); u, v: (n,) pixels.
+    Returns a, b (n,) and the footprint rho (n,): surface units per pixel along the worse image axis.
+    """
+    inv_c = 1.0 / (g[6] * u + g[7] * v + g[8])
+    a = (g[0] * u + g[1] * v + g[2]) * inv_c
+    b = (g[3] * u + g[4] * v + g[5]) * inv_c
+    a_u, b_u = (g[0] - a * g[6]) * inv_c, (g[3] - b * g[6]) * inv_c
+    a_v, b_v = (g[1] - a * g[7]) * inv_c, (g[4] - b * g[7]) * inv_c
+    rho = np.sqrt(np.maximum(a_u * a_u + b_u * b_u, a_v * a_v + b_v * b_v))
+    return a, b, rho
+
+
+def _remap_points(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Bilinear samples (n,) float32 of `image` at texel coordinates x, y (n,), border replicated."""
+    n = x.size
+    if n == 0:
+        return np.zeros(0, np.float32)
+    cols = 1024
+    rows = -(-n // cols)
+    mx = np.zeros(rows * cols, np.float32)
+    my = np.zeros(rows * cols, np.float32)
+    mx[:n], my[:n] = x, y
+    out = cv2.remap(image, mx.reshape(rows, cols), my.reshape(rows, cols), cv2.INTER_LINEAR,
+                    borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(-1)[:n].astype(np.float32)
+
+
+def _sample_mip(pyramid: list[np.ndarray], x: np.ndarray, y: np.ndarray, footprint: np.ndarray,
+                wrap: int = 0) -> np.ndarray:
+    """Trilinear sample (n,) float32 of a mip pyramid at level-0 texel coordinates x, y (n,).
+
+    footprint: (n,) level-0 texels per pixel, selects the mip level. wrap > 0: the texture is a tile of
+    that size (level 0) and each level was padded by 2 texels of wrapped border.
+    """
+    top = len(pyramid) - 1  # at least 1: pyramids have two levels or more
+    lam = np.clip(np.log2(np.maximum(footprint, 1e-6)), 0.0, float(top))
+    lo = np.minimum(lam.astype(np.int32), top - 1)  # blend levels lo and lo + 1
+    frac = lam - lo
+    order = np.argsort(lo, kind="stable")
+    bounds = np.searchsorted(lo[order], np.arange(top + 1))
+    out = np.zeros(x.shape, np.float32)
+    for level in range(top):
+        idx = order[bounds[level]:bounds[level + 1]]
+        if idx.size == 0:
+            continue
+        for lv, weight in ((level, 1.0 - frac[idx]), (level + 1, frac[idx])):
+            scale = 0.5**lv
+            xs, ys = (x[idx] + 0.5) * scale - 0.5, (y[idx] + 0.5) * scale - 0.5
+            if wrap:
+                tile = wrap >> lv
+                xs, ys = np.mod(xs, tile) + 2.0, np.mod(ys, tile) + 2.0
+            out[idx] += weight * _remap_points(pyramid[lv], xs, ys)
+    return out
+
+
+def _clipped_bbox(corners_c: np.ndarray, k: np.ndarray, width: int, height: int) -> tuple[int, int, int, int] | None:
+    """Pixel bounding box (u0, v0, u1, v1), end exclusive, of a polygon (4, 3) in camera coordinates.
+
+    The polygon is clipped at depth `_NEAR` first; None when nothing is in front or in the image.
+    """
+    pts: list[np.ndarray] = []
+    for i in range(len(corners_c)):
+        p, q = corners_c[i], corners_c[(i + 1) % len(corners_c)]
+        if p[2] >= _NEAR:
+            pts.append(p)
+        if (p[2] >= _NEAR) != (q[2] >= _NEAR):
+            t = (_NEAR - p[2]) / (q[2] - p[2])
+            pts.append(p + t * (q - p))
+    if not pts:
+        return None
+    poly = np.array(pts)
+    uv = (poly @ k.T)[:, :2] / poly[:, 2:3]
+    u0, v0 = np.floor(uv.min(axis=0)).astype(int) - 1
+    u1, v1 = np.ceil(uv.max(axis=0)).astype(int) + 2
+    u0, v0, u1, v1 = max(u0, 0), max(v0, 0), min(u1, width), min(v1, height)
+    if u0 >= u1 or v0 >= v1:
+        return None
+    return int(u0), int(v0), int(u1), int(v1)
+
+
+# ----------------------------------------------------------------------------------------------------
+# The source
+# ----------------------------------------------------------------------------------------------------
+
+
+class SyntheticStreet:
+    """Procedurally generated street, rendered deterministically from `seed` (a `FrameSource`).
+
+    n_frames: number of source frames (the path length is about n_frames metres).
+    frames: selection among them (`FrameRange.indices(n_frames)`, SourceError when out of range).
+    camera_height: metres between the camera centre and the road plane.
+    """
+
+    def __init__(self, n_frames: int = 300, frames: FrameRange | None = None, seed: int = 0,
+                 camera_height: float = 1.65) -> None:
+        if n_frames < 1:
+            raise ValueError(f"n_frames must be at least 1, got {n_frames}")
+        self.n_frames = n_frames
+        self.seed = seed
+        self.camera_height = float(camera_height)
+        self._indices = (frames or FrameRange()).indices(n_frames)
+        rng = np.random.default_rng(seed)
+        intr = _INTRINSICS
+        self._k = intr.K
+        self._line = _make_centreline(_START_S + 1.25 * n_frames + _LOOK_AHEAD, rng)
+        self._poses_map = _camera_path(self._line, n_frames, self.camera_height, rng)
+        self._quads, atlas = _build_street(self._line, rng)
+        self._atlas = _mip_pyramid(atlas, _MIP_LEVELS)
+        layout = _ground_layout(self._line, rng)
+        self._ground_origin = layout.origin
+        self._ground = _mip_pyramid(layout.image, _MIP_LEVELS)
+        tile = _mip_pyramid(_ground_fine_tile(rng), 9)
+        self._fine = [cv2.copyMakeBorder(t, 2, 2, 2, 2, cv2.BORDER_WRAP) for t in tile]
+        pano = _panorama(rng, intr.fx)
+        self._pano = cv2.copyMakeBorder(pano, 0, 0, 2, 2, cv2.BORDER_WRAP)
+        self._pano_width = pano.shape[1]
+        v, u = np.mgrid[0:intr.height, 0:intr.width]
+        self._u = u.ravel().astype(np.float32)  # (H*W,) pixel column of each flat index
+        self._v = v.ravel().astype(np.float32)
+        self._ground_truth = rebase_poses(self._poses_map[self._indices])
+
+    @property
+    def name(self) -> str:
+        return "synthetic-street"
+
+    @property
+    def intrinsics(self) -> CameraIntrinsics:
+        return _INTRINSICS
+
+    @property
+    def ground_truth(self) -> np.ndarray:
+        """(N, 4, 4) float64 T_w_c of the selected frames, world = camera of the first selected frame."""
+        return self._ground_truth.copy()
+
+    @property
+    def indices(self) -> list[int]:
+        """Source indices of the selected frames."""
+        return list(self._indices)
+
+    def __len__(self) -> int:
+        return len(self._indices)
+
+    def __iter__(self) -> Iterator[Frame]:
+        for index in self._indices:
+            yield Frame(index=index, timestamp=index * _FRAME_DT, image=self.render(index))
+
+    def render(self, index: int) -> np.ndarray:
+        """(H, W) uint8 grey image of source frame `index` (0 <= index < n_frames)."""
+        if not 0 <= index < self.n_frames:
+            raise IndexError(f"frame {index} out of range 0..{self.n_frames - 1}")
+        intr = _INTRINSICS
+        pose = self._poses_map[index]
+        r_cm = pose[:3, :3].T
+        position = pose[:3, 3]
+        t_cm = -r_cm @ position
+        ids, ground_g, facade_g = self._visibility(r_cm, t_cm, position)
+        out = np.empty(intr.height * intr.width, np.float32)
+        flat_ids = ids.ravel()
+        self._shade_ground(out, np.flatnonzero(flat_ids == 0), ground_g, position)
+        self._shade_sky(out, np.flatnonzero(flat_ids < 0), r_cm)
+        self._shade_facades(out, flat_ids, facade_g)
+        image = out.reshape(intr.height, intr.width)
+        image = cv2.GaussianBlur(image, (0, 0), 0.5)
+        return np.clip(image + 0.5, 0, 255).astype(np.uint8)
+
+    # -- rendering steps --------------------------------------------------------------------------
+
+    def _visibility(self, r_cm: np.ndarray, t_cm: np.ndarray, position: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Z-buffer pass for the camera with map -> camera transform (r_cm, t_cm) at map `position` (3,).
+
+        Returns the id of the surface seen per pixel (H, W) int32 (-1 sky, 0 ground, q + 1 rectangle q);
+        the ground homography (3, 3): pixel -> map (x, y) relative to the camera position, third row =
+        inverse depth; and per id the homography pixel -> atlas texel coordinates, (9, Q + 1) float32
+        row-major (zero for rectangles not drawn).
+        """
+        intr = _INTRINSICS
+        w, h = intr.width, intr.height
+        u = np.arange(w, dtype=np.float32)[None, :]
+        v = np.arange(h, dtype=np.float32)[:, None]
+        ground_g = _surface_homography(self._k, r_cm, t_cm, np.array([position[0], position[1], 0.0]),
+                                       np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
+        assert ground_g is not None  # the camera is above the ground
+        inv_z = ((ground_g[2, 0] * u + ground_g[2, 2]) + ground_g[2, 1] * v).astype(np.float32)
+        ground = inv_z > 1.0 / _GROUND_FAR
+        zbuf = np.where(ground, inv_z, np.float32(0.0)).astype(np.float32)
+        ids = np.where(ground, 0, -1).astype(np.int32)
+
+        quads = self._quads
+        corners_c = (quads.corners - position) @ r_cm.T  # (Q, 4, 3)
+        centre = quads.corners.mean(axis=1)
+        half_diag = 0.5 * np.linalg.norm(quads.size, axis=1)
+        near_enough = np.linalg.norm(centre - position, axis=1) - half_diag < _FAR
+        candidates = np.flatnonzero(near_enough & (corners_c[:, :, 2].max(axis=1) > _NEAR))
+        facade_g = np.zeros((9, len(quads.size) + 1), np.float32)
+        for q in candidates:
+            box = _clipped_bbox(corners_c[q], self._k, w, h)
+            if box is None:
+                continue
+            g = _surface_homography(self._k, r_cm, t_cm, quads.origin[q], quads.axis_a[q], quads.axis_b[q])
+            if g is None:
+                continue
+            u0, v0, u1, v1 = box
+            uu, vv = u[:, u0:u1], v[v0:v1]
+            gf = g.astype(np.float32)
+            c = gf[2, 0] * uu + (gf[2, 1] * vv + gf[2, 2])
+            na = gf[0, 0] * uu + (gf[0, 1] * vv + gf[0, 2])
+            nb = gf[1, 0] * uu + (gf[1, 1] * vv + gf[1, 2])
+            zview, iview = zbuf[v0:v1, u0:u1], ids[v0:v1, u0:u1]
+            hit = c > zview
+            hit &= na >= 0
+            hit &= na <= np.float32(quads.size[q, 0]) * c
+            hit &= nb >= 0
+            hit &= nb <= np.float32(quads.size[q, 1]) * c
+            np.copyto(zview, c, where=hit)
+            np.copyto(iview, q + 1, where=hit)
+            to_atlas = np.array([[1.0 / quads.res[q], 0.0, quads.texel0[q, 0]],
+                                 [0.0, 1.0 / quads.res[q], quads.texel0[q, 1]], [0.0, 0.0, 1.0]])
+            facade_g[:, q + 1] = (to_atlas @ g).ravel()
+        return ids, ground_g, facade_g
+
+    def _shade_ground(self, out: np.ndarray, idx: np.ndarray, g: np.ndarray, position: np.ndarray) -> None:
+        """Write the ground's grey values into out (H*W,) at flat pixel indices idx (layout + speckle)."""
+        x, y, rho = _surface_coords(g.astype(np.float32).reshape(9, 1), self._u[idx], self._v[idx])
+        res = _COARSE_RES
+        cx = (position[0] - self._ground_origin[0]) / res - 0.5
+        cy = (position[1] - self._ground_origin[1]) / res - 0.5
+        layout = _sample_mip(self._ground, x * (1.0 / res) + cx, y * (1.0 / res) + cy, rho * (1.0 / res))
+        fres = _FINE_RES
+        fx = (position[0] / fres) % _FINE_TILE
+        fy = (position[1] / fres) % _FINE_TILE
+        fine = _sample_mip(self._fine, x * (1.0 / fres) + fx, y * (1.0 / fres) + fy, rho * (1.0 / fres),
+                           wrap=_FINE_TILE)
+        out[idx] = layout + 0.45 * (fine - 128.0)
+
+    def _shade_sky(self, out: np.ndarray, idx: np.ndarray, r_cm: np.ndarray) -> None:
+        """Write the panorama at infinity into out (H*W,) at flat pixel indices idx."""
+        intr = _INTRINSICS
+        xr = (self._u[idx] - intr.cx) / intr.fx
+        yr = (self._v[idx] - intr.cy) / intr.fy
+        r = r_cm.T.astype(np.float32)  # camera -> map rotation
+        dx = r[0, 0] * xr + r[0, 1] * yr + r[0, 2]
+        dy = r[1, 0] * xr + r[1, 1] * yr + r[1, 2]
+        dz = r[2, 0] * xr + r[2, 1] * yr + r[2, 2]
+        az = np.mod(np.arctan2(dy, dx), 2 * np.pi)
+        el = np.arctan2(dz, np.hypot(dx, dy))
+        px = az * (self._pano_width / (2 * np.pi)) + 1.5  # +2 pad, -0.5 texel centre
+        py = (_PANO_ELEV_MAX - el) * intr.fx - 0.5
+        out[idx] = _remap_points(self._pano, px.astype(np.float32), py.astype(np.float32))
+
+    def _shade_facades(self, out: np.ndarray, flat_ids: np.ndarray, facade_g: np.ndarray) -> None:
+        """Write the rectangles' textures into out (H*W,) where flat_ids (H*W,) > 0 (see `_visibility`)."""
+        idx = np.flatnonzero(flat_ids > 0)
+        if idx.size == 0:
+            return
+        ids = flat_ids[idx]
+        x, y, rho = _surface_coords(facade_g[:, ids], self._u[idx], self._v[idx])
+        rect = self._quads.rect.astype(np.float32)
+        q = ids - 1
+        x = np.clip(x - 0.5, rect[q, 0], rect[q, 2])
+        y = np.clip(y - 0.5, rect[q, 1], rect[q, 3])
+        out[idx] = _sample_mip(self._atlas, x, y, rho) * self._quads.shade.astype(np.float32)[q]
