@@ -7,7 +7,7 @@ import signal
 import sys
 import uuid
 from datetime import datetime
-from enum import Enum
+from enum import StrEnum
 from pathlib import Path
 from types import FrameType
 from typing import Annotated, NoReturn
@@ -44,12 +44,12 @@ def _root() -> None:
     """Monocular visual odometry with every intermediate step recorded to Rerun."""
 
 
-class Scale(str, Enum):
+class Scale(StrEnum):
     gt = "gt"
     none = "none"
 
 
-class TrajectoryFormat(str, Enum):
+class TrajectoryFormat(StrEnum):
     kitti = "kitti"
     tum = "tum"
 

@@ -88,11 +88,12 @@ class Recorder:
         self._jpeg_quality = jpeg_quality
         self._gt = source.ground_truth
         self._previous_position: np.ndarray | None = None
-        self._rec = rr.RecordingStream(APPLICATION_ID, recording_id=properties.get("recording_id"))
+        # send_properties=False: no wall-clock start time, so two runs of the same input compare equal
+        self._rec = rr.RecordingStream(APPLICATION_ID, recording_id=properties.get("recording_id"), send_properties=False)
         self._rec.set_log_time_enabled(False)  # reproducible files: no wall-clock column
         self._rec.save(path, default_blueprint=blueprint())
         self._rec.send_recording_name(properties.get("name", source.name))
-        self._rec.send_property("run", rr.AnyValues(**properties))
+        self._rec.send_property("run", rr.AnyValues(**properties))  # type: ignore[arg-type]
         self._rec.send_property("config", rr.AnyValues(**_flatten(config.to_dict())))
         self._log_static(source)
 

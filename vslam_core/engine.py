@@ -68,6 +68,13 @@ class _Motion:
     points_cur: np.ndarray | None = None  # (P, 3) in front, current frame, unit baseline
     reason: Reason | None = None
 
+    def fates(self) -> np.ndarray:
+        """TrackFate of each used correspondence (needs `inlier_mask`)."""
+        assert self.inlier_mask is not None
+        inlier = np.where(self.in_front, TrackFate.INLIER, TrackFate.CHIRALITY_FAILED) \
+            if self.in_front is not None else TrackFate.NOT_USED
+        return np.where(self.inlier_mask, inlier, TrackFate.RANSAC_OUTLIER).astype(np.uint8)
+
 
 class Odometry:
     """Monocular visual odometry over a stream of frames from one camera."""
@@ -94,77 +101,48 @@ class Odometry:
         """Estimate this frame's pose from the previous ones."""
         cfg = self.config
         timings: dict[str, float] = {}
-        clock = time.perf_counter()
         image = frame.image
         tracks = self._tracks
         fate = np.full(len(tracks), TrackFate.LOST, np.uint8)
         tracked = tracks.points.copy()
-        status = FrameStatus.INIT
-        motion = _Motion()
-        parallax = 0.0
-        scale: float | None = None
-        T_key_cur: np.ndarray | None = None  # noqa: N806
+        motion, parallax = _Motion(), 0.0
+        T_w_cur, T_key_cur, scale = self._T_w_key.copy(), None, None  # noqa: N806
         points_world = np.zeros((0, 3))
         keyframe_used = self._key_position
-        advance_keyframe = True
 
-        if self._previous is not None:
+        if self._previous is None:
+            status = FrameStatus.INIT
+        else:
+            clock = time.perf_counter()
             tracked, ok, fb_error = track_points(self._previous, image, tracks.points, cfg.tracker)
             survived = ok & (fb_error <= cfg.tracker.fb_threshold_px)
+            used = survived & ~np.isnan(tracks.key_points[:, 0])
             fate[ok & ~survived] = TrackFate.FB_REJECTED
-            has_key = ~np.isnan(tracks.key_points[:, 0])
-            used = survived & has_key
-            fate[survived & ~has_key] = TrackFate.NOT_USED
+            fate[survived] = TrackFate.NOT_USED  # until the two-view step classifies the used ones
             timings["track"] = _lap(clock)
-            clock = time.perf_counter()
 
-            status = FrameStatus.HELD
-            if used.sum() < cfg.pose.min_tracks:
-                motion = _Motion(reason=Reason.TOO_FEW_TRACKS)  # re-initialise from this frame
-            else:
-                p_cur, p_key = tracked[used], tracks.key_points[used]
-                parallax = float(np.median(np.linalg.norm(p_cur - p_key, axis=1)))
-                if parallax < cfg.pose.min_parallax_px:
-                    motion = _Motion(reason=Reason.LOW_PARALLAX)
-                    advance_keyframe = False
-                else:
-                    motion = self._two_view(p_cur, p_key, timings)
-                    advance_keyframe = motion.reason is None or motion.reason == Reason.TOO_FEW_TRACKS
-                    if motion.reason is not None:
-                        advance_keyframe = False
-                if motion.inlier_mask is not None:
-                    used_fate = np.where(motion.inlier_mask, TrackFate.RANSAC_OUTLIER, TrackFate.RANSAC_OUTLIER)
-                    if motion.in_front is not None:
-                        used_fate = np.where(
-                            motion.inlier_mask,
-                            np.where(motion.in_front, TrackFate.INLIER, TrackFate.CHIRALITY_FAILED),
-                            TrackFate.RANSAC_OUTLIER,
-                        )
-                    fate[used] = used_fate
-                else:
-                    fate[used] = TrackFate.NOT_USED
-            clock = time.perf_counter()
-
+            motion, parallax = self._estimate_motion(tracked[used], tracks.key_points[used], timings)
+            if motion.inlier_mask is not None:
+                fate[used] = motion.fates()
             if motion.reason is None and motion.rotation is not None and motion.translation is not None:
                 status = FrameStatus.OK
                 scale = self._scale.step_length(self._key_position, self._position)
                 T_key_cur = pose_matrix(motion.rotation, scale * motion.translation)  # noqa: N806
                 T_w_cur = self._T_w_key @ T_key_cur  # noqa: N806
-                if motion.points_cur is not None and len(motion.points_cur):
+                if motion.points_cur is not None:
                     points_world = (scale * motion.points_cur) @ T_w_cur[:3, :3].T + T_w_cur[:3, 3]
             else:
-                T_w_cur = self._T_w_key.copy()  # noqa: N806
+                status = FrameStatus.HELD
 
-            # Carry surviving tracks on; RANSAC outliers (moving objects, bad tracks) are dropped.
+            # Surviving tracks go on; RANSAC outliers (moving objects, bad tracks) are dropped.
             keep = fate >= TrackFate.NOT_USED
             if cfg.pose.drop_outliers:
                 keep &= fate != TrackFate.RANSAC_OUTLIER
             self._tracks = _Tracks(tracks.ids[keep], tracked[keep], tracks.ages[keep] + 1, tracks.key_points[keep])
-        else:
-            T_w_cur = np.eye(4)  # noqa: N806
-            self._T_w_key = T_w_cur
 
-        if advance_keyframe:
+        # The keyframe advances on every accepted frame, and on re-initialisation (too few tracks left);
+        # other held frames keep it, so the next frame is measured over a longer baseline.
+        if status != FrameStatus.HELD or motion.reason == Reason.TOO_FEW_TRACKS:
             self._T_w_key = T_w_cur
             self._key_position = self._position
             self._tracks.key_points = self._tracks.points.copy()
@@ -200,6 +178,18 @@ class Odometry:
         self._position += 1
         return result
 
+    def _estimate_motion(
+        self, p_cur: np.ndarray, p_key: np.ndarray, timings: dict[str, float]
+    ) -> tuple[_Motion, float]:
+        """Motion keyframe → current frame from (N, 2) matched points, and the median parallax (px)."""
+        cfg = self.config.pose
+        if len(p_cur) < cfg.min_tracks:
+            return _Motion(reason=Reason.TOO_FEW_TRACKS), 0.0
+        parallax = float(np.median(np.linalg.norm(p_cur - p_key, axis=1)))
+        if parallax < cfg.min_parallax_px:
+            return _Motion(reason=Reason.LOW_PARALLAX), parallax
+        return self._two_view(p_cur, p_key, timings), parallax
+
     def _two_view(self, p_cur: np.ndarray, p_key: np.ndarray, timings: dict[str, float]) -> _Motion:
         """Essential matrix (5-point RANSAC), four candidates, chirality, refinement."""
         cfg = self.config.pose
@@ -231,7 +221,9 @@ class Odometry:
                 robust_scale=cfg.ransac_threshold_px / focal,
             )
         points = triangulate(rotation, translation, x_cur, x_key)
-        in_front = in_front_mask(rotation, translation, points, cfg.chirality_max_depth)
+        # A track fails chirality only if it lands behind a camera; far points are fine, just not shown.
+        in_front = in_front_mask(rotation, translation, points, np.inf)
+        near = in_front_mask(rotation, translation, points, cfg.chirality_max_depth)
         timings["chirality"] = _lap(clock)
         return _Motion(
             essential=essential,
@@ -241,7 +233,7 @@ class Odometry:
             rotation=rotation,
             translation=translation,
             in_front=in_front,
-            points_cur=points[inlier_mask & in_front],
+            points_cur=points[inlier_mask & near],
         )
 
     def _replenish(self, image: np.ndarray, timings: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:

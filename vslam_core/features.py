@@ -10,6 +10,7 @@ import numpy as np
 
 from vslam_core.config import DetectorConfig, TrackerConfig
 
+
 def detect_corners(
     image: np.ndarray, existing: np.ndarray, wanted: int, config: DetectorConfig
 ) -> np.ndarray:

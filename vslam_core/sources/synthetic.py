@@ -16,9 +16,10 @@ above the road, at 0.83..1.17 m per frame, with small pitch and roll oscillation
 
 Rendering is exact per-pixel ray casting with a z-buffer: for a plane, the pixel -> surface mapping
 is a homography whose third row is the inverse depth 1/z, affine in the pixel coordinates. Each
-rectangle is tested only inside the bounding box of its near-clipped projection; textures are
-sampled with bilinear interpolation from mip-map pyramids (trilinear filtering), so there is no
-aliasing. Ground truth is the exact poses used for rendering.
+rectangle is tested only inside the bounding box of its near-clipped projection. Textures are
+sampled bilinearly from mip-map pyramids with anisotropic filtering (two taps along each pixel's
+footprint, each blended between mip levels), so there is no aliasing and the road stays sharp.
+Ground truth is the exact poses used for rendering.
 """
 
 from __future__ import annotations
@@ -26,10 +27,12 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import cv2
 import numpy as np
 
+from vslam_core.errors import SourceError
 from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange, rebase_poses
 
 _INTRINSICS = CameraIntrinsics(fx=718.856, fy=718.856, cx=607.1928, cy=185.2157, width=1241, height=376)
@@ -52,9 +55,11 @@ _SIDEWALL_RES = 0.06
 _COARSE_RES = 0.1  # ground layout texture (road, markings, patches)
 _FINE_RES = 0.015  # ground speckle tile
 _FINE_TILE = 1024
-_ATLAS_WIDTH = 4096
+_ATLAS_MIN_WIDTH = 4096
 _ATLAS_PAD = 16
 _MIP_LEVELS = 7
+_MAX_FRAMES = 2000  # textures must stay under cv2.remap's 32767-texel limit (and memory reasonable)
+_ANISO_TAPS = 2  # texture taps along a pixel's longer footprint axis (anisotropic filtering)
 _PANO_ELEV_MIN = -0.12  # radians
 _PANO_ELEV_MAX = 0.6
 
@@ -94,8 +99,16 @@ def _make_centreline(length: float, rng: np.random.Generator) -> _Centreline:
 
     Curvature ramps in and out smoothly (sin^2), so the heading is smooth; the tightest radius is ~28 m.
     """
-    plan = [(35.0, 0.0), (60.0, 90.0), (45.0, 0.0), (70.0, -90.0), (35.0, 0.0), (50.0, 60.0),
-            (40.0, 0.0), (60.0, -75.0)]  # (segment length m, heading change deg)
+    plan = [
+        (35.0, 0.0),
+        (60.0, 90.0),
+        (45.0, 0.0),
+        (70.0, -90.0),
+        (35.0, 0.0),
+        (50.0, 60.0),
+        (40.0, 0.0),
+        (60.0, -75.0),
+    ]  # (segment length m, heading change deg)
     s = np.arange(0.0, length + _CENTRELINE_STEP, _CENTRELINE_STEP)
     curvature = np.zeros_like(s)
     start, k = 0.0, 0
@@ -183,14 +196,85 @@ def _smooth_field(shape: tuple[int, int], cell: int, rng: np.random.Generator) -
     return cv2.resize(small, (w, h), interpolation=cv2.INTER_CUBIC)
 
 
+def _block_pattern(
+    shape: tuple[int, int], rows: tuple[int, int], cols: tuple[int, int], contrast: float, rng: np.random.Generator
+) -> np.ndarray:
+    """(H, W) float32 zero-mean pattern of irregular blocks (stones, panels) separated by dark joints.
+
+    rows, cols: inclusive ranges of block heights and widths in texels; every course has its own random
+    widths and phase and every block its own brightness, so the pattern never repeats.
+    """
+    h, w = shape
+    out = np.empty((h, w), np.float32)
+    columns = np.arange(w)
+    y = 0
+    while y < h:
+        height = int(rng.integers(rows[0], rows[1] + 1))
+        widths = rng.integers(cols[0], cols[1] + 1, size=w // cols[0] + 2)
+        edges = np.cumsum(widths) - int(rng.integers(0, widths[0]))
+        block = np.searchsorted(edges, columns, side="right")
+        course = rng.normal(0.0, contrast, size=len(edges) + 1).astype(np.float32)[block]
+        course[1:][np.diff(block) != 0] = -2.5 * contrast  # vertical joints
+        out[y : y + height] = course
+        out[y] = -2.5 * contrast  # horizontal joint
+        y += height
+    return out
+
+
+def _wall(shape: tuple[int, int], res: float, wall: float, rng: np.random.Generator) -> np.ndarray:
+    """(H, W) float32 bare wall of mean brightness `wall`: plaster, stone blocks or cladding panels."""
+    img = np.full(shape, wall, np.float32) + 9.0 * _smooth_field(shape, 40, rng)
+    kind = rng.integers(0, 3)
+    if kind == 1:  # stone blocks
+        img += _block_pattern(
+            shape, (round(0.25 / res), round(0.6 / res)), (round(0.35 / res), round(1.2 / res)), 10.0, rng
+        )
+    elif kind == 2:  # cladding panels
+        img += _block_pattern(
+            shape, (round(0.8 / res), round(2.5 / res)), (round(0.5 / res), round(1.6 / res)), 16.0, rng
+        )
+    else:  # plaster
+        img += 7.0 * _smooth_field(shape, 5, rng)
+    return img
+
+
+def _wall_details(
+    img: np.ndarray, length: float, height: float, wall: float, rng: np.random.Generator, res: float
+) -> None:
+    """Scatter small high-contrast items (plain panels and signs, vents, posters) over a wall texture."""
+    for _ in range(int(length * height / 10.0)):
+        w, h = rng.uniform(0.2, 1.2), rng.uniform(0.2, 1.0)
+        x, y = rng.uniform(0.0, max(0.1, length - w)), rng.uniform(0.3, max(0.4, height - h))
+        value = float(np.clip(wall + rng.choice([-1.0, 1.0]) * rng.uniform(40, 110), 0, 255))
+        _rect(img, x, y, x + w, y + h, value, res)
+        kind = rng.integers(0, 3)
+        if kind == 0:  # vent / grille: slats
+            for k in range(1, int(h / 0.1)):
+                _rect(img, x + 0.03, y + k * 0.1, x + w - 0.03, y + k * 0.1 + 0.04, 255.0 - value, res)
+        elif kind == 1:  # poster: a few inner blocks
+            for _ in range(int(rng.integers(1, 5))):
+                px, py = x + rng.uniform(0, 0.7) * w, y + rng.uniform(0, 0.7) * h
+                _rect(
+                    img,
+                    px,
+                    py,
+                    px + rng.uniform(0.1, 0.3) * w + 0.05,
+                    py + rng.uniform(0.1, 0.3) * h + 0.05,
+                    rng.uniform(0, 255),
+                    res,
+                )
+
+
 def _rect(img: np.ndarray, x0: float, y0: float, x1: float, y1: float, value: float, res: float) -> None:
     """Fill the rectangle [x0, x1] x [y0, y1] (metres; y down from the texture top) with `value`."""
-    cv2.rectangle(img, (round(x0 / res), round(y0 / res)), (round(x1 / res) - 1, round(y1 / res) - 1),
-                  float(value), thickness=-1)
+    cv2.rectangle(
+        img, (round(x0 / res), round(y0 / res)), (round(x1 / res) - 1, round(y1 / res) - 1), float(value), thickness=-1
+    )
 
 
-def _window(img: np.ndarray, x: float, y: float, w: float, h: float, wall: float,
-            rng: np.random.Generator, res: float) -> None:
+def _window(
+    img: np.ndarray, x: float, y: float, w: float, h: float, wall: float, rng: np.random.Generator, res: float
+) -> None:
     """Draw one window (frame, glass, mullions, curtain, sill) with its top-left at (x, y) metres."""
     frame = float(np.clip(wall + rng.choice([-1.0, 1.0]) * rng.uniform(45, 90), 0, 255))
     _rect(img, x, y, x + w, y + h, frame, res)
@@ -219,14 +303,15 @@ def _facade_texture(length: float, height: float, rng: np.random.Generator) -> n
     res = _FACADE_RES
     w, h = max(8, math.ceil(length / res)), max(8, math.ceil(height / res))
     wall = rng.uniform(80, 200)
-    img = np.full((h, w), wall, np.float32) + 14.0 * _smooth_field((h, w), 40, rng)
+    img = _wall((h, w), res, wall, rng)
+    _wall_details(img, length, height, wall, rng, res)
     ground_floor = rng.uniform(3.6, 4.6)
-    floor_h = rng.uniform(2.8, 3.5)
-    ratio_w, ratio_h = rng.uniform(0.4, 0.65), rng.uniform(0.45, 0.62)
+    floor_h = rng.uniform(2.8, 3.4)
+    ratio_w, ratio_h = rng.uniform(0.45, 0.7), rng.uniform(0.45, 0.62)
     bays: list[tuple[float, float]] = []
     x = rng.uniform(0.3, 1.2)
     while x < length - 1.2:
-        bay = min(rng.uniform(1.8, 3.4), length - x - 0.3)
+        bay = min(rng.uniform(1.6, 3.0), length - x - 0.3)
         bays.append((x, bay))
         x += bay
     cornice = rng.random() < 0.6
@@ -250,13 +335,27 @@ def _facade_texture(length: float, height: float, rng: np.random.Generator) -> n
         _rect(img, x + 0.2, y_shop + 0.2, x + shop - 0.2, y_shop + 0.8, sign, res)
         for _ in range(int(shop * 2.5)):  # "letters"
             lx = x + rng.uniform(0.35, max(0.4, shop - 0.6))
-            _rect(img, lx, y_shop + 0.3, lx + rng.uniform(0.08, 0.3), y_shop + 0.7,
-                  255.0 - sign + rng.uniform(-30, 30), res)
+            _rect(
+                img,
+                lx,
+                y_shop + 0.3,
+                lx + rng.uniform(0.08, 0.3),
+                y_shop + 0.7,
+                255.0 - sign + rng.uniform(-30, 30),
+                res,
+            )
         door = rng.uniform(0.9, 1.4)
         door_x = x + rng.uniform(0.3, max(0.35, shop - door - 0.3))
         _rect(img, x + 0.25, y_shop + 1.0, x + shop - 0.25, height - 0.4, rng.uniform(15, 90), res)
-        _rect(img, x + 0.35, y_shop + 1.1, x + shop - 0.35, y_shop + 1.1 + rng.uniform(0.3, 1.2),
-              rng.uniform(120, 240), res)  # display / reflections
+        _rect(
+            img,
+            x + 0.35,
+            y_shop + 1.1,
+            x + shop - 0.35,
+            y_shop + 1.1 + rng.uniform(0.3, 1.2),
+            rng.uniform(120, 240),
+            res,
+        )  # display / reflections
         _rect(img, door_x, y_shop + 1.2, door_x + door, height, rng.uniform(0, 60), res)
         _rect(img, door_x + 0.1, y_shop + 1.3, door_x + door - 0.1, y_shop + 1.6, rng.uniform(150, 250), res)
         x += shop
@@ -269,41 +368,59 @@ def _sidewall_texture(depth: float, height: float, rng: np.random.Generator) -> 
     res = _SIDEWALL_RES
     w, h = max(8, math.ceil(depth / res)), max(8, math.ceil(height / res))
     wall = rng.uniform(70, 190)
-    img = np.full((h, w), wall, np.float32) + 18.0 * _smooth_field((h, w), 25, rng)
+    img = _wall((h, w), res, wall, rng)
+    _wall_details(img, depth, height, wall, rng, res)
     for _ in range(rng.integers(2, 8)):
         ww, wh = rng.uniform(0.6, 1.4), rng.uniform(0.8, 1.6)
-        _window(img, rng.uniform(0.2, max(0.3, depth - ww - 0.2)), rng.uniform(0.5, max(0.6, height - wh - 1.0)),
-                ww, wh, wall, rng, res)
+        _window(
+            img,
+            rng.uniform(0.2, max(0.3, depth - ww - 0.2)),
+            rng.uniform(0.5, max(0.6, height - wh - 1.0)),
+            ww,
+            wh,
+            wall,
+            rng,
+            res,
+        )
     px = rng.uniform(0.3, depth - 0.3)
     _rect(img, px, 0.0, px + 0.12, height, np.clip(wall + rng.uniform(-80, 80), 0, 255), res)
     return img
 
 
-def _pack_atlas(textures: list[np.ndarray], rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Shelf-pack float32 textures into one uint8 atlas; adds a fine grain and a slight blur.
+def _finish_texture(tex: np.ndarray, grain: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """(H, W) float32 texture -> uint8, with a random window of the (G, G) `grain` added and a slight blur."""
+    h, w = tex.shape
+    if h > grain.shape[0] or w > grain.shape[1]:  # never with the sizes used here
+        grain = np.tile(grain, (h // grain.shape[0] + 1, w // grain.shape[1] + 1))
+    gy, gx = int(rng.integers(0, grain.shape[0] - h + 1)), int(rng.integers(0, grain.shape[1] - w + 1))
+    blurred = cv2.GaussianBlur(tex + grain[gy : gy + h, gx : gx + w], (0, 0), 0.7)
+    return np.clip(blurred, 0, 255, out=blurred).astype(np.uint8)
 
-    Returns the atlas (H_a, _ATLAS_WIDTH) uint8 and each texture's top-left texel (n, 2) as (x, y).
+
+def _pack_atlas(textures: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Shelf-pack (H_i, W_i) uint8 textures into one atlas.
+
+    Returns the atlas (H_a, W_a) uint8 and each texture's top-left texel (n, 2) as (x, y). W_a is at
+    least `_ATLAS_MIN_WIDTH`, wider for long streets so that H_a stays below cv2.remap's 32767 limit.
     Textures are separated by `_ATLAS_PAD` texels of replicated border (limits mip-map bleeding).
     """
+    area = sum((t.shape[0] + 2 * _ATLAS_PAD) * (t.shape[1] + 2 * _ATLAS_PAD) for t in textures)
+    width = max(_ATLAS_MIN_WIDTH, math.ceil(math.sqrt(2.0 * area) / 1024) * 1024)
     offsets = np.zeros((len(textures), 2), np.int64)
     x = y = shelf = 0
     for k, tex in enumerate(textures):
         h, w = tex.shape
-        if x + w + 2 * _ATLAS_PAD > _ATLAS_WIDTH:
+        if x + w + 2 * _ATLAS_PAD > width:
             x, y, shelf = 0, y + shelf, 0
         offsets[k] = (x + _ATLAS_PAD, y + _ATLAS_PAD)
         x += w + 2 * _ATLAS_PAD
         shelf = max(shelf, h + 2 * _ATLAS_PAD)
     height = -(-(y + shelf) // 64) * 64
-    atlas = np.full((height, _ATLAS_WIDTH), 128, np.uint8)
-    grain = rng.normal(0.0, 7.0, (1024, 1024)).astype(np.float32)
+    atlas = np.full((height, width), 128, np.uint8)
     for (ox, oy), tex in zip(offsets, textures, strict=True):
         h, w = tex.shape
-        gy, gx = (int(g) for g in rng.integers(0, 1024, 2))  # a random window of the tiled grain
-        noise = np.tile(grain, (h // 1024 + 2, w // 1024 + 2))[gy:gy + h, gx:gx + w]
-        tex8 = np.clip(cv2.GaussianBlur(tex + noise, (0, 0), 0.7), 0, 255).astype(np.uint8)
-        padded = cv2.copyMakeBorder(tex8, _ATLAS_PAD, _ATLAS_PAD, _ATLAS_PAD, _ATLAS_PAD, cv2.BORDER_REPLICATE)
-        atlas[oy - _ATLAS_PAD:oy + h + _ATLAS_PAD, ox - _ATLAS_PAD:ox + w + _ATLAS_PAD] = padded
+        padded = cv2.copyMakeBorder(tex, _ATLAS_PAD, _ATLAS_PAD, _ATLAS_PAD, _ATLAS_PAD, cv2.BORDER_REPLICATE)
+        atlas[oy - _ATLAS_PAD : oy + h + _ATLAS_PAD, ox - _ATLAS_PAD : ox + w + _ATLAS_PAD] = padded
     return atlas, offsets
 
 
@@ -327,23 +444,29 @@ class _GroundLayout:
 
 
 def _ground_layout(line: _Centreline, rng: np.random.Generator) -> _GroundLayout:
-    """Draw verges, sidewalks, the road, repair patches, manholes, cracks and lane markings (map frame)."""
+    """Draw verges, sidewalks, the road, repair patches, manholes, cracks and lane markings (map frame).
+
+    The texture covers the centreline's bounding box plus 40 m, at `_COARSE_RES` metres per texel.
+    """
     res = _COARSE_RES
     origin = line.xy.min(axis=0) - 40.0
     extent = np.ceil((line.xy.max(axis=0) + 40.0 - origin) / res / 64).astype(int) * 64
     w, h = int(extent[0]), int(extent[1])
-    base = 105.0 + 22.0 * _smooth_field((h, w), 30, rng) + 10.0 * _smooth_field((h, w), 6, rng)
-    img = np.clip(base, 0, 255).astype(np.uint8)  # drawn on uint8: OpenCV anti-aliases only 8-bit images
+    base = 22.0 * _smooth_field((h, w), 30, rng)
+    base += 10.0 * _smooth_field((h, w), 6, rng) + 105.0
+    img = np.clip(base, 0, 255, out=base).astype(np.uint8)  # drawn on uint8: OpenCV anti-aliases only 8-bit images
 
     def to_px(xy: np.ndarray) -> np.ndarray:
         """(n, 2) map points -> (n, 1, 2) int32 fixed-point (4 fractional bits) texel coordinates."""
         return np.round((xy - origin) / res * 16).astype(np.int32).reshape(-1, 1, 2)
 
-    def offset_curve(lateral: float, mask: np.ndarray | None = None) -> np.ndarray:
-        xy, _, normal = line.frame_at(line.s if mask is None else line.s[mask])
+    def offset_curve(lateral: float) -> np.ndarray:
+        """(M, 2) points `lateral` metres left of the centreline."""
+        xy, _, normal = line.frame_at(line.s)
         return xy + lateral * normal
 
     def thick(pts: np.ndarray, value: float, width_m: float) -> None:
+        """Draw the open polyline pts (n, 2) (map metres), `width_m` wide, anti-aliased."""
         cv2.polylines(img, [to_px(pts)], False, round(value), max(1, round(width_m / res)), cv2.LINE_AA, 4)
 
     thick(offset_curve(0.0), 150.0, 2 * _SIDEWALK_HALF_WIDTH)  # sidewalks
@@ -355,18 +478,31 @@ def _ground_layout(line: _Centreline, rng: np.random.Generator) -> _GroundLayout
         s = rng.uniform(0, length)
         xy, heading, normal = line.frame_at(np.array([s]))
         centre = xy[0] + rng.uniform(-3.0, 3.0) * normal[0]
-        box = cv2.boxPoints(((0.0, 0.0), (rng.uniform(0.4, 3.0), rng.uniform(0.3, 1.6)),
-                             float(np.degrees(heading[0])) + rng.uniform(-30, 30)))
+        box = cv2.boxPoints(
+            (
+                (0.0, 0.0),
+                (rng.uniform(0.4, 3.0), rng.uniform(0.3, 1.6)),
+                float(np.degrees(heading[0])) + rng.uniform(-30, 30),
+            )
+        )
         cv2.fillConvexPoly(img, to_px(centre + box), round(75 + rng.uniform(-35, 45)), cv2.LINE_AA, 4)
     for _ in range(int(length / 12)):  # manholes
         xy, _, normal = line.frame_at(np.array([rng.uniform(0, length)]))
         centre = to_px(xy + rng.uniform(-2.5, 2.5) * normal)[0, 0]
-        cv2.circle(img, (int(centre[0]), int(centre[1])), round(0.35 / res * 16), round(rng.uniform(20, 50)), -1,
-                   cv2.LINE_AA, 4)
+        cv2.circle(
+            img,
+            (int(centre[0]), int(centre[1])),
+            round(0.35 / res * 16),
+            round(rng.uniform(20, 50)),
+            -1,
+            cv2.LINE_AA,
+            4,
+        )
     for _ in range(int(length / 4)):  # cracks
         xy, heading, normal = line.frame_at(np.array([rng.uniform(0, length)]))
-        steps = np.cumsum(rng.normal(0, 0.3, (8, 2)) + 0.3 * np.array([math.cos(heading[0]), math.sin(heading[0])]),
-                          axis=0)
+        steps = np.cumsum(
+            rng.normal(0, 0.3, (8, 2)) + 0.3 * np.array([math.cos(heading[0]), math.sin(heading[0])]), axis=0
+        )
         thick(xy + rng.uniform(-3.2, 3.2) * normal + steps, 35.0, 0.05)
     for lateral in (-_ROAD_HALF_WIDTH + 0.25, _ROAD_HALF_WIDTH - 0.25):  # edge lines
         thick(offset_curve(lateral), 215.0, 0.15)
@@ -426,8 +562,8 @@ class _Quads:
 
     Point (a, b) of rectangle q (metres, 0 <= a <= size[q, 0], 0 <= b <= size[q, 1]) is
     origin[q] + a * axis_a[q] + b * axis_b[q]; axis_b points down (texture rows). It has atlas texel
-    coordinates texel0[q] + (a, b) / res[q]. corners: (Q, 4, 3); rect: (Q, 4) atlas clamp box
-    x0, y0, x1, y1 (texels); shade: (Q,) brightness factor.
+    coordinates texel0[q] + (a, b) / res[q] (its texture is surrounded by `_ATLAS_PAD` texels of
+    replicated border). corners: (Q, 4, 3); shade: (Q,) brightness factor.
     """
 
     origin: np.ndarray
@@ -436,21 +572,43 @@ class _Quads:
     size: np.ndarray
     texel0: np.ndarray
     res: np.ndarray
-    rect: np.ndarray
     shade: np.ndarray
     corners: np.ndarray
 
 
-def _build_street(line: _Centreline, rng: np.random.Generator) -> tuple[_Quads, np.ndarray]:
-    """Buildings on both sides of the road -> their rectangles and the packed texture atlas (uint8)."""
+class _Panel(NamedTuple):
+    """One textured rectangle of a building, before packing (map frame, metres).
+
+    origin: (3,) top-left corner; axis: (3,) horizontal unit vector along the rectangle (texture columns);
+    size: length, height; texture: index in the texture list; along: metres of that texture left of this
+    rectangle; res: metres per texel; shade: brightness factor.
+    """
+
+    origin: np.ndarray
+    axis: np.ndarray
+    size: tuple[float, float]
+    texture: int
+    along: float
+    res: float
+    shade: float
+
+
+def _build_street(
+    line: _Centreline, rngs: tuple[np.random.Generator, np.random.Generator, np.random.Generator]
+) -> tuple[_Quads, np.ndarray]:
+    """Buildings on both sides of the road -> their rectangles and the packed texture atlas (uint8).
+
+    rngs: generators for the texture grain, the left side and the right side (independent streams, so a
+    longer road only appends buildings).
+    """
     sun = np.array([0.6, -0.5, 0.62])
     sun /= np.linalg.norm(sun)
     length = float(line.s[-1])
     textures: list[np.ndarray] = []
-    quads: list[tuple[np.ndarray, np.ndarray, np.ndarray, float, int, float, float]] = []
-    # quad = (origin, axis_a, size (2,), texture index, texel offset along a, res, shade)
+    panels: list[_Panel] = []
     down = np.array([0.0, 0.0, -1.0])
-    for side in (1.0, -1.0):
+    grain = rngs[0].normal(0.0, 7.0, (1024, 1024)).astype(np.float32)
+    for side, rng in ((1.0, rngs[1]), (-1.0, rngs[2])):
         s = 0.0
         while s < length:
             if rng.random() < 0.22:
@@ -468,39 +626,40 @@ def _build_street(line: _Centreline, rng: np.random.Generator) -> tuple[_Quads, 
             facade = xy + side * offset * normal  # (k, 2)
             chords = np.linalg.norm(np.diff(facade, axis=0), axis=1)
             tex_index = len(textures)
-            textures.append(_facade_texture(float(chords.sum()), height, rng))
+            textures.append(_finish_texture(_facade_texture(float(chords.sum()), height, rng), grain, rng))
             along = 0.0
             for k, chord in enumerate(chords):
                 axis = np.append((facade[k + 1] - facade[k]) / chord, 0.0)
                 facing = -side * np.append(normal[k], 0.0)  # the façade faces the road
                 shade = 0.7 + 0.35 * max(0.0, float(np.dot(facing, sun)))
-                quads.append((np.append(facade[k], height), axis, np.array([chord, height]), tex_index,
-                              along, _FACADE_RES, shade))
+                panels.append(
+                    _Panel(
+                        np.append(facade[k], height), axis, (float(chord), height), tex_index, along, _FACADE_RES, shade
+                    )
+                )
                 along += chord
             depth = rng.uniform(6.0, 10.0)
             for end in (0, -1):  # side walls, perpendicular to the road, going away from it
                 tex_index = len(textures)
-                textures.append(_sidewall_texture(depth, height, rng))
+                textures.append(_finish_texture(_sidewall_texture(depth, height, rng), grain, rng))
                 axis = np.append(side * normal[end], 0.0)
                 shade = 0.65 + 0.4 * abs(float(np.dot(np.cross(axis, down), sun)))
-                quads.append((np.append(facade[end], height), axis, np.array([depth, height]), tex_index,
-                              0.0, _SIDEWALL_RES, shade))
+                panels.append(
+                    _Panel(np.append(facade[end], height), axis, (depth, height), tex_index, 0.0, _SIDEWALL_RES, shade)
+                )
             s += blen
-    atlas, offsets = _pack_atlas(textures, rng)
-    n = len(quads)
-    origin = np.array([q[0] for q in quads])
-    axis_a = np.array([q[1] for q in quads])
-    axis_b = np.tile(down, (n, 1))
-    size = np.array([q[2] for q in quads])
-    tex = np.array([q[3] for q in quads])
-    res = np.array([q[5] for q in quads])
-    texel0 = offsets[tex].astype(np.float64) + np.stack([np.array([q[4] for q in quads]) / res, np.zeros(n)], 1)
-    tex_sizes = np.array([t.shape[::-1] for t in textures])[tex]  # (w, h)
-    rect = np.concatenate([offsets[tex], offsets[tex] + tex_sizes - 1], axis=1).astype(np.float64)
-    corners = np.stack([origin, origin + size[:, :1] * axis_a, origin + size[:, :1] * axis_a + size[:, 1:] * axis_b,
-                        origin + size[:, 1:] * axis_b], axis=1)
-    shade = np.array([q[6] for q in quads])
-    return _Quads(origin, axis_a, axis_b, size, texel0, res, rect, shade, corners), atlas
+    atlas, offsets = _pack_atlas(textures)
+    origin = np.array([p.origin for p in panels])
+    axis_a = np.array([p.axis for p in panels])
+    axis_b = np.tile(down, (len(panels), 1))
+    size = np.array([p.size for p in panels])
+    res = np.array([p.res for p in panels])
+    texel0 = offsets[[p.texture for p in panels]].astype(np.float64)
+    texel0[:, 0] += np.array([p.along for p in panels]) / res
+    along_a, along_b = size[:, :1] * axis_a, size[:, 1:] * axis_b
+    corners = np.stack([origin, origin + along_a, origin + along_a + along_b, origin + along_b], axis=1)
+    shades = np.array([p.shade for p in panels])
+    return _Quads(origin, axis_a, axis_b, size, texel0, res, shades, corners), atlas
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -508,8 +667,9 @@ def _build_street(line: _Centreline, rng: np.random.Generator) -> tuple[_Quads, 
 # ----------------------------------------------------------------------------------------------------
 
 
-def _surface_homography(k: np.ndarray, r_cm: np.ndarray, t_cm: np.ndarray, origin: np.ndarray,
-                        axis_a: np.ndarray, axis_b: np.ndarray) -> np.ndarray | None:
+def _surface_homography(
+    k: np.ndarray, r_cm: np.ndarray, t_cm: np.ndarray, origin: np.ndarray, axis_a: np.ndarray, axis_b: np.ndarray
+) -> np.ndarray | None:
     """(3, 3) G mapping pixel (u, v, 1) to (a, b, 1) / z for the plane origin + a axis_a + b axis_b.
 
     r_cm, t_cm: map -> camera transform. The third component of G (u, v, 1) is the inverse depth 1/z
@@ -522,61 +682,102 @@ def _surface_homography(k: np.ndarray, r_cm: np.ndarray, t_cm: np.ndarray, origi
     return np.linalg.inv(h)
 
 
-def _surface_coords(g: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Surface coordinates and footprint per pixel.
+@dataclass(frozen=True)
+class _Footprints:
+    """Where n pixels land on a surface, in surface units (metres or atlas texels).
 
-    g: (9, n) or (9, 1) float32 row-major homographies (pixel -> surface coordinates); u, v: (n,) pixels.
-    Returns a, b (n,) and the footprint rho (n,): surface units per pixel along the worse image axis.
+    x, y: (n,) coordinates of the pixel centres; major_x, major_y: (n,) extent of a pixel along its longer
+    image axis (the derivative of (x, y) along u or v); minor: (n,) length of the extent along the other.
+    """
+
+    x: np.ndarray
+    y: np.ndarray
+    major_x: np.ndarray
+    major_y: np.ndarray
+    minor: np.ndarray
+
+
+def _surface_coords(g: np.ndarray, u: np.ndarray, v: np.ndarray) -> _Footprints:
+    """Surface coordinates and pixel footprints of pixels (u, v) (n,) float32.
+
+    g: (9, n) or (9, 1) float32 row-major homographies, pixel -> surface coordinates (see
+    `_surface_homography`); the derivatives are exact for the homography.
     """
     inv_c = 1.0 / (g[6] * u + g[7] * v + g[8])
     a = (g[0] * u + g[1] * v + g[2]) * inv_c
     b = (g[3] * u + g[4] * v + g[5]) * inv_c
     a_u, b_u = (g[0] - a * g[6]) * inv_c, (g[3] - b * g[6]) * inv_c
     a_v, b_v = (g[1] - a * g[7]) * inv_c, (g[4] - b * g[7]) * inv_c
-    rho = np.sqrt(np.maximum(a_u * a_u + b_u * b_u, a_v * a_v + b_v * b_v))
-    return a, b, rho
+    len_u, len_v = a_u * a_u + b_u * b_u, a_v * a_v + b_v * b_v
+    u_major = len_u > len_v
+    return _Footprints(
+        x=a,
+        y=b,
+        major_x=np.where(u_major, a_u, a_v),
+        major_y=np.where(u_major, b_u, b_v),
+        minor=np.sqrt(np.minimum(len_u, len_v)),
+    )
 
 
 def _remap_points(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Bilinear samples (n,) float32 of `image` at texel coordinates x, y (n,), border replicated."""
-    n = x.size
-    if n == 0:
-        return np.zeros(0, np.float32)
-    cols = 1024
-    rows = -(-n // cols)
-    mx = np.zeros(rows * cols, np.float32)
-    my = np.zeros(rows * cols, np.float32)
-    mx[:n], my[:n] = x, y
-    out = cv2.remap(image, mx.reshape(rows, cols), my.reshape(rows, cols), cv2.INTER_LINEAR,
-                    borderMode=cv2.BORDER_REPLICATE)
-    return out.reshape(-1)[:n].astype(np.float32)
+    """Bilinear samples (n,) of `image` at texel coordinates x, y (n,) float32, border replicated.
 
-
-def _sample_mip(pyramid: list[np.ndarray], x: np.ndarray, y: np.ndarray, footprint: np.ndarray,
-                wrap: int = 0) -> np.ndarray:
-    """Trilinear sample (n,) float32 of a mip pyramid at level-0 texel coordinates x, y (n,).
-
-    footprint: (n,) level-0 texels per pixel, selects the mip level. wrap > 0: the texture is a tile of
-    that size (level 0) and each level was padded by 2 texels of wrapped border.
+    (cv2.remap needs maps under 32767 columns: the points go in rows of 1024 plus one shorter row.)
     """
-    top = len(pyramid) - 1  # at least 1: pyramids have two levels or more
+    n, cols = x.size, 1024
+    full = n - n % cols
+    parts = []
+    for lo, hi, shape in ((0, full, (full // cols, cols)), (full, n, (1, n - full))):
+        if hi > lo:
+            parts.append(
+                cv2.remap(
+                    image,
+                    x[lo:hi].reshape(shape),
+                    y[lo:hi].reshape(shape),
+                    cv2.INTER_LINEAR,
+                    borderMode=cv2.BORDER_REPLICATE,
+                ).reshape(-1)
+            )
+    return np.concatenate(parts) if len(parts) > 1 else parts[0] if parts else np.zeros(0, image.dtype)
+
+
+def _sample_aniso(
+    pyramid: list[np.ndarray], fp: _Footprints, scale: float, offset: tuple[float, float], wrap: int = 0
+) -> np.ndarray:
+    """Anisotropic trilinear sample (n,) float32 of a texture at texel coordinates fp.{x, y} * scale + offset.
+
+    pyramid: mip levels of the texture (`_mip_pyramid`, at least two). `_ANISO_TAPS` taps spread along
+    each pixel's longer footprint axis are averaged, each filtered over its share of the footprint (the mip
+    level, blended between the two nearest): sharp and alias-free on surfaces seen at grazing angles.
+    wrap > 0: the texture is a tile of that size and every level is padded with 2 texels of wrapped border.
+    """
+    top = len(pyramid) - 1
+    major_x, major_y = fp.major_x * scale, fp.major_y * scale
+    footprint = np.maximum(fp.minor * scale, np.hypot(major_x, major_y) * (1.0 / _ANISO_TAPS))
     lam = np.clip(np.log2(np.maximum(footprint, 1e-6)), 0.0, float(top))
     lo = np.minimum(lam.astype(np.int32), top - 1)  # blend levels lo and lo + 1
-    frac = lam - lo
-    order = np.argsort(lo, kind="stable")
-    bounds = np.searchsorted(lo[order], np.arange(top + 1))
-    out = np.zeros(x.shape, np.float32)
-    for level in range(top):
-        idx = order[bounds[level]:bounds[level + 1]]
-        if idx.size == 0:
+    order = np.argsort(lo, kind="stable")  # group the pixels by level: contiguous slices below
+    bounds = np.searchsorted(lo[order], np.arange(top + 1))  # group k (lo == k): bounds[k]:bounds[k + 1]
+    frac = (lam - lo)[order]
+    x, y = fp.x * scale + float(offset[0]), fp.y * scale + float(offset[1])  # float32 level-0 texels
+    taps = []  # per tap: level-0 coordinates in level order
+    for k in range(_ANISO_TAPS):
+        t = (k + 0.5) / _ANISO_TAPS - 0.5
+        xt, yt = (x + t * major_x)[order], (y + t * major_y)[order]
+        taps.append((np.mod(xt, wrap), np.mod(yt, wrap)) if wrap else (xt, yt))
+    pad = 2.0 if wrap else 0.0
+    acc = np.zeros(x.shape, np.float32)
+    for level in range(top + 1):  # level l serves group l - 1 (weight frac) and group l (weight 1 - frac)
+        start, mid, stop = bounds[max(level - 1, 0)], bounds[level], bounds[min(level + 1, top)]
+        if start == stop:
             continue
-        for lv, weight in ((level, 1.0 - frac[idx]), (level + 1, frac[idx])):
-            scale = 0.5**lv
-            xs, ys = (x[idx] + 0.5) * scale - 0.5, (y[idx] + 0.5) * scale - 0.5
-            if wrap:
-                tile = wrap >> lv
-                xs, ys = np.mod(xs, tile) + 2.0, np.mod(ys, tile) + 2.0
-            out[idx] += weight * _remap_points(pyramid[lv], xs, ys)
+        weight = np.concatenate([frac[start:mid], 1.0 - frac[mid:stop]]) * (1.0 / _ANISO_TAPS)
+        s = 0.5**level
+        for xt, yt in taps:
+            xl, yl = xt[start:stop] * s + (0.5 * s - 0.5 + pad), yt[start:stop] * s + (0.5 * s - 0.5 + pad)
+            acc[start:stop] += weight * _remap_points(pyramid[level], xl, yl)
+    out = np.empty_like(acc)
+    out[order] = acc
     return out
 
 
@@ -618,30 +819,32 @@ class SyntheticStreet:
     camera_height: metres between the camera centre and the road plane.
     """
 
-    def __init__(self, n_frames: int = 300, frames: FrameRange | None = None, seed: int = 0,
-                 camera_height: float = 1.65) -> None:
-        if n_frames < 1:
-            raise ValueError(f"n_frames must be at least 1, got {n_frames}")
+    def __init__(
+        self, n_frames: int = 300, frames: FrameRange | None = None, seed: int = 0, camera_height: float = 1.65
+    ) -> None:
+        if not 1 <= n_frames <= _MAX_FRAMES:
+            raise SourceError(f"synthetic street: n_frames must be in 1..{_MAX_FRAMES}, got {n_frames}")
         self.n_frames = n_frames
         self.seed = seed
         self.camera_height = float(camera_height)
         self._indices = (frames or FrameRange()).indices(n_frames)
-        rng = np.random.default_rng(seed)
+        # Independent streams: the road, path and buildings of a shorter run are a prefix of a longer one's.
+        rngs = [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(8)]
         intr = _INTRINSICS
         self._k = intr.K
-        self._line = _make_centreline(_START_S + 1.25 * n_frames + _LOOK_AHEAD, rng)
-        self._poses_map = _camera_path(self._line, n_frames, self.camera_height, rng)
-        self._quads, atlas = _build_street(self._line, rng)
+        self._line = _make_centreline(_START_S + 1.25 * n_frames + _LOOK_AHEAD, rngs[0])
+        self._poses_map = _camera_path(self._line, n_frames, self.camera_height, rngs[1])
+        self._quads, atlas = _build_street(self._line, (rngs[2], rngs[3], rngs[4]))
         self._atlas = _mip_pyramid(atlas, _MIP_LEVELS)
-        layout = _ground_layout(self._line, rng)
+        layout = _ground_layout(self._line, rngs[5])
         self._ground_origin = layout.origin
         self._ground = _mip_pyramid(layout.image, _MIP_LEVELS)
-        tile = _mip_pyramid(_ground_fine_tile(rng), 9)
+        tile = _mip_pyramid(_ground_fine_tile(rngs[6]), 9)
         self._fine = [cv2.copyMakeBorder(t, 2, 2, 2, 2, cv2.BORDER_WRAP) for t in tile]
-        pano = _panorama(rng, intr.fx)
+        pano = _panorama(rngs[7], intr.fx)
         self._pano = cv2.copyMakeBorder(pano, 0, 0, 2, 2, cv2.BORDER_WRAP)
         self._pano_width = pano.shape[1]
-        v, u = np.mgrid[0:intr.height, 0:intr.width]
+        v, u = np.mgrid[0 : intr.height, 0 : intr.width]
         self._u = u.ravel().astype(np.float32)  # (H*W,) pixel column of each flat index
         self._v = v.ravel().astype(np.float32)
         self._ground_truth = rebase_poses(self._poses_map[self._indices])
@@ -658,6 +861,16 @@ class SyntheticStreet:
     def ground_truth(self) -> np.ndarray:
         """(N, 4, 4) float64 T_w_c of the selected frames, world = camera of the first selected frame."""
         return self._ground_truth.copy()
+
+    @property
+    def ground_plane(self) -> np.ndarray:
+        """(4,) float64 (n_x, n_y, n_z, d): the road plane n . X + d = 0 in world coordinates.
+
+        n is the unit normal pointing up (towards the cameras); d = `camera_height`, the first selected
+        camera's distance to the road. n = (0, -1, 0) when that camera has no pitch or roll.
+        """
+        r_m_c0 = self._poses_map[self._indices[0], :3, :3] if self._indices else np.eye(3)
+        return np.append(r_m_c0[2, :], self.camera_height)  # R_c0_m . z_map = third row of R_m_c0
 
     @property
     def indices(self) -> list[int]:
@@ -686,14 +899,14 @@ class SyntheticStreet:
         self._shade_ground(out, np.flatnonzero(flat_ids == 0), ground_g, position)
         self._shade_sky(out, np.flatnonzero(flat_ids < 0), r_cm)
         self._shade_facades(out, flat_ids, facade_g)
-        image = out.reshape(intr.height, intr.width)
-        image = cv2.GaussianBlur(image, (0, 0), 0.5)
+        image = cv2.GaussianBlur(out.reshape(intr.height, intr.width), (0, 0), 0.5)  # soften silhouettes
         return np.clip(image + 0.5, 0, 255).astype(np.uint8)
 
     # -- rendering steps --------------------------------------------------------------------------
 
-    def _visibility(self, r_cm: np.ndarray, t_cm: np.ndarray, position: np.ndarray
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _visibility(
+        self, r_cm: np.ndarray, t_cm: np.ndarray, position: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Z-buffer pass for the camera with map -> camera transform (r_cm, t_cm) at map `position` (3,).
 
         Returns the id of the surface seen per pixel (H, W) int32 (-1 sky, 0 ground, q + 1 rectangle q);
@@ -705,8 +918,14 @@ class SyntheticStreet:
         w, h = intr.width, intr.height
         u = np.arange(w, dtype=np.float32)[None, :]
         v = np.arange(h, dtype=np.float32)[:, None]
-        ground_g = _surface_homography(self._k, r_cm, t_cm, np.array([position[0], position[1], 0.0]),
-                                       np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
+        ground_g = _surface_homography(
+            self._k,
+            r_cm,
+            t_cm,
+            np.array([position[0], position[1], 0.0]),
+            np.array([1.0, 0.0, 0.0]),
+            np.array([0.0, 1.0, 0.0]),
+        )
         assert ground_g is not None  # the camera is above the ground
         inv_z = ((ground_g[2, 0] * u + ground_g[2, 2]) + ground_g[2, 1] * v).astype(np.float32)
         ground = inv_z > 1.0 / _GROUND_FAR
@@ -734,30 +953,43 @@ class SyntheticStreet:
             na = gf[0, 0] * uu + (gf[0, 1] * vv + gf[0, 2])
             nb = gf[1, 0] * uu + (gf[1, 1] * vv + gf[1, 2])
             zview, iview = zbuf[v0:v1, u0:u1], ids[v0:v1, u0:u1]
+            # Inside test a in [0, length], b in [0, height] (times c > 0), widened by 1 mm so that rounding
+            # never leaves a crack between adjacent rectangles.
             hit = c > zview
-            hit &= na >= 0
-            hit &= na <= np.float32(quads.size[q, 0]) * c
-            hit &= nb >= 0
-            hit &= nb <= np.float32(quads.size[q, 1]) * c
+            hit &= na >= np.float32(-1e-3) * c
+            hit &= na <= np.float32(quads.size[q, 0] + 1e-3) * c
+            hit &= nb >= np.float32(-1e-3) * c
+            hit &= nb <= np.float32(quads.size[q, 1] + 1e-3) * c
             np.copyto(zview, c, where=hit)
             np.copyto(iview, q + 1, where=hit)
-            to_atlas = np.array([[1.0 / quads.res[q], 0.0, quads.texel0[q, 0]],
-                                 [0.0, 1.0 / quads.res[q], quads.texel0[q, 1]], [0.0, 0.0, 1.0]])
+            to_atlas = np.array(
+                [
+                    [1.0 / quads.res[q], 0.0, quads.texel0[q, 0]],
+                    [0.0, 1.0 / quads.res[q], quads.texel0[q, 1]],
+                    [0.0, 0.0, 1.0],
+                ]
+            )
             facade_g[:, q + 1] = (to_atlas @ g).ravel()
         return ids, ground_g, facade_g
 
     def _shade_ground(self, out: np.ndarray, idx: np.ndarray, g: np.ndarray, position: np.ndarray) -> None:
         """Write the ground's grey values into out (H*W,) at flat pixel indices idx (layout + speckle)."""
-        x, y, rho = _surface_coords(g.astype(np.float32).reshape(9, 1), self._u[idx], self._v[idx])
+        fp = _surface_coords(g.astype(np.float32).reshape(9, 1), self._u[idx], self._v[idx])
         res = _COARSE_RES
-        cx = (position[0] - self._ground_origin[0]) / res - 0.5
-        cy = (position[1] - self._ground_origin[1]) / res - 0.5
-        layout = _sample_mip(self._ground, x * (1.0 / res) + cx, y * (1.0 / res) + cy, rho * (1.0 / res))
+        layout = _sample_aniso(
+            self._ground,
+            fp,
+            1.0 / res,
+            ((position[0] - self._ground_origin[0]) / res - 0.5, (position[1] - self._ground_origin[1]) / res - 0.5),
+        )
         fres = _FINE_RES
-        fx = (position[0] / fres) % _FINE_TILE
-        fy = (position[1] / fres) % _FINE_TILE
-        fine = _sample_mip(self._fine, x * (1.0 / fres) + fx, y * (1.0 / fres) + fy, rho * (1.0 / fres),
-                           wrap=_FINE_TILE)
+        fine = _sample_aniso(
+            self._fine,
+            fp,
+            1.0 / fres,
+            ((position[0] / fres) % _FINE_TILE, (position[1] / fres) % _FINE_TILE),
+            wrap=_FINE_TILE,
+        )
         out[idx] = layout + 0.45 * (fine - 128.0)
 
     def _shade_sky(self, out: np.ndarray, idx: np.ndarray, r_cm: np.ndarray) -> None:
@@ -781,9 +1013,5 @@ class SyntheticStreet:
         if idx.size == 0:
             return
         ids = flat_ids[idx]
-        x, y, rho = _surface_coords(facade_g[:, ids], self._u[idx], self._v[idx])
-        rect = self._quads.rect.astype(np.float32)
-        q = ids - 1
-        x = np.clip(x - 0.5, rect[q, 0], rect[q, 2])
-        y = np.clip(y - 0.5, rect[q, 1], rect[q, 3])
-        out[idx] = _sample_mip(self._atlas, x, y, rho) * self._quads.shade.astype(np.float32)[q]
+        fp = _surface_coords(facade_g[:, ids], self._u[idx], self._v[idx])
+        out[idx] = _sample_aniso(self._atlas, fp, 1.0, (-0.5, -0.5)) * self._quads.shade.astype(np.float32)[ids - 1]

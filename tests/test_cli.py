@@ -1,0 +1,181 @@
+"""`vslam run` as a user runs it: exit codes, messages, files written, recording content."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from app.rrd import read_entity
+from vslam_core.config import EngineConfig
+from vslam_core.pipeline import run_odometry
+from vslam_core.results import TrackFate
+from vslam_core.sources.base import FrameRange
+from vslam_core.sources.kitti import KittiSource
+from vslam_core.trajectory_io import read_kitti_poses, read_tum_poses
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def vslam(*args: str | Path, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "app.cli", *map(str, args)], capture_output=True, text=True,
+                          cwd=cwd or ROOT, timeout=600)
+
+
+def assert_clean_error(result: subprocess.CompletedProcess[str], *fragments: str) -> None:
+    """Non-zero exit, one line on stderr naming the problem, no traceback."""
+    assert result.returncode == 2, result.stderr
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1, result.stderr
+    assert lines[0].startswith("error: ")
+    assert "Traceback" not in result.stderr
+    for fragment in fragments:
+        assert fragment in lines[0]
+
+
+def verify(path: Path) -> None:
+    check = subprocess.run(["rerun", "rrd", "verify", str(path)], capture_output=True, text=True, timeout=120)
+    assert check.returncode == 0, check.stderr
+
+
+@pytest.fixture(scope="module")
+def kitti_run(kitti_root: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, str]:
+    out = tmp_path_factory.mktemp("run")
+    rrd, trajectory = out / "00.rrd", out / "00.txt"
+    result = vslam("run", kitti_root, "--sequence", "00", "--frames", "0:40", "-o", rrd, "--trajectory-out",
+                   trajectory)
+    assert result.returncode == 0, result.stderr
+    return rrd, trajectory, result.stdout
+
+
+@pytest.mark.kitti
+def test_run_on_kitti_writes_a_valid_recording_and_one_pose_per_frame(
+    kitti_run: tuple[Path, Path, str], kitti_root: Path
+) -> None:
+    rrd, trajectory, stdout = kitti_run
+    verify(rrd)
+    poses = read_kitti_poses(trajectory)
+    assert poses.shape == (40, 4, 4)
+    assert np.allclose(poses[0], np.eye(4))
+    assert "frames      40" in stdout and "frames/s" in stdout and "paper RMS" in stdout
+
+    # The recording holds what the engine computed (same input, same config: same numbers).
+    source = KittiSource(kitti_root, sequence="00", frames=FrameRange(0, 40))
+    results = []
+    run_odometry(source, EngineConfig(), sinks=(lambda _f, r: results.append(r),))
+    assert np.allclose(poses, np.array([r.T_world_cam for r in results]), atol=1e-6)
+
+    corners = read_entity(rrd, "/world/camera/image/corners")
+    assert corners["frame"].to_list() == list(range(40))
+    assert np.allclose(np.array(corners["Points2D:positions"][0].to_list()), results[0].new_corners)
+
+    flow = read_entity(rrd, "/world/camera/image/flow").filter(frame=10)
+    classes = np.array(flow["Arrows2D:class_ids"][0].to_list())
+    fates = results[10].track_fate[results[10].track_fate != TrackFate.LOST]
+    assert np.array_equal(np.sort(classes), np.sort(fates))
+    assert (classes == TrackFate.INLIER).sum() == results[10].inlier_count
+
+    camera = read_entity(rrd, "/world/camera")
+    assert len(camera) == 40
+    assert np.allclose(np.array(camera["Transform3D:translation"][-1].to_list()).ravel(),
+                       results[-1].T_world_cam[:3, 3], atol=1e-5)
+    for entity in ("/world/trajectory/estimate", "/world/trajectory/ground_truth", "/world/camera/image"):
+        assert len(read_entity(rrd, entity)) == 40, entity
+
+
+@pytest.mark.kitti
+def test_existing_output_is_never_replaced_without_force(kitti_run: tuple[Path, Path, str], kitti_root: Path) -> None:
+    rrd, trajectory, _ = kitti_run
+    before = rrd.read_bytes()
+    result = vslam("run", kitti_root, "--sequence", "00", "--frames", "0:5", "-o", rrd)
+    assert_clean_error(result, str(rrd), "--force")
+    assert rrd.read_bytes() == before
+    other = rrd.with_name("other.rrd")
+    result = vslam("run", kitti_root, "--sequence", "00", "--frames", "0:5", "-o", other, "--trajectory-out",
+                   trajectory)
+    assert_clean_error(result, str(trajectory), "--force")
+    assert not other.exists()  # nothing is started when an output would be refused
+
+
+@pytest.mark.kitti
+def test_force_replaces_and_tum_output_carries_timestamps(kitti_root: Path, tmp_path: Path) -> None:
+    trajectory = tmp_path / "t.tum"
+    trajectory.write_text("old\n")
+    result = vslam("run", kitti_root, "--sequence", "05", "--frames", "10:20", "--no-recording",
+                   "--trajectory-out", trajectory, "--trajectory-format", "tum", "--force")
+    assert result.returncode == 0, result.stderr
+    stamps, poses = read_tum_poses(trajectory)
+    assert len(poses) == 10
+    times = np.loadtxt(kitti_root / "sequences" / "05" / "times.txt")
+    assert np.allclose(stamps, times[10:20], atol=1e-6)
+
+
+@pytest.mark.kitti
+@pytest.mark.parametrize(
+    ("args", "fragments"),
+    [
+        (["--frames", "0:999"], ["out of range", "300"]),
+        (["--frames", "abc"], ["--frames"]),
+        (["--scale", "gt", "--sequence", "07"], ["sequence 07 not found"]),
+    ],
+)
+def test_bad_kitti_arguments_give_one_line_errors(kitti_root: Path, tmp_path: Path, args: list[str],
+                                                  fragments: list[str]) -> None:
+    full = ["run", kitti_root, *(["--sequence", "00"] if "--sequence" not in args else []), *args,
+            "-o", tmp_path / "x.rrd"]
+    assert_clean_error(vslam(*full), *fragments)
+    assert not (tmp_path / "x.rrd").exists()
+
+
+def test_missing_source_and_gt_scale_without_ground_truth(tmp_path: Path) -> None:
+    assert_clean_error(vslam("run", tmp_path / "nowhere", "-o", tmp_path / "a.rrd"), "nowhere")
+    folder = tmp_path / "images"
+    folder.mkdir()
+    import cv2
+
+    for i in range(3):
+        cv2.imwrite(str(folder / f"{i:06d}.png"), np.full((64, 96), 100 + i, np.uint8))
+    assert_clean_error(vslam("run", folder, "--intrinsics", "100,100,48,32", "--scale", "gt", "-o",
+                             tmp_path / "b.rrd"), "ground truth")
+    assert_clean_error(vslam("run", folder, "-o", tmp_path / "b.rrd"), "intrinsics")
+
+
+def test_bad_config_names_the_key_and_file(tmp_path: Path) -> None:
+    config = tmp_path / "bad.toml"
+    config.write_text("[tracker]\nwindow = 21\n")
+    assert_clean_error(vslam("run", "--config", config, "-o", tmp_path / "a.rrd"), "tracker.window", str(config))
+
+
+def test_output_must_be_rrd_and_its_folder_creatable(tmp_path: Path) -> None:
+    assert_clean_error(vslam("run", "-o", tmp_path / "a.txt"), ".rrd")
+    blocker = tmp_path / "file"
+    blocker.write_text("a file where a folder should be")
+    assert_clean_error(vslam("run", "-o", blocker / "a.rrd"), "cannot create output folder")
+
+
+@pytest.mark.kitti
+@pytest.mark.parametrize(("signum", "code"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_interrupted_run_finalises_recording_and_trajectory(kitti_root: Path, tmp_path: Path, signum: int,
+                                                            code: int) -> None:
+    rrd, trajectory = tmp_path / "i.rrd", tmp_path / "i.txt"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "app.cli", "run", str(kitti_root), "--sequence", "00", "-o", str(rrd),
+         "--trajectory-out", str(trajectory)],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    deadline = time.monotonic() + 60
+    while (not rrd.exists() or rrd.stat().st_size < 2_000_000) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    process.send_signal(signum)
+    _, stderr = process.communicate(timeout=60)
+    assert process.returncode == code, stderr
+    assert "interrupted" in stderr and "Traceback" not in stderr
+    verify(rrd)
+    poses = read_kitti_poses(trajectory)
+    assert 1 <= len(poses) < 300
+    assert f"after {len(poses)} frames" in stderr
