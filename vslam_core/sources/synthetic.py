@@ -5,10 +5,13 @@ Nothing is downloaded: the scene is generated from a seed and rendered on demand
 Scene, in an internal *map* frame M (x east, y north, z up, metres; never exposed):
 
 - the ground plane z = 0: asphalt road with lane markings, kerbs, sidewalks and repair patches along
-  a smooth centreline with left and right curves, plus a fine, non-repeating speckle;
+  a smooth centreline with left and right curves, plus a fine speckle (a tile repeating every 15 m);
 - building façades on both sides of the road at varying setbacks (5..12 m from the centreline), in
   blocks of 10..25 m with gaps; each building is a chain of planar textured rectangles following the
   road plus two side walls;
+- street furniture on the sidewalks every 6..14 m (signs on poles, poster boards, kiosks) and parked
+  cars and vans along the left kerb: features at mid range seen head-on, which keep the two-view
+  geometry well conditioned (far façades alone give little parallax, the near road moves too fast);
 - a panorama at infinity (hills with trees, sky) seen above and between the buildings.
 
 The camera (OpenCV/KITTI axes: x right, y down, z forward) drives in the right lane, ``camera_height``
@@ -26,7 +29,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import cv2
@@ -52,9 +55,11 @@ _FAR = 100.0  # metres; rectangles whose nearest point is farther are culled
 _GROUND_FAR = 300.0  # metres; farther ground shows the panorama (hills) instead
 _FACADE_RES = 0.04  # metres per texel
 _SIDEWALL_RES = 0.06
+_FURNITURE_RES = 0.02
 _COARSE_RES = 0.1  # ground layout texture (road, markings, patches)
 _FINE_RES = 0.015  # ground speckle tile
 _FINE_TILE = 1024
+_SPECKLE_CONTRAST = 0.45  # ground speckle amplitude, about +-55 grey levels
 _ATLAS_MIN_WIDTH = 4096
 _ATLAS_PAD = 16
 _MIP_LEVELS = 7
@@ -245,7 +250,7 @@ def _wall_details(
     for _ in range(int(length * height / 10.0)):
         w, h = rng.uniform(0.2, 1.2), rng.uniform(0.2, 1.0)
         x, y = rng.uniform(0.0, max(0.1, length - w)), rng.uniform(0.3, max(0.4, height - h))
-        value = float(np.clip(wall + rng.choice([-1.0, 1.0]) * rng.uniform(40, 110), 0, 255))
+        value = _grey(wall + rng.choice([-1.0, 1.0]) * rng.uniform(40, 110))
         _rect(img, x, y, x + w, y + h, value, res)
         kind = rng.integers(0, 3)
         if kind == 0:  # vent / grille: slats
@@ -265,6 +270,11 @@ def _wall_details(
                 )
 
 
+def _grey(value: float) -> float:
+    """A grey level clamped to 0..255."""
+    return min(255.0, max(0.0, float(value)))
+
+
 def _rect(img: np.ndarray, x0: float, y0: float, x1: float, y1: float, value: float, res: float) -> None:
     """Fill the rectangle [x0, x1] x [y0, y1] (metres; y down from the texture top) with `value`."""
     cv2.rectangle(
@@ -276,7 +286,7 @@ def _window(
     img: np.ndarray, x: float, y: float, w: float, h: float, wall: float, rng: np.random.Generator, res: float
 ) -> None:
     """Draw one window (frame, glass, mullions, curtain, sill) with its top-left at (x, y) metres."""
-    frame = float(np.clip(wall + rng.choice([-1.0, 1.0]) * rng.uniform(45, 90), 0, 255))
+    frame = _grey(wall + rng.choice([-1.0, 1.0]) * rng.uniform(45, 90))
     _rect(img, x, y, x + w, y + h, frame, res)
     glass = rng.uniform(10, 70) if rng.random() < 0.7 else rng.uniform(150, 245)
     b = 0.08
@@ -292,7 +302,7 @@ def _window(
             ym = y + h * rng.uniform(0.25, 0.45)
             _rect(img, x, ym - 0.03, x + w, ym + 0.03, frame, res)
     if rng.random() < 0.7:  # sill
-        _rect(img, x - 0.1, y + h, x + w + 0.1, y + h + 0.1, np.clip(wall + rng.uniform(-70, 70), 0, 255), res)
+        _rect(img, x - 0.1, y + h, x + w + 0.1, y + h + 0.1, _grey(wall + rng.uniform(-70, 70)), res)
 
 
 def _facade_texture(length: float, height: float, rng: np.random.Generator) -> np.ndarray:
@@ -319,7 +329,7 @@ def _facade_texture(length: float, height: float, rng: np.random.Generator) -> n
     floor_top = top
     while floor_top + floor_h < height - ground_floor:
         if cornice:
-            _rect(img, 0.0, floor_top - 0.12, length, floor_top, np.clip(wall + rng.uniform(-60, 60), 0, 255), res)
+            _rect(img, 0.0, floor_top - 0.12, length, floor_top, _grey(wall + rng.uniform(-60, 60)), res)
         for bx, bw in bays:
             if rng.random() < 0.08:
                 continue
@@ -359,7 +369,7 @@ def _facade_texture(length: float, height: float, rng: np.random.Generator) -> n
         _rect(img, door_x, y_shop + 1.2, door_x + door, height, rng.uniform(0, 60), res)
         _rect(img, door_x + 0.1, y_shop + 1.3, door_x + door - 0.1, y_shop + 1.6, rng.uniform(150, 250), res)
         x += shop
-    _rect(img, 0.0, height - 0.3, length, height, np.clip(wall - 50, 0, 255), res)  # plinth
+    _rect(img, 0.0, height - 0.3, length, height, _grey(wall - 50), res)  # plinth
     return img
 
 
@@ -383,7 +393,75 @@ def _sidewall_texture(depth: float, height: float, rng: np.random.Generator) -> 
             res,
         )
     px = rng.uniform(0.3, depth - 0.3)
-    _rect(img, px, 0.0, px + 0.12, height, np.clip(wall + rng.uniform(-80, 80), 0, 255), res)
+    _rect(img, px, 0.0, px + 0.12, height, _grey(wall + rng.uniform(-80, 80)), res)
+    return img
+
+
+def _plain_texture(w: float, h: float, rng: np.random.Generator, res: float, value: float | None = None) -> np.ndarray:
+    """(H, W) float32 plain surface `w` x `h` metres (poles, roofs) with slight smooth variation."""
+    shape = (max(4, math.ceil(h / res)), max(4, math.ceil(w / res)))
+    base = rng.uniform(40, 200) if value is None else value
+    return np.full(shape, base, np.float32) + 10.0 * _smooth_field(shape, 20, rng)
+
+
+def _poster_texture(w: float, h: float, rng: np.random.Generator, res: float) -> np.ndarray:
+    """(H, W) float32 high-contrast poster or sign `w` x `h` metres: frame, picture blocks, text lines."""
+    img = _plain_texture(w, h, rng, res, rng.uniform(20, 235))
+    background = float(img.mean())
+    _rect(img, 0.0, 0.0, w, h, 255.0 - background, res)
+    _rect(img, 0.04, 0.04, w - 0.04, h - 0.04, background, res)  # frame
+    for _ in range(int(rng.integers(1, 4))):  # picture blocks
+        bw, bh = rng.uniform(0.15, 0.6) * w, rng.uniform(0.1, 0.4) * h
+        x, y = rng.uniform(0.05, w - bw - 0.05), rng.uniform(0.05, h - bh - 0.05)
+        _rect(img, x, y, x + bw, y + bh, rng.uniform(0, 255), res)
+    y = rng.uniform(0.05, 0.3) * h
+    while y < h - 0.12:  # text lines: runs of "letters" of random widths
+        size = rng.uniform(0.04, 0.12)
+        x = rng.uniform(0.06, 0.2) * w
+        ink = _grey(255.0 - background + rng.uniform(-40, 40))
+        while x < w - 0.1 and rng.random() < 0.93:
+            lw = size * rng.uniform(0.4, 1.0)
+            _rect(img, x, y, x + lw, y + size, ink, res)
+            x += lw + size * rng.uniform(0.2, 0.6)
+        y += size * rng.uniform(1.6, 3.0)
+    return img
+
+
+def _vehicle_side(length: float, height: float, body: float, rng: np.random.Generator, res: float) -> np.ndarray:
+    """(H, W) float32 side of a car or van: body, window band with pillars, door seams, wheels."""
+    img = _plain_texture(length, height, rng, res, body)
+    top = 0.08 * height
+    _rect(img, 0.12 * length, top, 0.9 * length, 0.45 * height, rng.uniform(10, 60), res)  # windows
+    for x in np.linspace(0.12 * length, 0.9 * length, int(rng.integers(3, 5))):  # pillars
+        _rect(img, x - 0.04, top, x + 0.04, 0.45 * height, body, res)
+        _rect(img, x - 0.01, 0.45 * height, x + 0.01, 0.85 * height, body - 60.0 if body > 90 else body + 60.0, res)
+    _rect(img, 0.0, 0.8 * height, length, height, rng.uniform(15, 45), res)  # sill and shadow
+    for x in (0.18 * length, 0.82 * length):  # wheels
+        r = 0.32
+        cv2.circle(img, (round(x / res), round((height - 0.05 - r) / res)), round(r / res), 15.0, -1)
+        cv2.circle(
+            img,
+            (round(x / res), round((height - 0.05 - r) / res)),
+            round(0.45 * r / res),
+            float(rng.uniform(120, 200)),
+            -1,
+        )
+    return img
+
+
+def _vehicle_end(width: float, height: float, body: float, rng: np.random.Generator, res: float) -> np.ndarray:
+    """(H, W) float32 front or back of a vehicle: window, lights, number plate, bumper."""
+    img = _plain_texture(width, height, rng, res, body)
+    _rect(img, 0.12 * width, 0.08 * height, 0.88 * width, 0.45 * height, rng.uniform(10, 70), res)
+    light = rng.uniform(170, 250)
+    for x in (0.05 * width, 0.8 * width):
+        _rect(img, x, 0.55 * height, x + 0.15 * width, 0.65 * height, light, res)
+    _rect(img, 0.35 * width, 0.68 * height, 0.65 * width, 0.68 * height + 0.12, 230.0, res)  # plate
+    x = 0.37 * width
+    while x < 0.62 * width:
+        _rect(img, x, 0.68 * height + 0.025, x + 0.025, 0.68 * height + 0.095, 20.0, res)
+        x += rng.uniform(0.035, 0.05)
+    _rect(img, 0.0, 0.85 * height, width, height, rng.uniform(15, 50), res)  # bumper
     return img
 
 
@@ -452,9 +530,11 @@ def _ground_layout(line: _Centreline, rng: np.random.Generator) -> _GroundLayout
     origin = line.xy.min(axis=0) - 40.0
     extent = np.ceil((line.xy.max(axis=0) + 40.0 - origin) / res / 64).astype(int) * 64
     w, h = int(extent[0]), int(extent[1])
-    base = 22.0 * _smooth_field((h, w), 30, rng)
-    base += 10.0 * _smooth_field((h, w), 6, rng) + 105.0
-    img = np.clip(base, 0, 255, out=base).astype(np.uint8)  # drawn on uint8: OpenCV anti-aliases only 8-bit images
+    half = (h // 2, w // 2)  # the smooth base is made at half resolution, then upsampled
+    base = 22.0 * _smooth_field(half, 15, rng)
+    base += 10.0 * _smooth_field(half, 3, rng) + 105.0
+    base8 = np.clip(base, 0, 255, out=base).astype(np.uint8)
+    img = cv2.resize(base8, (w, h), interpolation=cv2.INTER_LINEAR)  # uint8: OpenCV anti-aliases only 8-bit
 
     def to_px(xy: np.ndarray) -> np.ndarray:
         """(n, 2) map points -> (n, 1, 2) int32 fixed-point (4 fractional bits) texel coordinates."""
@@ -561,9 +641,10 @@ class _Quads:
     """Q textured rectangles in the map frame.
 
     Point (a, b) of rectangle q (metres, 0 <= a <= size[q, 0], 0 <= b <= size[q, 1]) is
-    origin[q] + a * axis_a[q] + b * axis_b[q]; axis_b points down (texture rows). It has atlas texel
-    coordinates texel0[q] + (a, b) / res[q] (its texture is surrounded by `_ATLAS_PAD` texels of
-    replicated border). corners: (Q, 4, 3); shade: (Q,) brightness factor.
+    origin[q] + a * axis_a[q] + b * axis_b[q] (unit axes; b runs along texture rows, down on walls). It
+    has atlas texel coordinates texel0[q] + (a, b) / res[q] (its texture is surrounded by `_ATLAS_PAD`
+    texels of replicated border). corners: (Q, 4, 3); shade: (Q,) brightness factor; centre: (Q, 3);
+    radius: (Q,) half diagonal; to_atlas: (Q, 3, 3) maps (a, b, 1) to atlas texel coordinates.
     """
 
     origin: np.ndarray
@@ -574,18 +655,22 @@ class _Quads:
     res: np.ndarray
     shade: np.ndarray
     corners: np.ndarray
+    centre: np.ndarray
+    radius: np.ndarray
+    to_atlas: np.ndarray
 
 
 class _Panel(NamedTuple):
-    """One textured rectangle of a building, before packing (map frame, metres).
+    """One textured rectangle before packing (map frame, metres).
 
-    origin: (3,) top-left corner; axis: (3,) horizontal unit vector along the rectangle (texture columns);
-    size: length, height; texture: index in the texture list; along: metres of that texture left of this
-    rectangle; res: metres per texel; shade: brightness factor.
+    origin: (3,) corner at texture (0, 0); axis_a, axis_b: (3,) unit vectors along texture columns and
+    rows; size: extent along them; texture: index in the texture list; along: metres of that texture
+    before this rectangle along axis_a; res: metres per texel; shade: brightness factor.
     """
 
     origin: np.ndarray
-    axis: np.ndarray
+    axis_a: np.ndarray
+    axis_b: np.ndarray
     size: tuple[float, float]
     texture: int
     along: float
@@ -593,73 +678,236 @@ class _Panel(NamedTuple):
     shade: float
 
 
-def _build_street(
-    line: _Centreline, rngs: tuple[np.random.Generator, np.random.Generator, np.random.Generator]
-) -> tuple[_Quads, np.ndarray]:
-    """Buildings on both sides of the road -> their rectangles and the packed texture atlas (uint8).
+_SUN = np.array([0.6, -0.5, 0.62]) / np.linalg.norm([0.6, -0.5, 0.62])
+_DOWN = np.array([0.0, 0.0, -1.0])
 
-    rngs: generators for the texture grain, the left side and the right side (independent streams, so a
-    longer road only appends buildings).
+
+@dataclass
+class _SceneParts:
+    """Textures and rectangles collected while generating the scene; `grain`: (G, G) float32 texture grain."""
+
+    grain: np.ndarray
+    textures: list[np.ndarray] = field(default_factory=list)
+    panels: list[_Panel] = field(default_factory=list)
+
+    def texture(self, image: np.ndarray, rng: np.random.Generator) -> int:
+        """Store a float32 texture (grain and blur added, see `_finish_texture`); returns its index."""
+        self.textures.append(_finish_texture(image, self.grain, rng))
+        return len(self.textures) - 1
+
+    def panel(
+        self,
+        origin: np.ndarray,
+        axis_a: np.ndarray,
+        axis_b: np.ndarray,
+        size: tuple[float, float],
+        texture: int,
+        res: float,
+        along: float = 0.0,
+    ) -> None:
+        """Add a rectangle (see `_Panel`), shaded by its angle to the sun (both faces alike)."""
+        shade = 0.65 + 0.4 * abs(float(np.dot(np.cross(axis_a, axis_b), _SUN)))
+        self.panels.append(_Panel(origin, axis_a, axis_b, (float(size[0]), float(size[1])), texture, along, res, shade))
+
+    def box(
+        self,
+        centre: np.ndarray,
+        direction: np.ndarray,
+        size: tuple[float, float, float],
+        faces: list[np.ndarray],
+        res: float,
+        rng: np.random.Generator,
+    ) -> None:
+        """Add a box standing on the ground: four walls (textures faces[0..3]: right side, front, left
+        side, back) and a roof (faces[4]). centre: (2,) map x, y; direction: (2,) unit forward; size:
+        length (along direction), width, height (metres); textures: float32 at `res` metres per texel.
+        """
+        length, width, height = size
+        left = np.array([-direction[1], direction[0]])
+        corners = [
+            centre + sx * 0.5 * length * direction + sy * 0.5 * width * left
+            for sx, sy in ((-1, -1), (1, -1), (1, 1), (-1, 1))
+        ]  # counter-clockwise from the back right
+        for k in range(4):
+            start, stop = corners[k], corners[(k + 1) % 4]
+            edge = float(np.linalg.norm(stop - start))
+            axis = np.append((stop - start) / edge, 0.0)
+            self.panel(np.append(start, height), axis, _DOWN, (edge, height), self.texture(faces[k], rng), res)
+        self.panel(
+            np.append(corners[0], height),
+            np.append(direction, 0.0),
+            np.append(left, 0.0),
+            (length, width),
+            self.texture(faces[4], rng),
+            res,
+        )
+
+    def quads(self) -> tuple[_Quads, np.ndarray]:
+        """Pack the textures into an atlas: the rectangles as `_Quads` and the atlas (uint8)."""
+        atlas, offsets = _pack_atlas(self.textures)
+        panels = self.panels
+        origin = np.array([p.origin for p in panels])
+        axis_a = np.array([p.axis_a for p in panels])
+        axis_b = np.array([p.axis_b for p in panels])
+        size = np.array([p.size for p in panels])
+        res = np.array([p.res for p in panels])
+        texel0 = offsets[[p.texture for p in panels]].astype(np.float64)
+        texel0[:, 0] += np.array([p.along for p in panels]) / res
+        along_a, along_b = size[:, :1] * axis_a, size[:, 1:] * axis_b
+        corners = np.stack([origin, origin + along_a, origin + along_a + along_b, origin + along_b], axis=1)
+        shades = np.array([p.shade for p in panels])
+        to_atlas = np.zeros((len(panels), 3, 3))
+        to_atlas[:, 0, 0] = to_atlas[:, 1, 1] = 1.0 / res
+        to_atlas[:, :2, 2] = texel0
+        to_atlas[:, 2, 2] = 1.0
+        centre, radius = corners.mean(axis=1), 0.5 * np.linalg.norm(size, axis=1)
+        quads = _Quads(origin, axis_a, axis_b, size, texel0, res, shades, corners, centre, radius, to_atlas)
+        return quads, atlas
+
+
+def _add_buildings(parts: _SceneParts, line: _Centreline, side: float, rng: np.random.Generator) -> None:
+    """Buildings along one side of the road (side +1 left, -1 right): blocks of 10..25 m, 5..12 m from the
+    centreline, 6..22 m high, with gaps; a façade following the road (chords of the curve) and side walls.
     """
-    sun = np.array([0.6, -0.5, 0.62])
-    sun /= np.linalg.norm(sun)
     length = float(line.s[-1])
-    textures: list[np.ndarray] = []
-    panels: list[_Panel] = []
-    down = np.array([0.0, 0.0, -1.0])
-    grain = rngs[0].normal(0.0, 7.0, (1024, 1024)).astype(np.float32)
-    for side, rng in ((1.0, rngs[1]), (-1.0, rngs[2])):
-        s = 0.0
-        while s < length:
-            if rng.random() < 0.22:
-                s += rng.uniform(4.0, 10.0)
-                continue
-            blen = min(rng.uniform(10.0, 25.0), length - s)
-            if blen < 4.0:
-                break
-            offset, height = rng.uniform(5.0, 12.0), rng.uniform(6.0, 22.0)
-            kappa = float(np.max(np.abs(line.curvature[(line.s >= s) & (line.s <= s + blen)]), initial=0.0))
-            kappa /= 1.0 - offset * kappa  # worst case: the inside of the curve
-            max_panel = math.sqrt(8.0 * 0.05 / kappa) if kappa > 1e-6 else blen  # sagitta <= 5 cm
-            knots = np.linspace(s, s + blen, max(1, math.ceil(blen / max_panel)) + 1)
-            xy, _, normal = line.frame_at(knots)
-            facade = xy + side * offset * normal  # (k, 2)
-            chords = np.linalg.norm(np.diff(facade, axis=0), axis=1)
-            tex_index = len(textures)
-            textures.append(_finish_texture(_facade_texture(float(chords.sum()), height, rng), grain, rng))
-            along = 0.0
-            for k, chord in enumerate(chords):
-                axis = np.append((facade[k + 1] - facade[k]) / chord, 0.0)
-                facing = -side * np.append(normal[k], 0.0)  # the façade faces the road
-                shade = 0.7 + 0.35 * max(0.0, float(np.dot(facing, sun)))
-                panels.append(
-                    _Panel(
-                        np.append(facade[k], height), axis, (float(chord), height), tex_index, along, _FACADE_RES, shade
-                    )
-                )
-                along += chord
-            depth = rng.uniform(6.0, 10.0)
-            for end in (0, -1):  # side walls, perpendicular to the road, going away from it
-                tex_index = len(textures)
-                textures.append(_finish_texture(_sidewall_texture(depth, height, rng), grain, rng))
-                axis = np.append(side * normal[end], 0.0)
-                shade = 0.65 + 0.4 * abs(float(np.dot(np.cross(axis, down), sun)))
-                panels.append(
-                    _Panel(np.append(facade[end], height), axis, (depth, height), tex_index, 0.0, _SIDEWALL_RES, shade)
-                )
-            s += blen
-    atlas, offsets = _pack_atlas(textures)
-    origin = np.array([p.origin for p in panels])
-    axis_a = np.array([p.axis for p in panels])
-    axis_b = np.tile(down, (len(panels), 1))
-    size = np.array([p.size for p in panels])
-    res = np.array([p.res for p in panels])
-    texel0 = offsets[[p.texture for p in panels]].astype(np.float64)
-    texel0[:, 0] += np.array([p.along for p in panels]) / res
-    along_a, along_b = size[:, :1] * axis_a, size[:, 1:] * axis_b
-    corners = np.stack([origin, origin + along_a, origin + along_a + along_b, origin + along_b], axis=1)
-    shades = np.array([p.shade for p in panels])
-    return _Quads(origin, axis_a, axis_b, size, texel0, res, shades, corners), atlas
+    s = 0.0
+    while s < length:
+        if rng.random() < 0.22:
+            s += rng.uniform(4.0, 10.0)
+            continue
+        blen = min(rng.uniform(10.0, 25.0), length - s)
+        if blen < 4.0:
+            break
+        offset, height = rng.uniform(5.0, 12.0), rng.uniform(6.0, 22.0)
+        kappa = float(np.max(np.abs(line.curvature[(line.s >= s) & (line.s <= s + blen)]), initial=0.0))
+        kappa /= 1.0 - offset * kappa  # worst case: the inside of the curve
+        max_panel = math.sqrt(8.0 * 0.05 / kappa) if kappa > 1e-6 else blen  # sagitta <= 5 cm
+        knots = np.linspace(s, s + blen, max(1, math.ceil(blen / max_panel)) + 1)
+        xy, _, normal = line.frame_at(knots)
+        facade = xy + side * offset * normal  # (k, 2)
+        chords = np.linalg.norm(np.diff(facade, axis=0), axis=1)
+        texture = parts.texture(_facade_texture(float(chords.sum()), height, rng), rng)
+        along = 0.0
+        for k, chord in enumerate(chords):
+            axis = np.append((facade[k + 1] - facade[k]) / chord, 0.0)
+            parts.panel(np.append(facade[k], height), axis, _DOWN, (chord, height), texture, _FACADE_RES, along)
+            along += chord
+        depth = rng.uniform(6.0, 10.0)
+        for end in (0, -1):  # side walls, perpendicular to the road, going away from it
+            texture = parts.texture(_sidewall_texture(depth, height, rng), rng)
+            axis = np.append(side * normal[end], 0.0)
+            parts.panel(np.append(facade[end], height), axis, _DOWN, (depth, height), texture, _SIDEWALL_RES)
+        s += blen
+
+
+def _add_furniture(parts: _SceneParts, line: _Centreline, side: float, rng: np.random.Generator) -> None:
+    """Street furniture on one sidewalk, every 6..14 m: road signs on poles, poster boards and kiosks.
+
+    They face along the road, so the camera sees them head-on at mid range: well-conditioned features.
+    """
+    length = float(line.s[-1])
+    res = _FURNITURE_RES
+    s = rng.uniform(2.0, 10.0)
+    while s < length - 2.0:
+        xy, heading, normal = line.frame_at(np.array([s]))
+        direction = np.array([math.cos(heading[0]), math.sin(heading[0])])
+        across = np.append(side * normal[0], 0.0)  # horizontal, away from the road
+        kind = rng.random()
+        if kind < 0.45:  # sign on a pole
+            w, h, bottom = rng.uniform(0.45, 0.9), rng.uniform(0.4, 0.9), rng.uniform(2.0, 2.6)
+            pole = xy[0] + side * rng.uniform(3.9, 4.3) * normal[0]
+            parts.panel(
+                np.append(pole - 0.5 * w * across[:2], bottom + h),
+                across,
+                _DOWN,
+                (w, h),
+                parts.texture(_poster_texture(w, h, rng, res), rng),
+                res,
+            )
+            parts.panel(
+                np.append(pole - 0.05 * across[:2], bottom),
+                across,
+                _DOWN,
+                (0.1, bottom),
+                parts.texture(_plain_texture(0.1, bottom, rng, res), rng),
+                res,
+            )
+        elif kind < 0.75:  # poster board on a post
+            w, h, bottom = rng.uniform(0.8, 1.2), rng.uniform(1.2, 1.8), rng.uniform(0.3, 0.6)
+            inner = xy[0] + side * 3.8 * normal[0]
+            parts.panel(
+                np.append(inner, bottom + h),
+                across,
+                _DOWN,
+                (w, h),
+                parts.texture(_poster_texture(w, h, rng, res), rng),
+                res,
+            )
+            parts.panel(
+                np.append(inner + (0.5 * w - 0.06) * across[:2], bottom),
+                across,
+                _DOWN,
+                (0.12, bottom),
+                parts.texture(_plain_texture(0.12, bottom, rng, res), rng),
+                res,
+            )
+        else:  # kiosk / advertising column
+            size = (rng.uniform(0.8, 1.2), rng.uniform(0.8, 1.0), rng.uniform(2.0, 2.7))
+            centre = xy[0] + side * (3.8 + 0.5 * size[1]) * normal[0]
+            faces = [
+                _poster_texture(size[0], size[2], rng, res),
+                _poster_texture(size[1], size[2], rng, res),
+                _poster_texture(size[0], size[2], rng, res),
+                _poster_texture(size[1], size[2], rng, res),
+                _plain_texture(size[0], size[1], rng, res),
+            ]
+            parts.box(centre, direction, size, faces, res, rng)
+        s += rng.uniform(6.0, 14.0)
+
+
+def _add_vehicles(parts: _SceneParts, line: _Centreline, rng: np.random.Generator) -> None:
+    """Parked cars and vans along the left kerb (the opposite lane; the camera drives in the right one)."""
+    length = float(line.s[-1])
+    res = _FURNITURE_RES * 1.5
+    s = rng.uniform(5.0, 20.0)
+    while s < length - 4.0:
+        if rng.random() < 0.6:
+            van = rng.random() < 0.25
+            size = (
+                rng.uniform(4.8, 5.8) if van else rng.uniform(3.8, 4.8),
+                rng.uniform(1.7, 1.9),
+                rng.uniform(1.9, 2.3) if van else rng.uniform(1.35, 1.55),
+            )
+            xy, heading, normal = line.frame_at(np.array([s + 0.5 * size[0]]))
+            direction = np.array([math.cos(heading[0]), math.sin(heading[0])])
+            centre = xy[0] + (_ROAD_HALF_WIDTH - 0.2 - 0.5 * size[1]) * normal[0]
+            body = rng.uniform(30, 230)
+            faces = [
+                _vehicle_side(size[0], size[2], body, rng, res),
+                _vehicle_end(size[1], size[2], body, rng, res),
+                _vehicle_side(size[0], size[2], body, rng, res),
+                _vehicle_end(size[1], size[2], body, rng, res),
+                _plain_texture(size[0], size[1], rng, res, body),
+            ]
+            parts.box(centre, direction, size, faces, res, rng)
+            s += size[0] + rng.uniform(0.8, 3.0)
+        else:
+            s += rng.uniform(5.0, 25.0)
+
+
+def _build_street(line: _Centreline, rngs: list[np.random.Generator]) -> tuple[_Quads, np.ndarray]:
+    """Buildings, street furniture and parked vehicles -> their rectangles and the texture atlas (uint8).
+
+    rngs: 6 independent generators (texture grain; left and right buildings; left and right furniture;
+    vehicles), so that a longer road only appends objects.
+    """
+    parts = _SceneParts(grain=rngs[0].normal(0.0, 7.0, (1024, 1024)).astype(np.float32))
+    _add_buildings(parts, line, 1.0, rngs[1])
+    _add_buildings(parts, line, -1.0, rngs[2])
+    _add_furniture(parts, line, 1.0, rngs[3])
+    _add_furniture(parts, line, -1.0, rngs[4])
+    _add_vehicles(parts, line, rngs[5])
+    return parts.quads()
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -781,29 +1029,31 @@ def _sample_aniso(
     return out
 
 
-def _clipped_bbox(corners_c: np.ndarray, k: np.ndarray, width: int, height: int) -> tuple[int, int, int, int] | None:
-    """Pixel bounding box (u0, v0, u1, v1), end exclusive, of a polygon (4, 3) in camera coordinates.
-
-    The polygon is clipped at depth `_NEAR` first; None when nothing is in front or in the image.
+def _pixel_boxes(corners_c: np.ndarray, k: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Pixel bounding boxes (n, 4) int (u0, v0, u1, v1; end exclusive; empty when u0 >= u1 or v0 >= v1)
+    of n quadrilaterals (n, 4, 3) in camera coordinates, clipped at depth `_NEAR`, within the image.
     """
-    pts: list[np.ndarray] = []
-    for i in range(len(corners_c)):
-        p, q = corners_c[i], corners_c[(i + 1) % len(corners_c)]
-        if p[2] >= _NEAR:
-            pts.append(p)
-        if (p[2] >= _NEAR) != (q[2] >= _NEAR):
-            t = (_NEAR - p[2]) / (q[2] - p[2])
-            pts.append(p + t * (q - p))
-    if not pts:
-        return None
-    poly = np.array(pts)
-    uv = (poly @ k.T)[:, :2] / poly[:, 2:3]
-    u0, v0 = np.floor(uv.min(axis=0)).astype(int) - 1
-    u1, v1 = np.ceil(uv.max(axis=0)).astype(int) + 2
-    u0, v0, u1, v1 = max(u0, 0), max(v0, 0), min(u1, width), min(v1, height)
-    if u0 >= u1 or v0 >= v1:
-        return None
-    return int(u0), int(v0), int(u1), int(v1)
+    boxes = np.zeros((len(corners_c), 4), np.int64)
+    in_front = corners_c[:, :, 2].min(axis=1) >= _NEAR
+    if in_front.any():  # the common case, vectorised
+        uvw = corners_c[in_front] @ k.T
+        uv = uvw[:, :, :2] / uvw[:, :, 2:]
+        boxes[in_front, :2] = np.floor(uv.min(axis=1)) - 1
+        boxes[in_front, 2:] = np.ceil(uv.max(axis=1)) + 2
+    for i in np.flatnonzero(~in_front):  # crossing the near plane: clip the polygon first
+        pts: list[np.ndarray] = []
+        for j in range(4):
+            p, q = corners_c[i, j], corners_c[i, (j + 1) % 4]
+            if p[2] >= _NEAR:
+                pts.append(p)
+            if (p[2] >= _NEAR) != (q[2] >= _NEAR):
+                pts.append(p + (_NEAR - p[2]) / (q[2] - p[2]) * (q - p))
+        uvw = np.array(pts) @ k.T
+        uv = uvw[:, :2] / uvw[:, 2:]
+        boxes[i, :2] = np.floor(uv.min(axis=0)) - 1
+        boxes[i, 2:] = np.ceil(uv.max(axis=0)) + 2
+    np.clip(boxes, 0, [width, height, width, height], out=boxes)
+    return boxes
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -829,19 +1079,19 @@ class SyntheticStreet:
         self.camera_height = float(camera_height)
         self._indices = (frames or FrameRange()).indices(n_frames)
         # Independent streams: the road, path and buildings of a shorter run are a prefix of a longer one's.
-        rngs = [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(8)]
+        rngs = [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(11)]
         intr = _INTRINSICS
         self._k = intr.K
         self._line = _make_centreline(_START_S + 1.25 * n_frames + _LOOK_AHEAD, rngs[0])
         self._poses_map = _camera_path(self._line, n_frames, self.camera_height, rngs[1])
-        self._quads, atlas = _build_street(self._line, (rngs[2], rngs[3], rngs[4]))
+        self._quads, atlas = _build_street(self._line, rngs[2:8])
         self._atlas = _mip_pyramid(atlas, _MIP_LEVELS)
-        layout = _ground_layout(self._line, rngs[5])
+        layout = _ground_layout(self._line, rngs[8])
         self._ground_origin = layout.origin
         self._ground = _mip_pyramid(layout.image, _MIP_LEVELS)
-        tile = _mip_pyramid(_ground_fine_tile(rngs[6]), 9)
+        tile = _mip_pyramid(_ground_fine_tile(rngs[9]), 9)
         self._fine = [cv2.copyMakeBorder(t, 2, 2, 2, 2, cv2.BORDER_WRAP) for t in tile]
-        pano = _panorama(rngs[7], intr.fx)
+        pano = _panorama(rngs[10], intr.fx)
         self._pano = cv2.copyMakeBorder(pano, 0, 0, 2, 2, cv2.BORDER_WRAP)
         self._pano_width = pano.shape[1]
         v, u = np.mgrid[0 : intr.height, 0 : intr.width]
@@ -933,25 +1183,27 @@ class SyntheticStreet:
         ids = np.where(ground, 0, -1).astype(np.int32)
 
         quads = self._quads
-        corners_c = (quads.corners - position) @ r_cm.T  # (Q, 4, 3)
-        centre = quads.corners.mean(axis=1)
-        half_diag = 0.5 * np.linalg.norm(quads.size, axis=1)
-        near_enough = np.linalg.norm(centre - position, axis=1) - half_diag < _FAR
-        candidates = np.flatnonzero(near_enough & (corners_c[:, :, 2].max(axis=1) > _NEAR))
+        corners_c = (quads.corners - position) @ r_cm.T  # (Q, 4, 3) camera coordinates
+        distance = np.maximum(np.linalg.norm(quads.centre - position, axis=1) - quads.radius, _NEAR)
+        candidates = np.flatnonzero((distance < _FAR) & (corners_c[:, :, 2].max(axis=1) > _NEAR))
+        # Pixel -> (a, b, 1/z) homographies of all candidates (see `_surface_homography`), then -> atlas.
+        m = np.stack(
+            [quads.axis_a[candidates] @ r_cm.T, quads.axis_b[candidates] @ r_cm.T, corners_c[candidates, 0]], axis=2
+        )
+        h_all = self._k @ m
+        solvable = np.abs(np.linalg.det(h_all)) > 1e-12
+        candidates, h_all = candidates[solvable], h_all[solvable]
+        g_all = np.linalg.inv(h_all)  # (n, 3, 3)
         facade_g = np.zeros((9, len(quads.size) + 1), np.float32)
-        for q in candidates:
-            box = _clipped_bbox(corners_c[q], self._k, w, h)
-            if box is None:
+        facade_g[:, candidates + 1] = (quads.to_atlas[candidates] @ g_all).reshape(-1, 9).T
+        boxes = _pixel_boxes(corners_c[candidates], self._k, w, h)
+        for q, g, (u0, v0, u1, v1) in zip(candidates, g_all.astype(np.float32), boxes, strict=True):
+            if u0 >= u1 or v0 >= v1:
                 continue
-            g = _surface_homography(self._k, r_cm, t_cm, quads.origin[q], quads.axis_a[q], quads.axis_b[q])
-            if g is None:
-                continue
-            u0, v0, u1, v1 = box
             uu, vv = u[:, u0:u1], v[v0:v1]
-            gf = g.astype(np.float32)
-            c = gf[2, 0] * uu + (gf[2, 1] * vv + gf[2, 2])
-            na = gf[0, 0] * uu + (gf[0, 1] * vv + gf[0, 2])
-            nb = gf[1, 0] * uu + (gf[1, 1] * vv + gf[1, 2])
+            c = g[2, 0] * uu + (g[2, 1] * vv + g[2, 2])
+            na = g[0, 0] * uu + (g[0, 1] * vv + g[0, 2])
+            nb = g[1, 0] * uu + (g[1, 1] * vv + g[1, 2])
             zview, iview = zbuf[v0:v1, u0:u1], ids[v0:v1, u0:u1]
             # Inside test a in [0, length], b in [0, height] (times c > 0), widened by 1 mm so that rounding
             # never leaves a crack between adjacent rectangles.
@@ -962,14 +1214,6 @@ class SyntheticStreet:
             hit &= nb <= np.float32(quads.size[q, 1] + 1e-3) * c
             np.copyto(zview, c, where=hit)
             np.copyto(iview, q + 1, where=hit)
-            to_atlas = np.array(
-                [
-                    [1.0 / quads.res[q], 0.0, quads.texel0[q, 0]],
-                    [0.0, 1.0 / quads.res[q], quads.texel0[q, 1]],
-                    [0.0, 0.0, 1.0],
-                ]
-            )
-            facade_g[:, q + 1] = (to_atlas @ g).ravel()
         return ids, ground_g, facade_g
 
     def _shade_ground(self, out: np.ndarray, idx: np.ndarray, g: np.ndarray, position: np.ndarray) -> None:
@@ -990,7 +1234,7 @@ class SyntheticStreet:
             ((position[0] / fres) % _FINE_TILE, (position[1] / fres) % _FINE_TILE),
             wrap=_FINE_TILE,
         )
-        out[idx] = layout + 0.45 * (fine - 128.0)
+        out[idx] = layout + _SPECKLE_CONTRAST * (fine - 128.0)
 
     def _shade_sky(self, out: np.ndarray, idx: np.ndarray, r_cm: np.ndarray) -> None:
         """Write the panorama at infinity into out (H*W,) at flat pixel indices idx."""

@@ -1,0 +1,278 @@
+"""The real Rerun viewer: headless snapshots of every view, the web viewer, and their error paths."""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import re
+import select
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from app import viewer
+from app.rrd import read_entity
+from app.viewer import NO_VULKAN, ViewerError, choose_viewer, open_recording, snapshot, vulkan_icd_files
+from vslam_core.errors import VslamError
+
+ROOT = Path(__file__).resolve().parents[1]
+KITTI_ROOT = ROOT.parent / "shared" / "data" / "kitti"
+FRAME = 10
+VIEWS = {"frame", "world", "tracks", "inliers", "error_vs_ground_truth", "events"}
+
+
+def _source_args() -> list[str]:
+    """The synthetic street (no data needed), or the KITTI sample while that source is not in the tree."""
+    if importlib.util.find_spec("vslam_core.sources.synthetic") is not None:
+        return []
+    return [str(KITTI_ROOT), "--sequence", "00"]
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    rrd = tmp_path_factory.mktemp("viewer") / "s.rrd"
+    result = subprocess.run([sys.executable, "-m", "app.cli", "run", *_source_args(), "--frames", "0:15", "-o",
+                             str(rrd)], capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert result.returncode == 0, result.stderr
+    return rrd
+
+
+@pytest.fixture(scope="module")
+def vulkan() -> None:
+    """Skip without a Vulkan adapter, except when CI is set: there the snapshot tests must run."""
+    if not viewer.vulkan_available():
+        if "CI" in os.environ:
+            pytest.fail(f"{NO_VULKAN} (CI is set: the viewer tests must not be skipped)")
+        pytest.skip(NO_VULKAN)
+
+
+class _Spy:
+    """Records every process app.viewer starts, to check that none survives."""
+
+    def __init__(self) -> None:
+        self.started: list[tuple[list[str], viewer._Process]] = []
+        self._start = viewer._start
+
+    def __call__(self, args: list[str], env: dict[str, str] | None = None) -> viewer._Process:
+        process = self._start(args, env)
+        self.started.append((list(args), process))
+        return process
+
+    def assert_all_gone(self) -> None:
+        assert self.started
+        for args, process in self.started:
+            assert process.popen.poll() is not None
+            with pytest.raises(ProcessLookupError):
+                os.killpg(process.popen.pid, 0)  # nothing left in the viewer's process group
+            for flag in ("--port", "--web-viewer-port"):
+                if flag in args:
+                    assert _refused(int(args[args.index(flag) + 1]))
+
+
+def _refused(port: int) -> bool:
+    with socket.socket() as sock:
+        return sock.connect_ex(("127.0.0.1", port)) != 0
+
+
+@pytest.fixture(scope="module")
+def shots(recording: Path, vulkan: None, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    out = tmp_path_factory.mktemp("shots")
+    spy = _Spy()
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(viewer, "_start", spy)
+        started = time.monotonic()
+        paths = snapshot(recording, FRAME, out, timeout_s=120)
+        print(f"snapshot took {time.monotonic() - started:.1f} s")
+    spy.assert_all_gone()
+    return {p.stem: p for p in paths}
+
+
+def _recorded_frame(rrd: Path, frame: int) -> np.ndarray:
+    images = read_entity(rrd, "/world/camera/image").filter(frame=frame)
+    jpeg = np.asarray(images["EncodedImage:blob"][0][0].to_list(), dtype=np.uint8)
+    return cv2.imdecode(jpeg, cv2.IMREAD_GRAYSCALE)
+
+
+def _colourful(picture: np.ndarray) -> float:
+    """Share of pixels that are clearly not grey (overlays, plot lines)."""
+    return float(((picture.max(axis=2).astype(int) - picture.min(axis=2)) > 60).mean())
+
+
+def test_snapshot_writes_one_png_per_view(shots: dict[str, Path]) -> None:
+    assert set(shots) == VIEWS | {"all"}
+    for name, path in shots.items():
+        picture = cv2.imread(str(path))
+        assert picture is not None, path
+        assert min(picture.shape[:2]) > 100, (name, picture.shape)
+        assert picture.std() > 8, f"{name}.png looks blank"
+    assert cv2.imread(str(shots["all"])).shape[:2] == (viewer.WINDOW_SIZE[1], viewer.WINDOW_SIZE[0])
+    for name in ("frame", "tracks", "inliers", "error_vs_ground_truth"):  # image overlays, plot lines
+        assert _colourful(cv2.imread(str(shots[name]))) > 0.005, f"{name}.png shows no coloured data"
+    # the 3-D view shows the triangulated points: many separate bright dots over the dark grid
+    world = cv2.imread(str(shots["world"]), cv2.IMREAD_GRAYSCALE)
+    dots, _ = cv2.connectedComponents((world > 120).astype(np.uint8))
+    assert dots > 100, "world.png shows no points"
+
+
+def test_frame_view_shows_the_recorded_image_at_the_requested_frame(shots: dict[str, Path], recording: Path) -> None:
+    picture = cv2.imread(str(shots["frame"]))
+    grey_pixels = (picture.max(axis=2).astype(int) - picture.min(axis=2)) < 12  # not an overlay
+    shown = cv2.cvtColor(picture, cv2.COLOR_BGR2GRAY)
+    assert len(np.unique(shown)) > 100 and _colourful(picture) > 0.01  # a photo, with overlays on top
+
+    def correlation(frame: int) -> float:
+        image = _recorded_frame(recording, frame)
+        # the 2-D view fits the image into the view, centred
+        scale = min(shown.shape[1] / image.shape[1], shown.shape[0] / image.shape[0])
+        w, h = round(image.shape[1] * scale), round(image.shape[0] * scale)
+        x0, y0 = (shown.shape[1] - w) // 2, (shown.shape[0] - h) // 2
+        crop, mask = shown[y0:y0 + h, x0:x0 + w], grey_pixels[y0:y0 + h, x0:x0 + w]
+        expected = cv2.resize(image, (w, h), interpolation=cv2.INTER_AREA)
+        return float(np.corrcoef(crop[mask].astype(float), expected[mask].astype(float))[0, 1])
+
+    at_frame = correlation(FRAME)
+    assert at_frame > 0.6
+    assert at_frame > max(correlation(0), correlation(14)) + 0.15  # the time cursor is at FRAME
+
+
+@pytest.mark.parametrize(
+    ("content", "fragment"),
+    [(None, "no such recording"), (b"not a recording\n", "not a readable Rerun recording"),
+     ("truncated", "not a readable Rerun recording")],
+)
+def test_bad_files_are_one_line_errors_naming_the_file(
+    content: bytes | str | None, fragment: str, recording: Path, tmp_path: Path
+) -> None:
+    bad = tmp_path / "bad.rrd"
+    if content == "truncated":
+        bad.write_bytes(recording.read_bytes()[: recording.stat().st_size // 2])
+    elif isinstance(content, bytes):
+        bad.write_bytes(content)
+    for call in (lambda: snapshot(bad, 0, tmp_path / "out"), lambda: open_recording(bad, web=True)):
+        with pytest.raises(ViewerError) as info:
+            call()
+        message = str(info.value)
+        assert str(bad) in message and fragment in message and "\n" not in message
+    assert not (tmp_path / "out").exists()
+
+
+def test_frame_outside_the_recording_names_the_range(recording: Path, tmp_path: Path) -> None:
+    for frame in (15, -1):
+        with pytest.raises(ViewerError, match=r"frame -?\d+ is outside the recording's frames 0\.\.14"):
+            snapshot(recording, frame, tmp_path)
+
+
+def test_missing_vulkan_is_reported_before_starting_the_viewer(
+    recording: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(viewer, "vulkan_available", lambda env=None: False)
+    monkeypatch.setattr(viewer, "_start", lambda *_: pytest.fail("no viewer must be started"))
+    with pytest.raises(VslamError) as info:
+        snapshot(recording, FRAME, tmp_path)
+    assert str(info.value) == NO_VULKAN
+    assert "apt-get install -y mesa-vulkan-drivers libvulkan1" in str(info.value)
+
+
+def test_viewer_without_an_adapter_is_reported_and_cleaned_up(
+    recording: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The real viewer with no Vulkan driver to load (runs with or without mesa-vulkan-drivers)."""
+    monkeypatch.setattr(viewer, "vulkan_available", lambda env=None: True)  # get past the cheap check
+    monkeypatch.setenv("VK_DRIVER_FILES", str(tmp_path / "none.json"))
+    monkeypatch.setenv("VK_ICD_FILENAMES", str(tmp_path / "none.json"))
+    monkeypatch.delenv("WGPU_BACKEND", raising=False)
+    spy = _Spy()
+    monkeypatch.setattr(viewer, "_start", spy)
+    with pytest.raises(ViewerError) as info:
+        snapshot(recording, FRAME, tmp_path, timeout_s=60)
+    assert str(info.value) == NO_VULKAN
+    spy.assert_all_gone()
+
+
+def test_vulkan_detection_honours_the_loader_environment(tmp_path: Path) -> None:
+    manifest = tmp_path / "icd.json"
+    manifest.write_text("{}")
+    assert vulkan_icd_files({"VK_DRIVER_FILES": str(manifest)}) == [manifest]
+    assert vulkan_icd_files({"VK_ICD_FILENAMES": str(tmp_path / "missing.json")}) == []
+    assert not viewer.vulkan_available({"VK_DRIVER_FILES": str(tmp_path / "missing.json")})
+
+
+def test_viewer_failure_after_start_still_stops_it(
+    recording: Path, vulkan: None, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def broken(*_: object) -> None:
+        raise RuntimeError("lost the viewer\nsecond line")
+
+    spy = _Spy()
+    monkeypatch.setattr(viewer, "_start", spy)
+    monkeypatch.setattr(viewer, "_settled_screenshots", broken)
+    with pytest.raises(ViewerError, match="the Rerun viewer failed: lost the viewer$"):
+        snapshot(recording, FRAME, tmp_path)
+    spy.assert_all_gone()
+
+
+def test_choose_viewer() -> None:
+    assert choose_viewer({"DISPLAY": ":0"}, web=False) == "native"
+    assert choose_viewer({"WAYLAND_DISPLAY": "wayland-0"}, web=False) == "native"
+    assert choose_viewer({"DISPLAY": ":0"}, web=True) == "web"
+    assert choose_viewer({}, web=False) == "web"
+    assert choose_viewer({"DISPLAY": ""}, web=False) == "web"
+
+
+@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
+def test_web_viewer_serves_on_loopback_until_stopped(recording: Path, stop: signal.Signals) -> None:
+    port = viewer.free_port()
+    code = ("import signal, sys; from pathlib import Path; from app.viewer import open_recording; "
+            "signal.signal(signal.SIGINT, signal.default_int_handler); "  # as in a terminal, even under CI
+            "open_recording(Path(sys.argv[1]), web=True, port=int(sys.argv[2]))")
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    proc = subprocess.Popen([sys.executable, "-c", code, str(recording), str(port)], cwd=ROOT, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        url = _wait_for_url(proc, timeout_s=30)
+        assert url.startswith(f"http://127.0.0.1:{port}/")
+        with urllib.request.urlopen(url, timeout=10) as response:
+            assert response.status == 200
+            assert b"<html" in response.read().lower()
+        grpc_port = int(re.search(r"127\.0\.0\.1:(\d+)/proxy", url).group(1))  # type: ignore[union-attr]
+        proc.send_signal(stop)
+        _, stderr = proc.communicate(timeout=20)
+        assert proc.returncode == 0, stderr
+        assert "Traceback" not in stderr
+        assert _refused(port) and _refused(grpc_port)  # the server went with it
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+
+
+def _wait_for_url(proc: subprocess.Popen[str], timeout_s: float) -> str:
+    assert proc.stdout is not None
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        ready, _, _ = select.select([proc.stdout], [], [], 0.5)
+        if ready:
+            line = proc.stdout.readline()
+            if not line and proc.poll() is not None:
+                break
+            if match := re.search(r"http://\S+", line):
+                return match.group(0)
+    stderr = proc.stderr.read() if proc.poll() is not None and proc.stderr else ""
+    pytest.fail(f"no URL printed by the web viewer within {timeout_s} s: {stderr}")
+
+
+def test_web_viewer_port_in_use_is_a_clear_error(recording: Path) -> None:
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        with pytest.raises(ViewerError, match=f"port {port} on 127.0.0.1 is already in use"):
+            open_recording(recording, web=True, port=port)
