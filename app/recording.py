@@ -6,17 +6,23 @@ Entity layout (world = camera frame of the first frame, RDF: x right, y down, z 
     /world/camera                       Transform3D T_world_cam per frame
     /world/camera/image                 Pinhole (static) + JPEG frame
     /world/camera/image/corners         Points2D: corners detected in this frame (track id on hover)
-    /world/camera/image/flow            Arrows2D: previous → current position per track, class = fate
+    /world/camera/image/flow            Arrows2D: previous → current position per track, class = fate,
+                                        track id and age on hover (the arrow tips are the tracked corners)
     /world/candidates/{0..3}            the four (R, t) decompositions of E, placed at the keyframe
     /world/points                       triangulated inliers of this frame (world coordinates)
     /world/trajectory/estimate          one line segment per frame (O(1) per frame)
     /world/trajectory/ground_truth      same, from the source's ground truth
-    /metrics/...                        per-frame scalars
-    /events                             text log: held frames and their reasons
+    /metrics/...                        per-frame scalars (tracks, RANSAC, motion, error, timing_ms)
+    /events                             text log: initialisation, re-detections, held frames
+
+Detail levels: full = all of it; standard = no triangulated points and no per-track hover data;
+summary = no image and no per-point data (camera pose, trajectories, series, events); off = no file.
 """
 
 from __future__ import annotations
 
+import time
+from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +39,14 @@ from vslam_core.sources.base import Frame, FrameSource
 
 APPLICATION_ID = "vslam"
 
+
+class Detail(StrEnum):
+    FULL = "full"
+    STANDARD = "standard"
+    SUMMARY = "summary"
+    OFF = "off"
+
+
 # Legend of the flow arrows: one annotation context, so the viewer explains the colours.
 FATE_STYLE: dict[TrackFate, tuple[str, tuple[int, int, int]]] = {
     TrackFate.LOST: ("lost (KLT failed / left image)", (120, 120, 120)),
@@ -42,7 +56,12 @@ FATE_STYLE: dict[TrackFate, tuple[str, tuple[int, int, int]]] = {
     TrackFate.CHIRALITY_FAILED: ("failed chirality (behind a camera)", (200, 0, 200)),
     TrackFate.INLIER: ("inlier", (40, 220, 60)),
 }
+NEW_CORNER_COLOUR = (255, 230, 0)
 CANDIDATE_COLOURS = [(255, 200, 0), (0, 200, 255), (255, 0, 160), (160, 255, 0)]
+ESTIMATE_COLOUR = (255, 80, 80)
+GROUND_TRUTH_COLOUR = (80, 255, 120)
+STAGES = {"decode": (150, 150, 150), "track": (40, 120, 255), "essential": (230, 30, 30),
+          "chirality": (200, 0, 200), "detect": (255, 230, 0), "record": (0, 200, 200)}
 
 
 def blueprint() -> rrb.Blueprint:
@@ -57,14 +76,22 @@ def blueprint() -> rrb.Blueprint:
                 rrb.Spatial3DView(
                     name="world",
                     origin="/world",
-                    overrides={"/world/trajectory": rrb.VisibleTimeRanges([whole_past])},
+                    # the trajectories keep their whole past; everything else shows the current frame
+                    overrides={
+                        "/world/trajectory/estimate": rrb.VisibleTimeRanges([whole_past]),
+                        "/world/trajectory/ground_truth": rrb.VisibleTimeRanges([whole_past]),
+                    },
                 ),
                 row_shares=[1, 2],
             ),
             rrb.Vertical(
                 rrb.TimeSeriesView(name="tracks", origin="/metrics/tracks"),
                 rrb.TimeSeriesView(name="inliers", origin="/metrics/ransac"),
-                rrb.TimeSeriesView(name="error vs ground truth", origin="/metrics/error"),
+                rrb.TimeSeriesView(name="inlier ratio", origin="/metrics/ratio"),
+                rrb.TimeSeriesView(name="motion", origin="/metrics/motion"),
+                rrb.TimeSeriesView(name="position error (m)", origin="/metrics/error"),
+                rrb.TimeSeriesView(name="angle errors (°)", origin="/metrics/angle_error"),
+                rrb.TimeSeriesView(name="timing (ms)", origin="/metrics/timing_ms"),
                 rrb.TextLogView(name="events", origin="/events"),
             ),
             column_shares=[3, 2],
@@ -82,18 +109,23 @@ class Recorder:
         source: FrameSource,
         config: EngineConfig,
         properties: dict[str, str],
-        jpeg_quality: int = 85,
+        detail: Detail = Detail.FULL,
+        jpeg_quality: int = 75,
     ) -> None:
+        if detail == Detail.OFF:
+            raise ValueError("detail 'off' writes no recording: do not build a Recorder")
         self.path = path
+        self.detail = detail
         self._jpeg_quality = jpeg_quality
         self._gt = source.ground_truth
         self._previous_position: np.ndarray | None = None
         # send_properties=False: no wall-clock start time, so two runs of the same input compare equal
-        self._rec = rr.RecordingStream(APPLICATION_ID, recording_id=properties.get("recording_id"), send_properties=False)
+        self._rec = rr.RecordingStream(APPLICATION_ID, recording_id=properties.get("recording_id"),
+                                       send_properties=False)
         self._rec.set_log_time_enabled(False)  # reproducible files: no wall-clock column
         self._rec.save(path, default_blueprint=blueprint())
         self._rec.send_recording_name(properties.get("name", source.name))
-        self._rec.send_property("run", rr.AnyValues(**properties))  # type: ignore[arg-type]
+        self._rec.send_property("run", rr.AnyValues(**properties, detail=str(detail)))  # type: ignore[arg-type]
         self._rec.send_property("config", rr.AnyValues(**_flatten(config.to_dict())))
         self._log_static(source)
 
@@ -122,95 +154,143 @@ class Recorder:
             rr.AnnotationContext([(int(f), label, colour) for f, (label, colour) in FATE_STYLE.items()]),
             static=True,
         )
+        rec.log("/world/trajectory/estimate", rr.LineStrips3D([], colors=ESTIMATE_COLOUR), static=True)
+        series = {
+            "tracks/alive": ("tracks alive", (40, 120, 255)),
+            "tracks/new_corners": ("corners detected", NEW_CORNER_COLOUR),
+            "tracks/fb_rejected": ("forward–backward rejects", (255, 140, 0)),
+            "ransac/inliers": ("RANSAC inliers", (40, 220, 60)),
+            "ransac/chirality_margin": ("chirality margin (best − 2nd)", (200, 0, 200)),
+            "ratio/inlier_ratio": ("inlier ratio", (40, 220, 60)),
+            "motion/rotation_deg": ("rotation (°)", (255, 200, 0)),
+            "motion/scale": ("step length", (0, 200, 255)),
+            "error/position_m": ("position error (m)", ESTIMATE_COLOUR),
+            "angle_error/heading_deg": ("heading error (°)", (255, 80, 200)),
+            "angle_error/translation_direction_deg": ("translation direction error (°)", (0, 200, 255)),
+        }
+        series |= {f"timing_ms/{stage}": (f"{stage} (ms)", colour) for stage, colour in STAGES.items()}
+        for path, (name, colour) in series.items():
+            rec.log(f"/metrics/{path}", rr.SeriesLines(names=name, colors=colour), static=True)
 
     def log_frame(self, frame: Frame, result: FrameResult) -> None:
         """Log everything about one frame on the `frame` timeline (and `time`, when known)."""
+        start = time.perf_counter()
         rec = self._rec
         rec.set_time("frame", sequence=frame.index)
         if frame.timestamp is not None:
             rec.set_time("time", duration=frame.timestamp)
         pose = result.T_world_cam
         rec.log("/world/camera", rr.Transform3D(translation=pose[:3, 3], mat3x3=pose[:3, :3]))
+        if self.detail in (Detail.FULL, Detail.STANDARD):
+            self._log_image_and_tracks(frame, result)
+            self._log_candidates(result)
+        if self.detail == Detail.FULL:
+            rec.log("/world/points", rr.Points3D(result.points_world.astype(np.float32), radii=0.05,
+                                                 colors=(200, 200, 200)))
+        self._log_trajectories(result)
+        self._log_metrics(result)
+        self._log_events(frame, result)
+        timings = dict(result.timings_ms, record=(time.perf_counter() - start) * 1000.0)
+        for stage in STAGES:
+            if stage in timings:
+                rec.log(f"/metrics/timing_ms/{stage}", rr.Scalars(timings[stage]))
+
+    def _log_image_and_tracks(self, frame: Frame, result: FrameResult) -> None:
+        rec = self._rec
         ok, jpeg = cv2.imencode(".jpg", frame.image, [cv2.IMWRITE_JPEG_QUALITY, self._jpeg_quality])
         if ok:
             rec.log("/world/camera/image", rr.EncodedImage(contents=jpeg.tobytes(), media_type="image/jpeg"))
-        rec.log(
-            "/world/camera/image/corners",
-            rr.Points2D(result.new_corners, radii=2.0, colors=(255, 255, 0)),
-            rr.AnyValues(track_id=result.new_corner_ids),
-        )
+        full = self.detail == Detail.FULL
+        hover = [rr.AnyValues(track_id=result.new_corner_ids.astype(np.uint32))] if full else []
+        rec.log("/world/camera/image/corners",
+                rr.Points2D(result.new_corners, radii=2.0, colors=NEW_CORNER_COLOUR), *hover)
         reached = result.track_fate != TrackFate.LOST
+        hover = [rr.AnyValues(track_id=result.track_ids[reached].astype(np.uint32),
+                              age=result.track_age[reached].astype(np.uint16))] if full else []
         rec.log(
             "/world/camera/image/flow",
             rr.Arrows2D(
                 origins=result.track_prev[reached],
                 vectors=result.track_cur[reached] - result.track_prev[reached],
-                class_ids=result.track_fate[reached],
+                class_ids=result.track_fate[reached].astype(np.uint16),
                 radii=0.6,
             ),
-            rr.AnyValues(track_id=result.track_ids[reached], age=result.track_age[reached]),
+            *hover,
         )
-        self._log_geometry(result)
-        self._log_trajectories(result)
-        self._log_metrics(result)
-        if result.status == FrameStatus.HELD:
-            rec.log("/events", rr.TextLog(f"frame {frame.index}: pose held ({result.reason})", level="WARN"))
 
-    def _log_geometry(self, result: FrameResult) -> None:
-        """The four candidate poses at the keyframe's pose, and the triangulated points."""
+    def _log_candidates(self, result: FrameResult) -> None:
+        """The four candidate poses, each at the keyframe pose moved by its (R, t), with its count."""
         rec = self._rec
-        if result.candidate_poses and result.T_key_cur is not None:
-            T_w_key = result.T_world_cam @ invert_pose(result.T_key_cur)  # noqa: N806
-            length = max(float(np.linalg.norm(result.T_key_cur[:3, 3])), 0.5)
-            for i, candidate in enumerate(result.candidate_poses):
-                chosen = i == result.chosen_candidate
-                centre = T_w_key[:3, :3] @ (length * candidate.translation) + T_w_key[:3, 3]
-                rotation = T_w_key[:3, :3] @ candidate.rotation
-                rec.log(
-                    f"/world/candidates/{i}",
-                    rr.Transform3D(translation=centre, mat3x3=rotation),
-                    rr.TransformAxes3D(axis_length=0.8 if chosen else 0.4),
-                    rr.Points3D([[0.0, 0.0, 0.0]], radii=0.15 if chosen else 0.08,
-                                colors=CANDIDATE_COLOURS[i],
-                                labels=[f"{i}: {candidate.in_front} in front" + (" (chosen)" if chosen else "")]),
-                )
-        rec.log("/world/points", rr.Points3D(result.points_world, radii=0.05, colors=(200, 200, 200)))
+        if not result.candidate_poses or result.T_key_cur is None:
+            return
+        T_w_key = result.T_world_cam @ invert_pose(result.T_key_cur)  # noqa: N806
+        length = max(float(np.linalg.norm(result.T_key_cur[:3, 3])), 0.5)
+        for i, candidate in enumerate(result.candidate_poses):
+            chosen = i == result.chosen_candidate
+            centre = T_w_key[:3, :3] @ (length * candidate.translation) + T_w_key[:3, 3]
+            rotation = T_w_key[:3, :3] @ candidate.rotation
+            label = f"candidate {i}: {candidate.in_front} in front" + (" (chosen)" if chosen else "")
+            rec.log(
+                f"/world/candidates/{i}",
+                rr.Transform3D(translation=centre, mat3x3=rotation),
+                rr.TransformAxes3D(axis_length=0.8 if chosen else 0.4),
+                rr.Points3D([[0.0, 0.0, 0.0]], radii=0.15 if chosen else 0.08, colors=CANDIDATE_COLOURS[i],
+                            labels=[label]),
+                rr.AnyValues(in_front=candidate.in_front, chosen=chosen),
+            )
 
     def _log_trajectories(self, result: FrameResult) -> None:
         """One segment per frame for the estimate and the ground truth (never the whole path again)."""
         rec = self._rec
         position = result.T_world_cam[:3, 3]
         previous = self._previous_position if self._previous_position is not None else position
-        rec.log("/world/trajectory/estimate", rr.LineStrips3D([[previous, position]], colors=(255, 80, 80)))
+        rec.log("/world/trajectory/estimate", rr.LineStrips3D([[previous, position]], colors=ESTIMATE_COLOUR))
         if self._gt is not None:
             gt = self._gt[:, :3, 3]
             i = result.position
-            rec.log(
-                "/world/trajectory/ground_truth",
-                rr.LineStrips3D([[gt[max(i - 1, 0)], gt[i]]], colors=(80, 255, 120)),
-            )
+            rec.log("/world/trajectory/ground_truth",
+                    rr.LineStrips3D([[gt[max(i - 1, 0)], gt[i]]], colors=GROUND_TRUTH_COLOUR))
         self._previous_position = position
 
     def _log_metrics(self, result: FrameResult) -> None:
         rec = self._rec
         counts = result.fate_counts()
         used = counts["ransac_outlier"] + counts["chirality_failed"] + counts["inlier"]
-        rec.log("/metrics/tracks/alive", rr.Scalars(result.live_tracks))
-        rec.log("/metrics/tracks/new_corners", rr.Scalars(len(result.new_corners)))
-        rec.log("/metrics/tracks/fb_rejected", rr.Scalars(counts["fb_rejected"]))
-        rec.log("/metrics/ransac/inliers", rr.Scalars(counts["inlier"]))
-        rec.log("/metrics/ransac/inlier_ratio", rr.Scalars(counts["inlier"] / used if used else 0.0))
+        scalars: dict[str, float] = {
+            "tracks/alive": result.live_tracks,
+            "tracks/new_corners": len(result.new_corners),
+            "tracks/fb_rejected": counts["fb_rejected"],
+            "ransac/inliers": counts["inlier"],
+            "ratio/inlier_ratio": counts["inlier"] / used if used else 0.0,
+        }
+        if len(result.candidate_poses) == 4:
+            in_front = sorted((c.in_front for c in result.candidate_poses), reverse=True)
+            scalars["ransac/chirality_margin"] = in_front[0] - in_front[1]
         if result.T_key_cur is not None:
-            rec.log("/metrics/motion/rotation_deg", rr.Scalars(np.degrees(rotation_angle(result.T_key_cur[:3, :3]))))
-            rec.log("/metrics/motion/scale", rr.Scalars(result.scale or 0.0))
+            scalars["motion/rotation_deg"] = float(np.degrees(rotation_angle(result.T_key_cur[:3, :3])))
+            scalars["motion/scale"] = result.scale or 0.0
         if self._gt is not None:
             gt_pose = self._gt[result.position]
-            rec.log("/metrics/error/position_m",
-                    rr.Scalars(float(np.linalg.norm(gt_pose[:3, 3] - result.T_world_cam[:3, 3]))))
+            scalars["error/position_m"] = float(np.linalg.norm(gt_pose[:3, 3] - result.T_world_cam[:3, 3]))
+            scalars["angle_error/heading_deg"] = float(np.degrees(
+                rotation_angle(gt_pose[:3, :3].T @ result.T_world_cam[:3, :3])))
             if result.T_key_cur is not None:
                 gt_step = invert_pose(self._gt[result.keyframe_position]) @ gt_pose
-                rec.log("/metrics/error/translation_direction_deg",
-                        rr.Scalars(np.degrees(angle_between(gt_step[:3, 3], result.T_key_cur[:3, 3]))))
+                scalars["angle_error/translation_direction_deg"] = float(
+                    np.degrees(angle_between(gt_step[:3, 3], result.T_key_cur[:3, 3])))
+        for path, value in scalars.items():
+            rec.log(f"/metrics/{path}", rr.Scalars(float(value)))
+
+    def _log_events(self, frame: Frame, result: FrameResult) -> None:
+        rec = self._rec
+        if result.status == FrameStatus.INIT:
+            rec.log("/events", rr.TextLog(f"frame {frame.index}: initialised with {len(result.new_corners)} "
+                                          "corners", level="INFO"))
+        elif len(result.new_corners):
+            rec.log("/events", rr.TextLog(f"frame {frame.index}: re-detected {len(result.new_corners)} corners",
+                                          level="DEBUG"))
+        if result.status == FrameStatus.HELD:
+            rec.log("/events", rr.TextLog(f"frame {frame.index}: pose held ({result.reason})", level="WARN"))
 
 
 def _flatten(data: dict[str, Any], prefix: str = "") -> dict[str, Any]:

@@ -22,7 +22,9 @@ import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
+import urllib.parse
 import warnings
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
@@ -30,7 +32,7 @@ from pathlib import Path
 from types import FrameType
 from typing import IO, Literal
 
-from rerun.experimental import View, ViewerClient
+from rerun.experimental import View, ViewerClient, ViewerState
 
 from app.rrd import read_entity
 from vslam_core.errors import VslamError
@@ -278,8 +280,9 @@ def snapshot(
 
     The views are those of the recording's embedded blueprint; each PNG is named after its view
     (``frame.png``, ``world.png``, ``error_vs_ground_truth.png``…), plus ``all.png`` of the whole window
-    when `whole_window`. Screenshots are repeated until two rounds in a row are identical (the viewer
-    loads chunks lazily and decodes images in the background), so the pictures are complete.
+    when `whole_window`, in the layout's reading order. The viewer loads chunks lazily and decodes images
+    in the background, so the whole window is screenshotted until two shots in a row are identical and
+    nothing is loading; the views are captured then, and the window checked once more.
 
     Raises `ViewerError` (one line) for a missing/bad file, a frame outside the recording, no Vulkan
     adapter, or a viewer that fails or does not settle within `timeout_s`.
@@ -296,7 +299,7 @@ def snapshot(
 
     started = time.monotonic()
     deadline = started + timeout_s
-    with _headless_viewer(deadline, window_size) as (process, client):
+    with _stop_viewer_on_sigterm(), _headless_viewer(deadline, window_size) as (process, client):
         try:
             shots = _settled_screenshots(client, rrd, frame, deadline, whole_window)
         except ViewerError:
@@ -340,7 +343,13 @@ def _settled_screenshots(
             if time.monotonic() > deadline:
                 raise ViewerError(f"{rrd}: the recording's blueprint has no visible view")
             time.sleep(0.1)
+    order = _layout_order(client)
+    views.sort(key=lambda v: order.index(v.view_id) if v.view_id in order else len(order))
     client.set_time("frame", sequence=frame, play_state="paused", recording=store_id)
+    while not _time_cursor_at(client.get_state(), store_id, frame):  # applied on the viewer's next frame
+        if time.monotonic() > deadline:
+            raise ViewerError(f"{rrd}: the viewer did not move to frame {frame}")
+        time.sleep(0.1)
 
     # Settled = the whole window is the same picture twice in a row (0.2 s apart) and nothing is loading;
     # the views are then captured, and the window once more: if it changed meanwhile, start again.
@@ -364,6 +373,32 @@ def _settled_screenshots(
     return shots
 
 
+def _time_cursor_at(state: ViewerState, store_id: str, frame: int) -> bool:
+    return any(r.store_id == store_id and r.current_timeline == "frame" and r.current_time == frame
+               for r in state.recordings)
+
+
+def _layout_order(client: ViewerClient) -> list[str]:
+    """View ids in reading order of the blueprint's layout (containers depth-first); [] if unknown."""
+    try:
+        tree = client.get_blueprint().blueprint
+        root = tree["/viewport"]["ViewportBlueprint"]["root_container"]
+    except Exception:  # an older/newer blueprint shape: keep the viewer's order
+        return []
+    order: list[str] = []
+
+    def walk(item: str) -> None:
+        kind, _, ident = item.partition("/")
+        if kind == "view":
+            order.append(ident)
+        elif kind == "container":
+            for child in tree.get(f"/container/{ident}", {}).get("ContainerBlueprint", {}).get("contents", []):
+                walk(child)
+
+    walk(f"container/{root}")
+    return order
+
+
 def _settled_window(client: ViewerClient, rrd: Path, deadline: float, previous: bytes | None) -> bytes:
     """Screenshot the whole window until two shots in a row are identical and nothing is loading."""
     while True:
@@ -380,7 +415,8 @@ def _settled_window(client: ViewerClient, rrd: Path, deadline: float, previous: 
 
 
 def web_viewer_url(web_port: int, grpc_port: int) -> str:
-    return f"http://{HOST}:{web_port}/?url=rerun%2Bhttp://{HOST}:{grpc_port}/proxy"
+    """The web viewer's page, told to connect to the gRPC server that holds the recording."""
+    return f"http://{HOST}:{web_port}/?url=" + urllib.parse.quote(f"rerun+http://{HOST}:{grpc_port}/proxy", safe="")
 
 
 @contextlib.contextmanager
@@ -430,7 +466,7 @@ def open_recording(rrd: Path, web: bool = False, port: int | None = None) -> Non
     """
     recording_frames(rrd)
     kind = choose_viewer(os.environ, web)
-    with _terminate_as_interrupt():
+    with _stop_viewer_on_sigterm():
         try:
             if kind == "web":
                 with serve_web(rrd, port) as (url, process):
@@ -455,21 +491,35 @@ def _run_native(rrd: Path) -> None:
         process.stop()
 
 
-@contextlib.contextmanager
-def _terminate_as_interrupt() -> Iterator[None]:
-    """Treat SIGTERM like Ctrl-C while blocking, so the viewer is stopped instead of orphaned."""
-    import threading
+class _Terminated(BaseException):
+    """SIGTERM arrived while a viewer ran (BaseException: no `except Exception` swallows it)."""
 
+
+@contextlib.contextmanager
+def _stop_viewer_on_sigterm() -> Iterator[None]:
+    """On SIGTERM, unwind first (so `finally` blocks stop the viewer), then deliver the signal as before.
+
+    The viewer runs in its own session, so without this a terminated Python process would orphan it.
+    Only possible in the main thread, and only when SIGTERM is not ignored.
+    """
     if threading.current_thread() is not threading.main_thread():
         yield
         return
+    previous = signal.getsignal(signal.SIGTERM)
+    if previous == signal.SIG_IGN:
+        yield
+        return
 
-    def interrupt(_signum: int, _frame: FrameType | None) -> None:
-        raise KeyboardInterrupt
+    def terminated(_signum: int, _frame: FrameType | None) -> None:
+        raise _Terminated
 
-    previous = signal.signal(signal.SIGTERM, interrupt)
+    signal.signal(signal.SIGTERM, terminated)
     try:
         yield
+    except _Terminated:
+        signal.signal(signal.SIGTERM, previous)
+        os.kill(os.getpid(), signal.SIGTERM)  # default action: exit by SIGTERM; a Python handler runs now
+        raise KeyboardInterrupt from None  # only reached when the previous handler returned
     finally:
         signal.signal(signal.SIGTERM, previous)
 

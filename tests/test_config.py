@@ -17,7 +17,8 @@ def write(tmp_path: Path, text: str) -> Path:
 
 
 def test_toml_overrides_only_what_it_names(tmp_path: Path) -> None:
-    config = load_config(write(tmp_path, 'scale = "none"\n[detector]\nfast_threshold = 30\n[pose]\nransac_threshold_px = 1\n'))
+    text = 'scale = "none"\n[detector]\nfast_threshold = 30\n[pose]\nransac_threshold_px = 1\n'
+    config = load_config(write(tmp_path, text))
     assert config.scale == "none"
     assert config.detector.fast_threshold == 30
     assert config.pose.ransac_threshold_px == 1.0 and isinstance(config.pose.ransac_threshold_px, float)

@@ -39,7 +39,7 @@ def test_kitti_accuracy_beats_the_paper_configuration(kitti_runs: dict[str, tupl
     """Issue target: mean over 00 and 05 of t_err ≤ 1 % and r_err ≤ 1 °/100 m; each sequence better than
     the paper configuration's average (00: 1.2–1.4 %, 1.6–1.7 °/100 m; 05: 0.7–2.0 %, 0.8–2.0 °/100 m)."""
     errors = {seq: kitti_errors(gt, est) for seq, (gt, est) in kitti_runs.items()}
-    for sequence, (gt, est) in kitti_runs.items():
+    for gt, est in kitti_runs.values():
         assert len(est) == len(gt) == 300
     assert errors["00"][0] < 1.2 and errors["00"][1] < 1.6
     assert errors["05"][0] < 0.8 and errors["05"][1] < 0.8

@@ -36,7 +36,8 @@ def rot(yaw_deg: float = 0.0, pitch_deg: float = 0.0, roll_deg: float = 0.0) -> 
 def two_view(T_prev_cur: np.ndarray, n: int = 400, seed: int = 0, noise_px: float = 0.0):  # noqa: N803
     """Points in front of both cameras, projected into the current and previous image (pixels)."""
     rng = np.random.default_rng(seed)
-    points_cur = np.column_stack((rng.uniform(-15, 15, n), rng.uniform(-3, 2, n), rng.uniform(4, 40, n)))  # within 50 baselines
+    # depths within 50 baselines, where the chirality count (like cv2.recoverPose) still counts points
+    points_cur = np.column_stack((rng.uniform(-15, 15, n), rng.uniform(-3, 2, n), rng.uniform(4, 40, n)))
     points_prev = points_cur @ T_prev_cur[:3, :3].T + T_prev_cur[:3, 3]
     keep = points_prev[:, 2] > 1.0
     points_cur, points_prev = points_cur[keep], points_prev[keep]

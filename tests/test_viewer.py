@@ -11,6 +11,7 @@ import socket
 import subprocess
 import sys
 import time
+import urllib.parse
 import urllib.request
 from pathlib import Path
 
@@ -26,7 +27,8 @@ from vslam_core.errors import VslamError
 ROOT = Path(__file__).resolve().parents[1]
 KITTI_ROOT = ROOT.parent / "shared" / "data" / "kitti"
 FRAME = 10
-VIEWS = {"frame", "world", "tracks", "inliers", "error_vs_ground_truth", "events"}
+#: The views of app.recording.blueprint(), in the layout's reading order.
+VIEWS = ["frame", "world", "tracks", "inliers", "error_vs_ground_truth", "events"]
 
 
 def _source_args() -> list[str]:
@@ -107,7 +109,7 @@ def _colourful(picture: np.ndarray) -> float:
 
 
 def test_snapshot_writes_one_png_per_view(shots: dict[str, Path]) -> None:
-    assert set(shots) == VIEWS | {"all"}
+    assert list(shots) == [*VIEWS, "all"]
     for name, path in shots.items():
         picture = cv2.imread(str(path))
         assert picture is not None, path
@@ -219,6 +221,32 @@ def test_viewer_failure_after_start_still_stops_it(
     spy.assert_all_gone()
 
 
+def test_terminated_snapshot_stops_the_viewer_first(recording: Path, vulkan: None, tmp_path: Path) -> None:
+    code = ("import sys; from pathlib import Path; from app import viewer\n"
+            "start = viewer._start\n"
+            "def spy(args, env=None):\n"
+            "    process = start(args, env)\n"
+            "    print(process.popen.pid, flush=True)\n"
+            "    return process\n"
+            "viewer._start = spy\n"
+            "viewer.snapshot(Path(sys.argv[1]), 10, Path(sys.argv[2]))\n")
+    proc = subprocess.Popen([sys.executable, "-c", code, str(recording), str(tmp_path)], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        viewer_pid = int(proc.stdout.readline())
+        time.sleep(1.0)  # connected, opening the recording
+        proc.terminate()
+        _, stderr = proc.communicate(timeout=20)
+        assert proc.returncode == -signal.SIGTERM, stderr
+        with pytest.raises(ProcessLookupError):
+            os.killpg(viewer_pid, 0)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
 def test_choose_viewer() -> None:
     assert choose_viewer({"DISPLAY": ":0"}, web=False) == "native"
     assert choose_viewer({"WAYLAND_DISPLAY": "wayland-0"}, web=False) == "native"
@@ -242,10 +270,13 @@ def test_web_viewer_serves_on_loopback_until_stopped(recording: Path, stop: sign
         with urllib.request.urlopen(url, timeout=10) as response:
             assert response.status == 200
             assert b"<html" in response.read().lower()
-        grpc_port = int(re.search(r"127\.0\.0\.1:(\d+)/proxy", url).group(1))  # type: ignore[union-attr]
+        grpc = re.search(r"url=rerun\+http://127\.0\.0\.1:(\d+)/proxy$", urllib.parse.unquote(url))
+        assert grpc is not None, url
+        grpc_port = int(grpc.group(1))
         proc.send_signal(stop)
         _, stderr = proc.communicate(timeout=20)
-        assert proc.returncode == 0, stderr
+        # Ctrl-C: a normal end; SIGTERM: the server is stopped, then the process ends by the signal as usual
+        assert proc.returncode == (0 if stop == signal.SIGINT else -signal.SIGTERM), stderr
         assert "Traceback" not in stderr
         assert _refused(port) and _refused(grpc_port)  # the server went with it
     finally:
