@@ -60,8 +60,36 @@ NEW_CORNER_COLOUR = (255, 230, 0)
 CANDIDATE_COLOURS = [(255, 200, 0), (0, 200, 255), (255, 0, 160), (160, 255, 0)]
 ESTIMATE_COLOUR = (255, 80, 80)
 GROUND_TRUTH_COLOUR = (80, 255, 120)
-STAGES = {"decode": (150, 150, 150), "track": (40, 120, 255), "essential": (230, 30, 30),
-          "chirality": (200, 0, 200), "detect": (255, 230, 0), "record": (0, 200, 200)}
+STAGES = ("decode", "track", "essential", "chirality", "detect", "record")
+
+# Per-frame series: one entity per plot, one scalar per series (NaN where a frame has no value).
+# group -> series name -> (legend, colour). `vslam inspect` reads the same table back.
+METRICS: dict[str, dict[str, tuple[str, tuple[int, int, int]]]] = {
+    "tracks": {
+        "alive": ("tracks alive", (40, 120, 255)),
+        "new_corners": ("corners detected", NEW_CORNER_COLOUR),
+        "fb_rejected": ("forward–backward rejects", (255, 140, 0)),
+    },
+    "ransac": {
+        "inliers": ("RANSAC inliers", (40, 220, 60)),
+        "chirality_margin": ("chirality margin (best − 2nd)", (200, 0, 200)),
+    },
+    "ratio": {"inlier_ratio": ("inlier ratio", (40, 220, 60))},
+    "motion": {"rotation_deg": ("rotation (°)", (255, 200, 0)), "scale": ("step length", (0, 200, 255))},
+    "error": {"position_m": ("position error (m)", ESTIMATE_COLOUR)},
+    "angle_error": {
+        "heading_deg": ("heading error (°)", (255, 80, 200)),
+        "translation_direction_deg": ("translation direction error (°)", (0, 200, 255)),
+    },
+    "timing_ms": {
+        "decode": ("decode (ms)", (150, 150, 150)),
+        "track": ("track (ms)", (40, 120, 255)),
+        "essential": ("essential (ms)", (230, 30, 30)),
+        "chirality": ("chirality (ms)", (200, 0, 200)),
+        "detect": ("detect (ms)", (255, 230, 0)),
+        "record": ("record (ms)", (0, 200, 200)),
+    },
+}
 
 
 def blueprint() -> rrb.Blueprint:
@@ -76,6 +104,9 @@ def blueprint() -> rrb.Blueprint:
                 rrb.Spatial3DView(
                     name="world",
                     origin="/world",
+                    # follow the car from behind and above (RDF: −y is up, −z is behind)
+                    eye_controls=rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, eye_up=[0.0, -1.0, 0.0],
+                                                   tracking_entity="/world/camera"),
                     # the trajectories keep their whole past; everything else shows the current frame
                     overrides={
                         "/world/trajectory/estimate": rrb.VisibleTimeRanges([whole_past]),
@@ -123,8 +154,11 @@ class Recorder:
         self._gt = source.ground_truth
         self._previous_position: np.ndarray | None = None
         # send_properties=False: no wall-clock start time, so two runs of the same input compare equal
+        # Fewer, larger chunks than the default (0.2 s / 2 MiB): each chunk carries its own schema, and at
+        # ~3 frames a chunk the schemas alone were ~16 KB per frame.
+        batcher = rr.ChunkBatcherConfig(flush_tick=1.0, flush_num_bytes=8 * 2**20)
         self._rec = rr.RecordingStream(APPLICATION_ID, recording_id=properties.get("recording_id"),
-                                       send_properties=False)
+                                       send_properties=False, batcher_config=batcher)
         self._rec.set_log_time_enabled(False)  # reproducible files: no wall-clock column
         self._rec.save(path, default_blueprint=blueprint())
         self._rec.send_recording_name(properties.get("name", source.name))
@@ -157,23 +191,9 @@ class Recorder:
             rr.AnnotationContext([(int(f), label, colour) for f, (label, colour) in FATE_STYLE.items()]),
             static=True,
         )
-        rec.log("/world/trajectory/estimate", rr.LineStrips3D([], colors=ESTIMATE_COLOUR), static=True)
-        series = {
-            "tracks/alive": ("tracks alive", (40, 120, 255)),
-            "tracks/new_corners": ("corners detected", NEW_CORNER_COLOUR),
-            "tracks/fb_rejected": ("forward–backward rejects", (255, 140, 0)),
-            "ransac/inliers": ("RANSAC inliers", (40, 220, 60)),
-            "ransac/chirality_margin": ("chirality margin (best − 2nd)", (200, 0, 200)),
-            "ratio/inlier_ratio": ("inlier ratio", (40, 220, 60)),
-            "motion/rotation_deg": ("rotation (°)", (255, 200, 0)),
-            "motion/scale": ("step length", (0, 200, 255)),
-            "error/position_m": ("position error (m)", ESTIMATE_COLOUR),
-            "angle_error/heading_deg": ("heading error (°)", (255, 80, 200)),
-            "angle_error/translation_direction_deg": ("translation direction error (°)", (0, 200, 255)),
-        }
-        series |= {f"timing_ms/{stage}": (f"{stage} (ms)", colour) for stage, colour in STAGES.items()}
-        for path, (name, colour) in series.items():
-            rec.log(f"/metrics/{path}", rr.SeriesLines(names=name, colors=colour), static=True)
+        for group, series in METRICS.items():
+            names, colours = zip(*series.values(), strict=True)
+            rec.log(f"/metrics/{group}", rr.SeriesLines(names=names, colors=colours), static=True)
 
     def log_frame(self, frame: Frame, result: FrameResult) -> None:
         """Log everything about one frame on the `frame` timeline (and `time`, when known)."""
@@ -194,9 +214,7 @@ class Recorder:
         self._log_metrics(result)
         self._log_events(frame, result)
         timings = dict(result.timings_ms, record=(time.perf_counter() - start) * 1000.0)
-        for stage in STAGES:
-            if stage in timings:
-                rec.log(f"/metrics/timing_ms/{stage}", rr.Scalars(timings[stage]))
+        rec.log("/metrics/timing_ms", rr.Scalars([timings.get(stage, np.nan) for stage in STAGES]))
 
     def _log_image_and_tracks(self, frame: Frame, result: FrameResult) -> None:
         rec = self._rec
@@ -228,17 +246,19 @@ class Recorder:
             return
         T_w_key = result.T_world_cam @ invert_pose(result.T_key_cur)  # noqa: N806
         length = max(float(np.linalg.norm(result.T_key_cur[:3, 3])), 0.5)
+        counts = ", ".join(f"#{i}: {c.in_front}" for i, c in enumerate(result.candidate_poses))
         for i, candidate in enumerate(result.candidate_poses):
             chosen = i == result.chosen_candidate
             centre = T_w_key[:3, :3] @ (length * candidate.translation) + T_w_key[:3, 3]
             rotation = T_w_key[:3, :3] @ candidate.rotation
-            label = f"candidate {i}: {candidate.in_front} in front" + (" (chosen)" if chosen else "")
+            # (R1, t) and (R2, t) share a centre: one label, on the chosen candidate, lists every count
+            labels = [f"chosen #{i} — in front {counts}"] if chosen else None
             rec.log(
                 f"/world/candidates/{i}",
                 rr.Transform3D(translation=centre, mat3x3=rotation),
                 rr.TransformAxes3D(axis_length=0.8 if chosen else 0.4),
                 rr.Points3D([[0.0, 0.0, 0.0]], radii=0.15 if chosen else 0.08, colors=CANDIDATE_COLOURS[i],
-                            labels=[label]),
+                            labels=labels),
                 rr.AnyValues(in_front=candidate.in_front, chosen=chosen),
             )
 
@@ -247,42 +267,21 @@ class Recorder:
         rec = self._rec
         position = result.T_world_cam[:3, 3]
         previous = self._previous_position if self._previous_position is not None else position
-        rec.log("/world/trajectory/estimate", rr.LineStrips3D([[previous, position]], colors=ESTIMATE_COLOUR))
+        rec.log("/world/trajectory/estimate", rr.LineStrips3D([[previous, position]], colors=ESTIMATE_COLOUR,
+                                                                     radii=0.12))
         if self._gt is not None:
             gt = self._gt[:, :3, 3]
             i = result.position
             rec.log("/world/trajectory/ground_truth",
-                    rr.LineStrips3D([[gt[max(i - 1, 0)], gt[i]]], colors=GROUND_TRUTH_COLOUR))
+                    rr.LineStrips3D([[gt[max(i - 1, 0)], gt[i]]], colors=GROUND_TRUTH_COLOUR,
+                                            radii=0.06))
         self._previous_position = position
 
     def _log_metrics(self, result: FrameResult) -> None:
-        rec = self._rec
-        counts = result.fate_counts()
-        used = counts["ransac_outlier"] + counts["chirality_failed"] + counts["inlier"]
-        scalars: dict[str, float] = {
-            "tracks/alive": result.live_tracks,
-            "tracks/new_corners": len(result.new_corners),
-            "tracks/fb_rejected": counts["fb_rejected"],
-            "ransac/inliers": counts["inlier"],
-            "ratio/inlier_ratio": counts["inlier"] / used if used else 0.0,
-        }
-        if len(result.candidate_poses) == 4:
-            in_front = sorted((c.in_front for c in result.candidate_poses), reverse=True)
-            scalars["ransac/chirality_margin"] = in_front[0] - in_front[1]
-        if result.T_key_cur is not None:
-            scalars["motion/rotation_deg"] = float(np.degrees(rotation_angle(result.T_key_cur[:3, :3])))
-            scalars["motion/scale"] = result.scale or 0.0
-        if self._gt is not None:
-            gt_pose = self._gt[result.position]
-            scalars["error/position_m"] = float(np.linalg.norm(gt_pose[:3, 3] - result.T_world_cam[:3, 3]))
-            scalars["angle_error/heading_deg"] = float(np.degrees(
-                rotation_angle(gt_pose[:3, :3].T @ result.T_world_cam[:3, :3])))
-            if result.T_key_cur is not None:
-                gt_step = invert_pose(self._gt[result.keyframe_position]) @ gt_pose
-                scalars["angle_error/translation_direction_deg"] = float(
-                    np.degrees(angle_between(gt_step[:3, 3], result.T_key_cur[:3, 3])))
-        for path, value in scalars.items():
-            rec.log(f"/metrics/{path}", rr.Scalars(float(value)))
+        values = frame_metrics(result, self._gt)
+        for group, series in METRICS.items():
+            if group != "timing_ms":
+                self._rec.log(f"/metrics/{group}", rr.Scalars([values.get(name, np.nan) for name in series]))
 
     def _log_events(self, frame: Frame, result: FrameResult) -> None:
         rec = self._rec
@@ -294,6 +293,35 @@ class Recorder:
                                           level="DEBUG"))
         if result.status == FrameStatus.HELD:
             rec.log("/events", rr.TextLog(f"frame {frame.index}: pose held ({result.reason})", level="WARN"))
+
+
+def frame_metrics(result: FrameResult, ground_truth: np.ndarray | None) -> dict[str, float]:
+    """The per-frame series of one result (names as in `METRICS`); absent where a frame has no value."""
+    counts = result.fate_counts()
+    used = counts["ransac_outlier"] + counts["chirality_failed"] + counts["inlier"]
+    values: dict[str, float] = {
+        "alive": result.live_tracks,
+        "new_corners": len(result.new_corners),
+        "fb_rejected": counts["fb_rejected"],
+        "inliers": counts["inlier"],
+    }
+    if used:
+        values["inlier_ratio"] = counts["inlier"] / used
+    if len(result.candidate_poses) == 4:
+        in_front = sorted((c.in_front for c in result.candidate_poses), reverse=True)
+        values["chirality_margin"] = in_front[0] - in_front[1]
+    if result.T_key_cur is not None:
+        values["rotation_deg"] = float(np.degrees(rotation_angle(result.T_key_cur[:3, :3])))
+        values["scale"] = result.scale or 0.0
+    if ground_truth is not None:
+        gt_pose = ground_truth[result.position]
+        values["position_m"] = float(np.linalg.norm(gt_pose[:3, 3] - result.T_world_cam[:3, 3]))
+        values["heading_deg"] = float(np.degrees(rotation_angle(gt_pose[:3, :3].T @ result.T_world_cam[:3, :3])))
+        if result.T_key_cur is not None:
+            gt_step = invert_pose(ground_truth[result.keyframe_position]) @ gt_pose
+            values["translation_direction_deg"] = float(
+                np.degrees(angle_between(gt_step[:3, 3], result.T_key_cur[:3, 3])))
+    return values
 
 
 def _flatten(data: dict[str, Any], prefix: str = "") -> dict[str, Any]:
