@@ -17,7 +17,10 @@ import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-from app.recording import Recorder, version_properties
+from app.crop import crop_recording
+from app.inspect import format_report, inspect_recording
+from app.recording import Detail, Recorder, version_properties
+from app.viewer import open_recording, snapshot
 from vslam_core.config import EngineConfig, load_config
 from vslam_core.errors import VslamError
 from vslam_core.metrics import kitti_errors, paper_rms_error
@@ -144,7 +147,10 @@ def run(
     config_file: Annotated[Path | None, typer.Option("--config", help="engine config (TOML)")] = None,
     output: Annotated[Path | None, typer.Option("--output", "-o", help="recording (.rrd) to write "
                                                 "[default: recordings/<source>_<time>.rrd]")] = None,
-    no_recording: Annotated[bool, typer.Option("--no-recording", help="write no .rrd file")] = False,
+    detail: Annotated[Detail, typer.Option(help="full = every intermediate; standard = no 3-D points or per-track "
+                                            "hover data; summary = no image or per-point data; off = no file")]
+    = Detail.FULL,
+    jpeg_quality: Annotated[int, typer.Option(min=1, max=100, help="JPEG quality of the recorded frames")] = 75,
     trajectory_out: Annotated[Path | None, typer.Option(help="write one pose per input frame here")] = None,
     trajectory_format: Annotated[TrajectoryFormat, typer.Option(help="kitti or tum")] = TrajectoryFormat.kitti,
     intrinsics: Annotated[str | None, typer.Option(help="fx,fy,cx,cy for image folders and videos")] = None,
@@ -162,7 +168,7 @@ def run(
     elif config_file is None and src.ground_truth is None:
         config = config.with_scale("none")
 
-    rrd = None if no_recording else (output or _default_output(src, frame_range))
+    rrd = None if detail == Detail.OFF else (output or _default_output(src, frame_range))
     if rrd is not None:
         if rrd.suffix != ".rrd":
             fail(f"{rrd}: a recording must end in .rrd")
@@ -182,7 +188,7 @@ def run(
             "scale": config.scale,
             **version_properties(),
         }
-        recorder = Recorder(rrd, src, config, properties)
+        recorder = Recorder(rrd, src, config, properties, detail=detail, jpeg_quality=jpeg_quality)
 
     result = RunResult([], [], [])
     previous = {s: signal.signal(s, _on_signal) for s in (signal.SIGTERM,)}
@@ -219,6 +225,74 @@ def run(
         fail(f"interrupted by {interrupted} after {result.frames} frames"
              + (f" (last frame {last})" if last is not None else "") + "; outputs hold the frames processed",
              interrupted.code)
+
+
+def _existing_recording(path: Path) -> Path:
+    if not path.exists():
+        fail(f"{path}: no such recording")
+    if path.is_dir():
+        fail(f"{path}: is a folder, not a .rrd recording")
+    return path
+
+
+@app.command()
+def inspect(
+    recording: Annotated[Path, typer.Argument(help="a .rrd written by vslam run")],
+    as_json: Annotated[bool, typer.Option("--json", help="machine-readable output (keys documented in README)")]
+    = False,
+) -> None:
+    """Summarise a recording without a viewer: properties, frames, stage timings, accuracy, flagged frames."""
+    report = inspect_recording(_existing_recording(recording))
+    if as_json:
+        print(json.dumps(report, indent=2, allow_nan=False, default=_json_safe))
+    else:
+        out.print(format_report(report), highlight=False)
+
+
+def _json_safe(value: object) -> object:
+    return None if isinstance(value, float) and not np.isfinite(value) else str(value)
+
+
+@app.command(name="snapshot")
+def snapshot_command(
+    recording: Annotated[Path, typer.Argument(help="a .rrd written by vslam run")],
+    frame: Annotated[int, typer.Option(help="frame to show (the source's frame index)")],
+    out_dir: Annotated[Path, typer.Option("--out", help="folder for one PNG per view")],
+) -> None:
+    """Render every view of the recording's blueprint at one frame to PNG, with the real viewer, headless."""
+    paths = snapshot(_existing_recording(recording), frame, out_dir)
+    for path in paths:
+        out.print(str(path), highlight=False)
+
+
+@app.command(name="open")
+def open_command(
+    recording: Annotated[Path, typer.Argument(help="a .rrd written by vslam run")],
+    web: Annotated[bool, typer.Option("--web", help="serve the web viewer on 127.0.0.1 instead")] = False,
+    port: Annotated[int | None, typer.Option(help="web viewer port (default: a free one)")] = None,
+) -> None:
+    """Open a recording: the native viewer where a display exists, else the web viewer on 127.0.0.1."""
+    open_recording(_existing_recording(recording), web=web, port=port)
+
+
+@app.command()
+def crop(
+    recording: Annotated[Path, typer.Argument(help="a .rrd written by vslam run")],
+    frames: Annotated[str, typer.Option(help="START:END of the frame timeline to keep (END excluded)")],
+    output: Annotated[Path, typer.Option("--output", "-o", help="the cropped .rrd to write")],
+    force: Annotated[bool, typer.Option("--force", help="replace an existing output")] = False,
+) -> None:
+    """Cut a recording down to the frames that matter (static data and blueprint kept)."""
+    selection = FrameRange.parse(frames)
+    if selection.start is None or selection.end is None or selection.step != 1:
+        fail(f"--frames {frames!r}: give START:END, e.g. 120:160")
+    _existing_recording(recording)
+    if output.suffix != ".rrd":
+        fail(f"{output}: a recording must end in .rrd")
+    _check_new_file(output, force, "recording")
+    summary = crop_recording(recording, (selection.start, selection.end), output)
+    out.print(f"{output}: frames {summary.first_frame}..{summary.last_frame} ({summary.frame_count} frames), "
+              f"{summary.output_bytes / 1e6:.1f} MB (from {summary.input_bytes / 1e6:.1f} MB)", highlight=False)
 
 
 def main() -> None:

@@ -14,6 +14,7 @@ Entity layout (world = camera frame of the first frame, RDF: x right, y down, z 
     /world/trajectory/ground_truth      same, from the source's ground truth
     /metrics/...                        per-frame scalars (tracks, RANSAC, motion, error, timing_ms)
     /events                             text log: initialisation, re-detections, held frames
+    /health                             per frame: status ok / fail and reason codes (for `vslam inspect`)
 
 Detail levels: full = all of it; standard = no triangulated points and no per-track hover data;
 summary = no image and no per-point data (camera pose, trajectories, series, events); off = no file.
@@ -62,8 +63,8 @@ ESTIMATE_COLOUR = (255, 80, 80)
 GROUND_TRUTH_COLOUR = (80, 255, 120)
 STAGES = ("decode", "track", "essential", "chirality", "detect", "record")
 
-# Per-frame series: one entity per plot, one scalar per series (NaN where a frame has no value).
-# group -> series name -> (legend, colour). `vslam inspect` reads the same table back.
+# Per-frame series, logged to /metrics/<group>/<series> only on frames that have a value (no NaN: it
+# would make identical runs compare unequal). One plot per group. `vslam inspect` reads them back.
 METRICS: dict[str, dict[str, tuple[str, tuple[int, int, int]]]] = {
     "tracks": {
         "alive": ("tracks alive", (40, 120, 255)),
@@ -192,8 +193,8 @@ class Recorder:
             static=True,
         )
         for group, series in METRICS.items():
-            names, colours = zip(*series.values(), strict=True)
-            rec.log(f"/metrics/{group}", rr.SeriesLines(names=names, colors=colours), static=True)
+            for name, (legend, colour) in series.items():
+                rec.log(f"/metrics/{group}/{name}", rr.SeriesLines(names=legend, colors=colour), static=True)
 
     def log_frame(self, frame: Frame, result: FrameResult) -> None:
         """Log everything about one frame on the `frame` timeline (and `time`, when known)."""
@@ -213,8 +214,12 @@ class Recorder:
         self._log_trajectories(result)
         self._log_metrics(result)
         self._log_events(frame, result)
+        status, reasons = frame_health(result)
+        rec.log("/health", rr.AnyValues(status=status, reasons=",".join(reasons) or None))
         timings = dict(result.timings_ms, record=(time.perf_counter() - start) * 1000.0)
-        rec.log("/metrics/timing_ms", rr.Scalars([timings.get(stage, np.nan) for stage in STAGES]))
+        for stage in STAGES:
+            if stage in timings:
+                rec.log(f"/metrics/timing_ms/{stage}", rr.Scalars(timings[stage]))
 
     def _log_image_and_tracks(self, frame: Frame, result: FrameResult) -> None:
         rec = self._rec
@@ -280,8 +285,9 @@ class Recorder:
     def _log_metrics(self, result: FrameResult) -> None:
         values = frame_metrics(result, self._gt)
         for group, series in METRICS.items():
-            if group != "timing_ms":
-                self._rec.log(f"/metrics/{group}", rr.Scalars([values.get(name, np.nan) for name in series]))
+            for name in series:
+                if name in values and group != "timing_ms":
+                    self._rec.log(f"/metrics/{group}/{name}", rr.Scalars(values[name]))
 
     def _log_events(self, frame: Frame, result: FrameResult) -> None:
         rec = self._rec
@@ -293,6 +299,13 @@ class Recorder:
                                           level="DEBUG"))
         if result.status == FrameStatus.HELD:
             rec.log("/events", rr.TextLog(f"frame {frame.index}: pose held ({result.reason})", level="WARN"))
+
+
+def frame_health(result: FrameResult) -> tuple[str, list[str]]:
+    """"ok" or "fail" (the frame held its pose) and the reason codes; read back by `vslam inspect`."""
+    if result.status == FrameStatus.HELD:
+        return "fail", [str(result.reason)] if result.reason is not None else []
+    return "ok", []
 
 
 def frame_metrics(result: FrameResult, ground_truth: np.ndarray | None) -> dict[str, float]:

@@ -106,7 +106,7 @@ def test_existing_output_is_never_replaced_without_force(kitti_run: tuple[Path, 
 def test_force_replaces_and_tum_output_carries_timestamps(kitti_root: Path, tmp_path: Path) -> None:
     trajectory = tmp_path / "t.tum"
     trajectory.write_text("old\n")
-    result = vslam("run", kitti_root, "--sequence", "05", "--frames", "10:20", "--no-recording",
+    result = vslam("run", kitti_root, "--sequence", "05", "--frames", "10:20", "--detail", "off",
                    "--trajectory-out", trajectory, "--trajectory-format", "tum", "--force")
     assert result.returncode == 0, result.stderr
     stamps, poses = read_tum_poses(trajectory)

@@ -1,0 +1,205 @@
+"""Recordings read back (strict mode) hold exactly what the engine computed."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rerun as rr
+
+from app.inspect import flagged_ranges, inspect_recording
+from app.recording import STAGES, Detail, Recorder
+from app.rrd import RecordingError, read_entity
+from vslam_core.config import EngineConfig
+from vslam_core.pipeline import run_odometry
+from vslam_core.results import FrameResult, FrameStatus, TrackFate
+from vslam_core.sources.base import FrameRange
+from vslam_core.sources.kitti import KittiSource
+
+ROOT = Path(__file__).resolve().parents[1]
+FRAMES = 30
+
+
+@pytest.fixture(autouse=True, scope="module")
+def strict_rerun() -> None:
+    rr.set_strict_mode(True)  # a malformed archetype raises instead of warning
+
+
+def record(kitti_root: Path, path: Path, detail: Detail, frames: int = FRAMES) -> list[FrameResult]:
+    source = KittiSource(kitti_root, sequence="00", frames=FrameRange(0, frames))
+    results: list[FrameResult] = []
+    with Recorder(path, source, EngineConfig(), {"name": "test run", "source": source.name}, detail=detail) as rec:
+        run_odometry(source, EngineConfig(), sinks=(rec.log_frame, lambda _f, r: results.append(r)))
+    return results
+
+
+@pytest.fixture(scope="module")
+def full(kitti_root: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[FrameResult]]:
+    path = tmp_path_factory.mktemp("rec") / "full.rrd"
+    return path, record(kitti_root, path, Detail.FULL)
+
+
+def verify(path: Path) -> None:
+    check = subprocess.run(["rerun", "rrd", "verify", str(path)], capture_output=True, text=True, timeout=120)
+    assert check.returncode == 0, check.stderr
+
+
+@pytest.mark.kitti
+def test_full_recording_equals_the_engine_results(full: tuple[Path, list[FrameResult]]) -> None:
+    path, results = full
+    verify(path)
+    k = 12
+    result = results[k]
+    assert result.status == FrameStatus.OK
+
+    corners = read_entity(path, "/world/camera/image/corners")
+    assert corners["frame"].to_list() == list(range(FRAMES))
+    assert np.allclose(np.array(corners["Points2D:positions"][0].to_list()), results[0].new_corners)
+    assert corners["track_id"][0].to_list() == results[0].new_corner_ids.tolist()
+
+    flow = read_entity(path, "/world/camera/image/flow").filter(frame=k)
+    reached = result.track_fate != TrackFate.LOST
+    assert flow["track_id"][0].to_list() == result.track_ids[reached].tolist()  # one arrow per track
+    assert flow["age"][0].to_list() == result.track_age[reached].tolist()
+    classes = np.array(flow["Arrows2D:class_ids"][0].to_list())
+    for fate in TrackFate:
+        if fate != TrackFate.LOST:
+            assert (classes == fate).sum() == (result.track_fate == fate).sum(), fate.name
+    origins = np.array(flow["Arrows2D:origins"][0].to_list())
+    assert np.allclose(origins, result.track_prev[reached])
+
+    for i, candidate in enumerate(result.candidate_poses):
+        logged = read_entity(path, f"/world/candidates/{i}").filter(frame=k)
+        assert logged["in_front"][0].to_list() == [candidate.in_front]
+        assert logged["chosen"][0].to_list() == [i == result.chosen_candidate]
+    assert sum(1 for c in result.candidate_poses) == 4
+
+    points = read_entity(path, "/world/points").filter(frame=k)
+    assert np.allclose(np.array(points["Points3D:positions"][0].to_list()), result.points_world, atol=1e-4)
+
+    for entity in ("/world/trajectory/estimate", "/world/trajectory/ground_truth", "/world/camera",
+                   "/world/camera/image", "/health"):
+        assert len(read_entity(path, entity)) == FRAMES, entity
+    camera = read_entity(path, "/world/camera")
+    assert np.allclose(np.array(camera["Transform3D:translation"][-1].to_list()).ravel(),
+                       results[-1].T_world_cam[:3, 3], atol=1e-5)
+    inliers = read_entity(path, "/metrics/ransac/inliers").filter(frame=k)
+    assert inliers["Scalars:scalars"][0].to_list() == [result.inlier_count]
+    for stage in ("decode", "track", "essential", "record"):
+        assert len(read_entity(path, f"/metrics/timing_ms/{stage}")) >= FRAMES - 1, stage
+
+
+@pytest.mark.kitti
+def test_recording_carries_properties_static_conventions_and_blueprint(full: tuple[Path, list[FrameResult]]) -> None:
+    path, _ = full
+    run = read_entity(path, "/__properties/run", static=True)
+    assert run["name"][0].to_list() == ["test run"] and run["detail"][0].to_list() == ["full"]
+    config = read_entity(path, "/__properties/config", static=True)
+    assert config["pose.ransac_threshold_px"][0].to_list() == [EngineConfig().pose.ransac_threshold_px]
+    name = read_entity(path, "/__properties", static=True)
+    assert name["RecordingInfo:name"][0].to_list() == ["test run"]
+    pinhole = read_entity(path, "/world/camera/image", static=True)
+    assert "Pinhole:image_from_camera" in pinhole.columns
+    assert "ViewCoordinates:xyz" in read_entity(path, "/world", static=True).columns
+    stats = subprocess.run(["rerun", "rrd", "stats", str(path)], capture_output=True, text=True, timeout=120)
+    assert "StoreId(Blueprint" in stats.stdout  # the default blueprint is embedded in the file
+
+
+@pytest.mark.kitti
+def test_detail_levels_drop_what_they_promise(kitti_root: Path, tmp_path: Path,
+                                              full: tuple[Path, list[FrameResult]]) -> None:
+    sizes = {}
+    for detail in (Detail.STANDARD, Detail.SUMMARY):
+        path = tmp_path / f"{detail}.rrd"
+        record(kitti_root, path, detail)
+        verify(path)
+        sizes[detail] = path.stat().st_size
+        assert len(read_entity(path, "/world/trajectory/estimate")) == FRAMES
+        assert len(read_entity(path, "/metrics/tracks/alive")) == FRAMES
+        assert read_entity(path, "/world/points").is_empty()
+        if detail == Detail.STANDARD:
+            flow = read_entity(path, "/world/camera/image/flow")
+            assert len(flow) == FRAMES and "track_id" not in flow.columns
+        else:
+            assert read_entity(path, "/world/camera/image").is_empty()
+            assert read_entity(path, "/world/camera/image/flow").is_empty()
+    full_size = full[0].stat().st_size
+    assert sizes[Detail.SUMMARY] < sizes[Detail.STANDARD] < full_size
+    # Budgets per frame (the file's fixed part — blueprint, statics, schemas — taken out): a 10-frame run
+    # subtracted from the 30-frame one. summary ≤ 5 KB, full ≤ 120 KB.
+    short = tmp_path / "short.rrd"
+    record(kitti_root, short, Detail.SUMMARY, frames=10)
+    assert (sizes[Detail.SUMMARY] - short.stat().st_size) / (FRAMES - 10) < 5 * 1024
+    record(kitti_root, short.with_name("short-full.rrd"), Detail.FULL, frames=10)
+    assert (full_size - short.with_name("short-full.rrd").stat().st_size) / (FRAMES - 10) < 120 * 1024
+
+
+def vslam(*args: str | Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "app.cli", *map(str, args)], capture_output=True, text=True,
+                          cwd=ROOT, timeout=600, env={**__import__("os").environ, "RERUN_STRICT": "1"})
+
+
+@pytest.mark.kitti
+def test_two_runs_of_the_same_input_compare_equal(kitti_root: Path, tmp_path: Path) -> None:
+    """Everything but the measured stage timings is deterministic."""
+    paths = []
+    for name in ("a", "b"):
+        path = tmp_path / f"{name}.rrd"
+        assert vslam("run", kitti_root, "--sequence", "05", "--frames", "0:15", "-o", path).returncode == 0
+        filtered = tmp_path / f"{name}-no-timing.rrd"
+        drop = [arg for stage in STAGES for arg in ("--drop-entity", f"/metrics/timing_ms/{stage}")]
+        subprocess.run(["rerun", "rrd", "filter", *drop, "-o", str(filtered), str(path)], check=True,
+                       capture_output=True, timeout=120)
+        paths.append(filtered)
+    compare = subprocess.run(["rerun", "rrd", "compare", "--unordered", *map(str, paths)], capture_output=True,
+                             text=True, timeout=120)
+    assert compare.returncode == 0, compare.stderr[-2000:]
+
+
+@pytest.mark.kitti
+def test_inspect_reports_what_a_bug_report_needs(full: tuple[Path, list[FrameResult]]) -> None:
+    path, results = full
+    report = inspect_recording(path)
+    assert report["frames"] == {"count": FRAMES, "first": 0, "last": FRAMES - 1}
+    assert report["properties"]["name"] == "test run"
+    assert set(report["stages_ms"]) == set(STAGES)
+    assert report["stages_ms"]["track"]["mean"] > 0
+    alive = [r.live_tracks for r in results]
+    assert report["series"]["tracks_alive"]["max"] == max(alive)
+    assert report["accuracy"]["final_position_error_m"] >= 0
+    assert report["flagged"] == []
+
+    result = vslam("inspect", path, "--json")
+    assert result.returncode == 0, result.stderr
+    data = json.loads(result.stdout)
+    assert set(data) >= {"schema", "file", "properties", "config", "frames", "stages_ms", "series", "accuracy",
+                         "flagged"}
+    text = vslam("inspect", path)
+    assert text.returncode == 0 and "frames      30 (0..29)" in text.stdout
+
+
+def test_flagged_frames_become_inclusive_ranges() -> None:
+    frames = [10, 11, 12, 13, 14, 15, 20]
+    status = ["ok", "fail", "fail", "ok", "fail", "fail", "fail"]
+    reasons = ["", "low_parallax", "low_parallax", "", "low_parallax", "too_few_inliers", "too_few_inliers"]
+    assert flagged_ranges(frames, status, reasons) == [
+        {"start": 11, "end": 12, "status": "fail", "reasons": ["low_parallax"]},
+        {"start": 14, "end": 14, "status": "fail", "reasons": ["low_parallax"]},
+        {"start": 15, "end": 15, "status": "fail", "reasons": ["too_few_inliers"]},
+        {"start": 20, "end": 20, "status": "fail", "reasons": ["too_few_inliers"]},
+    ]
+
+
+def test_bad_recordings_give_one_line_errors(tmp_path: Path) -> None:
+    not_rrd = tmp_path / "notes.rrd"
+    not_rrd.write_text("hello")
+    with pytest.raises(RecordingError, match="not a readable Rerun recording"):
+        inspect_recording(not_rrd)
+    for path in (tmp_path / "missing.rrd", not_rrd):
+        result = vslam("inspect", path)
+        assert result.returncode == 2 and "Traceback" not in result.stderr
+        assert len(result.stderr.strip().splitlines()) == 1 and str(path) in result.stderr
