@@ -179,3 +179,22 @@ def test_interrupted_run_finalises_recording_and_trajectory(kitti_root: Path, tm
     poses = read_kitti_poses(trajectory)
     assert 1 <= len(poses) < 300
     assert f"after {len(poses)} frames" in stderr
+
+
+@pytest.mark.kitti
+def test_crop_command_keeps_the_frames_and_refuses_to_overwrite(kitti_run: tuple[Path, Path, str],
+                                                                tmp_path: Path) -> None:
+    rrd, _, _ = kitti_run
+    cropped = tmp_path / "bug.rrd"
+    result = vslam("crop", rrd, "--frames", "10:20", "-o", cropped)
+    assert result.returncode == 0, result.stderr
+    assert "frames 10..19 (10 frames)" in result.stdout
+    verify(cropped)
+    assert read_entity(cropped, "/world/camera")["frame"].to_list() == list(range(10, 20))
+    before = cropped.read_bytes()
+    assert_clean_error(vslam("crop", rrd, "--frames", "10:20", "-o", cropped), "--force")
+    assert cropped.read_bytes() == before
+    assert_clean_error(vslam("crop", rrd, "--frames", "100:120", "-o", tmp_path / "x.rrd"), "select no frame")
+    assert_clean_error(vslam("crop", rrd, "--frames", "10:", "-o", tmp_path / "x.rrd"), "START:END")
+    assert_clean_error(vslam("crop", tmp_path / "none.rrd", "--frames", "1:2", "-o", tmp_path / "x.rrd"),
+                       "no such recording")

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import os
 import re
 import select
@@ -25,24 +24,16 @@ from app.viewer import NO_VULKAN, ViewerError, choose_viewer, open_recording, sn
 from vslam_core.errors import VslamError
 
 ROOT = Path(__file__).resolve().parents[1]
-KITTI_ROOT = ROOT.parent / "shared" / "data" / "kitti"
 FRAME = 10
 #: The views of app.recording.blueprint(), in the layout's reading order.
 VIEWS = ["frame", "world", "tracks", "inliers", "inlier_ratio", "motion", "position_error_m", "angle_errors",
          "timing_ms", "events"]
 
 
-def _source_args() -> list[str]:
-    """The synthetic street (no data needed), or the KITTI sample while that source is not in the tree."""
-    if importlib.util.find_spec("vslam_core.sources.synthetic") is not None:
-        return []
-    return [str(KITTI_ROOT), "--sequence", "00"]
-
-
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
     rrd = tmp_path_factory.mktemp("viewer") / "s.rrd"
-    result = subprocess.run([sys.executable, "-m", "app.cli", "run", *_source_args(), "--frames", "0:15", "-o",
+    result = subprocess.run([sys.executable, "-m", "app.cli", "run", "--frames", "0:15", "-o",
                              str(rrd)], capture_output=True, text=True, cwd=ROOT, timeout=300)
     assert result.returncode == 0, result.stderr
     return rrd
@@ -124,6 +115,12 @@ def test_snapshot_writes_one_png_per_view(shots: dict[str, Path]) -> None:
     world = cv2.imread(str(shots["world"]), cv2.IMREAD_GRAYSCALE)
     dots, _ = cv2.connectedComponents((world > 120).astype(np.uint8))
     assert dots > 100, "world.png shows no points"
+    # and both trajectories: the estimate in red (255, 80, 80), the ground truth in green (80, 255, 120)
+    bgr = cv2.imread(str(shots["world"])).astype(int)
+    red = (bgr[..., 2] > 180) & (bgr[..., 1] < 130) & (bgr[..., 0] < 130)
+    green = (bgr[..., 1] > 180) & (bgr[..., 2] < 150) & (bgr[..., 0] < 170)
+    assert red.sum() > 30, "world.png shows no estimated trajectory"
+    assert green.sum() > 30, "world.png shows no ground-truth trajectory"
 
 
 def test_frame_view_shows_the_recorded_image_at_the_requested_frame(shots: dict[str, Path], recording: Path) -> None:
@@ -309,3 +306,17 @@ def test_web_viewer_port_in_use_is_a_clear_error(recording: Path) -> None:
         port = taken.getsockname()[1]
         with pytest.raises(ViewerError, match=f"port {port} on 127.0.0.1 is already in use"):
             open_recording(recording, web=True, port=port)
+
+
+def test_snapshot_command_writes_pngs_and_errors_in_one_line(recording: Path, vulkan: None, tmp_path: Path) -> None:
+    out = tmp_path / "shots"
+    result = subprocess.run([sys.executable, "-m", "app.cli", "snapshot", str(recording), "--frame", "5", "--out",
+                             str(out)], capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert result.returncode == 0, result.stderr
+    written = {Path(line).name for line in result.stdout.split()}
+    assert {"frame.png", "world.png", "all.png"} <= written
+    assert all((out / name).is_file() for name in written)
+    result = subprocess.run([sys.executable, "-m", "app.cli", "snapshot", str(recording), "--frame", "99", "--out",
+                             str(out)], capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    assert "outside the recording's frames 0..14" in result.stderr
