@@ -1,6 +1,7 @@
 """What recording costs: engine time added and bytes per frame at each --detail level, and memory.
 
     python -m benchmarks.recording_cost ../shared/data/kitti --sequence 00 --frames 0:300 --csv cost.csv
+    python -m benchmarks.recording_cost synthetic --frames 0:1500 --levels off,full   # memory over a long run
 
 Each level runs in its own process (one after the other, so they do not compete for the 2 cores):
 wall time per frame with decoding, the recorder's own time per frame on the calling thread, the file's
@@ -22,8 +23,9 @@ from app.recording import Detail, Recorder
 from vslam_core.config import EngineConfig
 from vslam_core.pipeline import RunResult, run_odometry
 from vslam_core.results import FrameResult
-from vslam_core.sources.base import Frame, FrameRange
+from vslam_core.sources.base import Frame, FrameRange, FrameSource
 from vslam_core.sources.kitti import KittiSource
+from vslam_core.sources.synthetic import SyntheticStreet
 
 
 def _rss_mb() -> float:
@@ -43,7 +45,11 @@ def _peak_rss_mb() -> float:
 def _measure(args: tuple[str, str, str, str]) -> dict[str, object]:
     root, sequence, frames, level = args
     detail = Detail(level)
-    source = KittiSource(root, sequence=sequence, frames=FrameRange.parse(frames))
+    selection = FrameRange.parse(frames)
+    source: FrameSource = (
+        SyntheticStreet(n_frames=selection.end or 300, frames=selection) if root == "synthetic"
+        else KittiSource(root, sequence=sequence, frames=selection)
+    )
     rss: list[float] = []
     record_ms: list[float] = []
     with tempfile.TemporaryDirectory() as folder:
@@ -79,14 +85,15 @@ def _measure(args: tuple[str, str, str, str]) -> dict[str, object]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("root", type=Path)
+    parser.add_argument("root", help="KITTI dataset root, or 'synthetic' (long runs: e.g. --frames 0:1500)")
     parser.add_argument("--sequence", default="00")
     parser.add_argument("--frames", default="0:300")
     parser.add_argument("--csv", type=Path, default=None)
+    parser.add_argument("--levels", default="off,summary,standard,full")
     args = parser.parse_args()
     rows = []
     context = multiprocessing.get_context("spawn")
-    for level in ("off", "summary", "standard", "full"):
+    for level in args.levels.split(","):
         with context.Pool(1) as pool:
             rows.append(pool.apply(_measure, ((str(args.root), args.sequence, args.frames, level),)))
     table = pl.DataFrame(rows)
@@ -94,7 +101,7 @@ def main() -> None:
     table = table.with_columns((100 * (pl.col("ms_per_frame") / base - 1)).alias("added_pct"))
     if args.csv:
         table.write_csv(args.csv)
-    print(f"KITTI {args.sequence}, frames {args.frames}")
+    print(f"{'synthetic street' if args.root == 'synthetic' else 'KITTI ' + args.sequence}, frames {args.frames}")
     print("| detail | ms/frame | added vs off | recorder ms/frame (caller thread) | KB/frame | RSS at 1/3 → end MB "
           "| peak RSS MB |")
     print("|---|---|---|---|---|---|---|")

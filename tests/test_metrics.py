@@ -12,6 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from vslam_core.errors import GeometryError, VslamError
+from vslam_core.geometry import so3_exp
 from vslam_core.metrics import (
     KITTI_LENGTHS,
     TrajectoryMetrics,
@@ -20,10 +21,12 @@ from vslam_core.metrics import (
     evaluate,
     heading_errors,
     kitti_errors,
+    kitti_errors_by_length,
     kitti_segment_errors,
     paper_rms_error,
     position_errors,
     rpe,
+    rpe_by_distance,
     trajectory_distances,
     umeyama_alignment,
 )
@@ -429,3 +432,65 @@ def test_cross_check_with_evo() -> None:
         rpe_r.process_data((ref_path, est_path))
         assert trans == pytest.approx(rpe_t.get_statistic(evo_metrics.StatisticsType.rmse), rel=1e-9)
         assert rot == pytest.approx(rpe_r.get_statistic(evo_metrics.StatisticsType.mean), rel=1e-6)
+
+
+@pytest.mark.kitti
+def test_matches_evo_on_real_kitti_ground_truth_with_perturbed_estimates(kitti_root: Path) -> None:
+    """ATE (SE(3), Sim(3)) and RPE (per frame and per metre) agree with evo on real KITTI 00 and 05
+    ground truth, perturbed by a scale error, a slow yaw drift and per-frame noise."""
+    pytest.importorskip("evo")
+    from evo.core import metrics as evo_metrics
+    from evo.core.trajectory import PosePath3D
+
+    rng = np.random.default_rng(3)
+    for sequence in ("00", "05"):
+        gt = read_kitti_poses(kitti_root / "poses" / f"{sequence}.txt", max_rows=1000)
+        est = gt.copy()
+        est[:, :3, 3] *= 1.03
+        for i in range(len(est)):
+            drift = so3_exp(np.array([0.0, 2e-4 * i, 0.0]))  # 0.0115° more yaw every frame
+            est[i, :3, :3] = drift @ est[i, :3, :3]
+            est[i, :3, 3] += rng.normal(0, 0.05, 3)
+        ref_path, est_path = PosePath3D(poses_se3=list(gt)), PosePath3D(poses_se3=list(est))
+        for align, with_scale in (("se3", False), ("sim3", True)):
+            aligned = copy.deepcopy(est_path)
+            aligned.align(ref_path, correct_scale=with_scale)
+            ape = evo_metrics.APE(evo_metrics.PoseRelation.translation_part)
+            ape.process_data((ref_path, aligned))
+            assert ate(gt, est, align) == pytest.approx(ape.get_statistic(evo_metrics.StatisticsType.rmse), rel=1e-7)
+        for delta, unit in ((1, evo_metrics.Unit.frames), (10.0, evo_metrics.Unit.meters)):
+            stats = []
+            for relation, statistic in ((evo_metrics.PoseRelation.translation_part, evo_metrics.StatisticsType.rmse),
+                                        (evo_metrics.PoseRelation.rotation_angle_deg, evo_metrics.StatisticsType.mean)):
+                metric = evo_metrics.RPE(relation, delta, unit, rel_delta_tol=0.1, all_pairs=True,
+                                         pairs_from_reference=True)
+                metric.process_data((ref_path, est_path))
+                stats.append(metric.get_statistic(statistic))
+            ours = rpe(gt, est, 1) if unit == evo_metrics.Unit.frames else rpe_by_distance(gt, est, 10.0)
+            assert ours[0] == pytest.approx(stats[0], rel=1e-7)
+            assert ours[1] == pytest.approx(stats[1], rel=1e-6)
+
+
+def test_kitti_errors_by_length_split_the_score() -> None:
+    """A constant 1 % scale error on a straight line: every segment length scores 1 %."""
+    gt = np.tile(np.eye(4), (2001, 1, 1))
+    gt[:, 2, 3] = np.arange(2001) * 0.5  # 1000 m straight ahead
+    est = gt.copy()
+    est[:, 2, 3] *= 1.01
+    by_length = kitti_errors_by_length(gt, est)
+    assert sorted(by_length) == list(KITTI_LENGTHS)
+    for t_err, r_err, count in by_length.values():
+        assert t_err == pytest.approx(1.0, abs=0.01) and r_err == pytest.approx(0.0, abs=1e-9) and count > 0
+    total = kitti_errors(gt, est)
+    assert total[0] == pytest.approx(1.0, abs=0.01)
+
+
+def test_rpe_by_distance_uses_pairs_one_distance_apart() -> None:
+    gt = np.tile(np.eye(4), (101, 1, 1))
+    gt[:, 2, 3] = np.arange(101) * 1.0
+    est = gt.copy()
+    est[:, 2, 3] *= 1.1  # every 10 m pair is 1 m too long
+    trans, rot = rpe_by_distance(gt, est, 10.0, tolerance_m=0.5)  # only pairs exactly 10 m apart
+    assert trans == pytest.approx(1.0) and rot == pytest.approx(0.0)
+    assert rpe_by_distance(gt, est, 10.0)[0] < 1.0  # the default 1 m tolerance also takes 9 m pairs at the end
+    assert all(math.isnan(v) for v in rpe_by_distance(gt, est, 500.0))

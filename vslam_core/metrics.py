@@ -158,6 +158,22 @@ def kitti_errors(gt: np.ndarray, est: np.ndarray) -> tuple[float, float]:
     return float(t * 100.0), float(np.degrees(r) * 100.0)
 
 
+def kitti_errors_by_length(gt: np.ndarray, est: np.ndarray) -> dict[float, tuple[float, float, int]]:
+    """The KITTI score per segment length: {L: (t_err %, r_err deg/100 m, segment count)} for every L of
+    `KITTI_LENGTHS` that has at least one segment (the devkit's per-length plots)."""
+    by_length: dict[float, list[SegmentError]] = {}
+    for record in kitti_segment_errors(gt, est):
+        by_length.setdefault(record.length, []).append(record)
+    return {
+        length: (
+            float(np.mean([r.t_err for r in records]) * 100.0),
+            float(np.degrees(np.mean([r.r_err for r in records])) * 100.0),
+            len(records),
+        )
+        for length, records in sorted(by_length.items())
+    }
+
+
 # --------------------------------------------------------------------------------------------------
 # Umeyama alignment and ATE
 
@@ -252,6 +268,36 @@ def rpe(gt: np.ndarray, est: np.ndarray, delta: int = 1) -> tuple[float, float]:
     rel_gt = _relative(g[:-delta], g[delta:])
     rel_est = _relative(e[:-delta], e[delta:])
     errors = _relative(rel_gt, rel_est)
+    trans = np.linalg.norm(errors[:, :3, 3], axis=1)
+    rot = np.degrees(_rotation_angle(errors[:, :3, :3]))
+    return float(np.sqrt(np.mean(trans**2))), float(np.mean(rot))
+
+
+def rpe_by_distance(
+    gt: np.ndarray, est: np.ndarray, distance_m: float, tolerance_m: float | None = None
+) -> tuple[float, float]:
+    """RPE over pairs ``distance_m`` of ground-truth path apart: (translation RMSE m, mean rotation deg).
+
+    gt, est: (N, 4, 4). For every i, j > i is the frame whose path distance from i (d[j] - d[i], d the
+    cumulative ground-truth path length) is nearest to ``distance_m``; the pair is kept when that is within
+    ``tolerance_m`` (default 10 % of the distance). Then as `rpe`. The pairs of evo_rpe's
+    ``--delta_unit m --all_pairs`` (``filter_pairs_by_path``). NaN, NaN when no pair is kept.
+    """
+    g, e = _check_pair(gt, est)
+    if not distance_m > 0:
+        raise GeometryError(f"rpe_by_distance: distance must be positive, got {distance_m}")
+    tolerance = 0.1 * distance_m if tolerance_m is None else tolerance_m
+    d = trajectory_distances(g)
+    pairs = []
+    for i in range(len(d) - 1):
+        ahead = d[i + 1 :] - d[i]
+        j = int(np.argmin(np.abs(ahead - distance_m)))
+        if abs(ahead[j] - distance_m) <= tolerance:
+            pairs.append((i, i + 1 + j))
+    if not pairs:
+        return float("nan"), float("nan")
+    first, second = np.array(pairs).T
+    errors = _relative(_relative(g[first], g[second]), _relative(e[first], e[second]))
     trans = np.linalg.norm(errors[:, :3, 3], axis=1)
     rot = np.degrees(_rotation_angle(errors[:, :3, :3]))
     return float(np.sqrt(np.mean(trans**2))), float(np.mean(rot))
