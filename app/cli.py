@@ -3,30 +3,30 @@
 from __future__ import annotations
 
 import json
-import signal
 import sys
 import uuid
 from datetime import datetime
 from enum import StrEnum
 from pathlib import Path
-from types import FrameType
-from typing import Annotated, NoReturn
+from typing import Annotated, Any, NoReturn
 
 import numpy as np
 import typer
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
 from app.crop import crop_recording
+from app.evaluation import REPORT_FILES, Evaluation, check_gates, evaluate_sources, evaluate_trajectory_file
 from app.inspect import format_report, inspect_recording
-from app.recording import Detail, Recorder, version_properties
+from app.recording import Detail, version_properties
+from app.report import markdown_table
+from app.runner import record_run
 from app.viewer import open_recording, snapshot
 from vslam_core.config import EngineConfig, load_config
 from vslam_core.errors import VslamError
 from vslam_core.metrics import kitti_errors, paper_rms_error
-from vslam_core.pipeline import RunResult, run_odometry
-from vslam_core.results import FrameResult
-from vslam_core.sources.base import Frame, FrameRange, FrameSource
+from vslam_core.pipeline import RunResult
+from vslam_core.sources.base import FrameRange, FrameSource
+from vslam_core.sources.kitti import KittiSource
 from vslam_core.sources.open import open_source
 from vslam_core.trajectory_io import write_kitti_poses, write_tum_poses
 
@@ -55,14 +55,6 @@ class Scale(StrEnum):
 class TrajectoryFormat(StrEnum):
     kitti = "kitti"
     tum = "tum"
-
-
-class Interrupted(Exception):
-    """The run was stopped by a signal; `code` is the conventional exit code (128 + signal number)."""
-
-    def __init__(self, code: int, name: str) -> None:
-        super().__init__(name)
-        self.code = code
 
 
 def fail(message: str, code: int = 2) -> NoReturn:
@@ -105,10 +97,6 @@ def _recording_id(source: FrameSource, frames: FrameRange, config: EngineConfig)
     """Same input and config → same recording id, so two runs' files compare equal."""
     key = json.dumps([source.name, str(frames), len(source), config.to_dict()], sort_keys=True)
     return str(uuid.uuid5(uuid.NAMESPACE_URL, "vslam:" + key))
-
-
-def _on_signal(signum: int, _frame: FrameType | None) -> None:
-    raise Interrupted(128 + signum, signal.Signals(signum).name)
 
 
 def _write_trajectory(path: Path, run: RunResult, fmt: TrajectoryFormat) -> None:
@@ -176,44 +164,20 @@ def run(
     if trajectory_out is not None:
         _check_new_file(trajectory_out, force, "trajectory")
 
-    recorder = None
-    if rrd is not None:
-        properties = {
-            "name": f"vslam {src.name} frames {frame_range} scale {config.scale}",
-            "recording_id": _recording_id(src, frame_range, config),
-            "source": src.name,
-            "source_path": source or "synthetic",
-            "frames": str(frame_range),
-            "frame_count": str(len(src)),
-            "scale": config.scale,
-            **version_properties(),
-        }
-        recorder = Recorder(rrd, src, config, properties, detail=detail, jpeg_quality=jpeg_quality)
-
-    result = RunResult([], [], [])
-    previous = {s: signal.signal(s, _on_signal) for s in (signal.SIGTERM,)}
-    interrupted: Interrupted | None = None
-    with Progress(TextColumn("[progress.description]{task.description}"), BarColumn(), MofNCompleteColumn(),
-                  TimeRemainingColumn(), console=err, transient=True) as progress:
-        task = progress.add_task(src.name, total=len(src))
-
-        def advance(_frame: Frame, _result: FrameResult) -> None:
-            progress.advance(task)
-
-        sinks = (recorder.log_frame, advance) if recorder is not None else (advance,)
-        try:
-            run_odometry(src, config, sinks, result)
-        except KeyboardInterrupt:
-            interrupted = Interrupted(130, "SIGINT")
-        except Interrupted as exc:
-            interrupted = exc
-        finally:
-            for s, handler in previous.items():
-                signal.signal(s, handler)
-            if recorder is not None:
-                recorder.close()
-            if trajectory_out is not None and result.frames:
-                _write_trajectory(trajectory_out, result, trajectory_format)
+    properties = {
+        "name": f"vslam {src.name} frames {frame_range} scale {config.scale}",
+        "recording_id": _recording_id(src, frame_range, config),
+        "source": src.name,
+        "source_path": source or "synthetic",
+        "frames": str(frame_range),
+        "frame_count": str(len(src)),
+        "scale": config.scale,
+        **version_properties(),
+    }
+    recorded = record_run(src, config, rrd, properties, err, detail, jpeg_quality)
+    result, interrupted = recorded.result, recorded.interrupted
+    if trajectory_out is not None and result.frames:
+        _write_trajectory(trajectory_out, result, trajectory_format)
 
     _summary(src, result, config)
     if rrd is not None:
@@ -293,6 +257,92 @@ def crop(
     summary = crop_recording(recording, (selection.start, selection.end), output)
     out.print(f"{output}: frames {summary.first_frame}..{summary.last_frame} ({summary.frame_count} frames), "
               f"{summary.output_bytes / 1e6:.1f} MB (from {summary.input_bytes / 1e6:.1f} MB)", highlight=False)
+
+
+@app.command(name="eval")
+def eval_command(
+    source: Annotated[str | None, typer.Argument(help="KITTI root (with --sequences), sequence folder, image "
+                                                 "folder with --gt, or 'synthetic'")] = None,
+    sequences: Annotated[str | None, typer.Option(help="KITTI sequences, e.g. 00,05")] = None,
+    frames: Annotated[str | None, typer.Option(help="START:END[:STEP] of every sequence (END excluded)")] = None,
+    scale: Annotated[Scale, typer.Option(help="gt: ground-truth step length; none: unit steps, scored after "
+                                         "Sim(3) alignment")] = Scale.gt,
+    config_file: Annotated[Path | None, typer.Option("--config", help="engine config (TOML)")] = None,
+    report: Annotated[Path | None, typer.Option(help="folder for metrics.csv/.parquet, report.md, trajectories, "
+                                                "recordings and plots")] = None,
+    detail: Annotated[Detail, typer.Option(help="detail of the recordings written to --report")] = Detail.FULL,
+    trajectory: Annotated[Path | None, typer.Option(help="evaluate this trajectory file instead of running")] = None,
+    gt: Annotated[Path | None, typer.Option(help="ground truth for --trajectory (or an image folder)")] = None,
+    trajectory_format: Annotated[TrajectoryFormat | None, typer.Option("--format", help="kitti or tum "
+                                                                       "[default: from the columns]")] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="print the metrics as JSON (keys in README)")] = False,
+    max_t_err: Annotated[float | None, typer.Option(help="gate: fail if any sequence's t_err (%) is above")] = None,
+    max_r_err: Annotated[float | None, typer.Option(help="gate: fail if any r_err (°/100 m) is above")] = None,
+    max_ate: Annotated[float | None, typer.Option(help="gate: fail if any ATE Sim(3) (m) is above")] = None,
+    force: Annotated[bool, typer.Option("--force", help="write into a --report folder that holds a report")]
+    = False,
+) -> None:
+    """Score the engine (or any trajectory file) against ground truth; gates make it a CI check."""
+    if report is not None:
+        _check_report_dir(report, force)
+    if trajectory is not None:
+        if source is not None or sequences is not None:
+            fail("give either SOURCE or --trajectory, not both")
+        if gt is None:
+            fail("--trajectory needs --gt (the ground-truth poses to compare with)")
+        fmt = trajectory_format.value if trajectory_format is not None else None
+        evaluation = evaluate_trajectory_file(trajectory, gt, fmt, report)  # type: ignore[arg-type]
+        scale_source = "external"
+    else:
+        config = load_config(config_file) if config_file is not None else EngineConfig()
+        config = config.with_scale(scale.value)
+        frame_range = FrameRange.parse(frames)
+        if sequences is not None:
+            if source is None:
+                fail("--sequences needs SOURCE, the KITTI dataset root")
+            sources: list[FrameSource] = [KittiSource(source, sequence=s.strip(), frames=frame_range)
+                                          for s in sequences.split(",") if s.strip()]
+        else:
+            sources = [open_source(source, frames=frame_range, ground_truth=gt)]
+        evaluation = evaluate_sources(sources, config, report, err, detail if report is not None else Detail.OFF,
+                                      {"frames": str(frame_range), "source_path": source or "synthetic"})
+        scale_source = config.scale
+    _print_evaluation(evaluation, scale_source, report, as_json, check_gates(evaluation.rows, max_t_err, max_r_err,
+                                                                             max_ate))
+
+
+def _check_report_dir(report: Path, force: bool) -> None:
+    if report.exists() and not report.is_dir():
+        fail(f"{report}: not a folder")
+    existing = [name for name in REPORT_FILES if (report / name).exists()]
+    if existing and not force:
+        fail(f"{report}: holds a report already ({existing[0]}; use --force to replace it)")
+    try:
+        report.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        fail(f"{report}: cannot create the report folder ({exc.strerror})")
+    if not _writable(report):
+        fail(f"{report}: report folder is not writable")
+
+
+def _print_evaluation(evaluation: Evaluation, scale: str, report: Path | None, as_json: bool,
+                      failures: list[str]) -> None:
+    if as_json:
+        data: dict[str, Any] = {"scale": scale, **evaluation.as_json(), "gates": {"passed": not failures,
+                                                                                  "failures": failures}}
+        print(json.dumps(data, indent=2, allow_nan=False))
+    else:
+        rows = evaluation.rows + ([evaluation.mean] if len(evaluation.rows) > 1 else [])
+        out.print(markdown_table([{k: v for k, v in r.items() if k != "alignment"} for r in rows]), highlight=False)
+        if report is not None:
+            out.print(f"report      {report / 'report.md'}", highlight=False)
+    if evaluation.interrupted is not None:
+        fail(f"interrupted by {evaluation.interrupted}; the report covers the frames processed",
+             evaluation.interrupted.code)
+    for message in failures:
+        err.print(f"[bold red]gate failed:[/] {message}", highlight=False)
+    if failures:
+        raise typer.Exit(1)
 
 
 def main() -> None:

@@ -45,8 +45,9 @@ def _properties(path: Path, name: str) -> dict[str, Any]:
     if table.is_empty():
         return {}
     row = table.row(0, named=True)
-    return {k: (v[0] if isinstance(v, list) and len(v) == 1 else v)
-            for k, v in row.items() if not k.startswith("rerun.")}
+    return {
+        k: (v[0] if isinstance(v, list) and len(v) == 1 else v) for k, v in row.items() if not k.startswith("rerun.")
+    }
 
 
 def flagged_ranges(frames: list[int], statuses: list[str], reasons: list[str]) -> list[dict[str, Any]]:
@@ -100,8 +101,9 @@ def inspect_recording(path: Path) -> dict[str, Any]:
     flagged = []
     if not health.is_empty():
         reasons = health["reasons"].to_list() if "reasons" in health.columns else [None] * len(health)
-        flagged = flagged_ranges(health["frame"].to_list(), [v[0] for v in health["status"].to_list()],
-                                 [v[0] if v else "" for v in reasons])
+        flagged = flagged_ranges(
+            health["frame"].to_list(), [v[0] for v in health["status"].to_list()], [v[0] if v else "" for v in reasons]
+        )
     timing = _scalars(path, "timing_ms")
     tracks, ransac, ratio = _scalars(path, "tracks"), _scalars(path, "ransac"), _scalars(path, "ratio")
     name_table = read_entity(path, "/__properties", static=True)
@@ -145,8 +147,9 @@ def format_report(report: dict[str, Any]) -> str:
     ]
     for stage, stats in report["stages_ms"].items():
         if stats is not None:
-            lines.append(f"{stage:<12} {stats['mean']:9.2f} {stats['median']:8.2f} {stats['p95']:7.2f} "
-                         f"{stats['max']:7.2f}")
+            lines.append(
+                f"{stage:<12} {stats['mean']:9.2f} {stats['median']:8.2f} {stats['p95']:7.2f} {stats['max']:7.2f}"
+            )
     lines += ["", "series               mean      min      max"]
     for name, stats in report["series"].items():
         if stats is not None:
@@ -156,11 +159,13 @@ def format_report(report: dict[str, Any]) -> str:
     if accuracy is None:
         lines.append("accuracy    no ground truth in this recording")
     else:
-        lines.append(f"accuracy    position error final {accuracy['final_position_error_m']:.2f} m, mean "
-                     f"{accuracy['mean_position_error_m']:.2f} m, max {accuracy['max_position_error_m']:.2f} m; "
-                     f"paper RMS (x–z) {accuracy['paper_rms_m']:.2f} m; heading error final "
-                     f"{accuracy['final_heading_error_deg']:.2f}°; mean direction error "
-                     f"{accuracy['mean_translation_direction_error_deg']:.2f}°")
+        lines.append(
+            f"accuracy    position error final {accuracy['final_position_error_m']:.2f} m, mean "
+            f"{accuracy['mean_position_error_m']:.2f} m, max {accuracy['max_position_error_m']:.2f} m; "
+            f"paper RMS (x–z) {accuracy['paper_rms_m']:.2f} m; heading error final "
+            f"{accuracy['final_heading_error_deg']:.2f}°; mean direction error "
+            f"{accuracy['mean_translation_direction_error_deg']:.2f}°"
+        )
     flagged = report["flagged"]
     lines.append(f"flagged     {len(flagged)} range(s)" + (":" if flagged else ""))
     for item in flagged:

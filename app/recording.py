@@ -15,6 +15,7 @@ Entity layout (world = camera frame of the first frame, RDF: x right, y down, z 
     /metrics/...                        per-frame scalars (tracks, RANSAC, motion, error, timing_ms)
     /events                             text log: initialisation, re-detections, held frames
     /health                             per frame: status ok / fail and reason codes (for `vslam inspect`)
+    /report                             static Markdown written at the end: the run's metrics table
 
 Detail levels: full = all of it; standard = no triangulated points and no per-track hover data;
 summary = no image and no per-point data (camera pose, trajectories, series, events); off = no file.
@@ -33,8 +34,10 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 import vslam_core
+from app.report import markdown_table, metrics_row
 from vslam_core.config import EngineConfig
 from vslam_core.geometry import angle_between, invert_pose, rotation_angle
+from vslam_core.pipeline import RunResult
 from vslam_core.results import FrameResult, FrameStatus, TrackFate
 from vslam_core.sources.base import Frame, FrameSource
 
@@ -126,6 +129,7 @@ def blueprint() -> rrb.Blueprint:
                     rrb.TimeSeriesView(name="angle errors (°)", origin="/metrics/angle_error"),
                     rrb.TimeSeriesView(name="timing (ms)", origin="/metrics/timing_ms"),
                     rrb.TextLogView(name="events", origin="/events"),
+                    rrb.TextDocumentView(name="report", origin="/report"),
                     grid_columns=2,
                 ),
             ),
@@ -153,6 +157,9 @@ class Recorder:
         self.detail = detail
         self._jpeg_quality = jpeg_quality
         self._gt = source.ground_truth
+        self._name = properties.get("name", source.name)
+        self._source_name = source.name
+        self._scale = config.scale
         self._previous_position: np.ndarray | None = None
         # send_properties=False: no wall-clock start time, so two runs of the same input compare equal
         # Fewer, larger chunks than the default (0.2 s / 2 MiB): each chunk carries its own schema, and at
@@ -176,6 +183,19 @@ class Recorder:
     def close(self) -> None:
         """Flush and write the footer; the file is valid afterwards."""
         self._rec.disconnect()
+
+    def finish(self, run: RunResult, interrupted: bool) -> None:
+        """Log the run's verdict (metrics table against ground truth, when there is one) and close."""
+        try:
+            lines = [f"# {self._name}", "", f"{run.frames} frames, {run.held} held the previous pose"
+                     + (" — interrupted" if interrupted else "")]
+            if self._gt is not None and run.frames > 2:
+                row = metrics_row(self._source_name, self._gt[: run.frames], run.pose_array(), self._scale)
+                lines += ["", markdown_table([row])]
+            self._rec.log("/report", rr.TextDocument("\n".join(lines), media_type=rr.MediaType.MARKDOWN),
+                          static=True)
+        finally:
+            self.close()
 
     def _log_static(self, source: FrameSource) -> None:
         rec = self._rec

@@ -357,6 +357,17 @@ class TrajectoryMetrics:
         return asdict(self)
 
 
+def sim3_aligned(gt: np.ndarray, est: np.ndarray) -> np.ndarray:
+    """The (N, 4, 4) estimate moved onto the ground truth by its Umeyama Sim(3) alignment of positions:
+    p ← s·R·p + t, R_est ← R·R_est. For trajectories known only up to scale (monocular, no scale source)."""
+    g, e = _check_pair(gt, est)
+    rotation, translation, scale = umeyama_alignment(e[:, :3, 3].T, g[:, :3, 3].T, with_scale=True)
+    aligned = e.copy()
+    aligned[:, :3, 3] = scale * e[:, :3, 3] @ rotation.T + translation
+    aligned[:, :3, :3] = rotation @ e[:, :3, :3]
+    return aligned
+
+
 def evaluate(gt: np.ndarray, est: np.ndarray) -> TrajectoryMetrics:
     """Compute every metric of ``est`` (N, 4, 4) against ``gt`` (N, 4, 4); see `TrajectoryMetrics`."""
     g, e = _check_pair(gt, est)

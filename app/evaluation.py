@@ -1,0 +1,231 @@
+"""`vslam eval`: run the engine over sequences (or take a trajectory file) and write a report folder.
+
+The report folder holds metrics.csv and metrics.parquet (one row per sequence plus the mean), report.md,
+each estimated trajectory (KITTI format), each recording and a top-view plot per sequence.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import polars as pl
+from rich.console import Console
+
+import vslam_core
+from app.plots import write_top_view
+from app.recording import Detail, version_properties
+from app.report import COLUMNS, markdown_table, mean_row, metrics_row
+from app.runner import Interrupted, record_run
+from vslam_core.config import EngineConfig
+from vslam_core.errors import SourceError, TrajectoryFormatError
+from vslam_core.metrics import kitti_errors_by_length
+from vslam_core.sources.base import FrameSource, rebase_poses
+from vslam_core.trajectory_io import (
+    TrajectoryFormat,
+    detect_format,
+    read_kitti_poses,
+    read_tum_poses,
+    write_kitti_poses,
+)
+
+REPORT_FILES = ("metrics.csv", "metrics.parquet", "report.md")
+
+
+@dataclass
+class Evaluation:
+    rows: list[dict[str, Any]]  # one per sequence
+    mean: dict[str, Any]
+    by_length: dict[str, dict[float, tuple[float, float, int]]] = field(default_factory=dict)
+    interrupted: Interrupted | None = None
+
+    def as_json(self) -> dict[str, Any]:
+        return {"sequences": [_json_row(r) for r in self.rows], "mean": _json_row(self.mean)}
+
+
+def _json_row(row: dict[str, Any]) -> dict[str, Any]:
+    return {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in row.items()}
+
+
+def evaluate_sources(
+    sources: list[FrameSource],
+    config: EngineConfig,
+    report_dir: Path | None,
+    console: Console,
+    detail: Detail = Detail.FULL,
+    properties: dict[str, str] | None = None,
+) -> Evaluation:
+    """Run each source (each must have ground truth) and evaluate it; with `report_dir`, write its
+    recording, trajectory and plot there, then the tables."""
+    rows, by_length = [], {}
+    interrupted = None
+    for source in sources:
+        gt = source.ground_truth
+        if gt is None:
+            raise SourceError(f"{source.name}: no ground truth, nothing to evaluate against")
+        rrd = report_dir / f"{source.name}.rrd" if report_dir is not None and detail != Detail.OFF else None
+        props = {
+            "name": f"vslam eval {source.name} scale {config.scale}",
+            "source": source.name,
+            "frame_count": str(len(source)),
+            "scale": config.scale,
+            **version_properties(),
+            **(properties or {}),
+        }
+        run = record_run(source, config, rrd, props, console, detail)
+        if run.result.frames < 3:
+            interrupted = run.interrupted
+            break
+        poses = run.result.pose_array()
+        row = metrics_row(source.name, gt[: len(poses)], poses, config.scale)
+        row["fps"] = run.result.frames / run.result.seconds if run.result.seconds else math.nan
+        rows.append(row)
+        by_length[source.name] = kitti_errors_by_length(gt[: len(poses)], poses)
+        if report_dir is not None:
+            write_kitti_poses(report_dir / f"{source.name}.txt", poses)
+            write_top_view(
+                report_dir / f"{source.name}_top.png",
+                gt[: len(poses)],
+                poses,
+                f"{source.name}  ({len(poses)} frames, scale {config.scale})",
+                _subtitle(row),
+            )
+        if run.interrupted is not None:
+            interrupted = run.interrupted
+            break
+    evaluation = Evaluation(rows, mean_row(rows), by_length, interrupted)
+    if report_dir is not None and rows:
+        write_report(report_dir, evaluation, config)
+    return evaluation
+
+
+def _subtitle(row: dict[str, Any]) -> str:
+    def f(value: float, fmt: str) -> str:
+        return "n/a" if math.isnan(value) else fmt.format(value)
+
+    return (
+        f"t_err {f(row['t_err'], '{:.2f}')} %   r_err {f(row['r_err'], '{:.2f}')} deg/100 m   "
+        f"ATE Sim3 {f(row['ate_sim3'], '{:.3f}')} m   paper RMS {f(row['paper_rms'], '{:.3f}')} m"
+    )
+
+
+def write_report(report_dir: Path, evaluation: Evaluation, config: EngineConfig) -> None:
+    """metrics.csv, metrics.parquet and report.md for an evaluation."""
+    table = pl.DataFrame([*evaluation.rows, evaluation.mean], schema_overrides={"frames": pl.Int64})
+    table.write_csv(report_dir / "metrics.csv")
+    table.write_parquet(report_dir / "metrics.parquet")
+    rows = evaluation.rows + ([evaluation.mean] if len(evaluation.rows) > 1 else [])
+    lines = [
+        "# vslam evaluation",
+        "",
+        f"vslam {vslam_core.__version__}, {datetime.now():%Y-%m-%d %H:%M}, scale source `{config.scale}`"
+        + (" (estimates Sim(3)-aligned before scoring: known only up to scale)" if config.scale == "none" else ""),
+        "",
+        markdown_table([{k: r.get(k) for k in COLUMNS if k != "scale" and k != "alignment"} for r in rows]),
+        "",
+        "t_err, r_err: KITTI devkit segment errors (100–800 m, every 10th frame), no alignment. ATE: RMSE after "
+        "Umeyama SE(3) / Sim(3) alignment. RPE: consecutive frames, translation RMSE and mean rotation. Paper "
+        "RMS: the seed paper's x–z position RMS, no alignment.",
+    ]
+    if evaluation.by_length:
+        lengths = sorted({length for v in evaluation.by_length.values() for length in v})
+        lines += [
+            "",
+            "## KITTI error per segment length",
+            "",
+            "| sequence | " + " | ".join(f"{length:g} m t_err % / r_err °/100 m (n)" for length in lengths) + " |",
+            "|---|" + "---|" * len(lengths),
+        ]
+        for name, values in evaluation.by_length.items():
+            cells = [
+                f"{values[length][0]:.2f} / {values[length][1]:.2f} ({values[length][2]})"
+                if length in values
+                else "n/a"
+                for length in lengths
+            ]
+            lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    plots = [
+        f"![{r['sequence']}]({r['sequence']}_top.png)"
+        for r in evaluation.rows
+        if (report_dir / f"{r['sequence']}_top.png").exists()
+    ]
+    if plots:
+        lines += ["", "## Trajectories (top view)", "", *plots]
+    if evaluation.interrupted is not None:
+        lines += ["", f"**Interrupted by {evaluation.interrupted}**: the tables cover the frames processed."]
+    (report_dir / "report.md").write_text("\n".join(lines) + "\n")
+
+
+def load_trajectory(path: Path, fmt: TrajectoryFormat | None) -> tuple[np.ndarray | None, np.ndarray]:
+    """(timestamps or None, (N, 4, 4) poses) of a KITTI or TUM file (format guessed when None)."""
+    fmt = fmt or detect_format(path)
+    if fmt == "tum":
+        return read_tum_poses(path)
+    return None, read_kitti_poses(path)
+
+
+def associate(
+    est_times: np.ndarray | None, est: np.ndarray, gt_times: np.ndarray | None, gt: np.ndarray, names: tuple[Path, Path]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Frame-aligned (estimate, ground truth): by timestamp (nearest within 10 ms) when both files have
+    them, else row by row (row i = frame i; extra ground-truth rows are ignored)."""
+    if est_times is not None and gt_times is not None:
+        order = np.argsort(gt_times)
+        nearest = np.clip(np.searchsorted(gt_times[order], est_times), 1, len(gt_times) - 1)
+        before, after = order[nearest - 1], order[nearest]
+        pick = np.where(np.abs(gt_times[before] - est_times) <= np.abs(gt_times[after] - est_times), before, after)
+        close = np.abs(gt_times[pick] - est_times) <= 0.01
+        if close.sum() < 3:
+            raise TrajectoryFormatError(f"{names[0]}: fewer than 3 timestamps match {names[1]} (within 10 ms)")
+        return est[close], gt[pick[close]]
+    if len(gt) > len(est):
+        return est, gt[: len(est)]  # a KITTI poses file covers the whole sequence: row i = frame i
+    if len(est) != len(gt):
+        raise TrajectoryFormatError(
+            f"{names[0]} has {len(est)} poses but {names[1]} only {len(gt)}: they must be frame-aligned "
+            "(or both TUM files with timestamps)"
+        )
+    return est, gt
+
+
+def evaluate_trajectory_file(
+    estimate: Path, ground_truth: Path, fmt: TrajectoryFormat | None, report_dir: Path | None
+) -> Evaluation:
+    """Score any system's trajectory file against ground truth, both re-based to their first pose."""
+    est_times, est = load_trajectory(estimate, fmt)
+    gt_times, gt = load_trajectory(ground_truth, fmt)
+    est, gt = associate(est_times, est, gt_times, gt, (estimate, ground_truth))
+    est, gt = rebase_poses(est), rebase_poses(gt)
+    row = metrics_row(estimate.stem, gt, est, "external")
+    evaluation = Evaluation([row], mean_row([row]), {estimate.stem: kitti_errors_by_length(gt, est)})
+    if report_dir is not None:
+        write_top_view(
+            report_dir / f"{estimate.stem}_top.png", gt, est, f"{estimate.name}  ({len(est)} poses)", _subtitle(row)
+        )
+        write_report(report_dir, evaluation, EngineConfig(scale="gt"))
+    return evaluation
+
+
+def check_gates(
+    rows: list[dict[str, Any]], max_t_err: float | None, max_r_err: float | None, max_ate: float | None
+) -> list[str]:
+    """One message per sequence and metric over its gate (an unavailable metric fails its gate too)."""
+    failures = []
+    for row in rows:
+        for key, limit, unit in (
+            ("t_err", max_t_err, "%"),
+            ("r_err", max_r_err, "°/100 m"),
+            ("ate_sim3", max_ate, "m"),
+        ):
+            if limit is None:
+                continue
+            value = row[key]
+            if math.isnan(value):
+                failures.append(f"{row['sequence']}: {key} not available (path too short?), gate {limit:g} {unit}")
+            elif value > limit:
+                failures.append(f"{row['sequence']}: {key} {value:.3f} {unit} > {limit:g} {unit}")
+    return failures

@@ -1,0 +1,80 @@
+"""Top-view trajectory plots drawn with OpenCV (no plotting dependency): x right, z (forward) up."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+WHITE, GRID, AXIS, TEXT = (255, 255, 255), (225, 225, 225), (120, 120, 120), (30, 30, 30)
+ESTIMATE_BGR, GROUND_TRUTH_BGR = (60, 60, 230), (90, 170, 40)
+FONT = cv2.FONT_HERSHEY_SIMPLEX
+
+
+def nice_step(span: float, ticks: int = 8) -> float:
+    """A 1-2-5 × 10^k grid step giving about `ticks` lines over `span`."""
+    raw = max(span, 1e-9) / ticks
+    power = 10.0 ** math.floor(math.log10(raw))
+    return next(m * power for m in (1.0, 2.0, 5.0, 10.0) if m * power >= raw)
+
+
+def top_view(
+    ground_truth: np.ndarray | None, estimate: np.ndarray, title: str, subtitle: str = "", size: int = 900
+) -> np.ndarray:
+    """(size, size, 3) BGR picture of (N, 4, 4) trajectories seen from above (x–z plane, equal axes)."""
+    tracks = [estimate] if ground_truth is None else [ground_truth, estimate]
+    xz = np.concatenate([t[:, :3, 3][:, [0, 2]] for t in tracks])
+    low, high = xz.min(axis=0), xz.max(axis=0)
+    span = float(max(high - low)) * 1.1 + 1.0
+    centre = (low + high) / 2
+    top, margin = 90, 70
+    plot = size - margin - 20
+    scale = plot / span
+
+    def to_px(points: np.ndarray) -> np.ndarray:
+        u = margin + (points[:, 0] - centre[0] + span / 2) * scale
+        v = top + (centre[1] + span / 2 - points[:, 1]) * scale
+        return np.round(np.column_stack((u, v)) * 16).astype(np.int32)  # 4 fractional bits
+
+    canvas = np.full((size + top - 20, size, 3), WHITE, np.uint8)
+    step = nice_step(span)
+    for axis in (0, 1):
+        start = math.floor((centre[axis] - span / 2) / step) * step
+        for value in np.arange(start, centre[axis] + span / 2 + step, step):
+            a = np.array([[value, centre[1] - span / 2], [value, centre[1] + span / 2]])
+            if axis == 1:
+                a = np.array([[centre[0] - span / 2, value], [centre[0] + span / 2, value]])
+            p = to_px(a)
+            inside = (p[:, 0] >= margin * 16).all() and (p[:, 1] >= top * 16).all() or axis == 1
+            if not inside and axis == 0:
+                continue
+            cv2.line(canvas, tuple(p[0]), tuple(p[1]), AXIS if abs(value) < step / 2 else GRID, 1, cv2.LINE_AA, 4)
+            label = f"{value:g}"
+            if axis == 0:
+                cv2.putText(canvas, label, (int(p[1][0] / 16) - 12, top + plot + 18), FONT, 0.4, TEXT, 1, cv2.LINE_AA)
+            else:
+                cv2.putText(canvas, label, (8, int(p[0][1] / 16) + 4), FONT, 0.4, TEXT, 1, cv2.LINE_AA)
+    cv2.putText(canvas, "x (m)", (margin + plot // 2, top + plot + 40), FONT, 0.5, TEXT, 1, cv2.LINE_AA)
+    cv2.putText(canvas, "z (m)", (8, top - 10), FONT, 0.5, TEXT, 1, cv2.LINE_AA)
+    for track, colour in zip(tracks, [GROUND_TRUTH_BGR, ESTIMATE_BGR][-len(tracks) :], strict=True):
+        cv2.polylines(canvas, [to_px(track[:, :3, 3][:, [0, 2]])], False, colour, 2, cv2.LINE_AA, 4)
+    start = to_px(estimate[:1, :3, 3][:, [0, 2]])[0]
+    cv2.circle(canvas, tuple(start), 6 * 16, TEXT, 1, cv2.LINE_AA, 4)
+    cv2.putText(canvas, title, (margin, 30), FONT, 0.7, TEXT, 2, cv2.LINE_AA)
+    cv2.putText(canvas, subtitle, (margin, 56), FONT, 0.45, TEXT, 1, cv2.LINE_AA)
+    legend = [("estimate", ESTIMATE_BGR)] + ([("ground truth", GROUND_TRUTH_BGR)] if ground_truth is not None else [])
+    for i, (name, colour) in enumerate(legend):
+        y = 76 + 0 * i
+        x = size - 320 + 150 * i
+        cv2.line(canvas, (x, y - 4), (x + 30, y - 4), colour, 3, cv2.LINE_AA)
+        cv2.putText(canvas, name, (x + 36, y), FONT, 0.45, TEXT, 1, cv2.LINE_AA)
+    return canvas
+
+
+def write_top_view(
+    path: Path, ground_truth: np.ndarray | None, estimate: np.ndarray, title: str, subtitle: str = ""
+) -> None:
+    if not cv2.imwrite(str(path), top_view(ground_truth, estimate, title, subtitle)):
+        raise OSError(f"{path}: could not write the plot")

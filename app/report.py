@@ -1,0 +1,66 @@
+"""Metrics of one run as a table row, and tables as Markdown (report.md, the recording's verdict)."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from vslam_core.metrics import evaluate, sim3_aligned
+
+# key -> (column header, format); the keys are also the JSON keys of `vslam eval --json`.
+COLUMNS: dict[str, tuple[str, str]] = {
+    "sequence": ("sequence", "{}"),
+    "frames": ("frames", "{:d}"),
+    "length_m": ("length m", "{:.1f}"),
+    "scale": ("scale", "{}"),
+    "alignment": ("aligned", "{}"),
+    "t_err": ("t_err %", "{:.2f}"),
+    "r_err": ("r_err °/100 m", "{:.2f}"),
+    "ate_se3": ("ATE SE3 m", "{:.3f}"),
+    "ate_sim3": ("ATE Sim3 m", "{:.3f}"),
+    "rpe_trans": ("RPE m", "{:.3f}"),
+    "rpe_rot": ("RPE °", "{:.3f}"),
+    "paper_rms": ("paper RMS m", "{:.3f}"),
+    "fps": ("fps", "{:.1f}"),
+}
+METRICS = ("t_err", "r_err", "ate_se3", "ate_sim3", "rpe_trans", "rpe_rot", "paper_rms")
+
+
+def metrics_row(name: str, gt: np.ndarray, poses: np.ndarray, scale: str) -> dict[str, Any]:
+    """Every metric of `poses` (N, 4, 4) against `gt` (N, 4, 4). With ``scale == "none"`` the estimate is
+    known only up to scale: it is Sim(3)-aligned to the ground truth first (``alignment = "sim3"``)."""
+    alignment = "sim3" if scale == "none" else "none"
+    estimate = sim3_aligned(gt, poses) if alignment == "sim3" and len(poses) > 2 else poses
+    metrics = evaluate(gt, estimate).as_dict()
+    return {"sequence": name, "scale": scale, "alignment": alignment, **metrics}
+
+
+def mean_row(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """The plain mean of every metric over rows (NaN ignored), frames and length summed."""
+    mean: dict[str, Any] = {
+        "sequence": "mean",
+        "scale": rows[0]["scale"] if rows else "",
+        "alignment": rows[0]["alignment"] if rows else "",
+    }
+    for key in METRICS + ("fps",):
+        values = [r[key] for r in rows if key in r and r[key] is not None and not math.isnan(r[key])]
+        mean[key] = float(np.mean(values)) if values else math.nan
+    mean["frames"] = int(sum(r["frames"] for r in rows))
+    mean["length_m"] = float(sum(r["length_m"] for r in rows))
+    return mean
+
+
+def _cell(key: str, value: Any) -> str:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "n/a"
+    return COLUMNS[key][1].format(value)
+
+
+def markdown_table(rows: list[dict[str, Any]]) -> str:
+    """A Markdown table of metric rows (the columns of `COLUMNS` that the rows have)."""
+    keys = [k for k in COLUMNS if any(k in r for r in rows)]
+    lines = ["| " + " | ".join(COLUMNS[k][0] for k in keys) + " |", "|" + "---|" * len(keys)]
+    lines += ["| " + " | ".join(_cell(k, r.get(k)) for k in keys) + " |" for r in rows]
+    return "\n".join(lines)
