@@ -27,6 +27,7 @@ from vslam_core.metrics import (
     position_errors,
     rpe,
     rpe_by_distance,
+    sim3_aligned,
     trajectory_distances,
     umeyama_alignment,
 )
@@ -494,3 +495,12 @@ def test_rpe_by_distance_uses_pairs_one_distance_apart() -> None:
     assert trans == pytest.approx(1.0) and rot == pytest.approx(0.0)
     assert rpe_by_distance(gt, est, 10.0)[0] < 1.0  # the default 1 m tolerance also takes 9 m pairs at the end
     assert all(math.isnan(v) for v in rpe_by_distance(gt, est, 500.0))
+
+
+def test_sim3_aligned_undoes_a_known_similarity() -> None:
+    gt = winding_trajectory(200)
+    rotation = so3_exp(np.array([0.3, -1.2, 0.5]))
+    moved = gt.copy()
+    moved[:, :3, 3] = 0.37 * gt[:, :3, 3] @ rotation.T + np.array([4.0, -2.0, 9.0])
+    moved[:, :3, :3] = rotation @ gt[:, :3, :3]
+    np.testing.assert_allclose(sim3_aligned(gt, moved), gt, atol=1e-9)
