@@ -38,7 +38,7 @@ from app.report import markdown_table, metrics_row
 from vslam_core.config import EngineConfig
 from vslam_core.geometry import angle_between, invert_pose, rotation_angle
 from vslam_core.pipeline import RunResult
-from vslam_core.results import FrameResult, FrameStatus, TrackFate
+from vslam_core.results import FrameResult, FrameStatus, HealthStatus, TrackFate
 from vslam_core.sources.base import Frame, FrameSource
 
 APPLICATION_ID = "vslam"
@@ -64,6 +64,7 @@ NEW_CORNER_COLOUR = (255, 230, 0)
 CANDIDATE_COLOURS = [(255, 200, 0), (0, 200, 255), (255, 0, 160), (160, 255, 0)]
 ESTIMATE_COLOUR = (255, 80, 80)
 GROUND_TRUTH_COLOUR = (80, 255, 120)
+HEALTH_LEVELS = {HealthStatus.OK: 0, HealthStatus.WARN: 1, HealthStatus.FAIL: 2}
 STAGES = ("decode", "track", "essential", "chirality", "detect", "record")
 
 # Per-frame series, logged to /metrics/<group>/<series> only on frames that have a value (no NaN: it
@@ -79,6 +80,7 @@ METRICS: dict[str, dict[str, tuple[str, tuple[int, int, int]]]] = {
         "chirality_margin": ("chirality margin (best − 2nd)", (200, 0, 200)),
     },
     "ratio": {"inlier_ratio": ("inlier ratio", (40, 220, 60))},
+    "health": {"status": ("health: 0 ok, 1 warn, 2 fail", (255, 140, 0))},
     "motion": {"rotation_deg": ("rotation (°)", (255, 200, 0)), "scale": ("step length", (0, 200, 255))},
     "error": {"position_m": ("position error (m)", ESTIMATE_COLOUR)},
     "angle_error": {
@@ -124,6 +126,7 @@ def blueprint() -> rrb.Blueprint:
                     rrb.TimeSeriesView(name="tracks", origin="/metrics/tracks"),
                     rrb.TimeSeriesView(name="inliers", origin="/metrics/ransac"),
                     rrb.TimeSeriesView(name="inlier ratio", origin="/metrics/ratio"),
+                    rrb.TimeSeriesView(name="health", origin="/metrics/health"),
                     rrb.TimeSeriesView(name="motion", origin="/metrics/motion"),
                     rrb.TimeSeriesView(name="position error (m)", origin="/metrics/error"),
                     rrb.TimeSeriesView(name="angle errors (°)", origin="/metrics/angle_error"),
@@ -234,8 +237,8 @@ class Recorder:
         self._log_trajectories(result)
         self._log_metrics(result)
         self._log_events(frame, result)
-        status, reasons = frame_health(result)
-        rec.log("/health", rr.AnyValues(status=status, reasons=",".join(reasons) or None))
+        rec.log("/health", rr.AnyValues(status=str(result.health.status),
+                                        reasons=",".join(result.health.reasons) or None))
         timings = dict(result.timings_ms, record=(time.perf_counter() - start) * 1000.0)
         for stage in STAGES:
             if stage in timings:
@@ -317,15 +320,12 @@ class Recorder:
         elif len(result.new_corners):
             rec.log("/events", rr.TextLog(f"frame {frame.index}: re-detected {len(result.new_corners)} corners",
                                           level="DEBUG"))
-        if result.status == FrameStatus.HELD:
-            rec.log("/events", rr.TextLog(f"frame {frame.index}: pose held ({result.reason})", level="WARN"))
-
-
-def frame_health(result: FrameResult) -> tuple[str, list[str]]:
-    """"ok" or "fail" (the frame held its pose) and the reason codes; read back by `vslam inspect`."""
-    if result.status == FrameStatus.HELD:
-        return "fail", [str(result.reason)] if result.reason is not None else []
-    return "ok", []
+        health = result.health
+        if health.status != HealthStatus.OK:
+            what = "pose held" if result.status == FrameStatus.HELD else "used"
+            rec.log("/events", rr.TextLog(f"frame {frame.index}: {health.status} ({what}): "
+                                          + ", ".join(health.reasons),
+                                          level="ERROR" if health.status == HealthStatus.FAIL else "WARN"))
 
 
 def frame_metrics(result: FrameResult, ground_truth: np.ndarray | None) -> dict[str, float]:
@@ -333,6 +333,7 @@ def frame_metrics(result: FrameResult, ground_truth: np.ndarray | None) -> dict[
     counts = result.fate_counts()
     used = counts["ransac_outlier"] + counts["chirality_failed"] + counts["inlier"]
     values: dict[str, float] = {
+        "status": HEALTH_LEVELS[result.health.status],
         "alive": result.live_tracks,
         "new_corners": len(result.new_corners),
         "fb_rejected": counts["fb_rejected"],

@@ -69,6 +69,22 @@ class PoseConfig:
 
 
 @dataclass(frozen=True)
+class HealthConfig:
+    """When a frame is flagged. fail = the frame cannot be used (pose held); warn = used, but suspicious."""
+
+    dark_mean: float = 20.0  # fail: mean grey level below
+    bright_saturated: float = 0.5  # fail: fraction of saturated pixels above
+    blur_sharpness: float = 100.0  # fail: variance of the Laplacian below (KITTI frames: 1000–2600)
+    noise_sigma: float = 6.0  # warn: estimated sensor noise above (KITTI frames: < 2)
+    brightness_jump: float = 25.0  # warn: mean grey level changed more than this since the last frame
+    warn_tracks: int = 300  # warn: fewer tracks from the keyframe
+    warn_inlier_ratio: float = 0.6  # warn: RANSAC inlier ratio below
+    ambiguous_chirality: float = 0.5  # warn: second-best candidate has more than this share of the best's count
+    rotation_parallax_px: float = 1.0  # warn: median parallax left once the rotation is removed, below
+    step_jump: float = 2.5  # warn: step length or de-rotated parallax changed by more than this factor
+
+
+@dataclass(frozen=True)
 class EngineConfig:
     """Everything that decides the trajectory. Same config + same input = same trajectory."""
 
@@ -77,6 +93,7 @@ class EngineConfig:
     detector: DetectorConfig = field(default_factory=DetectorConfig)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     pose: PoseConfig = field(default_factory=PoseConfig)
+    health: HealthConfig = field(default_factory=HealthConfig)
 
     def with_scale(self, scale: ScaleSource) -> EngineConfig:
         return dataclasses.replace(self, scale=scale)

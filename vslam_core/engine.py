@@ -28,7 +28,8 @@ from vslam_core.geometry import (
     refine_relative_pose,
     triangulate,
 )
-from vslam_core.results import FrameResult, FrameStatus, Reason, TrackFate
+from vslam_core.quality import ImageStats, image_stats
+from vslam_core.results import FrameResult, FrameStatus, Health, Reason, TrackFate
 from vslam_core.scale import ScaleProvider
 from vslam_core.sources.base import CameraIntrinsics, Frame
 
@@ -66,6 +67,7 @@ class _Motion:
     translation: np.ndarray | None = None  # unit
     in_front: np.ndarray | None = None  # over the used correspondences
     points_cur: np.ndarray | None = None  # (P, 3) in front, current frame, unit baseline
+    derotated_parallax: float = 0.0  # median inlier parallax (px) left once the rotation is removed
     reason: Reason | None = None
 
     def fates(self) -> np.ndarray:
@@ -91,6 +93,8 @@ class Odometry:
         self._position = 0
         self._key_position = 0
         self._T_w_key = np.eye(4)
+        self._last_mean: float | None = None  # grey level of the last usable frame
+        self._last_step: tuple[float, float] | None = None  # (step length, de-rotated parallax) last accepted
 
     def run(self, frames: Iterable[Frame]) -> Iterator[FrameResult]:
         """Process frames in order, yielding one result per frame."""
@@ -102,6 +106,11 @@ class Odometry:
         cfg = self.config
         timings: dict[str, float] = {}
         image = frame.image
+        stats = image_stats(image)
+        unusable = self._unusable(frame, stats)
+        if unusable is not None:
+            return self._skip(frame, unusable)
+        warnings = self._image_warnings(stats)
         tracks = self._tracks
         fate = np.full(len(tracks), TrackFate.LOST, np.uint8)
         tracked = tracks.points.copy()
@@ -127,6 +136,7 @@ class Odometry:
             if motion.reason is None and motion.rotation is not None and motion.translation is not None:
                 status = FrameStatus.OK
                 scale = self._scale.step_length(self._key_position, self._position)
+                warnings += self._motion_warnings(motion, int(used.sum()), scale)
                 T_key_cur = pose_matrix(motion.rotation, scale * motion.translation)  # noqa: N806
                 T_w_cur = self._T_w_key @ T_key_cur  # noqa: N806
                 if motion.points_cur is not None:
@@ -172,9 +182,72 @@ class Odometry:
             points_world=points_world,
             scale=scale,
             parallax_px=parallax,
+            health=Health.of(motion.reason, warnings),
             timings_ms=timings,
         )
         self._previous = image
+        self._last_mean = stats.mean
+        self._position += 1
+        return result
+
+    def _unusable(self, frame: Frame, stats: ImageStats) -> Reason | None:
+        """Why this frame's image cannot be tracked at all, if so."""
+        cfg = self.config.health
+        if frame.defect is not None:
+            return Reason.UNREADABLE_IMAGE
+        if stats.mean < cfg.dark_mean:
+            return Reason.IMAGE_TOO_DARK
+        if stats.saturated > cfg.bright_saturated:
+            return Reason.IMAGE_TOO_BRIGHT
+        if stats.sharpness < cfg.blur_sharpness:
+            return Reason.IMAGE_BLURRED
+        return None
+
+    def _image_warnings(self, stats: ImageStats) -> list[Reason]:
+        cfg = self.config.health
+        warnings = []
+        if stats.noise_sigma > cfg.noise_sigma:
+            warnings.append(Reason.IMAGE_NOISY)
+        if self._last_mean is not None and abs(stats.mean - self._last_mean) > cfg.brightness_jump:
+            warnings.append(Reason.BRIGHTNESS_JUMP)
+        return warnings
+
+    def _motion_warnings(self, motion: _Motion, used: int, step: float) -> list[Reason]:
+        """Suspicious but accepted motion."""
+        cfg = self.config.health
+        warnings = []
+        if used < cfg.warn_tracks:
+            warnings.append(Reason.FEW_TRACKS)
+        if motion.inlier_mask is not None and motion.inlier_mask.mean() < cfg.warn_inlier_ratio:
+            warnings.append(Reason.LOW_INLIER_RATIO)
+        counts = sorted((c.in_front for c in motion.candidates), reverse=True)
+        if len(counts) > 1 and counts[1] > cfg.ambiguous_chirality * counts[0]:
+            warnings.append(Reason.CLOSE_CHIRALITY)
+        if motion.derotated_parallax < cfg.rotation_parallax_px:
+            warnings.append(Reason.ROTATION_DOMINATED)
+        current = (step, motion.derotated_parallax)
+        if self._last_step is not None and any(
+            min(a, b) > 0 and max(a, b) / min(a, b) > cfg.step_jump
+            for a, b in zip(current, self._last_step, strict=True)
+        ):
+            warnings.append(Reason.SCALE_JUMP)
+        self._last_step = current
+        return warnings
+
+    def _skip(self, frame: Frame, reason: Reason) -> FrameResult:
+        """A frame whose image cannot be used: the previous pose, no tracking; the next frame is tracked
+        from the last usable image."""
+        empty2 = np.zeros((0, 2), np.float32)
+        result = FrameResult(
+            position=self._position, index=frame.index, timestamp=frame.timestamp,
+            T_world_cam=self._T_w_key.copy(), status=FrameStatus.HELD, reason=reason,
+            keyframe_position=self._key_position, image_shape=(int(frame.image.shape[0]), int(frame.image.shape[1])),
+            track_ids=np.zeros(0, np.int64), track_prev=empty2, track_cur=empty2, track_age=np.zeros(0, np.int32),
+            track_fate=np.zeros(0, np.uint8), new_corner_ids=np.zeros(0, np.int64), new_corners=empty2,
+            live_tracks=len(self._tracks), essential=None, candidate_poses=(), chosen_candidate=None,
+            T_key_cur=None, points_world=np.zeros((0, 3)), scale=None, parallax_px=0.0,
+            health=Health.of(reason, []),
+        )
         self._position += 1
         return result
 
@@ -220,6 +293,7 @@ class Odometry:
                 rotation, translation, x_cur[inlier_mask], x_key[inlier_mask],
                 robust_scale=cfg.ransac_threshold_px / focal,
             )
+        derotated = _derotated_parallax(rotation, p_cur[inlier_mask], p_key[inlier_mask], self._K)
         points = triangulate(rotation, translation, x_cur, x_key)
         # A track fails chirality only if it lands behind a camera; far points are fine, just not shown.
         in_front = in_front_mask(rotation, translation, points, np.inf)
@@ -234,6 +308,7 @@ class Odometry:
             translation=translation,
             in_front=in_front,
             points_cur=points[inlier_mask & near],
+            derotated_parallax=derotated,
         )
 
     def _replenish(self, image: np.ndarray, timings: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
@@ -291,6 +366,15 @@ def _find_essential(
     if essential is None or mask is None or essential.shape[0] < 3:
         return None, None
     return essential[:3, :3], mask.reshape(-1).astype(bool)
+
+
+def _derotated_parallax(rotation: np.ndarray, p_cur: np.ndarray, p_key: np.ndarray, K: np.ndarray) -> float:  # noqa: N803
+    """Median distance (px) between the (N, 2) keyframe points and the current points moved by the rotation
+    alone (x_key ∝ K·R·K⁻¹·x_cur for X_key = R·X_cur + t at infinity): the parallax translation caused."""
+    homogeneous = np.column_stack((p_cur, np.ones(len(p_cur))))
+    moved = homogeneous @ (K @ rotation @ np.linalg.inv(K)).T
+    predicted = moved[:, :2] / moved[:, 2:3]
+    return float(np.median(np.linalg.norm(predicted - p_key, axis=1))) if len(p_cur) else 0.0
 
 
 def _lap(start: float) -> float:

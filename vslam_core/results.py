@@ -32,13 +32,46 @@ class FrameStatus(StrEnum):
 
 
 class Reason(StrEnum):
-    """Why a frame held its pose."""
+    """Reason codes of a frame's health (and why a held frame held its pose)."""
 
+    # the pose is held
+    UNREADABLE_IMAGE = "unreadable_image"
+    IMAGE_TOO_DARK = "image_too_dark"
+    IMAGE_TOO_BRIGHT = "image_too_bright"
+    IMAGE_BLURRED = "image_blurred"
     TOO_FEW_TRACKS = "too_few_tracks"
-    LOW_PARALLAX = "low_parallax"
+    LOW_PARALLAX = "low_parallax"  # too little motion: standing still (or a frozen camera)
     NO_ESSENTIAL = "no_essential_matrix"
     TOO_FEW_INLIERS = "too_few_inliers"
     CHIRALITY = "ambiguous_chirality"
+    # warnings: the frame is used
+    IMAGE_NOISY = "image_noisy"
+    BRIGHTNESS_JUMP = "brightness_jump"
+    FEW_TRACKS = "few_tracks"
+    LOW_INLIER_RATIO = "low_inlier_ratio"
+    CLOSE_CHIRALITY = "close_chirality"
+    ROTATION_DOMINATED = "rotation_dominated"
+    SCALE_JUMP = "scale_jump"
+
+
+class HealthStatus(StrEnum):
+    OK = "ok"
+    WARN = "warn"  # used, but suspicious
+    FAIL = "fail"  # not used: the previous pose is held
+
+
+@dataclass(frozen=True)
+class Health:
+    status: HealthStatus
+    reasons: tuple[Reason, ...] = ()
+
+    @classmethod
+    def of(cls, held: Reason | None, warnings: list[Reason]) -> Health:
+        """fail when the pose was held for a failure (standing still only warns), else warn/ok."""
+        if held is not None and held != Reason.LOW_PARALLAX:
+            return cls(HealthStatus.FAIL, (held, *warnings))
+        reasons = ((held,) if held is not None else ()) + tuple(warnings)
+        return cls(HealthStatus.WARN if reasons else HealthStatus.OK, reasons)
 
 
 @dataclass(frozen=True)
@@ -71,6 +104,7 @@ class FrameResult:
     points_world: np.ndarray  # (P, 3) triangulated inliers in world coordinates (scaled)
     scale: float | None  # length of this step's translation (metres with gt scale)
     parallax_px: float  # median displacement keyframe -> this frame of the tracks used
+    health: Health = Health(HealthStatus.OK)
     timings_ms: dict[str, float] = field(default_factory=dict)  # stage -> milliseconds
 
     @property

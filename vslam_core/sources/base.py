@@ -44,11 +44,13 @@ class Frame:
     index: the frame's index in its source (KITTI image number, video frame number).
     timestamp: seconds since the start of the source, or None when the source has no clock.
     image: (H, W) uint8 grey image.
+    defect: why the frame's image is unusable (e.g. a corrupt file skipped with --on-bad-frame skip).
     """
 
     index: int
     timestamp: float | None
     image: np.ndarray
+    defect: str | None = None  # set when the image could not be read (image is then a black placeholder)
 
 
 @dataclass(frozen=True)

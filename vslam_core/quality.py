@@ -1,0 +1,35 @@
+"""Image checks that decide whether a frame can be tracked at all (pure functions on grey images)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+# Immerkær (1996), "Fast noise variance estimation", CVIU 64(2): the difference of two Laplacians
+# cancels image structure to first order; here with a median instead of a mean, which textured
+# street scenes bias less.
+_NOISE_KERNEL = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
+
+
+@dataclass(frozen=True)
+class ImageStats:
+    """Statistics of one (H, W) uint8 frame, measured at half resolution."""
+
+    mean: float  # grey level 0..255
+    saturated: float  # fraction of pixels ≥ 250
+    sharpness: float  # variance of the Laplacian (low = blurred or featureless)
+    noise_sigma: float  # estimated sensor noise (grey levels)
+
+
+def image_stats(image: np.ndarray) -> ImageStats:
+    small = cv2.resize(image, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
+    laplacian = cv2.Laplacian(small, cv2.CV_32F)
+    response = np.abs(cv2.filter2D(image.astype(np.float32), -1, _NOISE_KERNEL)[1:-1, 1:-1])
+    return ImageStats(
+        mean=float(small.mean()),
+        saturated=float(np.count_nonzero(small >= 250)) / small.size,
+        sharpness=float(laplacian.var()),
+        noise_sigma=float(np.sqrt(np.pi / 2) * np.median(response) / 6),
+    )
