@@ -14,6 +14,7 @@ import numpy as np
 import typer
 from rich.console import Console
 
+from app.compare import compare_recordings, format_differences
 from app.crop import crop_recording
 from app.evaluation import REPORT_FILES, Evaluation, check_gates, evaluate_sources, evaluate_trajectory_file
 from app.inspect import format_report, inspect_recording
@@ -343,6 +344,27 @@ def _print_evaluation(evaluation: Evaluation, scale: str, report: Path | None, a
         err.print(f"[bold red]gate failed:[/] {message}", highlight=False)
     if failures:
         raise typer.Exit(1)
+
+
+@app.command()
+def compare(
+    first: Annotated[Path, typer.Argument(metavar="A.rrd", help="the first run (e.g. before a change)")],
+    second: Annotated[Path, typer.Argument(metavar="B.rrd", help="the second run (e.g. after it)")],
+    output: Annotated[Path, typer.Option("--output", "-o", help="the side-by-side .rrd to write")],
+    labels: Annotated[str, typer.Option(help="names of the two runs in legends, LABEL_A,LABEL_B")] = "A,B",
+    force: Annotated[bool, typer.Option("--force", help="replace an existing output")] = False,
+) -> None:
+    """Put two runs side by side in one recording (overlaid metric plots) and print their differences."""
+    names = [label.strip() for label in labels.split(",")]
+    if len(names) != 2 or not all(names) or names[0] == names[1]:
+        fail(f"--labels {labels!r}: give two different names, e.g. before,after")
+    _existing_recording(first)
+    _existing_recording(second)
+    if output.suffix != ".rrd":
+        fail(f"{output}: a recording must end in .rrd")
+    _check_new_file(output, force, "recording")
+    result = compare_recordings(first, second, output, (names[0], names[1]))
+    out.print(format_differences(result), highlight=False)
 
 
 def main() -> None:

@@ -21,19 +21,15 @@ from __future__ import annotations
 
 import os
 import shutil
-import subprocess
-import sys
 import tempfile
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import pyarrow as pa
 import pyarrow.compute as pc
 from rerun.chunk import Chunk, RrdReader, StoreEntry
-from rerun.error_utils import RerunWarning
 
-from app.rrd import RecordingError
+from app.rrd import RecordingError, first_line, open_store, run_rerun_cli, same_file
 
 FRAME = "frame"
 
@@ -95,8 +91,8 @@ def crop_recording(source: Path, frames: tuple[int, int], output: Path) -> CropS
         raise RecordingError(f"{source}: empty frame range {start}:{end} (START must be below END; END is excluded)")
     if start < 0:
         raise RecordingError(f"{source}: frame range {start}:{end} starts below 0")
-    reader, recording, blueprints = _open(source)
-    if _same_file(source, output):
+    reader, recording, blueprints = open_store(source)
+    if same_file(source, output):
         raise RecordingError(f"{output}: the output must not be the source recording")
 
     parent = output.parent if str(output.parent) else Path(".")
@@ -113,7 +109,7 @@ def crop_recording(source: Path, frames: tuple[int, int], output: Path) -> CropS
         except OSError as exc:
             raise RecordingError(f"{output}: cannot write ({exc.strerror})") from None
         except Exception as exc:  # the reader raises plain exceptions for corrupt chunks
-            raise RecordingError(f"{source}: cannot read the recording ({_first_line(exc)})") from None
+            raise RecordingError(f"{source}: cannot read the recording ({first_line(exc)})") from None
         if not keep.kept:
             raise RecordingError(f"{source}: frames {start}:{end} select no frame ({_own_range(keep)})")
 
@@ -126,30 +122,6 @@ def crop_recording(source: Path, frames: tuple[int, int], output: Path) -> CropS
     return CropSummary(output=output, first_frame=min(keep.kept), last_frame=max(keep.kept),
                        frame_count=len(keep.kept), input_bytes=source.stat().st_size,
                        output_bytes=output.stat().st_size)
-
-
-def _open(source: Path) -> tuple[RrdReader, StoreEntry, list[StoreEntry]]:
-    """Reader, the one recording store, and the blueprint stores of a complete (footered) `.rrd`."""
-    if not source.exists():
-        raise RecordingError(f"{source}: no such file")
-    if source.is_dir():
-        raise RecordingError(f"{source}: is a folder, not a Rerun recording")
-    try:
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", RerunWarning)
-            reader = RrdReader(source)
-        if any("no footer" in str(w.message) for w in caught):
-            raise RecordingError(f"{source}: truncated or unfinished recording (no RRD footer)")
-        recordings, blueprints = reader.recordings(), reader.blueprints()
-        if len(recordings) != 1:
-            raise RecordingError(f"{source}: holds {len(recordings)} recordings, crop needs exactly one")
-        for store in [*recordings, *blueprints]:
-            reader.store(store=store)  # reads and checks the manifest (milliseconds)
-    except RecordingError:
-        raise
-    except Exception as exc:  # the reader raises plain exceptions for every kind of bad file
-        raise RecordingError(f"{source}: not a readable Rerun recording ({_first_line(exc)})") from None
-    return reader, recordings[0], blueprints
 
 
 def _add_blueprints(source: Path, reader: RrdReader, blueprints: list[StoreEntry], cropped: Path,
@@ -166,9 +138,9 @@ def _add_blueprints(source: Path, reader: RrdReader, blueprints: list[StoreEntry
                              "cannot separate the blueprint")
     only_blueprint = work / "blueprint.rrd"
     drops = [arg for entity in sorted(entities) for arg in ("--drop-entity", entity)]
-    _rerun_cli(source, "rrd", "filter", "-o", str(only_blueprint), *drops, str(source))
+    run_rerun_cli(source, "rrd", "filter", "-o", str(only_blueprint), *drops, str(source))
     combined = work / "combined.rrd"
-    _rerun_cli(source, "rrd", "filter", "-o", str(combined), str(only_blueprint), str(cropped))
+    run_rerun_cli(source, "rrd", "filter", "-o", str(combined), str(only_blueprint), str(cropped))
 
     check = RrdReader(combined)  # the CLI must have kept every blueprint chunk and nothing else
     kept = sum(len(check.store(store=store)) for store in check.blueprints())
@@ -177,52 +149,7 @@ def _add_blueprints(source: Path, reader: RrdReader, blueprints: list[StoreEntry
     return combined
 
 
-def _rerun_cli(source: Path, *args: str) -> None:
-    """Run the `rerun` binary of the installed rerun-sdk (not `python -m rerun_cli`: it exits 0 on errors)."""
-    try:
-        done = subprocess.run([_rerun_binary(), *args], capture_output=True, text=True, timeout=600)
-    except (OSError, subprocess.TimeoutExpired) as exc:
-        raise RecordingError(f"{source}: cannot run the rerun CLI ({_first_line(exc)})") from None
-    if done.returncode != 0:
-        errors = [line for line in done.stderr.splitlines() if "ERROR" in line or line.startswith("Error")]
-        detail = (errors or done.stderr.strip().splitlines() or [f"exit code {done.returncode}"])[-1]
-        raise RecordingError(f"{source}: rerun {' '.join(args[:2])} failed ({detail.strip()})")
-
-
-def _rerun_binary() -> str:
-    """Same lookup as the `rerun` console script of rerun-sdk (``rerun_cli/__main__.py``)."""
-    if override := os.environ.get("RERUN_CLI_PATH"):
-        return override
-    import rerun_cli  # the package that ships the binary with rerun-sdk
-
-    folder = Path(rerun_cli.__file__).parent
-    suffix = ".exe" if sys.platform.startswith("win") else ""
-    candidates = [folder / "Rerun.app" / "Contents" / "MacOS" / "Rerun"] if sys.platform == "darwin" else []
-    candidates.append(folder / f"rerun{suffix}")
-    for candidate in candidates:
-        if candidate.exists():
-            return str(candidate)
-    found = shutil.which("rerun")
-    if found is None:
-        raise RecordingError("the rerun CLI of rerun-sdk was not found")
-    return found
-
-
-def _same_file(source: Path, output: Path) -> bool:
-    if output.exists():
-        try:
-            return os.path.samefile(source, output)
-        except OSError:
-            return False
-    return source.resolve() == output.resolve()
-
-
 def _own_range(keep: _FrameFilter) -> str:
     if keep.lowest is None or keep.highest is None:
         return "the recording has no 'frame' timeline"
     return f"the recording's frames are {keep.lowest}:{keep.highest + 1}"
-
-
-def _first_line(exc: BaseException) -> str:
-    text = str(exc).strip().splitlines()
-    return text[0] if text else exc.__class__.__name__

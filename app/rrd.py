@@ -1,11 +1,17 @@
-"""Read `.rrd` recordings back without a viewer (tests, `inspect`, `crop`, `compare`)."""
+"""Read `.rrd` recordings back without a viewer, and run the `rerun` CLI (tests, `inspect`, `crop`, `compare`)."""
 
 from __future__ import annotations
 
+import os
+import shutil
+import subprocess
+import sys
+import warnings
 from pathlib import Path
 
 import polars as pl
-from rerun.chunk import RrdReader
+from rerun.chunk import RrdReader, StoreEntry
+from rerun.error_utils import RerunWarning
 
 from vslam_core.errors import VslamError
 
@@ -20,7 +26,7 @@ def read_entity(path: Path, entity: str, static: bool = False) -> pl.DataFrame:
     try:
         chunks = RrdReader(path).stream().filter(content=entity, is_static=static).to_chunks()
     except Exception as exc:  # the reader raises plain exceptions for every kind of bad file
-        raise RecordingError(f"{path}: not a readable Rerun recording ({_first_line(exc)})") from None
+        raise RecordingError(f"{path}: not a readable Rerun recording ({first_line(exc)})") from None
     frames = [pl.from_arrow(chunk.to_record_batch()) for chunk in chunks]
     if not frames:
         return pl.DataFrame()
@@ -28,6 +34,71 @@ def read_entity(path: Path, entity: str, static: bool = False) -> pl.DataFrame:
     return table.sort("frame") if "frame" in table.columns else table
 
 
-def _first_line(exc: BaseException) -> str:
+def first_line(exc: BaseException) -> str:
+    """The first line of an exception's message (library errors can span many lines)."""
     text = str(exc).strip().splitlines()
     return text[0] if text else exc.__class__.__name__
+
+
+def open_store(source: Path) -> tuple[RrdReader, StoreEntry, list[StoreEntry]]:
+    """Reader, the one recording store, and the blueprint stores of a complete (footered) `.rrd`."""
+    if not source.exists():
+        raise RecordingError(f"{source}: no such file")
+    if source.is_dir():
+        raise RecordingError(f"{source}: is a folder, not a Rerun recording")
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", RerunWarning)
+            reader = RrdReader(source)
+        if any("no footer" in str(w.message) for w in caught):
+            raise RecordingError(f"{source}: truncated or unfinished recording (no RRD footer)")
+        recordings, blueprints = reader.recordings(), reader.blueprints()
+        if len(recordings) != 1:
+            raise RecordingError(f"{source}: holds {len(recordings)} recordings, expected exactly one")
+        for store in [*recordings, *blueprints]:
+            reader.store(store=store)  # reads and checks the manifest (milliseconds)
+    except RecordingError:
+        raise
+    except Exception as exc:  # the reader raises plain exceptions for every kind of bad file
+        raise RecordingError(f"{source}: not a readable Rerun recording ({first_line(exc)})") from None
+    return reader, recordings[0], blueprints
+
+
+def run_rerun_cli(source: Path, *args: str) -> None:
+    """Run the `rerun` binary of the installed rerun-sdk (not `python -m rerun_cli`: it exits 0 on errors)."""
+    try:
+        done = subprocess.run([rerun_binary(), *args], capture_output=True, text=True, timeout=600)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        raise RecordingError(f"{source}: cannot run the rerun CLI ({first_line(exc)})") from None
+    if done.returncode != 0:
+        errors = [line for line in done.stderr.splitlines() if "ERROR" in line or line.startswith("Error")]
+        detail = (errors or done.stderr.strip().splitlines() or [f"exit code {done.returncode}"])[-1]
+        raise RecordingError(f"{source}: rerun {' '.join(args[:2])} failed ({detail.strip()})")
+
+
+def rerun_binary() -> str:
+    """Same lookup as the `rerun` console script of rerun-sdk (``rerun_cli/__main__.py``)."""
+    if override := os.environ.get("RERUN_CLI_PATH"):
+        return override
+    import rerun_cli  # the package that ships the binary with rerun-sdk
+
+    folder = Path(rerun_cli.__file__).parent
+    suffix = ".exe" if sys.platform.startswith("win") else ""
+    candidates = [folder / "Rerun.app" / "Contents" / "MacOS" / "Rerun"] if sys.platform == "darwin" else []
+    candidates.append(folder / f"rerun{suffix}")
+    for candidate in candidates:
+        if candidate.exists():
+            return str(candidate)
+    found = shutil.which("rerun")
+    if found is None:
+        raise RecordingError("the rerun CLI of rerun-sdk was not found")
+    return found
+
+
+def same_file(source: Path, output: Path) -> bool:
+    if output.exists():
+        try:
+            return os.path.samefile(source, output)
+        except OSError:
+            return False
+    return source.resolve() == output.resolve()

@@ -16,7 +16,6 @@ import ctypes.util
 import logging
 import os
 import re
-import shutil
 import signal
 import socket
 import subprocess
@@ -32,9 +31,10 @@ from pathlib import Path
 from types import FrameType
 from typing import IO, Literal
 
+import polars as pl
 from rerun.experimental import View, ViewerClient, ViewerState
 
-from app.rrd import read_entity
+from app.rrd import first_line, read_entity, rerun_binary
 from vslam_core.errors import VslamError
 
 log = logging.getLogger(__name__)
@@ -69,11 +69,14 @@ def recording_frames(rrd: Path) -> tuple[int, int]:
     try:
         with warnings.catch_warnings():  # "RRD file has no footer": we report the problem ourselves
             warnings.simplefilter("ignore")
-            camera = read_entity(rrd, "/world/camera")
+            # a single run, or a `vslam compare` file holding runs under /a and /b
+            tables = [read_entity(rrd, path) for path in ("/world/camera", "/a/world/camera", "/b/world/camera")]
     except VslamError as exc:
-        raise ViewerError(_first_line(exc)) from None
-    if "frame" not in camera.columns or camera.height == 0:
+        raise ViewerError(first_line(exc)) from None
+    tables = [t for t in tables if "frame" in t.columns and t.height]
+    if not tables:
         raise ViewerError(f"{rrd}: no camera frames in this recording (not written by `vslam run`?)")
+    camera = pl.concat([t.select("frame") for t in tables])
     frames = camera["frame"]
     return int(frames.min()), int(frames.max())  # type: ignore[arg-type]
 
@@ -139,19 +142,12 @@ def view_file_name(name: str) -> str:
 
 
 def rerun_executable() -> list[str]:
-    """Command that runs the Rerun CLI: the binary shipped in rerun-sdk, else the `rerun` launcher."""
+    """Command that runs the Rerun CLI: the binary shipped in rerun-sdk (the `rerun` launcher script
+    would start it as a child process, which complicates stopping it)."""
     try:
-        import rerun_cli  # the binary inside rerun-sdk; the `rerun` launcher script starts it as a child
-
-        binary = Path(rerun_cli.__file__).parent / "rerun"
-        if binary.is_file() and os.access(binary, os.X_OK):
-            return [str(binary)]
-    except ImportError:
-        pass
-    launcher = shutil.which("rerun")
-    if launcher is None:
-        raise ViewerError("the Rerun viewer is not installed: pip install 'rerun-sdk>=0.41,<0.42'")
-    return [launcher]
+        return [rerun_binary()]
+    except VslamError:
+        raise ViewerError("the Rerun viewer is not installed: pip install 'rerun-sdk>=0.41,<0.42'") from None
 
 
 @dataclass
@@ -307,7 +303,7 @@ def snapshot(
         except Exception as exc:
             if process.popen.poll() is not None:
                 raise ViewerError(process.failure()) from None
-            raise ViewerError(f"{rrd}: the Rerun viewer failed: {_first_line(exc)}") from None
+            raise ViewerError(f"{rrd}: the Rerun viewer failed: {first_line(exc)}") from None
 
     written: list[Path] = []
     used: set[str] = set()
@@ -531,6 +527,3 @@ def _strip_ansi(text: str) -> str:
     return re.sub(r"\x1b\[[0-9;]*m", "", text)
 
 
-def _first_line(exc: BaseException) -> str:
-    lines = str(exc).strip().splitlines()
-    return lines[0] if lines else exc.__class__.__name__

@@ -198,3 +198,24 @@ def test_crop_command_keeps_the_frames_and_refuses_to_overwrite(kitti_run: tuple
     assert_clean_error(vslam("crop", rrd, "--frames", "10:", "-o", tmp_path / "x.rrd"), "START:END")
     assert_clean_error(vslam("crop", tmp_path / "none.rrd", "--frames", "1:2", "-o", tmp_path / "x.rrd"),
                        "no such recording")
+
+
+@pytest.mark.kitti
+def test_compare_command_prints_the_differences(kitti_run: tuple[Path, Path, str], kitti_root: Path,
+                                                tmp_path: Path) -> None:
+    rrd, _, _ = kitti_run
+    config = tmp_path / "b.toml"
+    config.write_text("[detector]\nfast_threshold = 40\n")
+    other = tmp_path / "b.rrd"
+    assert vslam("run", kitti_root, "--sequence", "00", "--frames", "0:40", "--config", config, "-o",
+                 other).returncode == 0
+    both = tmp_path / "ab.rrd"
+    result = vslam("compare", rrd, other, "-o", both, "--labels", "before,after")
+    assert result.returncode == 0, result.stderr
+    verify(both)
+    line = next(ln for ln in result.stdout.splitlines() if ln.startswith("frames.count"))
+    assert line.split()[1:4] == ["40", "40", "+0"]
+    assert any(ln.startswith("series.corners_detected.mean") for ln in result.stdout.splitlines())
+    assert len(read_entity(both, "/a/world/camera")) == len(read_entity(both, "/b/world/camera")) == 40
+    assert_clean_error(vslam("compare", rrd, other, "-o", both), "--force")
+    assert_clean_error(vslam("compare", rrd, other, "-o", tmp_path / "x.rrd", "--labels", "same,same"), "--labels")

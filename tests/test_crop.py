@@ -17,8 +17,8 @@ import rerun as rr
 from polars.testing import assert_frame_equal
 from rerun.chunk import Chunk, RrdReader
 
-from app.crop import CropSummary, _rerun_binary, crop_recording
-from app.rrd import RecordingError, read_entity
+from app.crop import CropSummary, crop_recording
+from app.rrd import RecordingError, read_entity, rerun_binary
 
 ROOT = Path(__file__).resolve().parents[1]
 START, END = 10, 20
@@ -45,7 +45,7 @@ def cropped(full: Path) -> tuple[Path, CropSummary]:
 
 
 def rerun_cli(*args: str | Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([_rerun_binary(), *map(str, args)], capture_output=True, text=True, timeout=120)
+    return subprocess.run([rerun_binary(), *map(str, args)], capture_output=True, text=True, timeout=120)
 
 
 def chunks_by_id(path: Path, *, blueprint: bool = False, static: bool | None = None) -> dict[str, pa.RecordBatch]:
@@ -284,5 +284,5 @@ def test_missing_cli_is_a_clean_error(full: Path, tmp_path: Path, monkeypatch: p
 
 
 def test_rerun_binary_is_the_sdk_one() -> None:
-    binary = Path(_rerun_binary())
+    binary = Path(rerun_binary())
     assert binary.exists() and shutil.which(str(binary))

@@ -1,0 +1,311 @@
+"""`compare_recordings`: two real runs side by side in one valid recording, its blueprint, the difference table,
+the error paths, and a headless snapshot of the comparison in the real viewer."""
+
+from __future__ import annotations
+
+import logging
+import os
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import rerun as rr
+from rerun.chunk import RrdReader
+
+from app import viewer
+from app.compare import (
+    LIGHTEN_B,
+    SERIES_WIDTHS,
+    ComparisonResult,
+    compare_recordings,
+    format_differences,
+    plot_title,
+)
+from app.crop import crop_recording
+from app.inspect import inspect_recording
+from app.recording import METRICS
+from app.rrd import RecordingError, read_entity
+from app.viewer import NO_VULKAN, rerun_executable, view_file_name
+
+ROOT = Path(__file__).resolve().parents[1]
+FRAMES = list(range(20))
+SNAPSHOT_FRAME = 15
+
+
+@pytest.fixture(scope="module", autouse=True)
+def strict_rerun() -> Iterator[None]:
+    previous = rr.strict_mode()
+    rr.set_strict_mode(True)  # a malformed archetype or blueprint raises instead of warning
+    yield
+    rr.set_strict_mode(previous)
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """Two real runs of the synthetic street, B with a higher FAST threshold (both CLI runs in parallel)."""
+    folder = tmp_path_factory.mktemp("runs")
+    (folder / "b.toml").write_text("[detector]\nfast_threshold = 35\n")
+    a, b = folder / "a.rrd", folder / "b.rrd"
+    commands = [["run", "--frames", "0:20", "-o", str(a)],
+                ["run", "--frames", "0:20", "--config", str(folder / "b.toml"), "-o", str(b)]]
+    processes = [subprocess.Popen([sys.executable, "-m", "app.cli", *args], cwd=ROOT, stdout=subprocess.PIPE,
+                                  stderr=subprocess.PIPE, text=True) for args in commands]
+    for process in processes:
+        _, stderr = process.communicate(timeout=300)
+        assert process.returncode == 0, stderr
+    return a, b
+
+
+@pytest.fixture(scope="module")
+def compared(runs: tuple[Path, Path], tmp_path_factory: pytest.TempPathFactory) -> ComparisonResult:
+    return compare_recordings(*runs, tmp_path_factory.mktemp("compare") / "ab.rrd")
+
+
+def _one_line_error(call: object, *fragments: str) -> str:
+    with pytest.raises(RecordingError) as info:
+        call()  # type: ignore[operator]
+    message = str(info.value)
+    assert "\n" not in message and all(f in message for f in fragments), message
+    return message
+
+
+def test_output_is_a_valid_recording_beside_no_leftovers(compared: ComparisonResult) -> None:
+    done = subprocess.run([*rerun_executable(), "rrd", "verify", str(compared.output)], capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    reader = RrdReader(compared.output)
+    (recording,) = reader.recordings()
+    (blueprint,) = reader.blueprints()
+    assert recording.application_id == blueprint.application_id == "vslam-compare"
+    assert compared.output_bytes == compared.output.stat().st_size
+    assert [p.name for p in compared.output.parent.iterdir()] == [compared.output.name]  # no temp folder left
+
+
+def test_every_entity_of_each_run_is_under_its_prefix(runs: tuple[Path, Path], compared: ComparisonResult) -> None:
+    def entities(path: Path) -> set[str]:
+        reader = RrdReader(path)
+        return set(reader.store(store=reader.recordings()[0]).schema().entity_paths())
+
+    expected = {f"/{prefix}{e}" for prefix, run in zip("ab", runs, strict=True) for e in entities(run)
+                if not e.startswith("/__properties")}
+    assert {e for e in entities(compared.output) if not e.startswith("/__properties")} == expected
+
+    for prefix, run in zip("ab", runs, strict=True):
+        for entity in ("/world/camera", "/world/camera/image", "/world/trajectory/estimate", "/events"):
+            original, moved = read_entity(run, entity), read_entity(compared.output, f"/{prefix}{entity}")
+            assert moved.equals(original), entity  # same rows: timelines, components and row ids
+        assert read_entity(compared.output, f"/{prefix}/world/camera")["frame"].to_list() == FRAMES
+
+
+def test_static_data_of_both_runs_is_kept(runs: tuple[Path, Path], compared: ComparisonResult) -> None:
+    for prefix, run in zip("ab", runs, strict=True):
+        for entity in ("/world", "/world/camera/image", "/world/camera/image/flow"):
+            original = read_entity(run, entity, static=True)
+            moved = read_entity(compared.output, f"/{prefix}{entity}", static=True)
+            assert not original.is_empty() and moved.equals(original), entity
+        pinhole = read_entity(compared.output, f"/{prefix}/world/camera/image", static=True)
+        assert pinhole["Pinhole:resolution"].to_list() == [[[1241.0, 376.0]]]
+
+
+def test_metrics_of_both_runs_with_labelled_legends(runs: tuple[Path, Path], compared: ComparisonResult) -> None:
+    for group, series in METRICS.items():
+        for name, (legend, colour) in series.items():
+            entity = f"/metrics/{group}/{name}"
+            for prefix, label, run in zip("ab", ("A", "B"), runs, strict=True):
+                values = read_entity(compared.output, f"/{prefix}{entity}")
+                assert values.equals(read_entity(run, entity)), entity
+                style = read_entity(compared.output, f"/{prefix}{entity}", static=True)
+                assert style["SeriesLines:names"].to_list() == [[f"{label}: {legend}"]]
+                r, g, b = colour if prefix == "a" else [round(c + (255 - c) * LIGHTEN_B) for c in colour]
+                assert style["SeriesLines:colors"].to_list() == [[(r << 24) | (g << 16) | (b << 8) | 0xFF]]
+                assert style["SeriesLines:widths"].to_list() == [[SERIES_WIDTHS["ab".index(prefix)]]]
+
+
+def test_properties_of_both_runs_and_the_comparison_name(compared: ComparisonResult) -> None:
+    out = compared.output
+    assert read_entity(out, "/__properties/a/config", static=True)["detector.fast_threshold"].to_list() == [[20]]
+    assert read_entity(out, "/__properties/b/config", static=True)["detector.fast_threshold"].to_list() == [[35]]
+    for prefix in "ab":
+        run = read_entity(out, f"/__properties/{prefix}/run", static=True).row(0, named=True)
+        assert run["name"] == ["vslam synthetic-street frames 0:20 scale gt"] and run["frames"] == ["0:20"]
+    name = read_entity(out, "/__properties", static=True)["RecordingInfo:name"].to_list()
+    assert name == [[compared.recording_name]]
+    assert compared.recording_name == "vslam compare: A vs B (vslam synthetic-street frames 0:20 scale gt)"
+    compare = read_entity(out, "/__properties/compare", static=True).row(0, named=True)
+    assert compare["label_a"] == ["A"] and compare["file_b"] == [str(compared.inputs[1].resolve())]
+    # everything under /__properties: one row per property entity, columns merged (no entity column)
+    everything = read_entity(out, "/__properties/**", static=True)
+    assert everything.height == 6 and {"RecordingInfo:name", "label_a", "detector.fast_threshold"} <= set(
+        everything.columns)
+
+
+def _views(rrd: Path) -> dict[str, dict[str, object]]:
+    """Views of the embedded blueprint: name -> class, origin, contents, overridden entities."""
+    reader = RrdReader(rrd)
+    chunks = reader.stream(store=reader.blueprints()[0]).to_chunks()
+    columns: dict[str, dict[str, object]] = {}
+    for chunk in chunks:
+        batch = chunk.to_record_batch()
+        columns.setdefault(chunk.entity_path, {}).update(
+            {c: batch.column(c).to_pylist()[-1] for c in batch.schema.names if c.startswith(("View", "Container"))})
+    views: dict[str, dict[str, object]] = {}
+    for path, values in columns.items():
+        if "ViewBlueprint:display_name" in values:
+            overridden = {p.split("/overrides", 1)[1].rsplit("/visualizers", 1)[0]
+                          for p in columns if p.startswith(f"{path}/ViewContents/overrides/")}
+            views[values["ViewBlueprint:display_name"][0]] = {  # type: ignore[index]
+                "class": values["ViewBlueprint:class_identifier"][0],  # type: ignore[index]
+                "origin": values["ViewBlueprint:space_origin"][0],  # type: ignore[index]
+                "contents": list(columns[f"{path}/ViewContents"]["ViewContents:query"]),  # type: ignore[call-overload]
+                "overrides": overridden,
+            }
+    return views
+
+
+def test_embedded_blueprint_has_both_runs_and_overlaid_plots(compared: ComparisonResult) -> None:
+    views = _views(compared.output)
+    for label, prefix in (("A", "a"), ("B", "b")):
+        assert views[f"{label}: frame"]["origin"] == f"/{prefix}/world/camera/image"
+        world = views[f"{label}: world"]
+        assert world["class"] == "3D" and world["origin"] == f"/{prefix}/world"
+        assert world["overrides"] == {f"/{prefix}/world/trajectory/{t}" for t in ("estimate", "ground_truth")}
+    for group in METRICS:
+        plot = views[plot_title(group)]
+        assert plot["class"] == "TimeSeries"
+        assert plot["contents"] == [f"/a/metrics/{group}/**", f"/b/metrics/{group}/**"]
+    trajectories = views["trajectories: A red, B blue, truth green"]
+    assert trajectories["contents"] == ["/a/world/trajectory/**", "/b/world/trajectory/**"]
+    assert trajectories["overrides"] == {f"/{p}/world/trajectory/{t}" for p in "ab"
+                                         for t in ("estimate", "ground_truth")}
+    assert views["events"]["contents"] == ["/a/events", "/b/events"]
+    assert len(views) == 4 + len(METRICS) + 2
+
+
+def test_differences_are_the_inspect_values(runs: tuple[Path, Path], compared: ComparisonResult) -> None:
+    reports = [inspect_recording(run) for run in runs]
+    diffs = compared.differences
+
+    def value(report: dict[str, object], key: str) -> float:
+        node: object = report
+        for part in key.split(".") if not key.startswith("accuracy.") else ["accuracy", key.split(".", 1)[1]]:
+            node = node[part]  # type: ignore[index]
+        return float(node)  # type: ignore[arg-type]
+
+    for key in ["frames.count", "bytes", "stages_ms.track.mean", "series.corners_detected.mean",
+                "series.inlier_ratio.mean", "accuracy.paper_rms_m", "accuracy.final_heading_error_deg"]:
+        a, b = (value(report, key) for report in reports)
+        assert (diffs[key].a, diffs[key].b) == (a, b), key
+        assert diffs[key].difference == pytest.approx(b - a)
+    assert {f"stages_ms.{s}.mean" for s in reports[0]["stages_ms"]} <= set(diffs)
+    assert {f"accuracy.{k}" for k in reports[0]["accuracy"]} <= set(diffs)
+    corners = diffs["series.corners_detected.mean"]
+    assert corners.b is not None and corners.a is not None and corners.b < corners.a  # stricter FAST threshold
+    assert corners.percent == pytest.approx(100 * (corners.b - corners.a) / corners.a)
+    assert diffs["frames.count"].difference == 0 and diffs["bytes"].a == runs[0].stat().st_size
+
+    table = format_differences(compared)
+    lines = table.splitlines()
+    header = next(i for i, line in enumerate(lines) if line.startswith("metric"))
+    assert lines[header].split() == ["metric", "A", "B", "B", "−", "A", "%"]
+    rows = {line.split()[0]: line for line in lines[header + 1:]}
+    assert set(rows) == set(diffs)
+    assert rows["frames.count"].split()[1:] == ["20", "20", "+0", "+0.0%"]
+    assert f"{corners.percent:+.1f}%" in rows["series.corners_detected.mean"]
+    widths = {len(line) for line in lines[header:] if line.endswith("%")}
+    assert len(widths) == 1  # right-aligned columns
+
+
+def test_different_frame_ranges_are_kept_whole(runs: tuple[Path, Path], tmp_path: Path) -> None:
+    part = tmp_path / "b_5_15.rrd"
+    crop_recording(runs[1], (5, 15), part)
+    result = compare_recordings(runs[0], part, tmp_path / "out.rrd", labels=("base", "cropped"))
+    assert read_entity(result.output, "/a/world/camera")["frame"].to_list() == FRAMES
+    assert read_entity(result.output, "/b/world/camera")["frame"].to_list() == list(range(5, 15))
+    style = read_entity(result.output, "/b/metrics/tracks/alive", static=True)
+    assert style["SeriesLines:names"].to_list() == [["cropped: tracks alive"]]
+    assert result.differences["frames.count"].b == 10
+    assert "cropped − base" in format_differences(result)
+
+
+def test_bad_inputs_and_outputs_are_one_line_errors_naming_the_file(runs: tuple[Path, Path], tmp_path: Path) -> None:
+    a, b = runs
+    out = tmp_path / "out.rrd"
+    missing = tmp_path / "missing.rrd"
+    _one_line_error(lambda: compare_recordings(a, missing, out), str(missing), "no such file")
+    garbage = tmp_path / "garbage.rrd"
+    garbage.write_bytes(b"not a recording\n")
+    _one_line_error(lambda: compare_recordings(garbage, b, out), str(garbage), "not a readable Rerun recording")
+    truncated = tmp_path / "truncated.rrd"
+    truncated.write_bytes(a.read_bytes()[: a.stat().st_size // 2])
+    _one_line_error(lambda: compare_recordings(a, truncated, out), str(truncated))
+    other = tmp_path / "other.rrd"
+    with rr.RecordingStream("other", recording_id="x", send_properties=False) as rec:
+        rec.save(other)
+        rec.log("/points", rr.Points3D([[0.0, 0.0, 0.0]]), static=True)
+    _one_line_error(lambda: compare_recordings(other, b, out), str(other), "not a vslam recording")
+    before = a.read_bytes()
+    for output in (a, b):
+        _one_line_error(lambda output=output: compare_recordings(a, b, output), str(output), "must not be one of")
+    assert a.read_bytes() == before
+    _one_line_error(lambda: compare_recordings(a, b, out, labels=("A", "A")), "labels must differ")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["garbage.rrd", "other.rrd", "truncated.rrd"]
+
+
+# ------------------------------------------------------------------------------------------- viewer
+
+
+@pytest.fixture(scope="module")
+def shots(compared: ComparisonResult, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    if not viewer.vulkan_available():
+        if "CI" in os.environ:
+            pytest.fail(f"{NO_VULKAN} (CI is set: the viewer tests must not be skipped)")
+        pytest.skip(NO_VULKAN)
+
+    warnings: list[str] = []
+    handler = logging.Handler()
+    handler.emit = lambda record: warnings.append(record.getMessage())  # type: ignore[method-assign]
+    handler.setLevel(logging.WARNING)
+    logging.getLogger("app.viewer").addHandler(handler)
+    try:
+        paths = viewer.snapshot(compared.output, SNAPSHOT_FRAME, tmp_path_factory.mktemp("shots"))
+    finally:
+        logging.getLogger("app.viewer").removeHandler(handler)
+    assert not warnings, warnings  # the viewer reported no problem with any view
+    return {p.stem: p for p in paths}
+
+
+def _columns(picture: np.ndarray, rgb: tuple[int, int, int] | list[int], tolerance: int = 30) -> int:
+    """How many pixel columns show this colour: a line across a plot spans many, a legend dot ~10."""
+    close = (np.abs(picture.astype(int) - np.array(rgb[::-1])).max(axis=2) <= tolerance)
+    return int(close.any(axis=0).sum())
+
+
+def test_snapshot_shows_both_runs_and_overlaid_plots(shots: dict[str, Path]) -> None:
+    plots = [view_file_name(plot_title(group)) for group in METRICS]
+    expected = ["a_frame", "a_world", "b_frame", "b_world", *plots, "events",
+                "trajectories_a_red_b_blue_truth_green", "all"]
+    assert sorted(shots) == sorted(expected)
+    pictures = {name: cv2.imread(str(path)) for name, path in shots.items()}
+    for name, picture in pictures.items():
+        assert picture is not None and picture.std() > 8, f"{name}.png looks blank"
+    for name in ("a_frame", "b_frame"):  # a photo with overlays on top
+        picture = pictures[name]
+        colourful = ((picture.max(axis=2).astype(int) - picture.min(axis=2)) > 60).mean()
+        assert len(np.unique(cv2.cvtColor(picture, cv2.COLOR_BGR2GRAY))) > 100 and colourful > 0.01, name
+    assert not np.array_equal(pictures["a_frame"], pictures["b_frame"])  # B detects fewer corners
+    # one line per run (A in the series colour, B lighter) in plots of one series per run
+    for group, name in (("ratio", "inlier_ratio"), ("error", "position_m")):
+        colour = METRICS[group][name][1]
+        lighter = [round(c + (255 - c) * LIGHTEN_B) for c in colour]
+        picture = pictures[view_file_name(plot_title(group))]
+        assert _columns(picture, colour) > 60 and _columns(picture, lighter) > 60, group
+    # the shared 3-D view: the estimates (A red, B blue) and the ground truth (green). Here the runs agree within
+    # 3 cm, so the lines lie on each other: which one is on top depends on their heights, not on their order.
+    b, g, r = (pictures["trajectories_a_red_b_blue_truth_green"].astype(int)[..., i] for i in range(3))
+    estimates = ((r > 150) & (r > g + 60) & (r > b + 60)) | ((b > 150) & (b > r + 60))
+    truth = (g > 150) & (g > r + 60) & (g > b + 30)
+    assert estimates.sum() > 100 and truth.sum() > 100
