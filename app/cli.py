@@ -27,7 +27,6 @@ from vslam_core.errors import VslamError
 from vslam_core.metrics import kitti_errors, paper_rms_error
 from vslam_core.pipeline import RunResult
 from vslam_core.sources.base import FrameRange, FrameSource
-from vslam_core.sources.kitti import KittiSource
 from vslam_core.sources.open import open_source
 from vslam_core.trajectory_io import write_kitti_poses, write_tum_poses
 
@@ -51,6 +50,11 @@ def _root() -> None:
 class Scale(StrEnum):
     gt = "gt"
     none = "none"
+
+
+class BadFrame(StrEnum):
+    fail = "fail"
+    skip = "skip"
 
 
 class TrajectoryFormat(StrEnum):
@@ -145,13 +149,17 @@ def run(
     intrinsics: Annotated[str | None, typer.Option(help="fx,fy,cx,cy for image folders and videos")] = None,
     calib: Annotated[Path | None, typer.Option(help="KITTI-style calib file (P0 line) instead")] = None,
     gt: Annotated[Path | None, typer.Option(help="ground-truth poses (KITTI or TUM) for folders/videos")] = None,
+    inject: Annotated[str | None, typer.Option(help="fault injection, e.g. dark@120,blur@200:210 (kinds: dark, "
+                                               "overexposed, blur, frozen, drop, brightness, noise)")] = None,
+    on_bad_frame: Annotated[BadFrame, typer.Option(help="an unreadable image: fail (stop, naming the file) or "
+                                                   "skip (hold the pose, log an event)")] = BadFrame.fail,
     force: Annotated[bool, typer.Option("--force", help="replace existing output files")] = False,
 ) -> None:
     """Run the odometry on a source and write a Rerun recording (and optionally the trajectory)."""
     frame_range = FrameRange.parse(frames)
     config = load_config(config_file) if config_file is not None else EngineConfig()
     src = open_source(source, sequence=sequence, frames=frame_range, intrinsics=intrinsics, calib=calib,
-                      ground_truth=gt)
+                      ground_truth=gt, on_bad_frame=on_bad_frame.value, inject=inject)
     if scale is not None:
         config = config.with_scale(scale.value)
     elif config_file is None and src.ground_truth is None:
@@ -173,6 +181,7 @@ def run(
         "frames": str(frame_range),
         "frame_count": str(len(src)),
         "scale": config.scale,
+        **({"inject": inject} if inject else {}),
         **version_properties(),
     }
     recorded = record_run(src, config, rrd, properties, err, detail, jpeg_quality)
@@ -280,6 +289,8 @@ def eval_command(
     max_t_err: Annotated[float | None, typer.Option(help="gate: fail if any sequence's t_err (%) is above")] = None,
     max_r_err: Annotated[float | None, typer.Option(help="gate: fail if any r_err (°/100 m) is above")] = None,
     max_ate: Annotated[float | None, typer.Option(help="gate: fail if any ATE Sim(3) (m) is above")] = None,
+    inject: Annotated[str | None, typer.Option(help="fault injection on every sequence (see vslam run)")] = None,
+    on_bad_frame: Annotated[BadFrame, typer.Option(help="unreadable image: fail or skip")] = BadFrame.fail,
     force: Annotated[bool, typer.Option("--force", help="write into a --report folder that holds a report")]
     = False,
 ) -> None:
@@ -301,10 +312,14 @@ def eval_command(
         if sequences is not None:
             if source is None:
                 fail("--sequences needs SOURCE, the KITTI dataset root")
-            sources: list[FrameSource] = [KittiSource(source, sequence=s.strip(), frames=frame_range)
-                                          for s in sequences.split(",") if s.strip()]
+            sources: list[FrameSource] = [
+                open_source(source, sequence=s.strip(), frames=frame_range, on_bad_frame=on_bad_frame.value,
+                            inject=inject)
+                for s in sequences.split(",") if s.strip()
+            ]
         else:
-            sources = [open_source(source, frames=frame_range, ground_truth=gt)]
+            sources = [open_source(source, frames=frame_range, ground_truth=gt, on_bad_frame=on_bad_frame.value,
+                                   inject=inject)]
         evaluation = evaluate_sources(sources, config, report, err, detail if report is not None else Detail.OFF,
                                       {"frames": str(frame_range), "source_path": source or "synthetic"})
         scale_source = config.scale

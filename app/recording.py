@@ -271,6 +271,7 @@ class Recorder:
         """The four candidate poses, each at the keyframe pose moved by its (R, t), with its count."""
         rec = self._rec
         if not result.candidate_poses or result.T_key_cur is None:
+            rec.log("/world/candidates", rr.Clear(recursive=True))  # not the previous frame's candidates
             return
         T_w_key = result.T_world_cam @ invert_pose(result.T_key_cur)  # noqa: N806
         length = max(float(np.linalg.norm(result.T_key_cur[:3, 3])), 0.5)
@@ -280,7 +281,8 @@ class Recorder:
             centre = T_w_key[:3, :3] @ (length * candidate.translation) + T_w_key[:3, 3]
             rotation = T_w_key[:3, :3] @ candidate.rotation
             # (R1, t) and (R2, t) share a centre: one label, on the chosen candidate, lists every count
-            labels = [f"chosen #{i} — in front {counts}"] if chosen else None
+            # an empty label on the others, or their label from an earlier frame would stay (latest-at)
+            labels = [f"chosen #{i} — in front {counts}" if chosen else ""]
             rec.log(
                 f"/world/candidates/{i}",
                 rr.Transform3D(translation=centre, mat3x3=rotation),

@@ -12,13 +12,13 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
 
 from vslam_core.config import EngineConfig
-from vslam_core.features import detect_corners, track_points
+from vslam_core.features import detect_corners, match_features, track_points
 from vslam_core.geometry import (
     CandidatePose,
     chirality_check,
@@ -93,6 +93,7 @@ class Odometry:
         self._position = 0
         self._key_position = 0
         self._T_w_key = np.eye(4)
+        self._key_image: np.ndarray | None = None
         self._last_mean: float | None = None  # grey level of the last usable frame
         self._last_step: tuple[float, float] | None = None  # (step length, de-rotated parallax) last accepted
 
@@ -119,6 +120,7 @@ class Odometry:
         points_world = np.zeros((0, 3))
         keyframe_used = self._key_position
 
+        lost = False
         if self._previous is None:
             status = FrameStatus.INIT
         else:
@@ -133,6 +135,15 @@ class Odometry:
             motion, parallax = self._estimate_motion(tracked[used], tracks.key_points[used], timings)
             if motion.inlier_mask is not None:
                 fate[used] = motion.fates()
+            lost = motion.reason == Reason.TOO_FEW_TRACKS
+            if lost and self._key_image is not None:
+                # Tracks were lost (a gap of unusable frames, a sudden jump): match descriptors against the
+                # keyframe instead, so the motion over the gap is measured rather than dropped.
+                motion, parallax = self._match_keyframe(image, timings)
+                if motion.reason is None:
+                    warnings.append(Reason.RECOVERED)
+                else:
+                    motion = replace(motion, reason=Reason.TOO_FEW_TRACKS)
             if motion.reason is None and motion.rotation is not None and motion.translation is not None:
                 status = FrameStatus.OK
                 scale = self._scale.step_length(self._key_position, self._position)
@@ -150,11 +161,15 @@ class Odometry:
                 keep &= fate != TrackFate.RANSAC_OUTLIER
             self._tracks = _Tracks(tracks.ids[keep], tracked[keep], tracks.ages[keep] + 1, tracks.key_points[keep])
 
-        # The keyframe advances on every accepted frame, and on re-initialisation (too few tracks left);
-        # other held frames keep it, so the next frame is measured over a longer baseline.
-        if status != FrameStatus.HELD or motion.reason == Reason.TOO_FEW_TRACKS:
+        # The keyframe advances on every accepted frame, and when the tracks were lost (tracking starts
+        # afresh from this frame, with its pose measured by matching or, failing that, held); other held
+        # frames keep it, so the next frame is measured over a longer baseline.
+        if status != FrameStatus.HELD or lost:
+            if lost:
+                self._tracks = _Tracks.empty()
             self._T_w_key = T_w_cur
             self._key_position = self._position
+            self._key_image = image
             self._tracks.key_points = self._tracks.points.copy()
 
         new_ids, new_corners = self._replenish(image, timings)
@@ -189,6 +204,17 @@ class Odometry:
         self._last_mean = stats.mean
         self._position += 1
         return result
+
+    def _match_keyframe(self, image: np.ndarray, timings: dict[str, float]) -> tuple[_Motion, float]:
+        """Two-view motion keyframe → this frame from ORB descriptor matches (no tracks needed)."""
+        assert self._key_image is not None
+        clock = time.perf_counter()
+        p_key, p_cur = match_features(self._key_image, image)
+        timings["match"] = _lap(clock)
+        if len(p_cur) < self.config.pose.min_tracks:
+            return _Motion(reason=Reason.TOO_FEW_TRACKS), 0.0
+        parallax = float(np.median(np.linalg.norm(p_cur - p_key, axis=1)))
+        return self._two_view(p_cur, p_key, timings), parallax
 
     def _unusable(self, frame: Frame, stats: ImageStats) -> Reason | None:
         """Why this frame's image cannot be tracked at all, if so."""

@@ -87,3 +87,29 @@ def track_points(
     elif ok.any():
         fb_error[ok] = 0.0  # check disabled
     return tracked, ok, fb_error
+
+
+def match_features(
+    first: np.ndarray, second: np.ndarray, max_features: int = 5000, ratio: float = 0.9
+) -> tuple[np.ndarray, np.ndarray]:
+    """ORB descriptors matched between two frames that tracks cannot bridge (a gap, a jump): mutual
+    best Hamming matches passing Lowe's ratio test (loose: RANSAC follows). Returns (M, 2) float32 points
+    in each frame."""
+    orb = cv2.ORB_create(nfeatures=max_features, fastThreshold=10)
+    kp1, d1 = orb.detectAndCompute(first, None)
+    kp2, d2 = orb.detectAndCompute(second, None)
+    if d1 is None or d2 is None or len(kp1) < 2 or len(kp2) < 2:
+        return np.zeros((0, 2), np.float32), np.zeros((0, 2), np.float32)
+    matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
+    forward = matcher.knnMatch(d1, d2, k=2)
+    backward = {m.queryIdx: m.trainIdx for m, *_ in matcher.knnMatch(d2, d1, k=1) if m is not None}
+    pairs = [
+        (m.queryIdx, m.trainIdx)
+        for m, n in (p for p in forward if len(p) == 2)
+        if m.distance < ratio * n.distance and backward.get(m.trainIdx) == m.queryIdx
+    ]
+    if not pairs:
+        return np.zeros((0, 2), np.float32), np.zeros((0, 2), np.float32)
+    first_points = np.array([kp1[i].pt for i, _ in pairs], np.float32)
+    second_points = np.array([kp2[j].pt for _, j in pairs], np.float32)
+    return first_points, second_points

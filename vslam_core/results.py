@@ -52,6 +52,7 @@ class Reason(StrEnum):
     CLOSE_CHIRALITY = "close_chirality"
     ROTATION_DOMINATED = "rotation_dominated"
     SCALE_JUMP = "scale_jump"
+    RECOVERED = "recovered_by_matching"  # tracks were lost; the motion was measured by descriptor matching
 
 
 class HealthStatus(StrEnum):

@@ -116,6 +116,11 @@ class FrameSource(Protocol):
         """(N, 4, 4) T_w_c for the selected frames (first = identity), or None."""
         ...
 
+    @property
+    def indices(self) -> list[int]:
+        """The source frame indices of the selected frames, in order (len = N)."""
+        ...
+
     def __len__(self) -> int:
         """Number of selected frames."""
         ...

@@ -20,8 +20,10 @@ import numpy as np
 from vslam_core.errors import SourceError
 from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange
 from vslam_core.sources.kitti import (
+    BadFramePolicy,
     GroundTruthFormat,
     list_images,
+    read_frame,
     read_grey_image,
     read_ground_truth,
     read_p0_intrinsics,
@@ -111,7 +113,9 @@ class ImageFolderSource:
         ground_truth: str | Path | None = None,
         gt_format: GroundTruthFormat = "auto",
         frames: FrameRange | None = None,
+        on_bad_frame: BadFramePolicy = "fail",
     ):
+        self._on_bad_frame = on_bad_frame
         self.folder = Path(path)
         self._files = list_images(self.folder)
         self._indices = select(frames, len(self._files), self.folder)
@@ -168,9 +172,8 @@ class ImageFolderSource:
 
     def __iter__(self) -> Iterator[Frame]:
         for index in self._indices:
-            image = read_grey_image(self._files[index], self._size)
             stamp = None if self._times is None else self._times[index]
-            yield Frame(index=index, timestamp=stamp, image=image)
+            yield read_frame(index, self._files[index], self._size, stamp, self._on_bad_frame)
 
     def __repr__(self) -> str:
         return f"ImageFolderSource({str(self.folder)!r}, frames={len(self)})"

@@ -133,6 +133,23 @@ def read_grey_image(path: Path, size: tuple[int, int] | None = None) -> np.ndarr
     return image
 
 
+BadFramePolicy = Literal["fail", "skip"]
+
+
+def read_frame(
+    index: int, path: Path, size: tuple[int, int], stamp: float | None, on_bad_frame: BadFramePolicy
+) -> Frame:
+    """One frame of an image sequence. An unreadable image (or one of another size) raises `SourceError`
+    with ``on_bad_frame="fail"``; with ``"skip"`` it becomes a black placeholder frame carrying the error as
+    its `defect`, and the run goes on."""
+    try:
+        return Frame(index=index, timestamp=stamp, image=read_grey_image(path, size))
+    except SourceError as exc:
+        if on_bad_frame == "fail":
+            raise
+        return Frame(index=index, timestamp=stamp, image=np.zeros((size[1], size[0]), np.uint8), defect=str(exc))
+
+
 def select(frames: FrameRange | None, available: int, where: object) -> list[int]:
     """``frames.indices(available)`` (every frame when None); `SourceError` if nothing is selected."""
     try:
@@ -172,7 +189,14 @@ class KittiSource:
     selected frame. Images are decoded lazily, one per iteration step.
     """
 
-    def __init__(self, path: str | Path, sequence: str | None = None, frames: FrameRange | None = None):
+    def __init__(
+        self,
+        path: str | Path,
+        sequence: str | None = None,
+        frames: FrameRange | None = None,
+        on_bad_frame: BadFramePolicy = "fail",
+    ):
+        self._on_bad_frame = on_bad_frame
         root = Path(path)
         if not root.exists():
             raise SourceError(f"{root}: KITTI folder not found")
@@ -230,9 +254,8 @@ class KittiSource:
 
     def __iter__(self) -> Iterator[Frame]:
         for index in self._indices:
-            image = read_grey_image(self._files[index], self._size)
             stamp = None if self._times is None else self._times[index]
-            yield Frame(index=index, timestamp=stamp, image=image)
+            yield read_frame(index, self._files[index], self._size, stamp, self._on_bad_frame)
 
     def __repr__(self) -> str:
         return f"KittiSource({str(self.folder)!r}, frames={len(self)})"

@@ -6,8 +6,9 @@ from pathlib import Path
 
 from vslam_core.errors import SourceError
 from vslam_core.sources.base import FrameRange, FrameSource
+from vslam_core.sources.faults import FaultInjector, parse_faults
 from vslam_core.sources.folder import ImageFolderSource, PartialIntrinsics, parse_intrinsics
-from vslam_core.sources.kitti import GroundTruthFormat, KittiSource, read_p0_intrinsics
+from vslam_core.sources.kitti import BadFramePolicy, GroundTruthFormat, KittiSource, read_p0_intrinsics
 from vslam_core.sources.synthetic import SyntheticStreet
 from vslam_core.sources.video import VideoSource
 
@@ -24,9 +25,26 @@ def open_source(
     calib: Path | None = None,
     ground_truth: Path | None = None,
     gt_format: GroundTruthFormat = "auto",
+    on_bad_frame: BadFramePolicy = "fail",
+    inject: str | None = None,
 ) -> FrameSource:
     """None or "synthetic": the embedded synthetic street. A video file: `VideoSource`. A folder with
-    ``sequences/`` or ``image_0/``: KITTI. Any other folder: `ImageFolderSource`."""
+    ``sequences/`` or ``image_0/``: KITTI. Any other folder: `ImageFolderSource`. `inject` wraps the source
+    in a `FaultInjector` (e.g. ``"dark@120,blur@200:210"``)."""
+    source = _open(spec, sequence, frames, intrinsics, calib, ground_truth, gt_format, on_bad_frame)
+    return FaultInjector(source, parse_faults(inject)) if inject else source
+
+
+def _open(
+    spec: str | None,
+    sequence: str | None,
+    frames: FrameRange | None,
+    intrinsics: str | None,
+    calib: Path | None,
+    ground_truth: Path | None,
+    gt_format: GroundTruthFormat,
+    on_bad_frame: BadFramePolicy,
+) -> FrameSource:
     if spec is None or spec == SYNTHETIC:
         return SyntheticStreet(frames=frames)
     path = Path(spec)
@@ -40,7 +58,7 @@ def open_source(
         return VideoSource(path, _intrinsics(intrinsics, calib), frames=frames, ground_truth=ground_truth,
                            gt_format=gt_format)
     if (path / "sequences").is_dir() or (path / "image_0").is_dir():
-        return KittiSource(path, sequence=sequence, frames=frames)
+        return KittiSource(path, sequence=sequence, frames=frames, on_bad_frame=on_bad_frame)
     return ImageFolderSource(
         path,
         intrinsics=parse_intrinsics(intrinsics) if intrinsics is not None else None,
@@ -48,6 +66,7 @@ def open_source(
         ground_truth=ground_truth,
         gt_format=gt_format,
         frames=frames,
+        on_bad_frame=on_bad_frame,
     )
 
 
