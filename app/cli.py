@@ -10,6 +10,7 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Annotated, Any, NoReturn
 
+import cv2
 import numpy as np
 import typer
 from rich.console import Console
@@ -188,6 +189,8 @@ def run(
     result, interrupted = recorded.result, recorded.interrupted
     if trajectory_out is not None and result.frames:
         _write_trajectory(trajectory_out, result, trajectory_format)
+    if recorded.failure is not None:
+        raise recorded.failure  # after the recording and the trajectory of the frames before it were saved
 
     _summary(src, result, config)
     if rrd is not None:
@@ -384,6 +387,8 @@ def compare(
 
 def main() -> None:
     """Entry point: every `VslamError` becomes one line on stderr and exit code 2."""
+    # OpenCV's own log lines (e.g. for a corrupt PNG) would precede our one-line error: we report it.
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
     try:
         app()
     except VslamError as exc:

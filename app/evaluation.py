@@ -77,6 +77,8 @@ def evaluate_sources(
             **(properties or {}),
         }
         run = record_run(source, config, rrd, props, console, detail)
+        if run.failure is not None:
+            raise run.failure
         if run.result.frames < 3:
             interrupted = run.interrupted
             break

@@ -7,6 +7,8 @@ import shutil
 import subprocess
 import sys
 import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import polars as pl
@@ -20,13 +22,31 @@ class RecordingError(VslamError):
     """A file that is missing, truncated or not a Rerun recording."""
 
 
+@contextmanager
+def _reading(path: Path) -> Iterator[RrdReader]:
+    """An `RrdReader` of a complete `.rrd`; every way the file can be bad becomes one `RecordingError`."""
+    if not path.exists():
+        raise RecordingError(f"{path}: no such recording")
+    if path.is_dir():
+        raise RecordingError(f"{path}: is a folder, not a Rerun recording")
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", RerunWarning)
+            reader = RrdReader(path)
+        if any("no footer" in str(w.message) for w in caught):
+            raise RecordingError(f"{path}: truncated or unfinished recording (no RRD footer)")
+        yield reader
+    except RecordingError:
+        raise
+    except Exception as exc:  # the reader raises plain exceptions for every kind of bad file
+        raise RecordingError(f"{path}: not a readable Rerun recording ({first_line(exc)})") from None
+
+
 def read_entity(path: Path, entity: str, static: bool = False) -> pl.DataFrame:
     """All rows logged to `entity` (``/a`` exactly, ``/a/**`` a subtree) as one polars frame: the
     timelines (``frame``, ``time``) and one column per ``Archetype:component``."""
-    try:
-        chunks = RrdReader(path).stream().filter(content=entity, is_static=static).to_chunks()
-    except Exception as exc:  # the reader raises plain exceptions for every kind of bad file
-        raise RecordingError(f"{path}: not a readable Rerun recording ({first_line(exc)})") from None
+    with _reading(path) as reader:
+        chunks = reader.stream().filter(content=entity, is_static=static).to_chunks()
     frames = [pl.from_arrow(chunk.to_record_batch()) for chunk in chunks]
     if not frames:
         return pl.DataFrame()
@@ -42,25 +62,12 @@ def first_line(exc: BaseException) -> str:
 
 def open_store(source: Path) -> tuple[RrdReader, StoreEntry, list[StoreEntry]]:
     """Reader, the one recording store, and the blueprint stores of a complete (footered) `.rrd`."""
-    if not source.exists():
-        raise RecordingError(f"{source}: no such file")
-    if source.is_dir():
-        raise RecordingError(f"{source}: is a folder, not a Rerun recording")
-    try:
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", RerunWarning)
-            reader = RrdReader(source)
-        if any("no footer" in str(w.message) for w in caught):
-            raise RecordingError(f"{source}: truncated or unfinished recording (no RRD footer)")
+    with _reading(source) as reader:
         recordings, blueprints = reader.recordings(), reader.blueprints()
         if len(recordings) != 1:
             raise RecordingError(f"{source}: holds {len(recordings)} recordings, expected exactly one")
         for store in [*recordings, *blueprints]:
             reader.store(store=store)  # reads and checks the manifest (milliseconds)
-    except RecordingError:
-        raise
-    except Exception as exc:  # the reader raises plain exceptions for every kind of bad file
-        raise RecordingError(f"{source}: not a readable Rerun recording ({first_line(exc)})") from None
     return reader, recordings[0], blueprints
 
 

@@ -14,6 +14,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from app.recording import Detail, Recorder
 from vslam_core.config import EngineConfig
+from vslam_core.errors import VslamError
 from vslam_core.pipeline import FrameSink, RunResult, run_odometry
 from vslam_core.results import FrameResult
 from vslam_core.sources.base import Frame, FrameSource
@@ -29,8 +30,9 @@ class Interrupted(Exception):
 
 @dataclass
 class RecordedRun:
-    result: RunResult  # the frames processed (all of them unless interrupted)
-    interrupted: Interrupted | None
+    result: RunResult  # the frames processed (all of them unless stopped early)
+    interrupted: Interrupted | None  # stopped by a signal
+    failure: VslamError | None = None  # stopped by bad input (e.g. an unreadable image with on_bad_frame=fail)
 
 
 def _raise_interrupted(signum: int, _frame: FrameType | None) -> None:
@@ -56,10 +58,12 @@ def record_run(
     detail: Detail = Detail.FULL,
     jpeg_quality: int = 75,
 ) -> RecordedRun:
-    """Run the engine over `source`, recording to `rrd` (None: no recording). Ctrl-C and SIGTERM stop the
-    run cleanly: the recording is finalised and the frames processed so far are returned."""
+    """Run the engine over `source`, recording to `rrd` (None: no recording). Ctrl-C, SIGTERM and bad input
+    (a `VslamError` from the source) stop the run cleanly: the recording is finalised and the frames
+    processed so far are returned with what stopped them."""
     result = RunResult([], [], [])
     interrupted: Interrupted | None = None
+    failure: VslamError | None = None
     recorder = Recorder(rrd, source, config, properties, detail, jpeg_quality) if rrd is not None else None
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
     with Progress(*columns, console=console, transient=True) as progress, _sigterm_raises():
@@ -75,7 +79,9 @@ def record_run(
             interrupted = Interrupted(130, "SIGINT")
         except Interrupted as exc:
             interrupted = exc
+        except VslamError as exc:
+            failure = exc
         finally:
             if recorder is not None:
-                recorder.finish(result, interrupted is not None)
-    return RecordedRun(result, interrupted)
+                recorder.finish(result, interrupted is not None or failure is not None)
+    return RecordedRun(result, interrupted, failure)

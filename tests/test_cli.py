@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import signal
 import subprocess
 import sys
@@ -219,3 +220,64 @@ def test_compare_command_prints_the_differences(kitti_run: tuple[Path, Path, str
     assert len(read_entity(both, "/a/world/camera")) == len(read_entity(both, "/b/world/camera")) == 40
     assert_clean_error(vslam("compare", rrd, other, "-o", both), "--force")
     assert_clean_error(vslam("compare", rrd, other, "-o", tmp_path / "x.rrd", "--labels", "same,same"), "--labels")
+
+
+@pytest.fixture(scope="module")
+def corrupt_sequence(kitti_root: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A KITTI-layout copy of 00 frames 0–29 (in a temp folder) whose frame 12 is a corrupt file."""
+    import shutil
+
+    root = tmp_path_factory.mktemp("corrupt")
+    images = root / "sequences" / "00" / "image_0"
+    images.mkdir(parents=True)
+    for i in range(30):
+        shutil.copy(kitti_root / "sequences" / "00" / "image_0" / f"{i:06d}.png", images / f"{i:06d}.png")
+    (images / "000012.png").write_bytes(b"\x89PNG\r\n\x1a\n" + b"\0" * 100)
+    shutil.copy(kitti_root / "sequences" / "00" / "calib.txt", root / "sequences" / "00" / "calib.txt")
+    (root / "poses").mkdir()
+    shutil.copy(kitti_root / "poses" / "00.txt", root / "poses" / "00.txt")
+    return root
+
+
+@pytest.mark.kitti
+def test_corrupt_image_fails_naming_the_file_and_keeps_the_recording(corrupt_sequence: Path, tmp_path: Path) -> None:
+    rrd, trajectory = tmp_path / "fail.rrd", tmp_path / "fail.txt"
+    result = vslam("run", corrupt_sequence, "--sequence", "00", "-o", rrd, "--trajectory-out", trajectory)
+    assert_clean_error(result, "000012.png", "cannot read image")
+    verify(rrd)  # finalised, with the frames before the bad one
+    assert len(read_entity(rrd, "/world/camera")) == 12
+    assert len(read_kitti_poses(trajectory)) == 12
+
+
+@pytest.mark.kitti
+def test_corrupt_image_is_skipped_with_an_event(corrupt_sequence: Path, tmp_path: Path) -> None:
+    rrd, trajectory = tmp_path / "skip.rrd", tmp_path / "skip.txt"
+    result = vslam("run", corrupt_sequence, "--sequence", "00", "-o", rrd, "--trajectory-out", trajectory,
+                   "--on-bad-frame", "skip")
+    assert result.returncode == 0, result.stderr
+    poses = read_kitti_poses(trajectory)
+    assert len(poses) == 30 and np.allclose(poses[12], poses[11])  # the pose is held over the bad frame
+    events = read_entity(rrd, "/events")
+    texts = [t[0] for t in events["TextLog:text"].to_list()]
+    assert any(t.startswith("frame 12: fail") and "unreadable_image" in t for t in texts)
+    inspect = json.loads(vslam("inspect", rrd, "--json").stdout)
+    assert inspect["flagged"] == [{"start": 12, "end": 12, "status": "fail", "reasons": ["unreadable_image"]}]
+
+
+@pytest.mark.kitti
+def test_bad_recordings_are_one_line_errors_for_every_command(kitti_run: tuple[Path, Path, str],
+                                                              tmp_path: Path) -> None:
+    rrd, _, _ = kitti_run
+    truncated = tmp_path / "truncated.rrd"
+    truncated.write_bytes(rrd.read_bytes()[: len(rrd.read_bytes()) // 2])
+    garbage = tmp_path / "garbage.rrd"
+    garbage.write_text("not a recording")
+    missing = tmp_path / "missing.rrd"
+    for bad in (truncated, garbage, missing):
+        for args in (["inspect", bad], ["crop", bad, "--frames", "1:3", "-o", tmp_path / "c.rrd"],
+                     ["snapshot", bad, "--frame", "1", "--out", tmp_path / "shots"],
+                     ["open", bad, "--web"], ["compare", bad, rrd, "-o", tmp_path / "ab.rrd"]):
+            result = vslam(*args)
+            assert result.returncode == 2, (args, result.stderr)
+            assert "Traceback" not in result.stderr and str(bad) in result.stderr, (args, result.stderr)
+            assert len(result.stderr.strip().splitlines()) == 1, (args, result.stderr)

@@ -235,7 +235,7 @@ def test_bad_inputs_and_outputs_are_one_line_errors_naming_the_file(runs: tuple[
     a, b = runs
     out = tmp_path / "out.rrd"
     missing = tmp_path / "missing.rrd"
-    _one_line_error(lambda: compare_recordings(a, missing, out), str(missing), "no such file")
+    _one_line_error(lambda: compare_recordings(a, missing, out), str(missing), "no such recording")
     garbage = tmp_path / "garbage.rrd"
     garbage.write_bytes(b"not a recording\n")
     _one_line_error(lambda: compare_recordings(garbage, b, out), str(garbage), "not a readable Rerun recording")

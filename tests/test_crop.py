@@ -219,7 +219,7 @@ def assert_fails(source: Path, frames: tuple[int, int], output: Path, *fragments
 
 
 def test_missing_source(tmp_path: Path) -> None:
-    assert_fails(tmp_path / "nope.rrd", (0, 5), tmp_path / "out.rrd", "nope.rrd", "no such file")
+    assert_fails(tmp_path / "nope.rrd", (0, 5), tmp_path / "out.rrd", "nope.rrd", "no such recording")
 
 
 def test_folder_source(tmp_path: Path) -> None:

@@ -389,8 +389,8 @@ def _find_essential(
             a, b, K, method=cv2.RANSAC, prob=cfg.ransac_probability, threshold=cfg.ransac_threshold_px,
             maxIters=cfg.ransac_max_iterations,
         )
-    if essential is None or mask is None or essential.shape[0] < 3:
-        return None, None
+    if essential is None or mask is None or essential.shape[0] < 3 or not np.all(np.isfinite(essential[:3])):
+        return None, None  # no model, or a degenerate one (OpenCV can return NaN for 5 collinear points)
     return essential[:3, :3], mask.reshape(-1).astype(bool)
 
 

@@ -1,0 +1,106 @@
+"""Injected faults are flagged at their frames, the run goes on, and tracking recovers afterwards."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vslam_core.config import EngineConfig
+from vslam_core.errors import SourceError
+from vslam_core.metrics import rpe
+from vslam_core.pipeline import run_odometry
+from vslam_core.results import FrameResult, HealthStatus, Reason
+from vslam_core.sources.base import FrameRange
+from vslam_core.sources.faults import Fault, parse_faults
+from vslam_core.sources.open import open_source
+
+FRAMES = FrameRange(0, 90)  # KITTI 00: straight road, no turn before frame 90
+FAULT_AT = (40, 42)
+
+# kind -> (status on the faulty frames, a reason among them)
+EXPECTED = {
+    "dark": (HealthStatus.FAIL, Reason.IMAGE_TOO_DARK),
+    "overexposed": (HealthStatus.FAIL, Reason.IMAGE_TOO_BRIGHT),
+    "blur": (HealthStatus.FAIL, Reason.IMAGE_BLURRED),
+    "frozen": (HealthStatus.WARN, Reason.LOW_PARALLAX),
+    "noise": (HealthStatus.WARN, Reason.IMAGE_NOISY),
+}
+
+
+def run(kitti_root: Path, inject: str | None) -> tuple[list[FrameResult], np.ndarray]:
+    source = open_source(str(kitti_root), sequence="00", frames=FRAMES, inject=inject)
+    results: list[FrameResult] = []
+    run_odometry(source, EngineConfig(), sinks=(lambda _f, r: results.append(r),))
+    assert source.ground_truth is not None
+    return results, source.ground_truth
+
+
+@pytest.fixture(scope="module")
+def clean(kitti_root: Path) -> tuple[list[FrameResult], np.ndarray]:
+    return run(kitti_root, None)
+
+
+def step_error(results: list[FrameResult], gt: np.ndarray, first: int, last: int) -> tuple[float, float]:
+    """RPE (1 frame) over source frames first..last-1."""
+    positions = [i for i, r in enumerate(results) if first <= r.index < last]
+    poses = np.array([results[i].T_world_cam for i in positions])
+    return rpe(gt[positions], poses, 1)
+
+
+@pytest.mark.kitti
+def test_clean_run_flags_nothing(clean: tuple[list[FrameResult], np.ndarray]) -> None:
+    results, _ = clean
+    assert all(r.health.status == HealthStatus.OK for r in results[1:])
+
+
+@pytest.mark.kitti
+@pytest.mark.parametrize("kind", sorted(EXPECTED))
+def test_fault_is_flagged_at_its_frames_and_tracking_recovers(
+    kind: str, kitti_root: Path, clean: tuple[list[FrameResult], np.ndarray]
+) -> None:
+    results, gt = run(kitti_root, f"{kind}@{FAULT_AT[0]}:{FAULT_AT[1]}")
+    assert len(results) == 90  # one pose per frame, the run went on
+    status, reason = EXPECTED[kind]
+    for r in results:
+        if FAULT_AT[0] <= r.index <= FAULT_AT[1]:
+            assert r.health.status == status and reason in r.health.reasons, (r.index, r.health)
+        elif r.index > 0 and r.index not in range(FAULT_AT[0], FAULT_AT[1] + 4):
+            assert r.health.status == HealthStatus.OK, (r.index, r.health)  # nothing else is flagged
+    clean_results, _ = clean
+    after = (FAULT_AT[1] + 3, 90)
+    trans, rot = step_error(results, gt, *after)
+    clean_trans, clean_rot = step_error(clean_results, gt, *after)
+    assert trans < 2 * clean_trans + 0.01 and rot < 2 * clean_rot + 0.02  # per-frame accuracy is back
+    if status == HealthStatus.FAIL:  # unusable frames hold the pose
+        held = [r for r in results if FAULT_AT[0] <= r.index <= FAULT_AT[1]]
+        assert all(np.array_equal(r.T_world_cam, results[FAULT_AT[0] - 1].T_world_cam) for r in held)
+    # the motion over the gap was measured, not dropped: the end is where the clean run ends
+    clean_end = clean_results[-1].T_world_cam[:3, 3]
+    assert np.linalg.norm(results[-1].T_world_cam[:3, 3] - clean_end) < 0.3
+
+
+@pytest.mark.kitti
+def test_dropped_frames_are_flagged_as_a_jump_and_skipped(kitti_root: Path) -> None:
+    results, gt = run(kitti_root, "drop@40:42")
+    assert len(results) == 87 and len(gt) == 87
+    assert [r.index for r in results][38:42] == [38, 39, 43, 44]
+    after_gap = next(r for r in results if r.index == 43)
+    assert after_gap.health.status == HealthStatus.WARN and Reason.SCALE_JUMP in after_gap.health.reasons
+    assert np.linalg.norm(results[-1].T_world_cam[:3, 3] - gt[-1, :3, 3]) < 2.2  # clean run: 1.9 m
+
+
+@pytest.mark.kitti
+def test_sudden_brightness_change_is_flagged(kitti_root: Path) -> None:
+    results, _ = run(kitti_root, "brightness@40:60")
+    flagged = {r.index for r in results if Reason.BRIGHTNESS_JUMP in r.health.reasons}
+    assert flagged == {40, 61}  # the jump up and the jump back down
+    assert all(r.status != "held" for r in results[1:])
+
+
+def test_inject_syntax() -> None:
+    assert parse_faults("dark@120,blur@200:210") == [Fault("dark", 120, 120), Fault("blur", 200, 210)]
+    for bad in ("dark", "smoke@3", "blur@5:2", "blur@a:b", "dark@-1"):
+        with pytest.raises(SourceError, match="--inject"):
+            parse_faults(bad)
