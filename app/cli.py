@@ -74,13 +74,16 @@ def _check_new_file(path: Path, force: bool, what: str) -> None:
         fail(f"{path}: {what} exists already (use --force to replace it)")
     if path.exists() and path.is_dir():
         fail(f"{path}: is a folder, not a {what} file")
-    parent = path.parent if str(path.parent) else Path(".")
+    _ensure_writable_folder(path.parent if str(path.parent) else Path("."), "output folder")
+
+
+def _ensure_writable_folder(folder: Path, what: str) -> None:
     try:
-        parent.mkdir(parents=True, exist_ok=True)
+        folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        fail(f"{parent}: cannot create output folder ({exc.strerror})")
-    if not _writable(parent):
-        fail(f"{parent}: output folder is not writable")
+        fail(f"{folder}: cannot create {what} ({exc.strerror})")
+    if not _writable(folder):
+        fail(f"{folder}: {what} is not writable")
 
 
 def _writable(folder: Path) -> bool:
@@ -336,12 +339,7 @@ def _check_report_dir(report: Path, force: bool) -> None:
     existing = [name for name in REPORT_FILES if (report / name).exists()]
     if existing and not force:
         fail(f"{report}: holds a report already ({existing[0]}; use --force to replace it)")
-    try:
-        report.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        fail(f"{report}: cannot create the report folder ({exc.strerror})")
-    if not _writable(report):
-        fail(f"{report}: report folder is not writable")
+    _ensure_writable_folder(report, "report folder")
 
 
 def _print_evaluation(evaluation: Evaluation, scale: str, report: Path | None, as_json: bool,

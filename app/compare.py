@@ -29,7 +29,6 @@ import functools
 import math
 import os
 import shutil
-import tempfile
 import uuid
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -45,7 +44,15 @@ from rerun.chunk import Chunk, LazyChunkStream, RrdReader, StoreEntry
 
 from app.inspect import inspect_recording
 from app.recording import APPLICATION_ID, METRICS, STAGES
-from app.rrd import RecordingError, first_line, open_store, read_entity, run_rerun_cli, same_file
+from app.rrd import (
+    RecordingError,
+    first_line,
+    open_store,
+    read_entity,
+    run_rerun_cli,
+    same_file,
+    work_dir_beside,
+)
 
 #: Entity prefixes of the two runs in a comparison (``/a/world/camera``, ``/b/metrics/tracks/alive``).
 PREFIXES = ("a", "b")
@@ -139,11 +146,7 @@ def compare_recordings(a: Path, b: Path, output: Path, labels: tuple[str, str] =
     recording_id = str(uuid.uuid5(uuid.NAMESPACE_URL, "vslam-compare:" + "\n".join(
         [*(s.recording_id for s in stores), *labels])))
 
-    parent = output.parent if str(output.parent) else Path(".")
-    try:
-        work = Path(tempfile.mkdtemp(prefix=f".{output.name}.", suffix=".tmp", dir=parent))
-    except OSError as exc:
-        raise RecordingError(f"{output}: cannot write beside it ({exc.strerror})") from None
+    work = work_dir_beside(output)
     try:
         parts = []
         for prefix, label, path, (reader, store) in zip(PREFIXES, labels, inputs, opened, strict=True):

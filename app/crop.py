@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,7 +28,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 from rerun.chunk import Chunk, RrdReader, StoreEntry
 
-from app.rrd import RecordingError, first_line, open_store, run_rerun_cli, same_file
+from app.rrd import RecordingError, first_line, open_store, run_rerun_cli, same_file, work_dir_beside
 
 FRAME = "frame"
 
@@ -95,11 +94,7 @@ def crop_recording(source: Path, frames: tuple[int, int], output: Path) -> CropS
     if same_file(source, output):
         raise RecordingError(f"{output}: the output must not be the source recording")
 
-    parent = output.parent if str(output.parent) else Path(".")
-    try:
-        work = Path(tempfile.mkdtemp(prefix=f".{output.name}.", suffix=".tmp", dir=parent))
-    except OSError as exc:
-        raise RecordingError(f"{output}: cannot write beside it ({exc.strerror})") from None
+    work = work_dir_beside(output)
     try:
         cropped = work / "recording.rrd"
         keep = _FrameFilter(start, end)

@@ -6,6 +6,7 @@ import os
 import shutil
 import subprocess
 import sys
+import tempfile
 import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -109,3 +110,12 @@ def same_file(source: Path, output: Path) -> bool:
         except OSError:
             return False
     return source.resolve() == output.resolve()
+
+
+def work_dir_beside(output: Path) -> Path:
+    """A hidden temporary folder next to `output`, so the finished file is moved into place atomically."""
+    parent = output.parent if str(output.parent) else Path(".")
+    try:
+        return Path(tempfile.mkdtemp(prefix=f".{output.name}.", suffix=".tmp", dir=parent))
+    except OSError as exc:
+        raise RecordingError(f"{output}: cannot write beside it ({exc.strerror})") from None
