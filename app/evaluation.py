@@ -130,7 +130,8 @@ def write_report(report_dir: Path, evaluation: Evaluation, config: EngineConfig)
         markdown_table([{k: r.get(k) for k in COLUMNS if k != "scale" and k != "alignment"} for r in rows]),
         "",
         "t_err, r_err: KITTI devkit segment errors (100–800 m, every 10th frame), no alignment. ATE: RMSE after "
-        "Umeyama SE(3) / Sim(3) alignment. RPE: consecutive frames, translation RMSE and mean rotation. Paper "
+        "Umeyama SE(3) / Sim(3) alignment. RPE: consecutive frames (and pairs 10 m of path apart), translation "
+        "RMSE and mean rotation. Paper "
         "RMS: the seed paper's x–z position RMS, no alignment.",
     ]
     if evaluation.by_length:

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from vslam_core.metrics import evaluate, sim3_aligned
+from vslam_core.metrics import evaluate, rpe_by_distance, sim3_aligned
 
 # key -> (column header, format); the keys are also the JSON keys of `vslam eval --json`.
 COLUMNS: dict[str, tuple[str, str]] = {
@@ -22,10 +22,12 @@ COLUMNS: dict[str, tuple[str, str]] = {
     "ate_sim3": ("ATE Sim3 m", "{:.3f}"),
     "rpe_trans": ("RPE m", "{:.3f}"),
     "rpe_rot": ("RPE °", "{:.3f}"),
+    "rpe_trans_10m": ("RPE 10 m: m", "{:.3f}"),
+    "rpe_rot_10m": ("RPE 10 m: °", "{:.3f}"),
     "paper_rms": ("paper RMS m", "{:.3f}"),
     "fps": ("fps", "{:.1f}"),
 }
-METRICS = ("t_err", "r_err", "ate_se3", "ate_sim3", "rpe_trans", "rpe_rot", "paper_rms")
+METRICS = ("t_err", "r_err", "ate_se3", "ate_sim3", "rpe_trans", "rpe_rot", "rpe_trans_10m", "rpe_rot_10m", "paper_rms")
 
 
 def metrics_row(name: str, gt: np.ndarray, poses: np.ndarray, scale: str) -> dict[str, Any]:
@@ -34,6 +36,7 @@ def metrics_row(name: str, gt: np.ndarray, poses: np.ndarray, scale: str) -> dic
     alignment = "sim3" if scale == "none" else "none"
     estimate = sim3_aligned(gt, poses) if alignment == "sim3" and len(poses) > 2 else poses
     metrics = evaluate(gt, estimate).as_dict()
+    metrics["rpe_trans_10m"], metrics["rpe_rot_10m"] = rpe_by_distance(gt, estimate, 10.0)
     return {"sequence": name, "scale": scale, "alignment": alignment, **metrics}
 
 
