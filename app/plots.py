@@ -40,22 +40,18 @@ def top_view(
 
     canvas = np.full((size + top - 20, size, 3), WHITE, np.uint8)
     step = nice_step(span)
+    low = centre - span / 2  # lower-left corner of the plotted square (metres)
     for axis in (0, 1):
-        start = math.floor((centre[axis] - span / 2) / step) * step
-        for value in np.arange(start, centre[axis] + span / 2 + step, step):
-            a = np.array([[value, centre[1] - span / 2], [value, centre[1] + span / 2]])
-            if axis == 1:
-                a = np.array([[centre[0] - span / 2, value], [centre[0] + span / 2, value]])
-            p = to_px(a)
-            inside = (p[:, 0] >= margin * 16).all() and (p[:, 1] >= top * 16).all() or axis == 1
-            if not inside and axis == 0:
-                continue
-            cv2.line(canvas, tuple(p[0]), tuple(p[1]), AXIS if abs(value) < step / 2 else GRID, 1, cv2.LINE_AA, 4)
-            label = f"{value:g}"
-            if axis == 0:
-                cv2.putText(canvas, label, (int(p[1][0] / 16) - 12, top + plot + 18), FONT, 0.4, TEXT, 1, cv2.LINE_AA)
-            else:
-                cv2.putText(canvas, label, (8, int(p[0][1] / 16) + 4), FONT, 0.4, TEXT, 1, cv2.LINE_AA)
+        for value in np.arange(math.ceil(low[axis] / step) * step, low[axis] + span, step):
+            if axis == 0:  # vertical grid line x = value, labelled below the plot
+                ends = to_px(np.array([[value, low[1]], [value, low[1] + span]]))
+                anchor = (int(ends[0][0] / 16) - 12, top + plot + 18)
+            else:  # horizontal grid line z = value, labelled on the left
+                ends = to_px(np.array([[low[0], value], [low[0] + span, value]]))
+                anchor = (8, int(ends[0][1] / 16) + 4)
+            colour = AXIS if abs(value) < step / 2 else GRID
+            cv2.line(canvas, tuple(ends[0]), tuple(ends[1]), colour, 1, cv2.LINE_AA, 4)
+            cv2.putText(canvas, f"{value:g}", anchor, FONT, 0.4, TEXT, 1, cv2.LINE_AA)
     cv2.putText(canvas, "x (m)", (margin + plot // 2, top + plot + 40), FONT, 0.5, TEXT, 1, cv2.LINE_AA)
     cv2.putText(canvas, "z (m)", (8, top - 10), FONT, 0.5, TEXT, 1, cv2.LINE_AA)
     for track, colour in zip(tracks, [GROUND_TRUTH_BGR, ESTIMATE_BGR][-len(tracks) :], strict=True):
@@ -65,8 +61,8 @@ def top_view(
     cv2.putText(canvas, title, (margin, 30), FONT, 0.7, TEXT, 2, cv2.LINE_AA)
     cv2.putText(canvas, subtitle, (margin, 56), FONT, 0.45, TEXT, 1, cv2.LINE_AA)
     legend = [("estimate", ESTIMATE_BGR)] + ([("ground truth", GROUND_TRUTH_BGR)] if ground_truth is not None else [])
+    y = 76
     for i, (name, colour) in enumerate(legend):
-        y = 76 + 0 * i
         x = size - 320 + 150 * i
         cv2.line(canvas, (x, y - 4), (x + 30, y - 4), colour, 3, cv2.LINE_AA)
         cv2.putText(canvas, name, (x + 36, y), FONT, 0.45, TEXT, 1, cv2.LINE_AA)

@@ -102,21 +102,6 @@ class EngineConfig:
         return dataclasses.asdict(self)
 
 
-def paper_config() -> EngineConfig:
-    """The published method's settings (FAST 20, KLT 21x21 over 3 pyramid levels, RANSAC 0.999 / 1 px,
-    re-detect under 2000 tracks) with none of vslam's additions: no bucketing beyond a 1x1 grid, no
-    forward–backward check, no refinement, outliers kept."""
-    return EngineConfig(
-        detector=DetectorConfig(
-            fast_threshold=20, target_tracks=100_000, redetect_below=2000, grid_rows=1, grid_cols=1,
-            min_distance_px=0,
-        ),
-        tracker=TrackerConfig(window_px=21, max_level=3, fb_threshold_px=float("inf")),
-        pose=PoseConfig(ransac_method="ransac", ransac_probability=0.999, ransac_threshold_px=1.0,
-                        refine=False, drop_outliers=False, min_parallax_px=0.0),
-    )
-
-
 def _check_value(key: str, value: Any, annotation: Any) -> Any:
     """Check one TOML value against a dataclass field's annotation; ints are accepted for floats."""
     origin = get_origin(annotation)

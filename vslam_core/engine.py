@@ -11,7 +11,6 @@ with a longer baseline.
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, replace
 
 import cv2
@@ -96,11 +95,6 @@ class Odometry:
         self._key_image: np.ndarray | None = None
         self._last_mean: float | None = None  # grey level of the last usable frame
         self._last_step: tuple[float, float] | None = None  # (step length, de-rotated parallax) last accepted
-
-    def run(self, frames: Iterable[Frame]) -> Iterator[FrameResult]:
-        """Process frames in order, yielding one result per frame."""
-        for frame in frames:
-            yield self.process(frame)
 
     def process(self, frame: Frame) -> FrameResult:
         """Estimate this frame's pose from the previous ones."""
