@@ -1,0 +1,110 @@
+"""Speed of the engine against the paper configuration, with accuracy beside it (issue 6's yardstick).
+
+    python -m benchmarks.speed ../shared/data/kitti --sequences 00,05 --frames 0:300 --csv speed.csv
+
+Each configuration runs in its own process, one after the other, on the same frames: frames per second
+(decoding included), ms per frame per stage, peak RSS, KB per frame of recording, and KITTI t_err / r_err.
+"""
+
+from __future__ import annotations
+
+import argparse
+import multiprocessing
+import tempfile
+import time
+from pathlib import Path
+
+import polars as pl
+
+from app.recording import Detail, Recorder
+from benchmarks.paper_baseline import run_paper_configuration
+from vslam_core.config import EngineConfig
+from vslam_core.metrics import kitti_errors
+from vslam_core.pipeline import run_odometry
+from vslam_core.results import FrameResult
+from vslam_core.sources.base import Frame, FrameRange
+from vslam_core.sources.kitti import KittiSource
+
+STAGES = ("decode", "track", "essential", "chirality", "detect", "match", "record")
+SYSTEMS = {
+    "paper configuration (1 thread)": ("paper", 1, Detail.OFF),
+    "vslam, recording off (1 thread)": ("vslam", 1, Detail.OFF),
+    "vslam, recording off (2 threads)": ("vslam", 2, Detail.OFF),
+    "vslam --detail summary (1 thread)": ("vslam", 1, Detail.SUMMARY),
+    "vslam --detail full (1 thread)": ("vslam", 1, Detail.FULL),
+}
+
+
+def _peak_rss_mb() -> float:
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def _measure(args: tuple[str, str, str, str]) -> dict[str, object]:
+    label, root, sequence, frames = args
+    system, threads, detail = SYSTEMS[label]
+    source = KittiSource(root, sequence=sequence, frames=FrameRange.parse(frames))
+    gt = source.ground_truth
+    assert gt is not None
+    stage_ms = dict.fromkeys(STAGES, 0.0)
+    size = 0
+    if system == "paper":
+        baseline = run_paper_configuration(source)
+        poses, seconds = baseline.poses, baseline.seconds
+        stage_ms.update(baseline.stage_ms)
+    else:
+        config = EngineConfig(threads=threads)
+        with tempfile.TemporaryDirectory() as folder:
+            path = Path(folder) / "run.rrd"
+            recorder = Recorder(path, source, config, {"name": "speed"}, detail) if detail != Detail.OFF else None
+
+            def sink(frame: Frame, result: FrameResult) -> None:
+                if recorder is not None:
+                    start = time.perf_counter()
+                    recorder.log_frame(frame, result)
+                    stage_ms["record"] += (time.perf_counter() - start) * 1000
+                for stage, ms in result.timings_ms.items():
+                    stage_ms[stage] = stage_ms.get(stage, 0.0) + ms
+
+            run = run_odometry(source, config, sinks=(sink,))
+            if recorder is not None:
+                recorder.close()
+                size = path.stat().st_size
+        poses, seconds = run.pose_array(), run.seconds
+    t_err, r_err = kitti_errors(gt, poses)
+    n = len(poses)
+    return {"system": label, "sequence": sequence, "fps": n / seconds, "t_err": t_err, "r_err": r_err,
+            "peak_rss_mb": _peak_rss_mb(), "kb_per_frame": size / 1024 / n,
+            **{f"{stage}_ms": stage_ms.get(stage, 0.0) / n for stage in STAGES}}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("root")
+    parser.add_argument("--sequences", default="00,05")
+    parser.add_argument("--frames", default="0:300")
+    parser.add_argument("--csv", type=Path, default=None)
+    args = parser.parse_args()
+    context = multiprocessing.get_context("spawn")
+    rows = []
+    for sequence in args.sequences.split(","):
+        for label in SYSTEMS:
+            with context.Pool(1) as pool:
+                rows.append(pool.apply(_measure, ((label, args.root, sequence, args.frames),)))
+    table = pl.DataFrame(rows)
+    if args.csv:
+        table.write_csv(args.csv)
+    stages = " | ".join(STAGES)
+    print(f"KITTI {args.sequences}, frames {args.frames}; ms per frame per stage")
+    print(f"| system | seq | fps | t_err % | r_err °/100 m | {stages} | peak RSS MB | KB/frame |")
+    print("|---|---|---|---|---|" + "---|" * len(STAGES) + "---|---|")
+    for r in table.iter_rows(named=True):
+        cells = " | ".join(f"{r[f'{stage}_ms']:.1f}" for stage in STAGES)
+        print(f"| {r['system']} | {r['sequence']} | {r['fps']:.1f} | {r['t_err']:.2f} | {r['r_err']:.2f} | {cells} "
+              f"| {r['peak_rss_mb']:.0f} | {r['kb_per_frame']:.1f} |")
+
+
+if __name__ == "__main__":
+    main()
