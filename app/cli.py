@@ -20,7 +20,7 @@ from app.crop import crop_recording
 from app.evaluation import REPORT_FILES, Evaluation, check_gates, evaluate_sources, evaluate_trajectory_file
 from app.inspect import format_report, inspect_recording
 from app.recording import Detail, version_properties
-from app.report import markdown_table
+from app.report import json_ready, markdown_table
 from app.runner import record_run
 from app.viewer import open_recording, snapshot
 from vslam_core.config import EngineConfig, load_config
@@ -224,13 +224,9 @@ def inspect(
     """Summarise a recording without a viewer: properties, frames, stage timings, accuracy, flagged frames."""
     report = inspect_recording(_existing_recording(recording))
     if as_json:
-        print(json.dumps(report, indent=2, allow_nan=False, default=_json_safe))
+        print(json.dumps(json_ready(report), indent=2, allow_nan=False))
     else:
         out.print(format_report(report), highlight=False)
-
-
-def _json_safe(value: object) -> object:
-    return None if isinstance(value, float) and not np.isfinite(value) else str(value)
 
 
 @app.command(name="snapshot")

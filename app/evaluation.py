@@ -19,7 +19,7 @@ from rich.console import Console
 import vslam_core
 from app.plots import write_top_view
 from app.recording import Detail, version_properties
-from app.report import COLUMNS, markdown_table, mean_row, metrics_row
+from app.report import COLUMNS, json_ready, markdown_table, mean_row, metrics_row
 from app.runner import Interrupted, record_run
 from vslam_core.config import EngineConfig
 from vslam_core.errors import SourceError, TrajectoryFormatError
@@ -44,11 +44,7 @@ class Evaluation:
     interrupted: Interrupted | None = None
 
     def as_json(self) -> dict[str, Any]:
-        return {"sequences": [_json_row(r) for r in self.rows], "mean": _json_row(self.mean)}
-
-
-def _json_row(row: dict[str, Any]) -> dict[str, Any]:
-    return {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in row.items()}
+        return json_ready({"sequences": self.rows, "mean": self.mean})
 
 
 def evaluate_sources(

@@ -55,6 +55,17 @@ def mean_row(rows: list[dict[str, Any]]) -> dict[str, Any]:
     return mean
 
 
+def json_ready(value: Any) -> Any:
+    """`value` with every NaN or infinite float (at any depth) replaced by None, as JSON has no NaN."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: json_ready(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [json_ready(v) for v in value]
+    return value
+
+
 def _cell(key: str, value: Any) -> str:
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return "n/a"

@@ -20,26 +20,13 @@ from pathlib import Path
 import polars as pl
 
 from app.recording import Detail, Recorder
+from benchmarks.memory import status_mb
 from vslam_core.config import EngineConfig
 from vslam_core.pipeline import RunResult, run_odometry
 from vslam_core.results import FrameResult
 from vslam_core.sources.base import Frame, FrameRange, FrameSource
 from vslam_core.sources.kitti import KittiSource
 from vslam_core.sources.synthetic import SyntheticStreet
-
-
-def _rss_mb() -> float:
-    for line in Path("/proc/self/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) / 1024
-    return float("nan")
-
-
-def _peak_rss_mb() -> float:
-    for line in Path("/proc/self/status").read_text().splitlines():
-        if line.startswith("VmHWM:"):
-            return int(line.split()[1]) / 1024
-    return float("nan")
 
 
 def _measure(args: tuple[str, str, str, str]) -> dict[str, object]:
@@ -63,7 +50,7 @@ def _measure(args: tuple[str, str, str, str]) -> dict[str, object]:
                 recorder.log_frame(frame, result)
                 record_ms.append((time.perf_counter() - start) * 1000)
             if result.position in (len(source) // 3, len(source) - 1):
-                rss.append(_rss_mb())
+                rss.append(status_mb("VmRSS"))
 
         start = time.perf_counter()
         run: RunResult = run_odometry(source, EngineConfig(), sinks=(sink,))
@@ -79,7 +66,7 @@ def _measure(args: tuple[str, str, str, str]) -> dict[str, object]:
         "kb_per_frame": size / 1024 / run.frames,
         "rss_third_mb": rss[0],
         "rss_end_mb": rss[-1],
-        "peak_rss_mb": _peak_rss_mb(),
+        "peak_rss_mb": status_mb("VmHWM"),
     }
 
 

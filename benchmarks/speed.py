@@ -17,6 +17,7 @@ from pathlib import Path
 import polars as pl
 
 from app.recording import Detail, Recorder
+from benchmarks.memory import status_mb
 from benchmarks.paper_baseline import run_paper_configuration
 from vslam_core.config import EngineConfig
 from vslam_core.metrics import kitti_errors
@@ -33,13 +34,6 @@ SYSTEMS = {
     "vslam --detail summary (1 thread)": ("vslam", 1, Detail.SUMMARY),
     "vslam --detail full (1 thread)": ("vslam", 1, Detail.FULL),
 }
-
-
-def _peak_rss_mb() -> float:
-    for line in Path("/proc/self/status").read_text().splitlines():
-        if line.startswith("VmHWM:"):
-            return int(line.split()[1]) / 1024
-    return float("nan")
 
 
 def _measure(args: tuple[str, str, str, str]) -> dict[str, object]:
@@ -76,7 +70,7 @@ def _measure(args: tuple[str, str, str, str]) -> dict[str, object]:
     t_err, r_err = kitti_errors(gt, poses)
     n = len(poses)
     return {"system": label, "sequence": sequence, "fps": n / seconds, "t_err": t_err, "r_err": r_err,
-            "peak_rss_mb": _peak_rss_mb(), "kb_per_frame": size / 1024 / n,
+            "peak_rss_mb": status_mb("VmHWM"), "kb_per_frame": size / 1024 / n,
             **{f"{stage}_ms": stage_ms.get(stage, 0.0) / n for stage in STAGES}}
 
 

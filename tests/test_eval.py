@@ -131,3 +131,12 @@ def test_existing_report_needs_force(tmp_path: Path) -> None:
     result = vslam("eval", "synthetic", "--frames", "0:5", "--report", tmp_path)
     assert result.returncode == 2 and "--force" in result.stderr
     assert (tmp_path / "report.md").read_text() == "an earlier report"
+
+
+def test_json_ready_replaces_nan_at_any_depth() -> None:
+    """`inspect --json` and `eval --json` print JSON, which has no NaN (e.g. a metric on a too-short path)."""
+    from app.report import json_ready
+
+    data = {"a": float("nan"), "b": [1.0, float("inf"), {"c": float("nan"), "d": "x"}], "e": 2}
+    assert json.loads(json.dumps(json_ready(data), allow_nan=False)) == {"a": None, "b": [1.0, None, {"c": None,
+                                                                                                    "d": "x"}], "e": 2}

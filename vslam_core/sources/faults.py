@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 
 from vslam_core.errors import SourceError
-from vslam_core.sources.base import CameraIntrinsics, Frame, FrameSource
+from vslam_core.sources.base import CameraIntrinsics, Frame, FrameSource, rebase_poses
 
 FAULT_KINDS = ("dark", "overexposed", "blur", "frozen", "drop", "brightness", "noise")
 
@@ -104,8 +104,7 @@ class FaultInjector:
         gt = self._source.ground_truth
         if gt is None:
             return None
-        kept = gt[self._kept]
-        return np.einsum("ij,njk->nik", np.linalg.inv(kept[0]), kept) if len(kept) else kept
+        return rebase_poses(gt[self._kept])
 
     def __len__(self) -> int:
         return len(self._kept)
