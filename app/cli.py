@@ -77,6 +77,12 @@ def _check_new_file(path: Path, force: bool, what: str) -> None:
     _ensure_writable_folder(path.parent if str(path.parent) else Path("."), "output folder")
 
 
+def _check_new_recording(path: Path, force: bool) -> None:
+    if path.suffix != ".rrd":
+        fail(f"{path}: a recording must end in .rrd")
+    _check_new_file(path, force, "recording")
+
+
 def _ensure_writable_folder(folder: Path, what: str) -> None:
     try:
         folder.mkdir(parents=True, exist_ok=True)
@@ -171,9 +177,7 @@ def run(
 
     rrd = None if detail == Detail.OFF else (output or _default_output(src, frame_range))
     if rrd is not None:
-        if rrd.suffix != ".rrd":
-            fail(f"{rrd}: a recording must end in .rrd")
-        _check_new_file(rrd, force, "recording")
+        _check_new_recording(rrd, force)
     if trajectory_out is not None:
         _check_new_file(trajectory_out, force, "trajectory")
 
@@ -263,9 +267,7 @@ def crop(
     if selection.start is None or selection.end is None or selection.step != 1:
         fail(f"--frames {frames!r}: give START:END, e.g. 120:160")
     _existing_recording(recording)
-    if output.suffix != ".rrd":
-        fail(f"{output}: a recording must end in .rrd")
-    _check_new_file(output, force, "recording")
+    _check_new_recording(output, force)
     summary = crop_recording(recording, (selection.start, selection.end), output)
     out.print(f"{output}: frames {summary.first_frame}..{summary.last_frame} ({summary.frame_count} frames), "
               f"{summary.output_bytes / 1e6:.1f} MB (from {summary.input_bytes / 1e6:.1f} MB)", highlight=False)
@@ -372,9 +374,7 @@ def compare(
         fail(f"--labels {labels!r}: give two different names, e.g. before,after")
     _existing_recording(first)
     _existing_recording(second)
-    if output.suffix != ".rrd":
-        fail(f"{output}: a recording must end in .rrd")
-    _check_new_file(output, force, "recording")
+    _check_new_recording(output, force)
     result = compare_recordings(first, second, output, (names[0], names[1]))
     out.print(format_differences(result), highlight=False)
 
