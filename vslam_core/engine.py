@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from vslam_core.config import EngineConfig
-from vslam_core.features import detect_corners, match_features, track_points
+from vslam_core.features import detect_corners, fill_flow, match_features, track_points
 from vslam_core.geometry import (
     CandidatePose,
     chirality_check,
@@ -41,14 +41,12 @@ class _Tracks:
     points: np.ndarray  # (N, 2) float32, position in the last processed frame
     ages: np.ndarray  # (N,) int32
     key_points: np.ndarray  # (N, 2) float32, position in the keyframe; NaN if born after it
+    flow: np.ndarray  # (N, 2) float32, motion over the last tracked step; NaN if born in the last frame
 
     @classmethod
     def empty(cls) -> _Tracks:
         return cls(np.zeros(0, np.int64), np.zeros((0, 2), np.float32), np.zeros(0, np.int32),
-                   np.zeros((0, 2), np.float32))
-
-    def select(self, keep: np.ndarray) -> _Tracks:
-        return _Tracks(self.ids[keep], self.points[keep], self.ages[keep], self.key_points[keep])
+                   np.zeros((0, 2), np.float32), np.zeros((0, 2), np.float32))
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -88,7 +86,8 @@ class Odometry:
         self._scale = scale
         self._tracks = _Tracks.empty()
         self._next_id = 0
-        self._previous: np.ndarray | None = None
+        self._previous: np.ndarray | None = None  # last usable image
+        self._previous_position = -1  # its run position
         self._position = 0
         self._key_position = 0
         self._T_w_key = np.eye(4)
@@ -119,7 +118,12 @@ class Odometry:
             status = FrameStatus.INIT
         else:
             clock = time.perf_counter()
-            tracked, ok, fb_error = track_points(self._previous, image, tracks.points, cfg.tracker)
+            # constant image velocity predicts where a track is now, unless unusable frames came between
+            predicted = None
+            if self._previous_position == self._position - 1:
+                grid = (cfg.detector.grid_rows, cfg.detector.grid_cols)
+                predicted = tracks.points + fill_flow(tracks.flow, tracks.points, image.shape, grid)
+            tracked, ok, fb_error = track_points(self._previous, image, tracks.points, cfg.tracker, predicted)
             survived = ok & (fb_error <= cfg.tracker.fb_threshold_px)
             used = survived & ~np.isnan(tracks.key_points[:, 0])
             fate[ok & ~survived] = TrackFate.FB_REJECTED
@@ -153,7 +157,8 @@ class Odometry:
             keep = fate >= TrackFate.NOT_USED
             if cfg.pose.drop_outliers:
                 keep &= fate != TrackFate.RANSAC_OUTLIER
-            self._tracks = _Tracks(tracks.ids[keep], tracked[keep], tracks.ages[keep] + 1, tracks.key_points[keep])
+            self._tracks = _Tracks(tracks.ids[keep], tracked[keep], tracks.ages[keep] + 1, tracks.key_points[keep],
+                                   tracked[keep] - tracks.points[keep])
 
         # The keyframe advances on every accepted frame, and when the tracks were lost (tracking starts
         # afresh from this frame, with its pose measured by matching or, failing that, held); other held
@@ -195,6 +200,7 @@ class Odometry:
             timings_ms=timings,
         )
         self._previous = image
+        self._previous_position = self._position
         self._last_mean = stats.mean
         self._position += 1
         return result
@@ -348,6 +354,7 @@ class Odometry:
             np.concatenate((tracks.points, corners)),
             np.concatenate((tracks.ages, np.ones(len(corners), np.int32))),
             np.concatenate((tracks.key_points, key_points)),
+            np.concatenate((tracks.flow, np.full_like(corners, np.nan))),
         )
         timings["detect"] = _lap(clock)
         return ids, corners

@@ -29,7 +29,7 @@ def detect_corners(
     keypoints = detector.detect(image, mask)
     if not keypoints:
         return np.zeros((0, 2), np.float32)
-    points = np.array([kp.pt for kp in keypoints], np.float32)
+    points = cv2.KeyPoint_convert(keypoints).astype(np.float32).reshape(-1, 2)
     response = np.array([kp.response for kp in keypoints], np.float32)
     cells = config.grid_rows * config.grid_cols
     if cells == 1:
@@ -49,10 +49,37 @@ def detect_corners(
     return points[by_rank[:wanted]]
 
 
+def fill_flow(flow: np.ndarray, points: np.ndarray, image_shape: tuple[int, int], grid: tuple[int, int]) -> np.ndarray:
+    """(N, 2) flow with its NaN rows (tracks with no flow history yet) replaced by the mean flow of the
+    known rows in the same cell of a (rows, cols) grid over the image; rows whose cell has no known flow
+    stay NaN. Neighbours move alike, so a new track can start near where it will be found."""
+    height, width = image_shape
+    rows, cols = grid
+    cell = (np.clip((points[:, 1] * rows / height).astype(np.int64), 0, rows - 1) * cols
+            + np.clip((points[:, 0] * cols / width).astype(np.int64), 0, cols - 1))
+    known = ~np.isnan(flow[:, 0])
+    if known.all() or not known.any():
+        return flow
+    count = np.bincount(cell[known], minlength=rows * cols)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.column_stack([np.bincount(cell[known], flow[known, axis], rows * cols) / count for axis in (0, 1)])
+    filled = flow.copy()
+    filled[~known] = mean[cell[~known]]
+    return filled
+
+
 def track_points(
-    previous: np.ndarray, current: np.ndarray, points: np.ndarray, config: TrackerConfig
+    previous: np.ndarray,
+    current: np.ndarray,
+    points: np.ndarray,
+    config: TrackerConfig,
+    predicted: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Track (N, 2) float32 points from the previous into the current (H, W) uint8 frame.
+
+    predicted: optional (N, 2) guess of each point's position in the current frame (NaN rows: no guess).
+    Guessed points search `predicted_max_level` pyramid levels from their guess, the others `max_level`
+    levels from their own position.
 
     Returns (tracked (N, 2) float32, ok (N,) bool — KLT converged and the point stays inside the image,
     fb_error (N,) float32 — distance between a point and its forward-then-backward track, inf where the
@@ -60,14 +87,16 @@ def track_points(
     """
     if len(points) == 0:
         return np.zeros((0, 2), np.float32), np.zeros(0, bool), np.zeros(0, np.float32)
-    window = (config.window_px, config.window_px)
-    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, config.max_iterations, config.epsilon)
-    p0 = points.reshape(-1, 1, 2).astype(np.float32)
-    p1, status, _ = cv2.calcOpticalFlowPyrLK(
-        previous, current, p0, None, winSize=window, maxLevel=config.max_level, criteria=criteria
-    )
-    tracked = p1.reshape(-1, 2)
-    ok = status.reshape(-1).astype(bool)
+    points = points.astype(np.float32)
+    guessed = np.zeros(len(points), bool)
+    if predicted is not None and config.predicted_max_level >= 0:
+        guessed = ~np.isnan(predicted[:, 0])
+    tracked = np.empty_like(points)
+    ok = np.zeros(len(points), bool)
+    for subset, start, level in ((~guessed, None, config.max_level), (guessed, predicted, config.predicted_max_level)):
+        if subset.any():
+            tracked[subset], ok[subset] = _lucas_kanade(previous, current, points[subset],
+                                                        None if start is None else start[subset], level, config)
     height, width = current.shape
     border = config.border_px
     ok &= (
@@ -78,15 +107,29 @@ def track_points(
     )
     fb_error = np.full(len(points), np.inf, np.float32)
     if np.isfinite(config.fb_threshold_px) and ok.any():
-        back, back_status, _ = cv2.calcOpticalFlowPyrLK(
-            current, previous, p1[ok], None, winSize=window, maxLevel=config.max_level, criteria=criteria
-        )
-        err = np.linalg.norm(back.reshape(-1, 2) - points[ok], axis=1)
-        err[~back_status.reshape(-1).astype(bool)] = np.inf
+        back, back_ok = _lucas_kanade(current, previous, tracked[ok], points[ok], config.backward_max_level, config)
+        err = np.linalg.norm(back - points[ok], axis=1)
+        err[~back_ok] = np.inf
         fb_error[ok] = err
     elif ok.any():
         fb_error[ok] = 0.0  # check disabled
     return tracked, ok, fb_error
+
+
+def _lucas_kanade(
+    previous: np.ndarray, current: np.ndarray, points: np.ndarray, start: np.ndarray | None, max_level: int,
+    config: TrackerConfig,
+) -> tuple[np.ndarray, np.ndarray]:
+    """One cv2.calcOpticalFlowPyrLK call: (M, 2) points → ((M, 2) tracked, (M,) status), searching from
+    `start` (M, 2) when given."""
+    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, config.max_iterations, config.epsilon)
+    flags = 0 if start is None else cv2.OPTFLOW_USE_INITIAL_FLOW
+    guess = None if start is None else start.reshape(-1, 1, 2).astype(np.float32)  # a copy: OpenCV writes to it
+    moved, status, _ = cv2.calcOpticalFlowPyrLK(
+        previous, current, points.reshape(-1, 1, 2), guess, winSize=(config.window_px, config.window_px),
+        maxLevel=max_level, criteria=criteria, flags=flags,
+    )
+    return moved.reshape(-1, 2), status.reshape(-1).astype(bool)
 
 
 def match_features(

@@ -5,9 +5,12 @@ No I/O beyond reading the source, no Rerun: the CLI passes a recorder as a sink.
 
 from __future__ import annotations
 
+import queue
+import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from typing import TypeVar
 
 import numpy as np
 
@@ -18,6 +21,7 @@ from vslam_core.scale import make_scale_provider
 from vslam_core.sources.base import Frame, FrameSource
 
 FrameSink = Callable[[Frame, FrameResult], None]
+T = TypeVar("T")
 
 
 @dataclass
@@ -51,6 +55,48 @@ def iterate_timed(source: FrameSource) -> Iterator[tuple[Frame, float]]:
         yield frame, (time.perf_counter() - start) * 1000.0
 
 
+def prefetched(items: Iterator[T], depth: int = 2) -> Iterator[T]:
+    """The items of `items`, produced up to `depth` ahead by a background thread, so decoding the next
+    frame overlaps processing this one (cv2.imread releases the GIL). An exception raised by `items` is
+    re-raised here, after the items before it; closing this generator stops the thread."""
+    buffer: queue.Queue[tuple[str, object]] = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+
+    def put(kind: str, value: object) -> bool:
+        while not stop.is_set():
+            try:
+                buffer.put((kind, value), timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def produce() -> None:
+        try:
+            for item in items:
+                if not put("item", item):
+                    return
+        except BaseException as exc:  # noqa: BLE001 - handed to the consumer, which re-raises it
+            put("error", exc)
+            return
+        put("end", None)
+
+    worker = threading.Thread(target=produce, name="vslam-prefetch", daemon=True)
+    worker.start()
+    try:
+        while True:
+            kind, value = buffer.get()
+            if kind == "end":
+                return
+            if kind == "error":
+                assert isinstance(value, BaseException)
+                raise value
+            yield value  # type: ignore[misc]
+    finally:
+        stop.set()
+        worker.join()
+
+
 def run_odometry(
     source: FrameSource,
     config: EngineConfig,
@@ -64,7 +110,8 @@ def run_odometry(
     run = result if result is not None else RunResult([], [], [])
     start = time.perf_counter()
     try:
-        for frame, decode_ms in iterate_timed(source):
+        frames = iterate_timed(source)
+        for frame, decode_ms in prefetched(frames) if config.threads > 1 else frames:
             frame_result = engine.process(frame)
             frame_result.timings_ms["decode"] = decode_ms
             run.indices.append(frame.index)

@@ -26,10 +26,19 @@ class ImageStats:
 def image_stats(image: np.ndarray) -> ImageStats:
     small = cv2.resize(image, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
     laplacian = cv2.Laplacian(small, cv2.CV_32F)
-    response = np.abs(cv2.filter2D(image.astype(np.float32), -1, _NOISE_KERNEL)[1:-1, 1:-1])
     return ImageStats(
         mean=float(small.mean()),
         saturated=float(np.count_nonzero(small >= 250)) / small.size,
         sharpness=float(laplacian.var()),
-        noise_sigma=float(np.sqrt(np.pi / 2) * np.median(response) / 6),
+        noise_sigma=float(np.sqrt(np.pi / 2) * _median_noise_response(image) / 6),
     )
+
+
+def _median_noise_response(image: np.ndarray) -> int:
+    """Median of |noise kernel * image| over the full-resolution interior. The responses are integers, so
+    a 256-bin histogram gives the median exactly (values saturate at 255, far above any usable frame's
+    median) in a tenth of the time of sorting ~460 k floats."""
+    response = cv2.filter2D(image, cv2.CV_16S, _NOISE_KERNEL)[1:-1, 1:-1]
+    magnitude = cv2.convertScaleAbs(response)
+    histogram = cv2.calcHist([magnitude], [0], None, [256], [0, 256]).ravel()
+    return int(np.searchsorted(np.cumsum(histogram), magnitude.size / 2))
