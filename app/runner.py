@@ -35,18 +35,32 @@ class RecordedRun:
     failure: VslamError | None = None  # stopped by bad input (e.g. an unreadable image with on_bad_frame=fail)
 
 
-def _raise_interrupted(signum: int, _frame: FrameType | None) -> None:
-    raise Interrupted(128 + signum, signal.Signals(signum).name)
+class _StopRequest:
+    """The first SIGINT or SIGTERM of a run, noted by the handler and acted on between frames: an exception
+    raised inside library code (Rerun converts data under a catch-all) could be swallowed or leave a
+    half-written batch, so the handler only records the signal."""
+
+    def __init__(self) -> None:
+        self.signum: int | None = None
+
+    def note(self, signum: int, _frame: FrameType | None) -> None:
+        if self.signum is None:
+            self.signum = signum
+
+    def check(self) -> None:
+        if self.signum is not None:
+            raise Interrupted(128 + self.signum, signal.Signals(self.signum).name)
 
 
 @contextmanager
-def _sigterm_raises() -> Iterator[None]:
-    """SIGTERM becomes an exception, so `finally` blocks finalise files as they do on Ctrl-C."""
-    previous = signal.signal(signal.SIGTERM, _raise_interrupted)
+def _signals_stop_between_frames() -> Iterator[_StopRequest]:
+    stop = _StopRequest()
+    previous = {signum: signal.signal(signum, stop.note) for signum in (signal.SIGINT, signal.SIGTERM)}
     try:
-        yield
+        yield stop
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
 
 
 def record_run(
@@ -66,11 +80,12 @@ def record_run(
     failure: VslamError | None = None
     recorder = Recorder(rrd, source, config, properties, detail, jpeg_quality) if rrd is not None else None
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
-    with Progress(*columns, console=console, transient=True) as progress, _sigterm_raises():
+    with Progress(*columns, console=console, transient=True) as progress, _signals_stop_between_frames() as stop:
         task = progress.add_task(source.name, total=len(source))
 
         def advance(_frame: Frame, _result: FrameResult) -> None:
             progress.advance(task)
+            stop.check()
 
         sinks: tuple[FrameSink, ...] = (advance,) if recorder is None else (recorder.log_frame, advance)
         try:
@@ -84,4 +99,9 @@ def record_run(
         finally:
             if recorder is not None:
                 recorder.finish(result, interrupted is not None or failure is not None)
+        if interrupted is None and stop.signum is not None:  # a signal during the last frame or finalising
+            try:
+                stop.check()
+            except Interrupted as exc:
+                interrupted = exc
     return RecordedRun(result, interrupted, failure)

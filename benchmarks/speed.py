@@ -3,7 +3,10 @@
     python -m benchmarks.speed ../shared/data/kitti --sequences 00,05 --frames 0:300 --csv speed.csv
 
 Each configuration runs in its own process, one after the other, on the same frames: frames per second
-(decoding included), ms per frame per stage, peak RSS, KB per frame of recording, and KITTI t_err / r_err.
+(decoding included), its ratio to the paper configuration's, the cost of recording over the same threading
+with recording off, ms per frame per stage, peak RSS, KB per frame of recording, and KITTI t_err / r_err.
+With 2 threads the next frame is decoded in the background, so `decode` overlaps the other stages.
+A memory check follows: peak RSS of a full recording over the first 100 frames and over all of them.
 """
 
 from __future__ import annotations
@@ -30,10 +33,13 @@ STAGES = ("decode", "track", "essential", "chirality", "detect", "match", "recor
 SYSTEMS = {
     "paper configuration (1 thread)": ("paper", 1, Detail.OFF),
     "vslam, recording off (1 thread)": ("vslam", 1, Detail.OFF),
-    "vslam, recording off (2 threads)": ("vslam", 2, Detail.OFF),
     "vslam --detail summary (1 thread)": ("vslam", 1, Detail.SUMMARY),
     "vslam --detail full (1 thread)": ("vslam", 1, Detail.FULL),
+    "vslam, recording off (2 threads, default)": ("vslam", 2, Detail.OFF),
+    "vslam --detail summary (2 threads, default)": ("vslam", 2, Detail.SUMMARY),
+    "vslam --detail full (2 threads, default)": ("vslam", 2, Detail.FULL),
 }
+MEMORY_SYSTEM = "vslam --detail full (2 threads, default)"
 
 
 def _measure(args: tuple[str, str, str, str]) -> dict[str, object]:
@@ -69,9 +75,15 @@ def _measure(args: tuple[str, str, str, str]) -> dict[str, object]:
         poses, seconds = run.pose_array(), run.seconds
     t_err, r_err = kitti_errors(gt, poses)
     n = len(poses)
-    return {"system": label, "sequence": sequence, "fps": n / seconds, "t_err": t_err, "r_err": r_err,
+    return {"system": label, "sequence": sequence, "frames": frames, "threads": threads, "detail": str(detail),
+            "fps": n / seconds, "t_err": t_err, "r_err": r_err,
             "peak_rss_mb": status_mb("VmHWM"), "kb_per_frame": size / 1024 / n,
             **{f"{stage}_ms": stage_ms.get(stage, 0.0) / n for stage in STAGES}}
+
+
+def _in_own_process(label: str, root: str, sequence: str, frames: str) -> dict[str, object]:
+    with multiprocessing.get_context("spawn").Pool(1) as pool:
+        return pool.apply(_measure, ((label, root, sequence, frames),))
 
 
 def main() -> None:
@@ -79,25 +91,36 @@ def main() -> None:
     parser.add_argument("root")
     parser.add_argument("--sequences", default="00,05")
     parser.add_argument("--frames", default="0:300")
+    parser.add_argument("--memory-frames", default="0:100", help="the shorter run of the memory check")
     parser.add_argument("--csv", type=Path, default=None)
     args = parser.parse_args()
-    context = multiprocessing.get_context("spawn")
-    rows = []
-    for sequence in args.sequences.split(","):
-        for label in SYSTEMS:
-            with context.Pool(1) as pool:
-                rows.append(pool.apply(_measure, ((label, args.root, sequence, args.frames),)))
+    rows = [_in_own_process(label, args.root, sequence, args.frames)
+            for sequence in args.sequences.split(",") for label in SYSTEMS]
     table = pl.DataFrame(rows)
+    paper = table.filter(pl.col("system") == next(iter(SYSTEMS))).select("sequence", paper_fps="fps")
+    off = table.filter(pl.col("detail") == str(Detail.OFF)).select("sequence", "threads", off_fps="fps")
+    table = (table.join(paper, on="sequence").join(off, on=["sequence", "threads"], how="left")
+             .with_columns(x_paper=pl.col("fps") / pl.col("paper_fps"),
+                           recording_cost_pct=100 * (pl.col("off_fps") / pl.col("fps") - 1))
+             .drop("paper_fps", "off_fps"))
     if args.csv:
         table.write_csv(args.csv)
     stages = " | ".join(STAGES)
     print(f"KITTI {args.sequences}, frames {args.frames}; ms per frame per stage")
-    print(f"| system | seq | fps | t_err % | r_err °/100 m | {stages} | peak RSS MB | KB/frame |")
-    print("|---|---|---|---|---|" + "---|" * len(STAGES) + "---|---|")
+    print(f"| system | seq | fps | × paper | recording cost | t_err % | r_err °/100 m | {stages} | peak RSS MB "
+          "| KB/frame |")
+    print("|---|---|---|---|---|---|---|" + "---|" * len(STAGES) + "---|---|")
     for r in table.iter_rows(named=True):
         cells = " | ".join(f"{r[f'{stage}_ms']:.1f}" for stage in STAGES)
-        print(f"| {r['system']} | {r['sequence']} | {r['fps']:.1f} | {r['t_err']:.2f} | {r['r_err']:.2f} | {cells} "
-              f"| {r['peak_rss_mb']:.0f} | {r['kb_per_frame']:.1f} |")
+        cost = "—" if r["detail"] == str(Detail.OFF) else f"{r['recording_cost_pct']:+.1f} %"
+        print(f"| {r['system']} | {r['sequence']} | {r['fps']:.1f} | {r['x_paper']:.2f} | {cost} | {r['t_err']:.2f} "
+              f"| {r['r_err']:.2f} | {cells} | {r['peak_rss_mb']:.0f} | {r['kb_per_frame']:.1f} |")
+
+    sequence = args.sequences.split(",")[0]
+    short = _in_own_process(MEMORY_SYSTEM, args.root, sequence, args.memory_frames)
+    long = table.filter((pl.col("system") == MEMORY_SYSTEM) & (pl.col("sequence") == sequence)).row(0, named=True)
+    print(f"\nPeak RSS, {MEMORY_SYSTEM}, KITTI {sequence}: frames {args.memory_frames} {short['peak_rss_mb']:.0f} MB, "
+          f"frames {args.frames} {long['peak_rss_mb']:.0f} MB ({long['peak_rss_mb'] - short['peak_rss_mb']:+.0f} MB)")
 
 
 if __name__ == "__main__":

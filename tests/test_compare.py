@@ -46,9 +46,9 @@ def strict_rerun() -> Iterator[None]:
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
-    """Two real runs of the synthetic street, B with a higher FAST threshold (both CLI runs in parallel)."""
+    """Two real runs of the synthetic street, B keeping half as many tracks (both CLI runs in parallel)."""
     folder = tmp_path_factory.mktemp("runs")
-    (folder / "b.toml").write_text("[detector]\nfast_threshold = 35\n")
+    (folder / "b.toml").write_text("[detector]\ntarget_tracks = 400\nredetect_below = 300\n")
     a, b = folder / "a.rrd", folder / "b.rrd"
     commands = [["run", "--frames", "0:20", "-o", str(a)],
                 ["run", "--frames", "0:20", "--config", str(folder / "b.toml"), "-o", str(b)]]
@@ -127,8 +127,8 @@ def test_metrics_of_both_runs_with_labelled_legends(runs: tuple[Path, Path], com
 
 def test_properties_of_both_runs_and_the_comparison_name(compared: ComparisonResult) -> None:
     out = compared.output
-    assert read_entity(out, "/__properties/a/config", static=True)["detector.fast_threshold"].to_list() == [[20]]
-    assert read_entity(out, "/__properties/b/config", static=True)["detector.fast_threshold"].to_list() == [[35]]
+    assert read_entity(out, "/__properties/a/config", static=True)["detector.target_tracks"].to_list() == [[800]]
+    assert read_entity(out, "/__properties/b/config", static=True)["detector.target_tracks"].to_list() == [[400]]
     for prefix in "ab":
         run = read_entity(out, f"/__properties/{prefix}/run", static=True).row(0, named=True)
         assert run["name"] == ["vslam synthetic-street frames 0:20 scale gt"] and run["frames"] == ["0:20"]
@@ -195,16 +195,16 @@ def test_differences_are_the_inspect_values(runs: tuple[Path, Path], compared: C
             node = node[part]  # type: ignore[index]
         return float(node)  # type: ignore[arg-type]
 
-    for key in ["frames.count", "bytes", "stages_ms.track.mean", "series.corners_detected.mean",
+    for key in ["frames.count", "bytes", "stages_ms.track.mean", "series.tracks_alive.mean",
                 "series.inlier_ratio.mean", "accuracy.paper_rms_m", "accuracy.final_heading_error_deg"]:
         a, b = (value(report, key) for report in reports)
         assert (diffs[key].a, diffs[key].b) == (a, b), key
         assert diffs[key].difference == pytest.approx(b - a)
     assert {f"stages_ms.{s}.mean" for s in reports[0]["stages_ms"]} <= set(diffs)
     assert {f"accuracy.{k}" for k in reports[0]["accuracy"]} <= set(diffs)
-    corners = diffs["series.corners_detected.mean"]
-    assert corners.b is not None and corners.a is not None and corners.b < corners.a  # stricter FAST threshold
-    assert corners.percent == pytest.approx(100 * (corners.b - corners.a) / corners.a)
+    tracks = diffs["series.tracks_alive.mean"]
+    assert tracks.b is not None and tracks.a is not None and tracks.b < tracks.a  # half the target
+    assert tracks.percent == pytest.approx(100 * (tracks.b - tracks.a) / tracks.a)
     assert diffs["frames.count"].difference == 0 and diffs["bytes"].a == runs[0].stat().st_size
 
     table = format_differences(compared)
@@ -214,7 +214,7 @@ def test_differences_are_the_inspect_values(runs: tuple[Path, Path], compared: C
     rows = {line.split()[0]: line for line in lines[header + 1:]}
     assert set(rows) == set(diffs)
     assert rows["frames.count"].split()[1:] == ["20", "20", "+0", "+0.0%"]
-    assert f"{corners.percent:+.1f}%" in rows["series.corners_detected.mean"]
+    assert f"{tracks.percent:+.1f}%" in rows["series.tracks_alive.mean"]
     widths = {len(line) for line in lines[header:] if line.endswith("%")}
     assert len(widths) == 1  # right-aligned columns
 

@@ -72,11 +72,11 @@ def test_full_recording_equals_the_engine_results(full: tuple[Path, list[FrameRe
     origins = np.array(flow["Arrows2D:origins"][0].to_list())
     assert np.allclose(origins, result.track_prev[reached])
 
-    for i, candidate in enumerate(result.candidate_poses):
-        logged = read_entity(path, f"/world/candidates/{i}").filter(frame=k)
-        assert logged["in_front"][0].to_list() == [candidate.in_front]
-        assert logged["chosen"][0].to_list() == [i == result.chosen_candidate]
-    assert sum(1 for c in result.candidate_poses) == 4
+    candidates = read_entity(path, "/world/candidates").filter(frame=k)
+    assert len(result.candidate_poses) == 4
+    assert candidates["in_front"][0].to_list() == [c.in_front for c in result.candidate_poses]
+    assert candidates["chosen"][0].to_list() == [i == result.chosen_candidate for i in range(4)]
+    assert len(candidates["Arrows3D:vectors"][0]) == 12  # three axes per candidate
 
     points = read_entity(path, "/world/points").filter(frame=k)
     assert np.allclose(np.array(points["Points3D:positions"][0].to_list()), result.points_world, atol=1e-4)
