@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
@@ -37,11 +38,13 @@ from typing import Any
 
 import cv2
 import numpy as np
+import pyarrow as pa
 import rerun as rr
 import rerun.blueprint as rrb
 
 import vslam_core
 from app.report import markdown_table, metrics_row
+from app.rrd import RecordingError
 from vslam_core.config import EngineConfig
 from vslam_core.geometry import angle_between, invert_pose, rotation_angle
 from vslam_core.pipeline import RunResult
@@ -50,6 +53,8 @@ from vslam_core.sources.base import Frame, FrameSource
 
 APPLICATION_ID = "vslam"
 FLUSH_FRAMES = 100  # buffered columns are sent this often (and on close)
+FLUSH_BYTES = 2**20  # ... or as soon as one entity holds this much (images, flow): memory stays flat
+PENDING_JPEG_BYTES = 64 * 1024  # what a JPEG still being encoded counts as (a KITTI frame at q75: ~61 KB)
 
 
 class Detail(StrEnum):
@@ -165,12 +170,14 @@ class _Rows:
     times: list[float | None] = field(default_factory=list)
     values: list[dict[str, list[Any]]] = field(default_factory=list)
     lengths: list[list[int]] = field(default_factory=list)
+    nbytes: int = 0
 
 
 class _ColumnBuffer:
-    """Per-frame rows, sent with one `send_columns` per entity on `flush`. A row holds either one value per
-    component (poses, scalars, text) or, with `batch=True`, an array of instances per component (points,
-    arrows), which `flush` concatenates and partitions back into rows."""
+    """Per-frame rows, sent with one `send_columns` per entity on `flush` (or sooner, once an entity holds
+    `FLUSH_BYTES`). A row holds either one value per component (poses, scalars, text) or, with
+    `batch=True`, an array of instances per component (points, arrows), which are concatenated and
+    partitioned back into rows when sent."""
 
     def __init__(self, rec: rr.RecordingStream) -> None:
         self._rec = rec
@@ -187,29 +194,58 @@ class _ColumnBuffer:
         for buffered, lengths, (_, values) in zip(rows.values, rows.lengths, parts, strict=True):
             for name, value in values.items():
                 buffered[name].append(value)
+                rows.nbytes += _size(value)
             if batch:
                 lengths.append(len(next(iter(values.values()))))
+        if rows.nbytes >= FLUSH_BYTES:
+            self._send(entity, self._rows.pop(entity))
+
+    def add_scalar(self, entity: str, frame: Frame, value: float) -> None:
+        """`add` of one `Scalars` value, without the generic bookkeeping (~20 series per frame)."""
+        rows = self._rows.get(entity)
+        if rows is None:
+            rows = self._rows[entity] = _Rows([rr.Scalars.columns], False, values=[{"scalars": []}], lengths=[[]])
+        rows.frames.append(frame.index)
+        rows.times.append(frame.timestamp)
+        rows.values[0]["scalars"].append(value)
 
     def flush(self) -> None:
         for entity, rows in self._rows.items():
-            indexes = [rr.TimeColumn("frame", sequence=rows.frames)]
-            times = [t for t in rows.times if t is not None]
-            if len(times) == len(rows.frames):
-                indexes.append(rr.TimeColumn("time", duration=times))
-            columns = []
-            for make, values, lengths in zip(rows.columns, rows.values, rows.lengths, strict=True):
-                if rows.batch:
-                    columns += make(**{name: _concatenate(v) for name, v in values.items()}).partition(lengths)
-                else:
-                    columns += make(**values)
-            self._rec.send_columns(entity, indexes=indexes, columns=columns)
+            self._send(entity, rows)
         self._rows.clear()
+
+    def _send(self, entity: str, rows: _Rows) -> None:
+        for values in rows.values:  # wait for values computed in the background (JPEG frames)
+            for name, column in values.items():
+                values[name] = [v.result() if isinstance(v, Future) else v for v in column]
+        indexes = [rr.TimeColumn("frame", sequence=rows.frames)]
+        times = [t for t in rows.times if t is not None]
+        if len(times) == len(rows.frames):
+            indexes.append(rr.TimeColumn("time", duration=times))
+        columns = []
+        for make, values, lengths in zip(rows.columns, rows.values, rows.lengths, strict=True):
+            if rows.batch:
+                columns += make(**{name: _concatenate(v) for name, v in values.items()}).partition(lengths)
+            else:
+                columns += make(**values)
+        self._rec.send_columns(entity, indexes=indexes, columns=columns)
+
+
+def _size(value: Any) -> int:
+    """Rough bytes held by one buffered value."""
+    if isinstance(value, np.ndarray):
+        return int(value.nbytes)
+    if isinstance(value, Future):
+        return PENDING_JPEG_BYTES
+    return len(value) if isinstance(value, bytes | str | list) else 8
 
 
 def _concatenate(batches: list[Any]) -> Any:
-    """One array (or list, for text) of the instances of all rows."""
+    """One array (or list, for text) of the instances of all rows. Flat numeric arrays become Arrow
+    arrays: `AnyValues.columns` turns a numpy array into a list of one-element lists, ~70x slower."""
     if isinstance(batches[0], np.ndarray):
-        return np.concatenate(batches)
+        values = np.concatenate(batches)
+        return pa.array(values) if values.ndim == 1 else values
     return [value for batch in batches for value in batch]
 
 
@@ -230,6 +266,8 @@ class Recorder:
         self.path = path
         self.detail = detail
         self._jpeg_quality = jpeg_quality
+        # with a second core, frames are JPEG-encoded beside the engine (cv2.imencode releases the GIL)
+        self._encoder = ThreadPoolExecutor(1, thread_name_prefix="vslam-jpeg") if config.threads > 1 else None
         self._gt = source.ground_truth
         self._name = properties.get("name", source.name)
         self._source_name = source.name
@@ -261,6 +299,8 @@ class Recorder:
         try:
             self._columns.flush()
         finally:
+            if self._encoder is not None:
+                self._encoder.shutdown(cancel_futures=True)
             self._rec.disconnect()
 
     def finish(self, run: RunResult, interrupted: bool) -> None:
@@ -327,17 +367,16 @@ class Recorder:
         timings = dict(result.timings_ms, record=(time.perf_counter() - start) * 1000.0)
         for stage in STAGES:
             if stage in timings:
-                columns.add(f"/metrics/timing_ms/{stage}", frame, (rr.Scalars.columns, {"scalars": timings[stage]}))
+                columns.add_scalar(f"/metrics/timing_ms/{stage}", frame, timings[stage])
         self._frames += 1
         if self._frames % FLUSH_FRAMES == 0:
             columns.flush()
 
     def _log_image_and_tracks(self, frame: Frame, result: FrameResult) -> None:
         columns = self._columns
-        ok, jpeg = cv2.imencode(".jpg", frame.image, [cv2.IMWRITE_JPEG_QUALITY, self._jpeg_quality])
-        if ok:
-            columns.add("/world/camera/image", frame,
-                        (rr.EncodedImage.columns, {"blob": jpeg.tobytes(), "media_type": "image/jpeg"}))
+        jpeg: bytes | Future[bytes] = (self._encoder.submit(self._encode, frame.image) if self._encoder is not None
+                                       else self._encode(frame.image))
+        columns.add("/world/camera/image", frame, (rr.EncodedImage.columns, {"blob": jpeg, "media_type": "image/jpeg"}))
         full = self.detail == Detail.FULL
         corners: list[Part] = [(rr.Points2D.columns, {"positions": result.new_corners})]
         if full:
@@ -353,6 +392,12 @@ class Recorder:
             flow.append((rr.AnyValues.columns, {"track_id": result.track_ids[reached].astype(np.uint32),
                                                 "age": result.track_age[reached].astype(np.uint16)}))
         columns.add("/world/camera/image/flow", frame, *flow, batch=True)
+
+    def _encode(self, image: np.ndarray) -> bytes:
+        ok, jpeg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, self._jpeg_quality])
+        if not ok:
+            raise RecordingError("JPEG encoding of a frame failed")
+        return bytes(jpeg.tobytes())
 
     def _log_candidates(self, frame: Frame, result: FrameResult) -> None:
         """The four candidate poses, each at the keyframe pose moved by its (R, t): a point (the chosen one
@@ -399,8 +444,7 @@ class Recorder:
         for group, series in METRICS.items():
             for name in series:
                 if name in values and group != "timing_ms":
-                    self._columns.add(f"/metrics/{group}/{name}", frame,
-                                      (rr.Scalars.columns, {"scalars": values[name]}))
+                    self._columns.add_scalar(f"/metrics/{group}/{name}", frame, values[name])
 
     def _log_events(self, frame: Frame, result: FrameResult) -> None:
         def event(text: str, level: str) -> None:
