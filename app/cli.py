@@ -25,8 +25,9 @@ from app.runner import record_run
 from app.viewer import open_recording, snapshot
 from vslam_core.config import EngineConfig, load_config
 from vslam_core.errors import VslamError
-from vslam_core.metrics import kitti_errors, paper_rms_error
+from vslam_core.metrics import kitti_errors, paper_rms_error, scale_errors
 from vslam_core.pipeline import RunResult
+from vslam_core.scale import default_camera_height
 from vslam_core.sources.base import FrameRange, FrameSource
 from vslam_core.sources.open import open_source
 from vslam_core.trajectory_io import write_kitti_poses, write_tum_poses
@@ -51,6 +52,11 @@ def _root() -> None:
 class Scale(StrEnum):
     gt = "gt"
     none = "none"
+    height = "height"
+
+
+CAMERA_HEIGHT_HELP = ("metres from the camera to the road, for --scale height [default: the source's own: KITTI "
+                      "1.65 m, the synthetic street's]")
 
 
 class BadFrame(StrEnum):
@@ -127,11 +133,17 @@ def _summary(source: FrameSource, run: RunResult, config: EngineConfig) -> None:
     lines = [
         f"frames      {run.frames} ({run.held} held the previous pose)",
         f"time        {run.seconds:.1f} s, {fps:.1f} frames/s",
-        f"scale       {config.scale}",
+        f"scale       {config.scale}"
+        + (f" (camera {default_camera_height(source.camera_height, config):.2f} m above the road; no ground truth "
+           "used)" if config.scale == "height" else ""),
     ]
     gt = source.ground_truth
     if gt is not None and run.frames > 1:
         gt = gt[: run.frames]
+        if config.scale == "height":
+            median, _, path = scale_errors(gt, run.pose_array())
+            lines.append(f"step length {median:+.1f} % median error per frame, path length {path:+.1f} % vs ground "
+                         "truth")
         t_err, r_err = kitti_errors(gt, run.pose_array())
         lines.append(f"KITTI       t_err {t_err:.2f} %   r_err {r_err:.2f} °/100 m"
                      + ("   (path < 100 m: no segment)" if np.isnan(t_err) else ""))
@@ -145,8 +157,11 @@ def run(
                                                  "file, or 'synthetic' (the default: no download)")] = None,
     sequence: Annotated[str | None, typer.Option("--sequence", "-s", help="KITTI sequence, e.g. 00")] = None,
     frames: Annotated[str | None, typer.Option(help="START:END[:STEP] of the source's frames (END excluded)")] = None,
-    scale: Annotated[Scale | None, typer.Option(help="translation length: gt = ground truth, none = unit "
-                                                "steps [default: gt when the source has ground truth]")] = None,
+    scale: Annotated[Scale | None, typer.Option(help="translation length: gt = ground truth, height = from the "
+                                                "known camera height over the road (no ground truth used), none "
+                                                "= unit steps [default: gt when the source has ground truth]")]
+    = None,
+    camera_height: Annotated[float | None, typer.Option(min=0.01, help=CAMERA_HEIGHT_HELP)] = None,
     config_file: Annotated[Path | None, typer.Option("--config", help="engine config (TOML)")] = None,
     output: Annotated[Path | None, typer.Option("--output", "-o", help="recording (.rrd) to write "
                                                 "[default: recordings/<source>_<time>.rrd]")] = None,
@@ -174,6 +189,7 @@ def run(
         config = config.with_scale(scale.value)
     elif config_file is None and src.ground_truth is None:
         config = config.with_scale("none")
+    config = _with_camera_height(config, camera_height, src)
 
     rrd = None if detail == Detail.OFF else (output or _default_output(src, frame_range))
     if rrd is not None:
@@ -279,8 +295,10 @@ def eval_command(
                                                  "folder with --gt, or 'synthetic'")] = None,
     sequences: Annotated[str | None, typer.Option(help="KITTI sequences, e.g. 00,05")] = None,
     frames: Annotated[str | None, typer.Option(help="START:END[:STEP] of every sequence (END excluded)")] = None,
-    scale: Annotated[Scale, typer.Option(help="gt: ground-truth step length; none: unit steps, scored after "
-                                         "Sim(3) alignment")] = Scale.gt,
+    scale: Annotated[Scale, typer.Option(help="gt: ground-truth step length; height: from the known camera "
+                                         "height (no ground truth used); none: unit steps, scored after Sim(3) "
+                                         "alignment")] = Scale.gt,
+    camera_height: Annotated[float | None, typer.Option(min=0.01, help=CAMERA_HEIGHT_HELP)] = None,
     config_file: Annotated[Path | None, typer.Option("--config", help="engine config (TOML)")] = None,
     report: Annotated[Path | None, typer.Option(help="folder for metrics.csv/.parquet, report.md, trajectories, "
                                                 "recordings and plots")] = None,
@@ -324,11 +342,25 @@ def eval_command(
         else:
             sources = [open_source(source, frames=frame_range, ground_truth=gt, on_bad_frame=on_bad_frame.value,
                                    inject=inject)]
+        for src in sources:
+            config = _with_camera_height(config, camera_height, src)
         evaluation = evaluate_sources(sources, config, report, err, detail if report is not None else Detail.OFF,
                                       {"frames": str(frame_range), "source_path": source or "synthetic"})
         scale_source = config.scale
     _print_evaluation(evaluation, scale_source, report, as_json, check_gates(evaluation.rows, max_t_err, max_r_err,
                                                                              max_ate))
+
+
+def _with_camera_height(config: EngineConfig, camera_height: float | None, source: FrameSource) -> EngineConfig:
+    """`--camera-height` into the config, and a check (before anything runs) that `--scale height` knows
+    the camera's height."""
+    if camera_height is not None:
+        if config.scale != "height":
+            fail("--camera-height only applies with --scale height")
+        config = config.with_camera_height(camera_height)
+    if config.scale == "height":
+        default_camera_height(source.camera_height, config)  # raises ConfigError naming --camera-height
+    return config
 
 
 def _check_report_dir(report: Path, force: bool) -> None:

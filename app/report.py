@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from vslam_core.metrics import evaluate, rpe_by_distance, sim3_aligned
+from vslam_core.metrics import evaluate, rpe_by_distance, scale_errors, sim3_aligned
 
 # key -> (column header, format); the keys are also the JSON keys of `vslam eval --json`.
 COLUMNS: dict[str, tuple[str, str]] = {
@@ -25,9 +25,13 @@ COLUMNS: dict[str, tuple[str, str]] = {
     "rpe_trans_10m": ("RPE 10 m: m", "{:.3f}"),
     "rpe_rot_10m": ("RPE 10 m: °", "{:.3f}"),
     "paper_rms": ("paper RMS m", "{:.3f}"),
+    "step_err_median": ("step err median %", "{:+.1f}"),
+    "step_err_abs": ("step err mean |%|", "{:.1f}"),
+    "path_length_err": ("path length err %", "{:+.1f}"),
     "fps": ("fps", "{:.1f}"),
 }
-METRICS = ("t_err", "r_err", "ate_se3", "ate_sim3", "rpe_trans", "rpe_rot", "rpe_trans_10m", "rpe_rot_10m", "paper_rms")
+METRICS = ("t_err", "r_err", "ate_se3", "ate_sim3", "rpe_trans", "rpe_rot", "rpe_trans_10m", "rpe_rot_10m", "paper_rms",
+           "step_err_median", "step_err_abs", "path_length_err")
 
 
 def metrics_row(name: str, gt: np.ndarray, poses: np.ndarray, scale: str) -> dict[str, Any]:
@@ -37,6 +41,8 @@ def metrics_row(name: str, gt: np.ndarray, poses: np.ndarray, scale: str) -> dic
     estimate = sim3_aligned(gt, poses) if alignment == "sim3" and len(poses) > 2 else poses
     metrics = evaluate(gt, estimate).as_dict()
     metrics["rpe_trans_10m"], metrics["rpe_rot_10m"] = rpe_by_distance(gt, estimate, 10.0)
+    # how far each step's length is from the truth: the scale source's own error
+    metrics["step_err_median"], metrics["step_err_abs"], metrics["path_length_err"] = scale_errors(gt, estimate)
     return {"sequence": name, "scale": scale, "alignment": alignment, **metrics}
 
 

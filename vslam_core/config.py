@@ -23,7 +23,7 @@ from typing import Any, Literal, get_args, get_origin, get_type_hints
 
 from vslam_core.errors import ConfigError
 
-ScaleSource = Literal["gt", "none"]
+ScaleSource = Literal["gt", "none", "height"]
 RansacMethod = Literal["ransac", "magsac"]
 
 
@@ -76,6 +76,23 @@ class PoseConfig:
 
 
 @dataclass(frozen=True)
+class HeightScaleConfig:
+    """`scale = "height"`: step lengths from the camera's known height above the road (vslam_core/road.py)."""
+
+    camera_height_m: float = 0.0  # 0: the source's own (KITTI 1.65 m, the synthetic street's); else required
+    road_top_px: float = 80.0  # road points lie this far below the principal point or lower (the lane ahead)
+    road_half_width_px: float = 100.0  # ... and at most this far left or right of it
+    road_tracks: int = 200  # keep this many tracks in that band (more road points than the whole-image spread)
+    road_fast_threshold: int = 7  # FAST threshold there (asphalt has little contrast)
+    max_tilt_deg: float = 10.0  # the plane's normal within this of the camera's down axis
+    inlier_fraction: float = 0.02  # RANSAC inlier: within this fraction of the camera height of the plane
+    ransac_iterations: int = 100
+    min_road_points: int = 8  # fewer road points or plane inliers: no estimate this frame
+    window: int = 15  # per-frame speeds in the robust trend fit (frames with an estimate)
+    max_jump: float = 0.3  # an estimate further than this fraction from the trend is an outlier
+
+
+@dataclass(frozen=True)
 class HealthConfig:
     """When a frame is flagged. fail = the frame cannot be used (pose held); warn = used, but suspicious."""
 
@@ -102,9 +119,13 @@ class EngineConfig:
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     pose: PoseConfig = field(default_factory=PoseConfig)
     health: HealthConfig = field(default_factory=HealthConfig)
+    height: HeightScaleConfig = field(default_factory=HeightScaleConfig)
 
     def with_scale(self, scale: ScaleSource) -> EngineConfig:
         return dataclasses.replace(self, scale=scale)
+
+    def with_camera_height(self, metres: float) -> EngineConfig:
+        return dataclasses.replace(self, height=dataclasses.replace(self.height, camera_height_m=metres))
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

@@ -28,8 +28,8 @@ from vslam_core.geometry import (
     triangulate,
 )
 from vslam_core.quality import ImageStats, image_stats
-from vslam_core.results import FrameResult, FrameStatus, Health, Reason, TrackFate
-from vslam_core.scale import ScaleProvider
+from vslam_core.results import FrameResult, FrameStatus, Health, Reason, ScaleEstimate, TrackFate
+from vslam_core.scale import ScaleProvider, TwoView
 from vslam_core.sources.base import CameraIntrinsics, Frame
 
 
@@ -64,6 +64,7 @@ class _Motion:
     translation: np.ndarray | None = None  # unit
     in_front: np.ndarray | None = None  # over the used correspondences
     points_cur: np.ndarray | None = None  # (P, 3) in front, current frame, unit baseline
+    pixels_cur: np.ndarray | None = None  # (P, 2) their pixel positions in the current frame
     derotated_parallax: float = 0.0  # median inlier parallax (px) left once the rotation is removed
     reason: Reason | None = None
 
@@ -110,6 +111,7 @@ class Odometry:
         tracked = tracks.points.copy()
         motion, parallax = _Motion(), 0.0
         T_w_cur, T_key_cur, scale = self._T_w_key.copy(), None, None  # noqa: N806
+        scale_estimate: ScaleEstimate | None = None
         points_world = np.zeros((0, 3))
         keyframe_used = self._key_position
 
@@ -144,7 +146,12 @@ class Odometry:
                     motion = replace(motion, reason=Reason.TOO_FEW_TRACKS)
             if motion.reason is None and motion.rotation is not None and motion.translation is not None:
                 status = FrameStatus.OK
-                scale = self._scale.step_length(self._key_position, self._position)
+                view = TwoView(self._key_position, self._position,
+                               motion.points_cur if motion.points_cur is not None else np.zeros((0, 3)),
+                               motion.pixels_cur if motion.pixels_cur is not None else np.zeros((0, 2)))
+                scale, scale_estimate = self._scale.step_length(view)
+                if scale_estimate is not None and scale_estimate.held:
+                    warnings.append(Reason.SCALE_HELD)
                 warnings += self._motion_warnings(motion, int(used.sum()), scale)
                 T_key_cur = pose_matrix(motion.rotation, scale * motion.translation)  # noqa: N806
                 T_w_cur = self._T_w_key @ T_key_cur  # noqa: N806
@@ -195,6 +202,7 @@ class Odometry:
             T_key_cur=T_key_cur,
             points_world=points_world,
             scale=scale,
+            scale_estimate=scale_estimate,
             parallax_px=parallax,
             health=Health.of(motion.reason, warnings),
             timings_ms=timings,
@@ -334,17 +342,37 @@ class Odometry:
             translation=translation,
             in_front=in_front,
             points_cur=points[inlier_mask & near],
+            pixels_cur=p_cur[inlier_mask & near],
             derotated_parallax=derotated,
         )
+
+    def _road_corners(self, image: np.ndarray, existing: np.ndarray) -> np.ndarray:
+        """With --scale height: FAST corners (a lower threshold) in the road band ahead while it holds fewer
+        than `road_tracks` tracks, so every frame has road points for the plane fit."""
+        cfg = self.config.height
+        height, width = image.shape
+        x0 = int(max(self._K[0, 2] - cfg.road_half_width_px, 0))
+        x1 = int(min(self._K[0, 2] + cfg.road_half_width_px, width))
+        y0 = int(min(self._K[1, 2] + cfg.road_top_px, height))
+        inside = (existing[:, 0] >= x0) & (existing[:, 0] < x1) & (existing[:, 1] >= y0)
+        wanted = cfg.road_tracks - int(inside.sum())
+        if wanted <= 0 or x1 <= x0 or y0 >= height:
+            return np.zeros((0, 2), np.float32)
+        detector = replace(self.config.detector, fast_threshold=cfg.road_fast_threshold, grid_rows=2, grid_cols=4)
+        return detect_corners(image, existing, wanted, detector, region=(x0, y0, x1, height))
 
     def _replenish(self, image: np.ndarray, timings: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
         """Detect new corners away from live tracks when too few are left; they start new tracks."""
         cfg = self.config.detector
         clock = time.perf_counter()
         tracks = self._tracks
-        if len(tracks) >= cfg.redetect_below and self._previous is not None:
-            return np.zeros(0, np.int64), np.zeros((0, 2), np.float32)
-        corners = detect_corners(image, tracks.points, cfg.target_tracks - len(tracks), cfg)
+        corners = np.zeros((0, 2), np.float32)
+        if len(tracks) < cfg.redetect_below or self._previous is None:
+            corners = detect_corners(image, tracks.points, cfg.target_tracks - len(tracks), cfg)
+        if self.config.scale == "height":
+            corners = np.concatenate((corners, self._road_corners(image, np.concatenate((tracks.points, corners)))))
+        if not len(corners):
+            return np.zeros(0, np.int64), corners
         ids = np.arange(self._next_id, self._next_id + len(corners), dtype=np.int64)
         self._next_id += len(corners)
         at_keyframe = self._key_position == self._position

@@ -12,13 +12,20 @@ from vslam_core.config import DetectorConfig, TrackerConfig
 
 
 def detect_corners(
-    image: np.ndarray, existing: np.ndarray, wanted: int, config: DetectorConfig
+    image: np.ndarray, existing: np.ndarray, wanted: int, config: DetectorConfig,
+    region: tuple[int, int, int, int] | None = None,
 ) -> np.ndarray:
     """Up to `wanted` FAST corners, strongest first within each cell of a grid_rows x grid_cols grid and
     at least `min_distance_px` from every `existing` (M, 2) point, so new corners fill the empty parts of
-    the image instead of piling up on one façade. Returns (K, 2) float32, K ≤ wanted."""
+    the image instead of piling up on one façade. `region` (x0, y0, x1, y1) limits the search to a
+    rectangle. Returns (K, 2) float32 full-image coordinates, K ≤ wanted."""
     if wanted <= 0:
         return np.zeros((0, 2), np.float32)
+    if region is not None:
+        x0, y0, x1, y1 = region
+        offset = np.array([x0, y0], np.float32)
+        found = detect_corners(image[y0:y1, x0:x1], existing - offset, wanted, config)
+        return found + offset
     height, width = image.shape
     mask = None
     if config.min_distance_px > 0 and len(existing):

@@ -35,6 +35,21 @@ KITTI_LENGTHS: tuple[float, ...] = (100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 70
 KITTI_STEP = 10
 
 
+def scale_errors(gt: np.ndarray, est: np.ndarray, min_step_m: float = 0.1) -> tuple[float, float, float]:
+    """How well the estimate's step lengths match the ground truth's (for a scale source such as the
+    camera height): (median and mean absolute of |Δp_est,i| / |Δp_gt,i| − 1 over frames that moved at
+    least `min_step_m`, and total path length est / gt − 1), all in percent, no alignment."""
+    g, e = _check_pair(gt, est)
+    step_gt = np.linalg.norm(np.diff(g[:, :3, 3], axis=0), axis=1)
+    step_est = np.linalg.norm(np.diff(e[:, :3, 3], axis=0), axis=1)
+    moved = step_gt >= min_step_m
+    if not moved.any():
+        return float("nan"), float("nan"), float("nan")
+    ratio = step_est[moved] / step_gt[moved] - 1
+    path = step_est.sum() / step_gt.sum() - 1
+    return float(100 * np.median(ratio)), float(100 * np.mean(np.abs(ratio))), float(100 * path)
+
+
 # --------------------------------------------------------------------------------------------------
 # input checks and small helpers
 

@@ -105,7 +105,9 @@ def run_odometry(
 ) -> RunResult:
     """Estimate one pose per source frame. Fills `result` as it goes (pass one in to keep the frames
     processed so far if the run is interrupted)."""
-    scale = make_scale_provider(config.scale, source.ground_truth)
+    # the height scale is never given the ground truth
+    ground_truth = source.ground_truth if config.scale == "gt" else None
+    scale = make_scale_provider(config, ground_truth, source.intrinsics.K, source.camera_height)
     engine = Odometry(source.intrinsics, config, scale)
     run = result if result is not None else RunResult([], [], [])
     start = time.perf_counter()

@@ -53,6 +53,7 @@ class Reason(StrEnum):
     ROTATION_DOMINATED = "rotation_dominated"
     SCALE_JUMP = "scale_jump"
     RECOVERED = "recovered_by_matching"  # tracks were lost; the motion was measured by descriptor matching
+    SCALE_HELD = "scale_held"  # --scale height: no road plane (or an outlier) this frame; the last scale held
 
 
 class HealthStatus(StrEnum):
@@ -73,6 +74,18 @@ class Health:
             return cls(HealthStatus.FAIL, (held, *warnings))
         reasons = ((held,) if held is not None else ()) + tuple(warnings)
         return cls(HealthStatus.WARN if reasons else HealthStatus.OK, reasons)
+
+
+@dataclass(frozen=True)
+class ScaleEstimate:
+    """How `--scale height` found this frame's step length (current camera frame, metric units)."""
+
+    road_points: np.ndarray  # (R, 3) road points the plane was fitted to (its inliers)
+    plane_normal: np.ndarray | None  # (3,) unit, pointing down; None when no plane was found
+    camera_height: float | None  # the camera's height above that plane
+    measured_step: float | None  # known height / height in baselines: this frame's own step length
+    step: float  # the step length used, after temporal filtering (or held)
+    held: bool  # no plane or an outlier: the filtered trend's step was used instead
 
 
 @dataclass(frozen=True)
@@ -106,6 +119,7 @@ class FrameResult:
     scale: float | None  # length of this step's translation (metres with gt scale)
     parallax_px: float  # median displacement keyframe -> this frame of the tracks used
     health: Health = Health(HealthStatus.OK)
+    scale_estimate: ScaleEstimate | None = None  # with --scale height
     timings_ms: dict[str, float] = field(default_factory=dict)  # stage -> milliseconds
 
     @property

@@ -121,6 +121,11 @@ class FrameSource(Protocol):
         """The source frame indices of the selected frames, in order (len = N)."""
         ...
 
+    @property
+    def camera_height(self) -> float | None:
+        """The camera's height above the road in metres, when the source knows it (for --scale height)."""
+        ...
+
     def __len__(self) -> int:
         """Number of selected frames."""
         ...

@@ -98,6 +98,10 @@ class FaultInjector:
         return [i for i in self._source.indices if i not in self._dropped]
 
     @property
+    def camera_height(self) -> float | None:
+        return self._source.camera_height
+
+    @property
     def ground_truth(self) -> np.ndarray | None:
         """The source's ground truth without the dropped frames (still relative to the first selected one,
         re-based if that one was dropped)."""

@@ -158,6 +158,10 @@ class ImageFolderSource:
         return None if self._ground_truth is None else self._ground_truth.copy()
 
     @property
+    def camera_height(self) -> None:
+        return None
+
+    @property
     def files(self) -> list[Path]:
         """Every image file of the folder, sorted (source index i = files[i])."""
         return list(self._files)

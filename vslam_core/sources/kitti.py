@@ -29,6 +29,7 @@ GroundTruthFormat = Literal["kitti", "tum", "auto"]
 
 #: Image file extensions a folder of frames may hold (compared case-insensitively).
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+KITTI_CAMERA_HEIGHT_M = 1.65
 
 
 # --------------------------------------------------------------------------------------------------
@@ -243,6 +244,11 @@ class KittiSource:
     def ground_truth(self) -> np.ndarray | None:
         """(N, 4, 4) T_w_c of the selected frames (first = identity), or None without a poses file."""
         return None if self._ground_truth is None else self._ground_truth.copy()
+
+    @property
+    def camera_height(self) -> float:
+        """The KITTI recording car's cameras are mounted about 1.65 m above the road (Geiger et al. 2013)."""
+        return KITTI_CAMERA_HEIGHT_M
 
     @property
     def indices(self) -> list[int]:

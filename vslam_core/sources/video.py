@@ -121,6 +121,10 @@ class VideoSource:
         return None if self._ground_truth is None else self._ground_truth.copy()
 
     @property
+    def camera_height(self) -> None:
+        return None
+
+    @property
     def frame_count(self) -> int:
         """Frames in the whole video (counted when opened)."""
         return self._count
