@@ -161,7 +161,8 @@ def compare_recordings(a: Path, b: Path, output: Path, labels: tuple[str, str] =
 
         layout = work / "blueprint.rrd"
         with rr.RecordingStream(application_id, recording_id=recording_id, send_properties=False) as rec:
-            rec.save(layout, default_blueprint=blueprint(labels, trajectory_bounds(list(inputs))))
+            groups = [g for g in METRICS if any(not read_entity(p, f"/metrics/{g}/**").is_empty() for p in inputs)]
+            rec.save(layout, default_blueprint=blueprint(labels, trajectory_bounds(list(inputs)), groups))
         combined = work / "combined.rrd"
         run_rerun_cli(output, "rrd", "filter", "-o", str(combined), str(layout), *map(str, parts), str(extra))
         check = RrdReader(combined)
@@ -291,11 +292,13 @@ def plot_title(group: str) -> str:
 
 
 def blueprint(labels: tuple[str, str] = ("A", "B"),
-              bounds: tuple[np.ndarray, np.ndarray] | None = None) -> rrb.Blueprint:
+              bounds: tuple[np.ndarray, np.ndarray] | None = None,
+              groups: list[str] | None = None) -> rrb.Blueprint:
     """Run A (frame, world) | run B (frame, world) above one plot per metric group overlaying both runs (two
     rows), beside the shared 3-D view of both trajectories and the ground truth, and both runs' events.
     `bounds` (lowest and highest corner of the trajectories, `trajectory_bounds`) aims the shared 3-D view
-    straight down on them."""
+    straight down on them. `groups`: the `METRICS` groups to plot (default all; `compare_recordings` leaves
+    out groups neither run logged, e.g. the road scale of runs with ground-truth scale)."""
     whole_past = rrb.VisibleTimeRanges([rr.VisibleTimeRange(
         "frame", start=rr.TimeRangeBoundary.infinite(), end=rr.TimeRangeBoundary.cursor_relative())])
 
@@ -319,7 +322,7 @@ def blueprint(labels: tuple[str, str] = ("A", "B"),
     (label_a, label_b), (a, b) = labels, PREFIXES
     plots = [rrb.TimeSeriesView(name=plot_title(group), origin="/",
                                 contents=[f"/{a}/metrics/{group}/**", f"/{b}/metrics/{group}/**"])
-             for group in METRICS]
+             for group in (groups if groups is not None else METRICS)]
     # The whole past on every trajectory entity (not inherited from a parent); run B's estimate in blue. Radii
     # in UI points (negative), so a 500 m trajectory stays visible, and thinner for the lines drawn inside others.
     def line(points: float, colour: tuple[int, int, int] | None = None) -> list[_Override]:

@@ -11,6 +11,9 @@ Entity layout (world = camera frame of the first frame, RDF: x right, y down, z 
     /world/candidates                   the four (R, t) decompositions of E placed at the keyframe: a point
                                         and three axes each, chirality count and chosen flag on hover
     /world/points                       triangulated inliers of this frame (world coordinates)
+    /world/road/points, /world/road/plane   --scale height: the road points the plane was fitted to, and
+                                        an outline of that plane ahead of the camera (world coordinates)
+    /world/camera/image/road            --scale height: those road points in the image
     /world/trajectory/estimate          one line segment per frame (O(1) per frame)
     /world/trajectory/ground_truth      same, from the source's ground truth
     /metrics/...                        per-frame scalars (tracks, RANSAC, motion, error, timing_ms)
@@ -75,6 +78,7 @@ FATE_STYLE: dict[TrackFate, tuple[str, tuple[int, int, int]]] = {
 }
 NEW_CORNER_COLOUR = (255, 230, 0)
 CANDIDATE_COLOURS = [(255, 200, 0), (0, 200, 255), (255, 0, 160), (160, 255, 0)]
+ROAD_COLOUR = (255, 120, 220)
 AXIS_COLOURS = [(255, 60, 60), (60, 255, 60), (60, 120, 255)]  # x, y, z of each candidate's camera
 ESTIMATE_COLOUR = (255, 80, 80)
 GROUND_TRUTH_COLOUR = (80, 255, 120)
@@ -88,6 +92,7 @@ METRICS: dict[str, dict[str, tuple[str, tuple[int, int, int]]]] = {
         "alive": ("tracks alive", (40, 120, 255)),
         "new_corners": ("corners detected", NEW_CORNER_COLOUR),
         "fb_rejected": ("forward–backward rejects", (255, 140, 0)),
+        "road_points": ("road points in the plane fit (--scale height)", ROAD_COLOUR),
     },
     "ransac": {
         "inliers": ("RANSAC inliers", (40, 220, 60)),
@@ -96,6 +101,10 @@ METRICS: dict[str, dict[str, tuple[str, tuple[int, int, int]]]] = {
     "ratio": {"inlier_ratio": ("inlier ratio", (40, 220, 60))},
     "health": {"status": ("health: 0 ok, 1 warn, 2 fail", (255, 140, 0))},
     "motion": {"rotation_deg": ("rotation (°)", (255, 200, 0)), "scale": ("step length", (0, 200, 255))},
+    "road": {  # --scale height
+        "measured_step": ("step from this frame's road plane (m)", (255, 140, 0)),
+        "camera_height_m": ("camera height over the plane at the step used (m)", ROAD_COLOUR),
+    },
     "error": {"position_m": ("position error (m)", ESTIMATE_COLOUR)},
     "angle_error": {
         "heading_deg": ("heading error (°)", (255, 80, 200)),
@@ -142,6 +151,7 @@ def blueprint() -> rrb.Blueprint:
                     rrb.TimeSeriesView(name="inlier ratio", origin="/metrics/ratio"),
                     rrb.TimeSeriesView(name="health", origin="/metrics/health"),
                     rrb.TimeSeriesView(name="motion", origin="/metrics/motion"),
+                    rrb.TimeSeriesView(name="scale from the road", origin="/metrics/road"),
                     rrb.TimeSeriesView(name="position error (m)", origin="/metrics/error"),
                     rrb.TimeSeriesView(name="angle errors (°)", origin="/metrics/angle_error"),
                     rrb.TimeSeriesView(name="timing (ms)", origin="/metrics/timing_ms"),
@@ -336,6 +346,9 @@ class Recorder:
         rec.log("/world/camera/image/corners", rr.Points2D.from_fields(radii=2.0, colors=NEW_CORNER_COLOUR),
                 static=True)
         rec.log("/world/points", rr.Points3D.from_fields(radii=0.05, colors=(200, 200, 200)), static=True)
+        rec.log("/world/road/points", rr.Points3D.from_fields(radii=0.07, colors=ROAD_COLOUR), static=True)
+        rec.log("/world/road/plane", rr.LineStrips3D.from_fields(radii=0.03, colors=ROAD_COLOUR), static=True)
+        rec.log("/world/camera/image/road", rr.Points2D.from_fields(radii=3.0, colors=ROAD_COLOUR), static=True)
         rec.log("/world/candidates", rr.Points3D.from_fields(colors=CANDIDATE_COLOURS),
                 rr.Arrows3D.from_fields(colors=AXIS_COLOURS * len(CANDIDATE_COLOURS), radii=0.02), static=True)
         rec.log("/world/trajectory/estimate", rr.LineStrips3D.from_fields(colors=ESTIMATE_COLOUR, radii=0.12),
@@ -359,6 +372,8 @@ class Recorder:
         if self.detail == Detail.FULL:
             points = result.points_world.astype(np.float32)
             columns.add("/world/points", frame, (rr.Points3D.columns, {"positions": points}), batch=True)
+        if self._scale == "height":
+            self._log_road(frame, result)
         self._log_trajectories(frame, result)
         self._log_metrics(frame, result)
         self._log_events(frame, result)
@@ -426,6 +441,24 @@ class Recorder:
             batch=True,
         )
 
+    def _log_road(self, frame: Frame, result: FrameResult) -> None:
+        """--scale height: the road points and plane behind this frame's step length (empty rows when the
+        frame had none, so earlier ones do not linger)."""
+        estimate = result.scale_estimate
+        pose = result.T_world_cam
+        points, pixels, outline = np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 5, 3))
+        if estimate is not None:
+            points = estimate.road_points @ pose[:3, :3].T + pose[:3, 3]
+            pixels = estimate.road_pixels
+            if estimate.plane_normal is not None and estimate.camera_height is not None:
+                outline = (road_outline(estimate.plane_normal, estimate.camera_height) @ pose[:3, :3].T
+                           + pose[:3, 3])[None]
+        columns = self._columns
+        columns.add("/world/road/points", frame, (rr.Points3D.columns, {"positions": points}), batch=True)
+        columns.add("/world/road/plane", frame, (rr.LineStrips3D.columns, {"strips": list(outline)}), batch=True)
+        if self.detail in (Detail.FULL, Detail.STANDARD):
+            columns.add("/world/camera/image/road", frame, (rr.Points2D.columns, {"positions": pixels}), batch=True)
+
     def _log_trajectories(self, frame: Frame, result: FrameResult) -> None:
         """One segment per frame for the estimate and the ground truth (never the whole path again)."""
         position = result.T_world_cam[:3, 3]
@@ -481,6 +514,12 @@ def frame_metrics(result: FrameResult, ground_truth: np.ndarray | None) -> dict[
     if result.T_key_cur is not None:
         values["rotation_deg"] = float(np.degrees(rotation_angle(result.T_key_cur[:3, :3])))
         values["scale"] = result.scale or 0.0
+    estimate = result.scale_estimate
+    if estimate is not None:
+        values["road_points"] = len(estimate.road_points)
+        if estimate.measured_step is not None and estimate.camera_height is not None:
+            values["measured_step"] = estimate.measured_step
+            values["camera_height_m"] = estimate.camera_height
     if ground_truth is not None:
         gt_pose = ground_truth[result.position]
         values["position_m"] = float(np.linalg.norm(gt_pose[:3, 3] - result.T_world_cam[:3, 3]))
@@ -490,6 +529,17 @@ def frame_metrics(result: FrameResult, ground_truth: np.ndarray | None) -> dict[
             values["translation_direction_deg"] = float(
                 np.degrees(angle_between(gt_step[:3, 3], result.T_key_cur[:3, 3])))
     return values
+
+
+def road_outline(normal: np.ndarray, height: float, half_width: float = 2.0, near: float = 4.0,
+                 far: float = 20.0) -> np.ndarray:
+    """(5, 3) closed outline of the plane nᵀ·X = height (camera frame) over x ∈ ±half_width, z ∈ [near, far]
+    metres: the patch of road ahead that the plane describes."""
+    corners = []
+    for x, z in ((-half_width, near), (half_width, near), (half_width, far), (-half_width, far), (-half_width, near)):
+        y = (height - normal[0] * x - normal[2] * z) / normal[1]
+        corners.append((x, y, z))
+    return np.array(corners)
 
 
 def _flatten(data: dict[str, Any], prefix: str = "") -> dict[str, Any]:

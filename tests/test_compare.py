@@ -173,7 +173,9 @@ def test_embedded_blueprint_has_both_runs_and_overlaid_plots(compared: Compariso
         world = views[f"{label}: world"]
         assert world["class"] == "3D" and world["origin"] == f"/{prefix}/world"
         assert world["overrides"] == {f"/{prefix}/world/trajectory/{t}" for t in ("estimate", "ground_truth")}
-    for group in METRICS:
+    plotted = [group for group in METRICS if group != "road"]  # neither run used --scale height
+    assert plot_title("road") not in views
+    for group in plotted:
         plot = views[plot_title(group)]
         assert plot["class"] == "TimeSeries"
         assert plot["contents"] == [f"/a/metrics/{group}/**", f"/b/metrics/{group}/**"]
@@ -182,7 +184,7 @@ def test_embedded_blueprint_has_both_runs_and_overlaid_plots(compared: Compariso
     assert trajectories["overrides"] == {f"/{p}/world/trajectory/{t}" for p in "ab"
                                          for t in ("estimate", "ground_truth")}
     assert views["events"]["contents"] == ["/a/events", "/b/events"]
-    assert len(views) == 4 + len(METRICS) + 2
+    assert len(views) == 4 + len(plotted) + 2
 
 
 def test_differences_are_the_inspect_values(runs: tuple[Path, Path], compared: ComparisonResult) -> None:
@@ -285,7 +287,7 @@ def _columns(picture: np.ndarray, rgb: tuple[int, int, int] | list[int], toleran
 
 
 def test_snapshot_shows_both_runs_and_overlaid_plots(shots: dict[str, Path]) -> None:
-    plots = [view_file_name(plot_title(group)) for group in METRICS]
+    plots = [view_file_name(plot_title(group)) for group in METRICS if group != "road"]  # no --scale height run
     expected = ["a_frame", "a_world", "b_frame", "b_world", *plots, "events",
                 "trajectories_a_red_b_blue_truth_green", "all"]
     assert sorted(shots) == sorted(expected)

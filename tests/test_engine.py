@@ -121,4 +121,4 @@ def test_frame_result_holds_every_intermediate() -> None:
 
 def test_gt_scale_without_ground_truth_is_a_clear_error() -> None:
     with pytest.raises(ConfigError, match="ground truth"):
-        make_scale_provider("gt", None)
+        make_scale_provider(EngineConfig(scale="gt"), None, np.eye(3), None)

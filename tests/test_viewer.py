@@ -26,8 +26,8 @@ from vslam_core.errors import VslamError
 ROOT = Path(__file__).resolve().parents[1]
 FRAME = 10
 #: The views of app.recording.blueprint(), in the layout's reading order.
-VIEWS = ["frame", "world", "tracks", "inliers", "inlier_ratio", "health", "motion", "position_error_m",
-         "angle_errors", "timing_ms", "events", "report"]
+VIEWS = ["frame", "world", "tracks", "inliers", "inlier_ratio", "health", "motion", "scale_from_the_road",
+         "position_error_m", "angle_errors", "timing_ms", "events", "report"]
 
 
 @pytest.fixture(scope="module")

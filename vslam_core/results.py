@@ -81,6 +81,7 @@ class ScaleEstimate:
     """How `--scale height` found this frame's step length (current camera frame, metric units)."""
 
     road_points: np.ndarray  # (R, 3) road points the plane was fitted to (its inliers)
+    road_pixels: np.ndarray  # (R, 2) their pixel positions in this frame
     plane_normal: np.ndarray | None  # (3,) unit, pointing down; None when no plane was found
     camera_height: float | None  # the camera's height above that plane
     measured_step: float | None  # known height / height in baselines: this frame's own step length

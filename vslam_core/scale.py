@@ -115,6 +115,7 @@ class HeightScale:
         held = measured is None or abs(measured / step - 1) > cfg.max_jump
         return step, ScaleEstimate(
             road_points=view.points[road][plane.inliers] * step if plane is not None else np.zeros((0, 3)),
+            road_pixels=view.pixels[road][plane.inliers] if plane is not None else np.zeros((0, 2)),
             plane_normal=plane.normal if plane is not None else None,
             camera_height=plane.height * step if plane is not None else None,
             measured_step=measured,

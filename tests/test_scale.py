@@ -1,0 +1,206 @@
+"""Scale from the known camera height (`--scale height`): the road plane fit, the temporal filter, and
+runs on the synthetic street and real KITTI that never see the ground truth."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from app.rrd import read_entity
+from vslam_core.config import EngineConfig, HeightScaleConfig
+from vslam_core.errors import ConfigError
+from vslam_core.geometry import so3_exp
+from vslam_core.metrics import kitti_errors, scale_errors
+from vslam_core.pipeline import run_odometry
+from vslam_core.results import FrameResult, Reason
+from vslam_core.road import fit_road_plane, road_region
+from vslam_core.scale import HeightScale, TwoView, make_scale_provider
+from vslam_core.sources.base import FrameRange
+from vslam_core.sources.kitti import KittiSource
+from vslam_core.sources.synthetic import SyntheticStreet
+
+ROOT = Path(__file__).resolve().parents[1]
+K = np.array([[718.9, 0.0, 607.2], [0.0, 718.9, 185.2], [0.0, 0.0, 1.0]])
+CONFIG = HeightScaleConfig()
+
+
+def road_scene(height: float, rng: np.random.Generator, n: int = 200, tilt_deg: float = 0.0,
+               obstacles: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points on the plane nᵀX = height ahead of the camera (n tilted by `tilt_deg` about x), a fraction
+    `obstacles` of them lifted off it (cars, kerbs), and their pixels. Returns (points, pixels, normal)."""
+    normal = so3_exp(np.radians([tilt_deg, 0.0, 0.0])) @ np.array([0.0, 1.0, 0.0])
+    x = rng.uniform(-2.0, 2.0, n) * height / 1.65
+    z = rng.uniform(5.0, 15.0, n) * height / 1.65
+    y = (height - normal[0] * x - normal[2] * z) / normal[1]
+    lifted = rng.random(n) < obstacles
+    y[lifted] -= rng.uniform(0.1, 1.0, lifted.sum()) * height
+    points = np.column_stack((x, y, z))
+    pixels = (points / points[:, 2:3]) @ K.T
+    return points, pixels[:, :2], normal
+
+
+@pytest.mark.parametrize("tilt_deg", [0.0, 3.0])
+def test_road_plane_is_recovered_despite_obstacles(tilt_deg: float) -> None:
+    points, _, normal = road_scene(0.8, np.random.default_rng(1), tilt_deg=tilt_deg, obstacles=0.3)
+    noisy = points + np.random.default_rng(2).normal(0.0, 0.002, points.shape)
+    plane = fit_road_plane(noisy, CONFIG, np.random.default_rng(0))
+    assert plane is not None
+    assert plane.height == pytest.approx(0.8, rel=0.01)
+    assert np.degrees(np.arccos(plane.normal @ normal)) < 0.5
+    assert plane.tilt_deg == pytest.approx(tilt_deg, abs=0.5)
+    assert 0.6 < plane.inliers.mean() < 0.8  # the lifted 30 % are not on it
+
+
+def test_no_plane_from_a_wall_or_too_few_points() -> None:
+    rng = np.random.default_rng(3)
+    wall = np.column_stack((np.full(50, 3.0), rng.uniform(-1, 1, 50), rng.uniform(5, 15, 50)))  # x = 3 m
+    assert fit_road_plane(wall, CONFIG, rng) is None
+    points, _, _ = road_scene(1.0, rng, n=CONFIG.min_road_points - 1)
+    assert fit_road_plane(points, CONFIG, rng) is None
+
+
+def test_road_region_keeps_the_lane_ahead_below_the_horizon() -> None:
+    points = np.array([[0.0, 1.65, 8.0], [0.0, -1.0, 8.0], [6.0, 1.65, 8.0], [0.0, 1.65, 60.0]])
+    pixels = (points / points[:, 2:3] @ K.T)[:, :2]
+    # on the road ahead | above the horizon | far to the side | near the horizon
+    assert road_region(pixels, points, K, CONFIG).tolist() == [True, False, False, False]
+
+
+def test_height_scale_follows_an_accelerating_car_and_ignores_a_wrong_plane() -> None:
+    """Steps grow 1 % a frame; one frame's plane is 60 % off. The filtered step tracks the truth without
+    the lag of a median, and the outlier is flagged held without moving it."""
+    provider = HeightScale(1.65, K, CONFIG, seed=0)
+    rng = np.random.default_rng(4)
+    errors = []
+    for position in range(1, 40):
+        true_step = 0.8 * 1.01**position
+        height = 1.65 / true_step * (1.6 if position == 30 else 1.0)  # camera height in baselines
+        points, pixels, _ = road_scene(height, rng)
+        step, estimate = provider.step_length(TwoView(position - 1, position, points, pixels))
+        assert estimate is not None and estimate.step == step
+        assert estimate.held == (position == 30)
+        if position >= 10:
+            errors.append(step / true_step - 1)
+    assert np.max(np.abs(errors)) < 0.01
+
+
+def test_height_scale_holds_the_trend_without_a_plane() -> None:
+    provider = HeightScale(1.65, K, CONFIG, seed=0)
+    rng = np.random.default_rng(5)
+    for position in range(1, 10):
+        points, pixels, _ = road_scene(1.65 / 1.2, rng)
+        provider.step_length(TwoView(position - 1, position, points, pixels))
+    step, estimate = provider.step_length(TwoView(9, 11, np.zeros((0, 3)), np.zeros((0, 2))))  # two frames
+    assert estimate is not None and estimate.held and estimate.plane_normal is None
+    assert step == pytest.approx(2 * 1.2, rel=1e-6)
+
+
+def test_height_scale_needs_a_camera_height() -> None:
+    with pytest.raises(ConfigError, match="--camera-height"):
+        make_scale_provider(EngineConfig(scale="height"), None, K, None)
+    provider = make_scale_provider(EngineConfig(scale="height").with_camera_height(1.2), None, K, 1.65)
+    assert isinstance(provider, HeightScale) and provider.camera_height == 1.2
+
+
+@pytest.mark.parametrize("camera_height", [1.65, 1.3])
+def test_synthetic_street_metric_from_the_camera_height(camera_height: float) -> None:
+    source = SyntheticStreet(camera_height=camera_height, frames=FrameRange(0, 150))
+    results: list[FrameResult] = []
+    run = run_odometry(source, EngineConfig(scale="height"), sinks=(lambda _f, r: results.append(r),))
+    gt = source.ground_truth
+    t_err, _ = kitti_errors(gt, run.pose_array())
+    median, _, path = scale_errors(gt, run.pose_array())
+    assert t_err < 1.5
+    assert abs(median) < 2.0 and abs(path) < 2.0
+    heights = [r.scale_estimate.camera_height for r in results if r.scale_estimate is not None
+               and r.scale_estimate.camera_height is not None]
+    assert np.median(heights) == pytest.approx(camera_height, rel=0.02)
+
+
+@pytest.fixture(scope="module")
+def kitti_height_runs(kitti_root: Path) -> dict[str, tuple[np.ndarray, np.ndarray, list[FrameResult]]]:
+    runs = {}
+    for sequence in ("00", "05"):
+        source = KittiSource(kitti_root, sequence=sequence, frames=FrameRange(0, 300))
+        results: list[FrameResult] = []
+        run = run_odometry(source, EngineConfig(scale="height"), sinks=(lambda _f, r, kept=results: kept.append(r),))
+        assert source.ground_truth is not None
+        runs[sequence] = (source.ground_truth, run.pose_array(), results)
+    return runs
+
+
+@pytest.mark.parametrize("sequence", ["00", "05"])
+def test_kitti_metric_without_ground_truth_within_three_percent(
+    kitti_height_runs: dict[str, tuple[np.ndarray, np.ndarray, list[FrameResult]]], sequence: str
+) -> None:
+    gt, poses, results = kitti_height_runs[sequence]
+    t_err, r_err = kitti_errors(gt, poses)
+    median, mean_abs, path = scale_errors(gt, poses)
+    assert t_err < 3.0, (t_err, median, path)
+    assert abs(path) < 3.0 and abs(median) < 2.0 and mean_abs < 10.0
+    held = sum(Reason.SCALE_HELD in r.health.reasons for r in results)
+    assert held < 0.2 * len(results)  # a road plane most of the time
+
+
+def test_kitti_trajectory_is_the_same_without_a_poses_file(kitti_root: Path, tmp_path: Path) -> None:
+    """The height scale never reads ground truth: a copy of the sequence with no poses file (images,
+    calibration and times linked, nothing copied) gives the identical trajectory."""
+    sequence = tmp_path / "sequences" / "05"
+    sequence.mkdir(parents=True)
+    for name in ("image_0", "calib.txt", "times.txt"):
+        (sequence / name).symlink_to(kitti_root / "sequences" / "05" / name)
+    with_gt = KittiSource(kitti_root, sequence="05", frames=FrameRange(0, 80))
+    without_gt = KittiSource(tmp_path, sequence="05", frames=FrameRange(0, 80))
+    assert with_gt.ground_truth is not None and without_gt.ground_truth is None
+    config = EngineConfig(scale="height")
+    a = run_odometry(with_gt, config).pose_array()
+    b = run_odometry(without_gt, config).pose_array()
+    assert np.array_equal(a, b)
+
+
+def vslam(*args: str | Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "app.cli", *map(str, args)], capture_output=True, text=True,
+                          cwd=ROOT, timeout=600)
+
+
+def test_cli_records_the_road_plane_and_reports_the_scale_source(kitti_root: Path, tmp_path: Path) -> None:
+    rrd = tmp_path / "h.rrd"
+    result = vslam("run", kitti_root, "--sequence", "05", "--frames", "0:60", "--scale", "height", "-o", rrd)
+    assert result.returncode == 0, result.stderr
+    assert "height (camera 1.65 m above the road; no ground truth used)" in result.stdout
+    measured = read_entity(rrd, "/metrics/road/measured_step")
+    heights = read_entity(rrd, "/metrics/road/camera_height_m")
+    assert len(measured) > 45 and len(heights) == len(measured)
+    assert np.median([v[0] for v in heights["Scalars:scalars"].to_list()]) == pytest.approx(1.65, rel=0.1)
+    for entity in ("/world/road/points", "/world/road/plane", "/world/camera/image/road"):
+        assert len(read_entity(rrd, entity)) == 60, entity
+    points = read_entity(rrd, "/world/road/points")["Points3D:positions"].to_list()
+    assert np.median([len(p) for p in points]) >= CONFIG.min_road_points
+    properties = read_entity(rrd, "/__properties/config", static=True)
+    assert properties["scale"].to_list() == [["height"]]
+
+    evaluated = vslam("eval", kitti_root, "--sequences", "05", "--frames", "0:120", "--scale", "height",
+                      "--camera-height", "1.65", "--json")
+    assert evaluated.returncode == 0, evaluated.stderr
+    assert '"scale": "height"' in evaluated.stdout and '"alignment": "none"' in evaluated.stdout
+    assert '"path_length_err"' in evaluated.stdout
+
+
+def test_cli_height_scale_errors(kitti_root: Path, tmp_path: Path) -> None:
+    folder = tmp_path / "images"
+    folder.mkdir()
+    for i in range(3):
+        (folder / f"{i:06d}.png").symlink_to(kitti_root / "sequences" / "00" / "image_0" / f"{i:06d}.png")
+    for args, fragment in (
+        ([folder, "--intrinsics", "718.9,718.9,607.2,185.2", "--scale", "height"], "--camera-height"),
+        ([kitti_root, "--sequence", "00", "--scale", "gt", "--camera-height", "1.5"], "only applies"),
+    ):
+        result = vslam("run", *args, "--detail", "off")
+        assert result.returncode == 2 and "Traceback" not in result.stderr
+        lines = [line for line in result.stderr.splitlines() if line.strip()]
+        assert len(lines) == 1 and fragment in lines[0], result.stderr
+
