@@ -26,7 +26,7 @@ COLUMNS: dict[str, tuple[str, str]] = {
     "rpe_rot_10m": ("RPE 10 m: °", "{:.3f}"),
     "paper_rms": ("paper RMS m", "{:.3f}"),
     "step_err_median": ("step err median %", "{:+.1f}"),
-    "step_err_abs": ("step err mean |%|", "{:.1f}"),
+    "step_err_abs": ("step err mean abs %", "{:.1f}"),
     "path_length_err": ("path length err %", "{:+.1f}"),
     "fps": ("fps", "{:.1f}"),
 }
