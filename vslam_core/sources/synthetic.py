@@ -816,41 +816,12 @@ def _add_furniture(parts: _SceneParts, line: _Centreline, side: float, rng: np.r
         if kind < 0.45:  # sign on a pole
             w, h, bottom = rng.uniform(0.45, 0.9), rng.uniform(0.4, 0.9), rng.uniform(2.0, 2.6)
             pole = xy[0] + side * rng.uniform(3.9, 4.3) * normal[0]
-            parts.panel(
-                np.append(pole - 0.5 * w * across[:2], bottom + h),
-                across,
-                _DOWN,
-                (w, h),
-                parts.texture(_poster_texture(w, h, rng, res), rng),
-                res,
-            )
-            parts.panel(
-                np.append(pole - 0.05 * across[:2], bottom),
-                across,
-                _DOWN,
-                (0.1, bottom),
-                parts.texture(_plain_texture(0.1, bottom, rng, res), rng),
-                res,
-            )
+            _board_on_post(parts, pole - 0.5 * w * across[:2], (w, h), bottom, pole - 0.05 * across[:2], 0.1,
+                           across, rng, res)
         elif kind < 0.75:  # poster board on a post
             w, h, bottom = rng.uniform(0.8, 1.2), rng.uniform(1.2, 1.8), rng.uniform(0.3, 0.6)
             inner = xy[0] + side * 3.8 * normal[0]
-            parts.panel(
-                np.append(inner, bottom + h),
-                across,
-                _DOWN,
-                (w, h),
-                parts.texture(_poster_texture(w, h, rng, res), rng),
-                res,
-            )
-            parts.panel(
-                np.append(inner + (0.5 * w - 0.06) * across[:2], bottom),
-                across,
-                _DOWN,
-                (0.12, bottom),
-                parts.texture(_plain_texture(0.12, bottom, rng, res), rng),
-                res,
-            )
+            _board_on_post(parts, inner, (w, h), bottom, inner + (0.5 * w - 0.06) * across[:2], 0.12, across, rng, res)
         else:  # kiosk / advertising column
             size = (rng.uniform(0.8, 1.2), rng.uniform(0.8, 1.0), rng.uniform(2.0, 2.7))
             centre = xy[0] + side * (3.8 + 0.5 * size[1]) * normal[0]
@@ -863,6 +834,20 @@ def _add_furniture(parts: _SceneParts, line: _Centreline, side: float, rng: np.r
             ]
             parts.box(centre, direction, size, faces, res, rng)
         s += rng.uniform(6.0, 14.0)
+
+
+def _board_on_post(
+    parts: _SceneParts, board_xy: np.ndarray, board: tuple[float, float], bottom: float, post_xy: np.ndarray,
+    post_width: float, across: np.ndarray, rng: np.random.Generator, res: float,
+) -> None:
+    """A (w, h) poster board whose left edge stands at ground position `board_xy` with its lower edge
+    `bottom` metres up, on a `post_width` post from the ground to that edge at `post_xy`; both face the
+    road (`across` is horizontal, away from it)."""
+    w, h = board
+    parts.panel(np.append(board_xy, bottom + h), across, _DOWN, (w, h),
+                parts.texture(_poster_texture(w, h, rng, res), rng), res)
+    parts.panel(np.append(post_xy, bottom), across, _DOWN, (post_width, bottom),
+                parts.texture(_plain_texture(post_width, bottom, rng, res), rng), res)
 
 
 def _add_vehicles(parts: _SceneParts, line: _Centreline, rng: np.random.Generator) -> None:
