@@ -175,13 +175,22 @@ def _homogeneous(points: np.ndarray) -> np.ndarray:
     return np.column_stack((points, np.ones(len(points))))
 
 
+def _sampson_terms(
+    essential: np.ndarray, h_cur: np.ndarray, h_prev: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The parts of the Sampson error on (N, 3) homogeneous points: E·x_cur and Eᵀ·x_prev (N, 3), the
+    algebraic error x_prevᵀ·E·x_cur (N,) and its first-order normaliser (N,), floored above zero."""
+    e_cur = h_cur @ essential.T
+    et_prev = h_prev @ essential
+    algebraic = np.einsum("ij,ij->i", h_prev, e_cur)
+    norm = np.maximum(np.sqrt(e_cur[:, 0] ** 2 + e_cur[:, 1] ** 2 + et_prev[:, 0] ** 2 + et_prev[:, 1] ** 2), 1e-15)
+    return e_cur, et_prev, algebraic, norm
+
+
 def _sampson(essential: np.ndarray, h_cur: np.ndarray, h_prev: np.ndarray) -> np.ndarray:
     """`sampson_errors` on (N, 3) homogeneous points."""
-    e_cur = h_cur @ essential.T  # rows: E·x_cur
-    et_prev = h_prev @ essential  # rows: Eᵀ·x_prev
-    algebraic = np.einsum("ij,ij->i", h_prev, e_cur)
-    denominator = np.sqrt(e_cur[:, 0] ** 2 + e_cur[:, 1] ** 2 + et_prev[:, 0] ** 2 + et_prev[:, 1] ** 2)
-    return np.asarray(algebraic / np.maximum(denominator, 1e-15))
+    _, _, algebraic, norm = _sampson_terms(essential, h_cur, h_prev)
+    return np.asarray(algebraic / norm)
 
 
 def sampson_jacobian(
@@ -193,10 +202,7 @@ def sampson_jacobian(
     points."""
     essential = skew(translation) @ rotation
     d_essential = np.stack([essential @ skew(axis) for axis in np.eye(3)] + [skew(b) @ rotation for b in basis.T])
-    e_cur = h_cur @ essential.T  # rows: E·x_cur
-    et_prev = h_prev @ essential  # rows: Eᵀ·x_prev
-    algebraic = np.einsum("ij,ij->i", h_prev, e_cur)
-    norm = np.maximum(np.sqrt(e_cur[:, 0] ** 2 + e_cur[:, 1] ** 2 + et_prev[:, 0] ** 2 + et_prev[:, 1] ** 2), 1e-15)
+    e_cur, et_prev, algebraic, norm = _sampson_terms(essential, h_cur, h_prev)
     d_e_cur = h_cur @ d_essential.transpose(0, 2, 1)  # (5, N, 3): dE_k·x_cur
     d_et_prev = h_prev @ d_essential  # (5, N, 3): dE_kᵀ·x_prev
     d_algebraic = (d_e_cur * h_prev).sum(axis=2)  # (5, N)
