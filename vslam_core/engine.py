@@ -29,6 +29,7 @@ from vslam_core.geometry import (
 )
 from vslam_core.quality import ImageStats, image_stats
 from vslam_core.results import FrameResult, FrameStatus, Health, Reason, ScaleEstimate, TrackFate
+from vslam_core.road import RoadBand
 from vslam_core.scale import ScaleProvider, TwoView
 from vslam_core.sources.base import CameraIntrinsics, Frame
 
@@ -350,16 +351,13 @@ class Odometry:
         """With --scale height: FAST corners (a lower threshold) in the road band ahead while it holds fewer
         than `road_tracks` tracks, so every frame has road points for the plane fit."""
         cfg = self.config.height
-        height, width = image.shape
-        x0 = int(max(self._K[0, 2] - cfg.road_half_width_px, 0))
-        x1 = int(min(self._K[0, 2] + cfg.road_half_width_px, width))
-        y0 = int(min(self._K[1, 2] + cfg.road_top_px, height))
+        x0, y0, x1, y1 = RoadBand.of(self._K, cfg).rectangle(image.shape)
         inside = (existing[:, 0] >= x0) & (existing[:, 0] < x1) & (existing[:, 1] >= y0)
         wanted = cfg.road_tracks - int(inside.sum())
-        if wanted <= 0 or x1 <= x0 or y0 >= height:
+        if wanted <= 0 or x1 <= x0 or y0 >= y1:
             return np.zeros((0, 2), np.float32)
         detector = replace(self.config.detector, fast_threshold=cfg.road_fast_threshold, grid_rows=2, grid_cols=4)
-        return detect_corners(image, existing, wanted, detector, region=(x0, y0, x1, height))
+        return detect_corners(image, existing, wanted, detector, region=(x0, y0, x1, y1))
 
     def _replenish(self, image: np.ndarray, timings: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
         """Detect new corners away from live tracks when too few are left; they start new tracks."""

@@ -31,21 +31,39 @@ class RoadPlane:
         return float(np.degrees(np.arccos(np.clip(self.normal[1], -1.0, 1.0))))
 
 
+@dataclass(frozen=True)
+class RoadBand:
+    """Where the lane ahead appears in the image: `top` px and below, within `half_width` px of `centre_x`
+    (the principal point's column), i.e. `road_top_px` below the principal point down to the image bottom."""
+
+    centre_x: float
+    half_width: float
+    top: float
+
+    @classmethod
+    def of(cls, K: np.ndarray, config: HeightScaleConfig) -> RoadBand:  # noqa: N803
+        return cls(float(K[0, 2]), config.road_half_width_px, float(K[1, 2] + config.road_top_px))
+
+    def contains(self, pixels: np.ndarray) -> np.ndarray:
+        """(N,) bool for (N, 2) pixel positions."""
+        return np.asarray((pixels[:, 1] > self.top) & (np.abs(pixels[:, 0] - self.centre_x) < self.half_width))
+
+    def rectangle(self, image_shape: tuple[int, int]) -> tuple[int, int, int, int]:
+        """(x0, y0, x1, y1) of the band in whole pixels, clipped to an (H, W) image."""
+        height, width = image_shape
+        return (int(max(self.centre_x - self.half_width, 0)), int(min(self.top, height)),
+                int(min(self.centre_x + self.half_width, width)), height)
+
+
 def road_region(pixels: np.ndarray, points: np.ndarray, K: np.ndarray, config: HeightScaleConfig) -> np.ndarray:  # noqa: N803
     """(N,) bool: points that may lie on the road in front of the car, from their (N, 2) pixel positions
-    (a band `road_top_px` below the principal point down to the image bottom, `road_half_width_px` either
-    side of it: the lane ahead, under the horizon) and their (N, 3) positions (below the camera, in front
-    of it)."""
+    (inside the `RoadBand`: the lane ahead, under the horizon) and their (N, 3) positions (below the
+    camera, in front of it)."""
     if pixels.shape != (len(points), 2) or points.shape[1:] != (3,):
         raise GeometryError(f"road_region: expected (N, 2) pixels and (N, 3) points, got {pixels.shape}, "
                             f"{points.shape}")
     with np.errstate(invalid="ignore"):
-        return np.asarray(
-            (pixels[:, 1] > K[1, 2] + config.road_top_px)
-            & (np.abs(pixels[:, 0] - K[0, 2]) < config.road_half_width_px)
-            & (points[:, 1] > 0)
-            & (points[:, 2] > 0)
-        )
+        return RoadBand.of(K, config).contains(pixels) & (points[:, 1] > 0) & (points[:, 2] > 0)
 
 
 def fit_road_plane(points: np.ndarray, config: HeightScaleConfig, rng: np.random.Generator) -> RoadPlane | None:

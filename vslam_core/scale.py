@@ -105,8 +105,9 @@ class HeightScale:
         cfg = self._config
         frames = max(view.cur_position - view.key_position, 1)
         road = road_region(view.pixels, view.points, self._K, cfg)
+        road_points, road_pixels = view.points[road], view.pixels[road]
         rng = np.random.default_rng((self._seed, view.cur_position))
-        plane = fit_road_plane(view.points[road], cfg, rng)
+        plane = fit_road_plane(road_points, cfg, rng)
         measured = self.camera_height / plane.height if plane is not None else None
         if measured is not None:
             self._speeds.append((view.cur_position, measured / frames))
@@ -114,8 +115,8 @@ class HeightScale:
         step = speed * frames if speed is not None else 1.0  # nothing measured yet: a unit step, flagged
         held = measured is None or abs(measured / step - 1) > cfg.max_jump
         return step, ScaleEstimate(
-            road_points=view.points[road][plane.inliers] * step if plane is not None else np.zeros((0, 3)),
-            road_pixels=view.pixels[road][plane.inliers] if plane is not None else np.zeros((0, 2)),
+            road_points=road_points[plane.inliers] * step if plane is not None else np.zeros((0, 3)),
+            road_pixels=road_pixels[plane.inliers] if plane is not None else np.zeros((0, 2)),
             plane_normal=plane.normal if plane is not None else None,
             camera_height=plane.height * step if plane is not None else None,
             measured_step=measured,
