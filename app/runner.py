@@ -47,9 +47,15 @@ class _StopRequest:
         if self.signum is None:
             self.signum = signum
 
+    def interruption(self) -> Interrupted | None:
+        """The noted signal as the exception that stops a run, if one arrived."""
+        if self.signum is None:
+            return None
+        return Interrupted(128 + self.signum, signal.Signals(self.signum).name)
+
     def check(self) -> None:
-        if self.signum is not None:
-            raise Interrupted(128 + self.signum, signal.Signals(self.signum).name)
+        if (interruption := self.interruption()) is not None:
+            raise interruption
 
 
 @contextmanager
@@ -90,8 +96,6 @@ def record_run(
         sinks: tuple[FrameSink, ...] = (advance,) if recorder is None else (recorder.log_frame, advance)
         try:
             run_odometry(source, config, sinks, result)
-        except KeyboardInterrupt:
-            interrupted = Interrupted(130, "SIGINT")
         except Interrupted as exc:
             interrupted = exc
         except VslamError as exc:
@@ -99,9 +103,5 @@ def record_run(
         finally:
             if recorder is not None:
                 recorder.finish(result, interrupted is not None or failure is not None)
-        if interrupted is None and stop.signum is not None:  # a signal during the last frame or finalising
-            try:
-                stop.check()
-            except Interrupted as exc:
-                interrupted = exc
+        interrupted = interrupted or stop.interruption()  # a signal during the last frame or finalising
     return RecordedRun(result, interrupted, failure)
