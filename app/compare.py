@@ -148,20 +148,21 @@ def compare_recordings(a: Path, b: Path, output: Path, labels: tuple[str, str] =
 
     work = work_dir_beside(output)
     try:
-        parts = []
+        parts, logged = [], set()
         for prefix, label, path, (reader, store) in zip(PREFIXES, labels, inputs, opened, strict=True):
             part = work / f"{prefix}.rrd"
             rewrite = _Prefixer(prefix, label, lighten=LIGHTEN_B if prefix == "b" else 0.0,
                                 width=SERIES_WIDTHS[PREFIXES.index(prefix)])
             _write(reader.stream(store=store).flat_map(rewrite), part, path, output, application_id, recording_id)
             parts.append(part)
+            logged |= rewrite.logged
         extra = work / "properties.rrd"
         _write(LazyChunkStream.from_iter(_comparison_properties(name, inputs, labels, stores)), extra, output,
                output, application_id, recording_id)
 
         layout = work / "blueprint.rrd"
         with rr.RecordingStream(application_id, recording_id=recording_id, send_properties=False) as rec:
-            groups = [g for g in METRICS if any(not read_entity(p, f"/metrics/{g}/**").is_empty() for p in inputs)]
+            groups = [g for g in METRICS if any(path.startswith(f"/metrics/{g}/") for path in logged)]
             rec.save(layout, default_blueprint=blueprint(labels, trajectory_bounds(list(inputs)), groups))
         combined = work / "combined.rrd"
         run_rerun_cli(output, "rrd", "filter", "-o", str(combined), str(layout), *map(str, parts), str(extra))
@@ -224,9 +225,12 @@ class _Prefixer:
         self.label = label
         self.lighten = lighten
         self.width = width
+        self.logged: set[str] = set()  # entity paths (of the input) with temporal data
 
     def __call__(self, chunk: Chunk) -> list[Chunk]:
         path = chunk.entity_path
+        if not chunk.is_static:
+            self.logged.add(path)
         if path == PROPERTIES:  # the input's recording name: the comparison has its own
             return []
         if path.startswith(PROPERTIES + "/"):
