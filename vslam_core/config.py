@@ -25,6 +25,7 @@ from vslam_core.errors import ConfigError
 
 ScaleSource = Literal["gt", "none", "height"]
 RansacMethod = Literal["ransac", "magsac"]
+Backend = Literal["vo", "map"]
 
 
 @dataclass(frozen=True)
@@ -109,10 +110,48 @@ class HealthConfig:
 
 
 @dataclass(frozen=True)
+class MapConfig:
+    """`backend = "map"`: keyframes, landmarks, tracking against the map, windowed BA, relocalisation."""
+
+    # keyframe selection: a frame becomes a keyframe when any of these holds
+    keyframe_parallax_px: float = 20.0  # median track displacement since the last keyframe reaches this
+    keyframe_overlap: float = 0.7  # fewer than this share of the last keyframe's landmarks are still tracked
+    keyframe_min_landmarks: int = 120  # fewer landmarks tracked than this
+    keyframe_max_frames: int = 10  # this many frames since the last keyframe
+    # landmarks
+    min_triangulation_deg: float = 1.0  # rays of a new landmark meet at least at this angle
+    max_reprojection_px: float = 2.0  # a new landmark reprojects this well into both keyframes
+    cull_reprojection_px: float = 4.0  # after BA, an observation reprojecting worse than this is dropped
+    min_observations: int = 3  # a landmark that leaves the window with fewer keyframes seeing it is culled
+    # tracking against the map
+    pnp_min_landmarks: int = 30  # fewer landmarks seen: no PnP (two-view pose or relocalisation)
+    pnp_threshold_px: float = 2.0  # RANSAC inlier threshold
+    pnp_iterations: int = 100
+    pnp_min_inliers: int = 25
+    pnp_min_inlier_ratio: float = 0.5
+    max_rotation_disagreement_deg: float = 3.0  # PnP and two-view rotation since the keyframe must agree
+    # windowed bundle adjustment
+    ba_window: int = 6  # keyframes optimised
+    ba_max_fixed: int = 4  # older keyframes seeing the window's landmarks, held fixed (the nearest ones)
+    ba_iterations: int = 5
+    ba_huber_px: float = 1.5  # Huber threshold of the reprojection error (sigma 1 px)
+    ba_max_landmarks: int = 600  # the window's landmarks with the most observations
+    scale_sigma_gt: float = 0.01  # m: keyframe-to-keyframe distance prior with --scale gt
+    scale_sigma_height: float = 0.05  # fraction of the distance with --scale height
+    # relocalisation
+    reloc_keyframes: int = 10  # landmarks of this many recent keyframes are searched
+    reloc_ratio: float = 0.8  # Lowe's ratio test of the descriptor matches
+    reloc_threshold_px: float = 3.0
+    reloc_iterations: int = 500
+    reloc_min_inliers: int = 30
+
+
+@dataclass(frozen=True)
 class EngineConfig:
     """Everything that decides the trajectory. Same config + same input = same trajectory."""
 
     scale: ScaleSource = "gt"
+    backend: Backend = "vo"  # vo: frame-to-keyframe odometry; map: keyframes, landmarks, PnP, windowed BA
     threads: int = 2  # CPU threads: ≥ 2 decodes the next frame in the background and lets OpenCV use
     # that many; results are identical for any value (tested)
     detector: DetectorConfig = field(default_factory=DetectorConfig)
@@ -120,9 +159,13 @@ class EngineConfig:
     pose: PoseConfig = field(default_factory=PoseConfig)
     health: HealthConfig = field(default_factory=HealthConfig)
     height: HeightScaleConfig = field(default_factory=HeightScaleConfig)
+    map: MapConfig = field(default_factory=MapConfig)
 
     def with_scale(self, scale: ScaleSource) -> EngineConfig:
         return dataclasses.replace(self, scale=scale)
+
+    def with_backend(self, backend: Backend) -> EngineConfig:
+        return dataclasses.replace(self, backend=backend)
 
     def with_camera_height(self, metres: float) -> EngineConfig:
         return dataclasses.replace(self, height=dataclasses.replace(self.height, camera_height_m=metres))

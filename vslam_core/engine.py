@@ -214,6 +214,42 @@ class Odometry:
         self._position += 1
         return result
 
+    def close(self) -> None:
+        """Nothing to release (the map backend's engine has a worker process)."""
+
+    # -- what the map backend (vslam_core/mapping/tracking.py) reads and sets between frames --------------
+
+    @property
+    def key_position(self) -> int:
+        """Run position of the frame the next motion is measured from."""
+        return self._key_position
+
+    def set_keyframe_pose(self, T_world_key: np.ndarray) -> None:  # noqa: N803
+        """Chain the next motions from this pose of the keyframe (the map's, refined)."""
+        self._T_w_key = T_world_key.copy()
+
+    def live_tracks(self) -> tuple[np.ndarray, np.ndarray]:
+        """(N,) ids and (N, 2) float32 positions, in the last processed frame, of the tracks alive now."""
+        return self._tracks.ids, self._tracks.points
+
+    def add_tracks(self, points: np.ndarray) -> np.ndarray:
+        """Start tracks at (K, 2) points of the last processed frame (e.g. relocalisation's matches).
+        Returns their (K,) ids."""
+        return self._append_tracks(points.astype(np.float32), at_keyframe=self._key_position == self._position - 1)
+
+    def _append_tracks(self, points: np.ndarray, at_keyframe: bool) -> np.ndarray:
+        """New tracks at (K, 2) float32 points; their keyframe position is known only at the keyframe."""
+        tracks = self._tracks
+        ids = np.arange(self._next_id, self._next_id + len(points), dtype=np.int64)
+        self._next_id += len(points)
+        self._tracks = _Tracks(
+            np.concatenate((tracks.ids, ids)), np.concatenate((tracks.points, points)),
+            np.concatenate((tracks.ages, np.ones(len(points), np.int32))),
+            np.concatenate((tracks.key_points, points.copy() if at_keyframe else np.full_like(points, np.nan))),
+            np.concatenate((tracks.flow, np.full_like(points, np.nan))),
+        )
+        return ids
+
     def _match_keyframe(self, image: np.ndarray, timings: dict[str, float]) -> tuple[_Motion, float]:
         """Two-view motion keyframe → this frame from ORB descriptor matches (no tracks needed)."""
         assert self._key_image is not None
@@ -371,17 +407,7 @@ class Odometry:
             corners = np.concatenate((corners, self._road_corners(image, np.concatenate((tracks.points, corners)))))
         if not len(corners):
             return np.zeros(0, np.int64), corners
-        ids = np.arange(self._next_id, self._next_id + len(corners), dtype=np.int64)
-        self._next_id += len(corners)
-        at_keyframe = self._key_position == self._position
-        key_points = corners.copy() if at_keyframe else np.full_like(corners, np.nan)
-        self._tracks = _Tracks(
-            np.concatenate((tracks.ids, ids)),
-            np.concatenate((tracks.points, corners)),
-            np.concatenate((tracks.ages, np.ones(len(corners), np.int32))),
-            np.concatenate((tracks.key_points, key_points)),
-            np.concatenate((tracks.flow, np.full_like(corners, np.nan))),
-        )
+        ids = self._append_tracks(corners, at_keyframe=self._key_position == self._position)
         timings["detect"] = _lap(clock)
         return ids, corners
 

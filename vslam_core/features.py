@@ -150,16 +150,23 @@ def match_features(
     kp2, d2 = orb.detectAndCompute(second, None)
     if d1 is None or d2 is None or len(kp1) < 2 or len(kp2) < 2:
         return np.zeros((0, 2), np.float32), np.zeros((0, 2), np.float32)
-    matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
-    forward = matcher.knnMatch(d1, d2, k=2)
-    backward = {m.queryIdx: m.trainIdx for m, *_ in matcher.knnMatch(d2, d1, k=1) if m is not None}
-    pairs = [
-        (m.queryIdx, m.trainIdx)
-        for m, n in (p for p in forward if len(p) == 2)
-        if m.distance < ratio * n.distance and backward.get(m.trainIdx) == m.queryIdx
-    ]
-    if not pairs:
-        return np.zeros((0, 2), np.float32), np.zeros((0, 2), np.float32)
-    first_points = np.array([kp1[i].pt for i, _ in pairs], np.float32)
-    second_points = np.array([kp2[j].pt for _, j in pairs], np.float32)
+    first_index, second_index = match_descriptors(d1, d2, ratio)
+    first_points = np.array([kp1[i].pt for i in first_index], np.float32).reshape(-1, 2)
+    second_points = np.array([kp2[j].pt for j in second_index], np.float32).reshape(-1, 2)
     return first_points, second_points
+
+
+def match_descriptors(query: np.ndarray, train: np.ndarray, ratio: float) -> tuple[np.ndarray, np.ndarray]:
+    """Mutual nearest Hamming matches between (Q, 32) and (T, 32) uint8 ORB descriptors that pass Lowe's
+    ratio test. Returns (matched query indices, matched train indices), each (M,) int64."""
+    if len(query) < 2 or len(train) < 2:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
+    forward = matcher.knnMatch(query, train, k=2)
+    backward = {p[0].queryIdx: p[0].trainIdx for p in matcher.knnMatch(train, query, k=1) if p}
+    pairs = [(m.queryIdx, m.trainIdx) for m, n in (p for p in forward if len(p) == 2)
+             if m.distance < ratio * n.distance and backward.get(m.trainIdx) == m.queryIdx]
+    if not pairs:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    matched = np.array(pairs, np.int64)
+    return matched[:, 0], matched[:, 1]

@@ -45,6 +45,15 @@ def invert_pose(pose: np.ndarray) -> np.ndarray:
     return inverse
 
 
+def orthonormalise(pose: np.ndarray) -> np.ndarray:
+    """(4, 4) pose with its rotation projected onto SO(3) (the nearest rotation in the Frobenius norm, by SVD):
+    chained products of rotations drift off it in floating point, and `invert_pose` assumes they do not."""
+    u, _, vt = np.linalg.svd(pose[:3, :3])
+    rigid = pose.copy()
+    rigid[:3, :3] = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+    return rigid
+
+
 def rotation_angle(rotation: np.ndarray) -> float:
     """Angle (radians) of a (3, 3) rotation: acos((tr R − 1) / 2), clamped."""
     return float(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0)))

@@ -16,11 +16,13 @@ import numpy as np
 
 from vslam_core.config import EngineConfig
 from vslam_core.engine import Odometry
+from vslam_core.mapping.tracking import MapTracking
 from vslam_core.results import FrameResult, FrameStatus
 from vslam_core.scale import make_scale_provider
 from vslam_core.sources.base import Frame, FrameSource
 
 FrameSink = Callable[[Frame, FrameResult], None]
+Engine = Odometry | MapTracking
 T = TypeVar("T")
 
 
@@ -108,7 +110,7 @@ def run_odometry(
     # the height scale is never given the ground truth
     ground_truth = source.ground_truth if config.scale == "gt" else None
     scale = make_scale_provider(config, ground_truth, source.intrinsics.K, source.camera_height)
-    engine = Odometry(source.intrinsics, config, scale)
+    engine: Engine = (MapTracking if config.backend == "map" else Odometry)(source.intrinsics, config, scale)
     run = result if result is not None else RunResult([], [], [])
     start = time.perf_counter()
     try:
@@ -123,5 +125,6 @@ def run_odometry(
             for sink in sinks:
                 sink(frame, frame_result)
     finally:
+        engine.close()
         run.seconds = time.perf_counter() - start
     return run

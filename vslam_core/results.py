@@ -54,6 +54,11 @@ class Reason(StrEnum):
     SCALE_JUMP = "scale_jump"
     RECOVERED = "recovered_by_matching"  # tracks were lost; the motion was measured by descriptor matching
     SCALE_HELD = "scale_held"  # --scale height: no road plane (or an outlier) this frame; the last scale held
+    # map backend
+    TRACKING_LOST = "tracking_lost"  # fail: neither the map nor two-view geometry gave a pose, relocalisation failed
+    PNP_REJECTED = "pnp_rejected"  # warn: tracking against the map failed its checks; the two-view pose was used
+    RELOCALISED = "relocalised"  # warn: tracking was lost; the pose came from matching the map's landmarks
+    NEW_MAP_SEGMENT = "new_map_segment"  # warn: relocalisation failed, a new map was started here
 
 
 class HealthStatus(StrEnum):
@@ -89,6 +94,109 @@ class ScaleEstimate:
     held: bool  # no plane or an outlier: the filtered trend's step was used instead
 
 
+class TrackingMode(StrEnum):
+    """Where a frame's pose came from (map backend)."""
+
+    INIT = "init"  # the first frame of a map segment
+    TWO_VIEW = "two_view"  # essential matrix from the keyframe: before the map exists, or PnP failed its checks
+    MAP = "map"  # PnP in RANSAC on the landmarks the frame's tracks see, refined on the inliers
+    RELOCALISED = "relocalised"  # tracks were lost: descriptors matched to the map's landmarks, then PnP
+    LOST = "lost"  # no pose: the previous one is held
+
+
+@dataclass(frozen=True)
+class PnPEstimate:
+    """Tracking against the map: L landmarks seen by this frame's tracks (or matched by relocalisation)."""
+
+    landmark_ids: np.ndarray  # (L,) int64
+    observed: np.ndarray  # (L, 2) pixel position of each in this frame (tracked or matched)
+    projected: np.ndarray  # (L, 2) the landmark projected with the pose used (NaN where behind the camera)
+    inlier_mask: np.ndarray  # (L,) bool: RANSAC inliers kept after refinement
+    T_world_cam: np.ndarray | None  # (4, 4) the refined PnP pose; None when PnP failed  # noqa: N815
+    rejected: str | None = None  # why it was not used, if it was not
+
+
+@dataclass(frozen=True)
+class KeyframeInserted:
+    """A new keyframe and what local mapping did with it."""
+
+    keyframe_id: int
+    position: int  # run position of its frame
+    T_world_cam: np.ndarray  # (4, 4) pose at insertion  # noqa: N815
+    why: str  # what made this frame a keyframe (parallax, overlap, relocalised, initialisation, ...)
+    observed_landmarks: int  # landmarks its tracks see
+    new_landmarks: int  # landmarks triangulated with earlier keyframes
+    culled_landmarks: int  # landmarks removed (bad reprojection, too few observations)
+
+
+@dataclass(frozen=True)
+class BundleAdjusted:
+    """One windowed bundle adjustment (gtsam Levenberg–Marquardt, robust reprojection error), applied at
+    this frame. K keyframes optimised, F fixed, P landmarks; errors in pixels."""
+
+    keyframe_ids: np.ndarray  # (K,) optimised keyframes (the window)
+    keyframe_poses: np.ndarray  # (K, 4, 4) their refined T_world_cam
+    fixed_keyframe_ids: np.ndarray  # (F,) older keyframes that see the window's landmarks, held fixed
+    landmark_ids: np.ndarray  # (P,)
+    landmark_positions: np.ndarray  # (P, 3) refined, world
+    landmark_residual_px: np.ndarray  # (P,) mean reprojection error of each landmark after
+    iterations: int
+    cost_before: float
+    cost_after: float
+    mean_error_before: float
+    max_error_before: float
+    mean_error_after: float
+    max_error_after: float
+    culled: int  # landmarks removed because they reprojected badly after
+    milliseconds: float  # solver time (in the background worker when threads > 1)
+    factors: int  # projection factors
+
+
+@dataclass(frozen=True)
+class Relocalisation:
+    """An attempt to find a lost frame's pose by matching its ORB descriptors to the map's landmarks."""
+
+    success: bool
+    keyframe_id: int | None  # the keyframe that shares the most inliers with this frame
+    candidates: int  # landmarks of recent keyframes that were searched
+    matches: int  # descriptor matches
+    inliers: int  # PnP RANSAC inliers
+
+
+@dataclass(frozen=True)
+class MapView:
+    """What the recording draws of the map at a keyframe: the BA window and whatever left it for good."""
+
+    window_ids: np.ndarray  # (K,) keyframes in the optimisation window
+    window_poses: np.ndarray  # (K, 4, 4)
+    fixed_ids: np.ndarray  # (F,) keyframes held fixed in the last BA
+    fixed_poses: np.ndarray  # (F, 4, 4)
+    landmark_ids: np.ndarray  # (P,) landmarks seen by the window
+    landmark_positions: np.ndarray  # (P, 3)
+    landmark_observations: np.ndarray  # (P,) keyframes that observe each
+    retired_ids: np.ndarray  # (R,) keyframes that left the window at this keyframe (final poses)
+    retired_poses: np.ndarray  # (R, 4, 4)
+    retired_landmark_ids: np.ndarray  # (Q,) landmarks no window keyframe sees any more (final positions)
+    retired_landmark_positions: np.ndarray  # (Q, 3)
+    retired_landmark_observations: np.ndarray  # (Q,)
+    keyframe_path: np.ndarray  # (N, 3) every keyframe's position in this segment, refined so far
+    landmarks_total: int  # landmarks in the map
+
+
+@dataclass(frozen=True)
+class MapFrame:
+    """The map backend's part of a frame result (None with --backend vo)."""
+
+    mode: TrackingMode
+    segment: int  # map segment: a new one starts only when relocalisation fails
+    two_view_pose: np.ndarray | None  # (4, 4) T_world_cam from the essential matrix (the checked fallback)
+    pnp: PnPEstimate | None
+    keyframe: KeyframeInserted | None = None
+    bundle_adjustment: BundleAdjusted | None = None  # applied at this frame
+    relocalisation: Relocalisation | None = None
+    view: MapView | None = None  # at keyframes
+
+
 @dataclass(frozen=True)
 class FrameResult:
     """Everything the engine knows about one frame."""
@@ -122,6 +230,7 @@ class FrameResult:
     health: Health = Health(HealthStatus.OK)
     scale_estimate: ScaleEstimate | None = None  # with --scale height
     timings_ms: dict[str, float] = field(default_factory=dict)  # stage -> milliseconds
+    mapping: MapFrame | None = None  # --backend map: tracking mode, PnP, keyframes, bundle adjustment
 
     @property
     def inlier_count(self) -> int:

@@ -1,0 +1,185 @@
+"""Windowed bundle adjustment with gtsam: robust reprojection error over keyframes and landmarks.
+
+Minimises Σ ρ_Huber(‖π(K, T_cam_world·X_j) − z_ij‖ / σ) over the window's keyframe poses and landmark
+positions (Triggs et al., "Bundle Adjustment — A Modern Synthesis", 2000, eq. 2 with a robust cost;
+gtsam's `GenericProjectionFactorCal3_S2`, Levenberg–Marquardt). Older keyframes that see the window's
+landmarks are held fixed (`NonlinearEquality`), which fixes the gauge. The scale source stays in charge:
+with a metric scale, the distance between consecutive keyframes enters as a `RangeFactorPose3` with the
+scale source's length; with unit scale two poses are held fixed instead.
+
+`solve` is a pure function of a `Problem` (arrays in, arrays out), so it runs the same in this process or
+in the background worker (`BundleAdjuster`), and the same input always gives the same output.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import time
+from dataclasses import dataclass
+from multiprocessing.connection import Connection
+from typing import Any
+
+import numpy as np
+
+from vslam_core.geometry import invert_pose
+
+
+@dataclass(frozen=True)
+class Problem:
+    """A BA problem. Poses are indexed 0..K+F−1: the K window keyframes first, then the F fixed ones."""
+
+    K: np.ndarray  # (3, 3) camera matrix  # noqa: N815
+    poses: np.ndarray  # (K + F, 4, 4) T_world_cam, initial values
+    optimised: int  # K: the first K poses are variables, the rest fixed
+    points: np.ndarray  # (P, 3) landmark positions, world
+    observation_pose: np.ndarray  # (M,) int: which pose sees it
+    observation_point: np.ndarray  # (M,) int: which landmark
+    observation_pixels: np.ndarray  # (M, 2)
+    ranges: np.ndarray  # (R, 4): pose index a, pose index b, distance (m), sigma (m)
+    fix_first: int  # window poses held fixed as well (gauge/scale when too few older keyframes exist)
+    iterations: int
+    huber_px: float
+
+
+@dataclass(frozen=True)
+class Solution:
+    poses: np.ndarray  # (K, 4, 4) refined window poses
+    points: np.ndarray  # (P, 3) refined landmarks
+    errors_before: np.ndarray  # (M,) reprojection error (px) of each observation before
+    errors_after: np.ndarray  # (M,) ... and after
+    iterations: int
+    cost_before: float
+    cost_after: float
+    milliseconds: float
+
+
+def reprojection_errors(K: np.ndarray, poses: np.ndarray, points: np.ndarray, pose_index: np.ndarray,  # noqa: N803
+                        point_index: np.ndarray, pixels: np.ndarray) -> np.ndarray:
+    """(M,) pixel distance between each observation and its landmark projected by its pose (inf behind)."""
+    T_cam_world = np.array([invert_pose(p) for p in poses]).reshape(-1, 4, 4)  # noqa: N806
+    rotation = T_cam_world[pose_index, :3, :3]
+    camera = np.einsum("mij,mj->mi", rotation, points[point_index]) + T_cam_world[pose_index, :3, 3]
+    depth = camera[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        projected = camera[:, :2] / depth[:, None] * np.array([K[0, 0], K[1, 1]]) + K[:2, 2]
+        errors = np.linalg.norm(projected - pixels, axis=1)
+    return np.where(depth > 1e-6, errors, np.inf)
+
+
+def solve(problem: Problem) -> Solution:
+    """Levenberg–Marquardt on the factor graph of `problem` (gtsam, sequential Cholesky: measured fastest
+    on these graphs)."""
+    import gtsam  # imported here: the worker process and the map backend need it, the rest of vslam does not
+    from gtsam.symbol_shorthand import L, X
+
+    start = time.perf_counter()
+    K = problem.K  # noqa: N806
+    calibration = gtsam.Cal3_S2(K[0, 0], K[1, 1], 0.0, K[0, 2], K[1, 2])
+    pixel_noise = gtsam.noiseModel.Robust.Create(
+        gtsam.noiseModel.mEstimator.Huber.Create(problem.huber_px), gtsam.noiseModel.Isotropic.Sigma(2, 1.0))
+    graph = gtsam.NonlinearFactorGraph()
+    initial = gtsam.Values()
+    for i, pose in enumerate(problem.poses):
+        initial.insert(X(i), gtsam.Pose3(pose))
+        if i >= problem.optimised or i < problem.fix_first:
+            graph.add(gtsam.NonlinearEqualityPose3(X(i), gtsam.Pose3(pose)))
+    for j, point in enumerate(problem.points):
+        initial.insert(L(j), point)
+    for i, j, pixel in zip(problem.observation_pose, problem.observation_point, problem.observation_pixels,
+                           strict=True):
+        graph.add(gtsam.GenericProjectionFactorCal3_S2(pixel, pixel_noise, X(int(i)), L(int(j)), calibration))
+    for a, b, distance, sigma in problem.ranges:
+        graph.add(gtsam.RangeFactorPose3(X(int(a)), X(int(b)), float(distance),
+                                         gtsam.noiseModel.Isotropic.Sigma(1, float(sigma))))
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(problem.iterations)
+    params.setLinearSolverType("SEQUENTIAL_CHOLESKY")
+    params.setOrderingType("COLAMD")
+    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
+    cost_before = graph.error(initial)
+    try:
+        result = optimizer.optimize()
+        iterations = optimizer.iterations()
+    except RuntimeError:  # an indeterminate system (e.g. a landmark seen along one ray): keep the input
+        result, iterations = initial, 0
+    poses = np.array([result.atPose3(X(i)).matrix() for i in range(problem.optimised)]).reshape(-1, 4, 4)
+    points = np.array([result.atPoint3(L(j)) for j in range(len(problem.points))]).reshape(-1, 3)
+    all_poses = np.concatenate((poses, problem.poses[problem.optimised:]))
+    args = (problem.observation_pose, problem.observation_point, problem.observation_pixels)
+    return Solution(
+        poses=poses,
+        points=points,
+        errors_before=reprojection_errors(K, problem.poses, problem.points, *args),
+        errors_after=reprojection_errors(K, all_poses, points, *args),
+        iterations=int(iterations),
+        cost_before=float(cost_before),
+        cost_after=float(graph.error(result)),
+        milliseconds=(time.perf_counter() - start) * 1000.0,
+    )
+
+
+def _serve(connection: Connection) -> None:
+    """The worker process: solve each problem received, until None arrives."""
+    import gtsam  # noqa: F401 - import before the first problem, while the engine starts up
+
+    while True:
+        problem = connection.recv()
+        if problem is None:
+            return
+        connection.send(solve(problem))
+
+
+class BundleAdjuster:
+    """Runs `solve` beside tracking. With `background`, in a worker process (gtsam holds the GIL, so a
+    thread would stall tracking); otherwise when the result is asked for. Either way a problem's solution
+    is collected at a fixed point chosen by the caller, so results do not depend on timing."""
+
+    def __init__(self, background: bool) -> None:
+        self._pending: Problem | None = None
+        self._connection: Connection | None = None
+        self._process: Any = None
+        if background:
+            context = multiprocessing.get_context("spawn")
+            self._connection, child = context.Pipe()
+            self._process = context.Process(target=_serve, args=(child,), name="vslam-ba", daemon=True)
+            self._process.start()
+            child.close()
+
+    @property
+    def busy(self) -> bool:
+        return self._pending is not None
+
+    def submit(self, problem: Problem) -> None:
+        assert self._pending is None, "collect the previous solution first"
+        self._pending = problem
+        if self._connection is not None:
+            self._connection.send(problem)
+
+    def collect(self) -> tuple[Problem, Solution] | None:
+        """The solution of the submitted problem (waiting for it), or None if nothing was submitted."""
+        problem, self._pending = self._pending, None
+        if problem is None:
+            return None
+        if self._connection is None:
+            return problem, solve(problem)
+        try:
+            return problem, self._connection.recv()
+        except EOFError:  # the worker died (e.g. killed): solve here from now on
+            self._connection = None
+            return problem, solve(problem)
+
+    def close(self) -> None:
+        if self._connection is not None:
+            try:
+                if self._pending is not None:
+                    self._connection.recv()
+                self._connection.send(None)
+            except (OSError, EOFError):
+                pass
+            self._connection.close()
+            self._connection = None
+        if self._process is not None:
+            self._process.join(timeout=5)
+            if self._process.is_alive():
+                self._process.kill()
+            self._process = None

@@ -1,0 +1,313 @@
+"""Local mapping: keyframe insertion, landmark creation and culling, windowed bundle adjustment.
+
+Landmarks come from tracks: a KLT track seen at two keyframes whose rays meet at a large enough angle is
+triangulated (midpoint, then checked by reprojection into both) and observed by every keyframe that saw
+it. Each keyframe hands the BA window (its last `ba_window` keyframes) to the `BundleAdjuster`; the
+solution is applied when the next keyframe arrives, a fixed point, so the same input always gives the
+same map however long the solver took. Memory stays bounded: a landmark that leaves the window seen by
+fewer than `min_observations` keyframes is dropped, as is every observation that reprojects badly after BA.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from vslam_core.config import MapConfig, ScaleSource
+from vslam_core.geometry import invert_pose, normalise_points, orthonormalise, triangulate
+from vslam_core.mapping.bundle_adjustment import BundleAdjuster, Problem, Solution
+from vslam_core.mapping.map import Keyframe, Map
+from vslam_core.results import BundleAdjusted, KeyframeInserted, MapView
+
+DESCRIPTOR_PATCH = 31.0  # ORB's patch size: the keypoint size of a landmark's descriptor
+
+
+@dataclass(frozen=True)
+class _Submitted:
+    """What a submitted BA problem's indices refer to."""
+
+    keyframe_ids: list[int]  # window, then fixed
+    optimised: int
+    landmark_ids: np.ndarray  # (P,)
+
+
+class LocalMapping:
+    """Owns the map; tracking hands it keyframes and reads landmarks back."""
+
+    def __init__(self, K: np.ndarray, config: MapConfig, scale: ScaleSource, background: bool) -> None:  # noqa: N803
+        self.map = Map()
+        self._K = K
+        self._config = config
+        self._scale = scale
+        self._adjuster = BundleAdjuster(background)
+        self._submitted: _Submitted | None = None
+        self._sightings: dict[int, list[tuple[int, np.ndarray]]] = {}  # track id -> (keyframe id, pixel)s
+        self._orb = cv2.ORB_create(edgeThreshold=int(DESCRIPTOR_PATCH), patchSize=int(DESCRIPTOR_PATCH))
+        self._window: list[int] = []  # keyframe ids of the current BA window
+
+    def close(self) -> None:
+        self._adjuster.close()
+
+    # -- bundle adjustment ---------------------------------------------------------------------------------
+
+    def collect_bundle_adjustment(self) -> tuple[BundleAdjusted, np.ndarray] | None:
+        """Apply the pending BA solution to the map. Returns what it did and the correction
+        T_new·T_old⁻¹ (4, 4) of the newest keyframe, for the frames tracked since; None if none was pending."""
+        collected = self._adjuster.collect()
+        submitted, self._submitted = self._submitted, None
+        if collected is None or submitted is None:
+            return None
+        problem, solution = collected
+        newest = self.map.keyframes[submitted.keyframe_ids[submitted.optimised - 1]]
+        correction = solution.poses[submitted.optimised - 1] @ invert_pose(newest.T_world_cam)
+        for keyframe_id, pose in zip(submitted.keyframe_ids[: submitted.optimised], solution.poses, strict=True):
+            self.map.keyframes[keyframe_id].T_world_cam = orthonormalise(pose)
+        culled = self._apply_landmarks(problem, solution, submitted)
+        finite = np.isfinite(solution.errors_before) & np.isfinite(solution.errors_after)
+        before, after = solution.errors_before[finite], solution.errors_after[finite]
+        residual = _mean_per_landmark(solution.errors_after, problem.observation_point, len(submitted.landmark_ids))
+        return BundleAdjusted(
+            keyframe_ids=np.array(submitted.keyframe_ids[: submitted.optimised], np.int64),
+            keyframe_poses=solution.poses,
+            fixed_keyframe_ids=np.array(submitted.keyframe_ids[submitted.optimised:], np.int64),
+            landmark_ids=submitted.landmark_ids,
+            landmark_positions=solution.points,
+            landmark_residual_px=residual,
+            iterations=solution.iterations,
+            cost_before=solution.cost_before,
+            cost_after=solution.cost_after,
+            mean_error_before=float(before.mean()) if len(before) else 0.0,
+            max_error_before=float(before.max()) if len(before) else 0.0,
+            mean_error_after=float(after.mean()) if len(after) else 0.0,
+            max_error_after=float(after.max()) if len(after) else 0.0,
+            culled=culled,
+            milliseconds=solution.milliseconds,
+            factors=len(problem.observation_pose),
+        ), correction
+
+    def _apply_landmarks(self, problem: Problem, solution: Solution, submitted: _Submitted) -> int:
+        """Move the landmarks to their refined positions; drop observations that reproject badly (and
+        landmarks left with fewer than two). Returns the number of landmarks removed."""
+        landmarks = self.map.landmarks
+        for landmark_id, position in zip(submitted.landmark_ids, solution.points, strict=True):
+            if int(landmark_id) in landmarks:
+                landmarks[int(landmark_id)].position = position
+        culled = 0
+        bad = ~(solution.errors_after <= self._config.cull_reprojection_px)
+        for pose_index, point_index in zip(problem.observation_pose[bad], problem.observation_point[bad], strict=True):
+            landmark_id = int(submitted.landmark_ids[point_index])
+            if landmark_id not in landmarks:
+                continue
+            self.map.remove_observation(landmark_id, submitted.keyframe_ids[pose_index])
+            if landmarks[landmark_id].observation_count < 2:
+                self.map.remove_landmark(landmark_id)
+                culled += 1
+        return culled
+
+    def _submit(self, segment: int) -> None:
+        """Hand the newest window of `segment` to the bundle adjuster."""
+        cfg = self._config
+        window = self.map.recent_keyframes(cfg.ba_window, segment)
+        self._window = [k.id for k in window]
+        if len(window) < 2:
+            return
+        landmark_ids = self.map.landmarks_seen_by(window)
+        if len(landmark_ids) > cfg.ba_max_landmarks:  # the best-observed ones (ties: the older)
+            counts = np.array([self.map.landmarks[i].observation_count for i in landmark_ids])
+            keep = np.sort(np.argsort(-counts, kind="stable")[: cfg.ba_max_landmarks])
+            landmark_ids = [landmark_ids[i] for i in keep]
+        in_window = set(self._window)
+        older = sorted({k for i in landmark_ids for k in self.map.landmarks[i].observations} - in_window)
+        fixed = older[-cfg.ba_max_fixed:] if cfg.ba_max_fixed > 0 else []
+        keyframe_ids = self._window + fixed
+        index = {k: n for n, k in enumerate(keyframe_ids)}
+        pose_index, point_index, pixels, kept = [], [], [], []
+        for landmark_id in landmark_ids:
+            seen = [(index[k], pixel) for k, pixel in self.map.landmarks[landmark_id].observations.items() if k in index]
+            if len(seen) < 2:
+                continue
+            for pose, pixel in seen:
+                pose_index.append(pose)
+                point_index.append(len(kept))
+                pixels.append(pixel)
+            kept.append(landmark_id)
+        if not kept:
+            return
+        ranges = []
+        if self._scale != "none":
+            sigma = cfg.scale_sigma_gt if self._scale == "gt" else None
+            for keyframe in window:  # consecutive keyframes (ids are consecutive) that are both in the problem
+                previous = keyframe.id - 1
+                if previous in index and keyframe.metric_step is not None:
+                    step = keyframe.metric_step
+                    ranges.append((index[previous], index[keyframe.id], step,
+                                   sigma if sigma is not None else max(cfg.scale_sigma_height * step, 1e-3)))
+        gauge = 2 if self._scale == "none" or not ranges else 1
+        problem = Problem(
+            K=self._K,
+            poses=np.array([self.map.keyframes[k].T_world_cam for k in keyframe_ids]),
+            optimised=len(self._window),
+            points=self.map.positions(kept),
+            observation_pose=np.array(pose_index, np.int64),
+            observation_point=np.array(point_index, np.int64),
+            observation_pixels=np.array(pixels, np.float64).reshape(-1, 2),
+            ranges=np.array(ranges, np.float64).reshape(-1, 4),
+            fix_first=max(gauge - len(fixed), 0),
+            iterations=cfg.ba_iterations,
+            huber_px=cfg.ba_huber_px,
+        )
+        self._submitted = _Submitted(keyframe_ids, len(self._window), np.array(kept, np.int64))
+        self._adjuster.submit(problem)
+
+    # -- keyframes and landmarks ---------------------------------------------------------------------------
+
+    def insert_keyframe(
+        self, position: int, segment: int, T_world_cam: np.ndarray, track_ids: np.ndarray,  # noqa: N803
+        pixels: np.ndarray, image: np.ndarray, metric_step: float | None, why: str,
+        track_landmarks: dict[int, int],
+    ) -> tuple[KeyframeInserted, dict[int, int], MapView]:
+        """Add a keyframe seeing (N,) tracks at (N, 2) pixels; `track_landmarks` links live tracks to
+        landmarks. Returns the event, the new track → landmark links, and what to draw of the map."""
+        assert self._submitted is None, "collect the pending bundle adjustment first"
+        keyframe = self.map.add_keyframe(position, segment, T_world_cam, track_ids, pixels, metric_step)
+        observed = []
+        for track_id, pixel in zip(track_ids.tolist(), pixels, strict=True):
+            landmark_id = track_landmarks.get(track_id)
+            if landmark_id is not None and landmark_id in self.map.landmarks:
+                self.map.observe(landmark_id, keyframe.id, pixel)
+                observed.append(landmark_id)
+            else:
+                self._sightings.setdefault(track_id, []).append((keyframe.id, pixel))
+        alive = set(track_ids.tolist())
+        self._sightings = {t: s for t, s in self._sightings.items()
+                           if t in alive and self.map.keyframes[s[0][0]].segment == segment}
+        links = self._triangulate(keyframe)
+        self._describe(keyframe, image)
+        previous_window = self._window
+        self._submit(segment)
+        culled = self._retire([k for k in previous_window if k not in self._window], alive_landmarks=
+                              set(track_landmarks.values()) | set(links.values()))
+        event = KeyframeInserted(keyframe.id, position, keyframe.T_world_cam.copy(), why, len(observed), len(links),
+                                 culled)
+        return event, links, self._view(previous_window)
+
+    def _triangulate(self, keyframe: Keyframe) -> dict[int, int]:
+        """New landmarks from tracks seen at an earlier keyframe and at this one (first sighting to now:
+        the longest baseline). Returns track id → new landmark id."""
+        by_first: dict[int, list[int]] = {}
+        for track_id, sightings in self._sightings.items():
+            if len(sightings) >= 2 and sightings[-1][0] == keyframe.id:
+                by_first.setdefault(sightings[0][0], []).append(track_id)
+        links: dict[int, int] = {}
+        for first_id, track_ids in sorted(by_first.items()):
+            first = self.map.keyframes[first_id]
+            T_first_cur = invert_pose(first.T_world_cam) @ keyframe.T_world_cam  # noqa: N806
+            if np.linalg.norm(T_first_cur[:3, 3]) < 1e-9:
+                continue
+            p_first = np.array([self._sightings[t][0][1] for t in track_ids], np.float64)
+            p_cur = np.array([self._sightings[t][-1][1] for t in track_ids], np.float64)
+            points_cur = triangulate(T_first_cur[:3, :3], T_first_cur[:3, 3], normalise_points(p_cur, self._K),
+                                     normalise_points(p_first, self._K))
+            good = self._well_triangulated(points_cur, T_first_cur, p_cur, p_first)
+            world = points_cur @ keyframe.T_world_cam[:3, :3].T + keyframe.T_world_cam[:3, 3]
+            for n in np.flatnonzero(good):
+                track_id = track_ids[n]
+                landmark = self.map.add_landmark(world[n], {k: p for k, p in self._sightings.pop(track_id)})
+                links[track_id] = landmark.id
+        return links
+
+    def _well_triangulated(self, points_cur: np.ndarray, T_first_cur: np.ndarray, p_cur: np.ndarray,  # noqa: N803
+                           p_first: np.ndarray) -> np.ndarray:
+        """(N,) bool: in front of both cameras, rays meeting at `min_triangulation_deg` or more, and
+        reprojecting within `max_reprojection_px` into both keyframes."""
+        cfg = self._config
+        points_first = points_cur @ T_first_cur[:3, :3].T + T_first_cur[:3, 3]
+        centre_cur_in_first = T_first_cur[:3, 3]
+        ray_first = points_first
+        ray_cur = points_first - centre_cur_in_first
+        with np.errstate(invalid="ignore", divide="ignore"):
+            cosine = np.einsum("ij,ij->i", ray_first, ray_cur) / (
+                np.linalg.norm(ray_first, axis=1) * np.linalg.norm(ray_cur, axis=1))
+            error_cur = _project_error(points_cur, p_cur, self._K)
+            error_first = _project_error(points_first, p_first, self._K)
+            return np.asarray(
+                (points_cur[:, 2] > 0) & (points_first[:, 2] > 0)
+                & (cosine < np.cos(np.radians(cfg.min_triangulation_deg)))
+                & (error_cur <= cfg.max_reprojection_px) & (error_first <= cfg.max_reprojection_px)
+            )
+
+    def _describe(self, keyframe: Keyframe, image: np.ndarray) -> None:
+        """Upright ORB descriptors (the car's camera hardly rolls) of the landmarks this keyframe sees, at
+        their pixel here: what relocalisation matches against."""
+        landmark_ids = sorted(keyframe.landmark_ids)
+        if not landmark_ids:
+            return
+        keypoints = [cv2.KeyPoint(float(p[0]), float(p[1]), DESCRIPTOR_PATCH, 0.0, 0.0, 0, i)
+                     for i, p in ((i, self.map.landmarks[i].observations[keyframe.id]) for i in landmark_ids)]
+        described, descriptors = self._orb.compute(image, keypoints)
+        if descriptors is None:
+            return
+        for keypoint, descriptor in zip(described, descriptors, strict=True):
+            self.map.landmarks[keypoint.class_id].descriptor = descriptor
+
+    def _retire(self, keyframe_ids: list[int], alive_landmarks: set[int]) -> int:
+        """Keyframes leaving the window: their landmarks seen by fewer than `min_observations` keyframes
+        and no longer tracked are dropped. Returns how many."""
+        culled = 0
+        window = set(self._window)
+        for keyframe_id in keyframe_ids:
+            for landmark_id in list(self.map.keyframes[keyframe_id].landmark_ids):
+                landmark = self.map.landmarks.get(landmark_id)
+                if (landmark is not None and landmark.observation_count < self._config.min_observations
+                        and landmark_id not in alive_landmarks and not window & landmark.observations.keys()):
+                    self.map.remove_landmark(landmark_id)
+                    culled += 1
+        return culled
+
+    def _view(self, previous_window: list[int]) -> MapView:
+        """The window, its landmarks, and what left the window at this keyframe (for the recording)."""
+        keyframes = self.map.keyframes
+        window = self._window
+        fixed = self._submitted.keyframe_ids[self._submitted.optimised:] if self._submitted else []
+        retired = [k for k in previous_window if k not in window]
+        landmark_ids = self.map.landmarks_seen_by([keyframes[k] for k in window])
+        previous_landmarks = self.map.landmarks_seen_by([keyframes[k] for k in previous_window])
+        retired_landmarks = sorted(set(previous_landmarks) - set(landmark_ids))
+        retired_landmarks = [i for i in retired_landmarks if i in self.map.landmarks]
+        segment = keyframes[window[-1]].segment if window else 0
+
+        def poses(ids: list[int]) -> np.ndarray:
+            return np.array([keyframes[k].T_world_cam for k in ids]).reshape(-1, 4, 4)
+
+        def observations(ids: list[int]) -> np.ndarray:
+            return np.array([self.map.landmarks[i].observation_count for i in ids], np.int64)
+
+        return MapView(
+            window_ids=np.array(window, np.int64), window_poses=poses(window),
+            fixed_ids=np.array(fixed, np.int64), fixed_poses=poses(fixed),
+            landmark_ids=np.array(landmark_ids, np.int64), landmark_positions=self.map.positions(landmark_ids),
+            landmark_observations=observations(landmark_ids),
+            retired_ids=np.array(retired, np.int64), retired_poses=poses(retired),
+            retired_landmark_ids=np.array(retired_landmarks, np.int64),
+            retired_landmark_positions=self.map.positions(retired_landmarks),
+            retired_landmark_observations=observations(retired_landmarks),
+            keyframe_path=np.array([k.T_world_cam[:3, 3] for k in keyframes.values() if k.segment == segment]),
+            landmarks_total=len(self.map.landmarks),
+        )
+
+
+def _project_error(points: np.ndarray, pixels: np.ndarray, K: np.ndarray) -> np.ndarray:  # noqa: N803
+    """(N,) pixel distance between (N, 3) camera-frame points projected by K and (N, 2) pixels."""
+    projected = points[:, :2] / points[:, 2:3] * np.array([K[0, 0], K[1, 1]]) + K[:2, 2]
+    return np.asarray(np.linalg.norm(projected - pixels, axis=1))
+
+
+def _mean_per_landmark(errors: np.ndarray, point_index: np.ndarray, count: int) -> np.ndarray:
+    """(count,) mean of the finite per-observation errors of each landmark."""
+    finite = np.isfinite(errors)
+    total = np.bincount(point_index[finite], errors[finite], minlength=count)
+    seen = np.bincount(point_index[finite], minlength=count)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(seen > 0, total / np.maximum(seen, 1), np.nan)

@@ -1,0 +1,57 @@
+"""Camera pose from 2-D–3-D correspondences: PnP in RANSAC, refined on the inliers.
+
+Points: (L, 3) world landmarks and (L, 2) pixels. Poses are camera-to-world (4, 4).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from vslam_core.geometry import invert_pose, pose_matrix
+
+
+@dataclass(frozen=True)
+class PnPSolution:
+    T_world_cam: np.ndarray | None  # (4, 4); None when no pose was found  # noqa: N815
+    inlier_mask: np.ndarray  # (L,) bool, after refinement
+    projected: np.ndarray  # (L, 2) the landmarks projected with the pose (NaN behind the camera or without one)
+
+
+def project(points: np.ndarray, T_world_cam: np.ndarray, K: np.ndarray) -> np.ndarray:  # noqa: N803
+    """(L, 2) pixels of (L, 3) world points seen from `T_world_cam`; NaN rows behind the camera."""
+    T_cam_world = invert_pose(T_world_cam)  # noqa: N806
+    camera = points @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pixels = camera[:, :2] / camera[:, 2:3] * np.array([K[0, 0], K[1, 1]]) + K[:2, 2]
+    pixels[camera[:, 2] <= 1e-6] = np.nan
+    return np.asarray(pixels)
+
+
+def solve_pnp(points: np.ndarray, pixels: np.ndarray, K: np.ndarray, threshold_px: float, iterations: int,  # noqa: N803
+              seed: tuple[int, ...]) -> PnPSolution:
+    """P3P (Kneip et al. 2011) minimal solutions in RANSAC (cv2.solvePnPRansac), then Levenberg–Marquardt on
+    the inliers' reprojection error (cv2.solvePnPRefineLM), then the inliers re-counted with the refined pose.
+    `seed` fixes the sample order (OpenCV's RANSAC draws from a fixed generator, so the order is the seed)."""
+    empty = PnPSolution(None, np.zeros(len(points), bool), np.full((len(points), 2), np.nan))
+    if len(points) < 6:
+        return empty
+    order = np.random.default_rng(seed).permutation(len(points))
+    ok, rvec, tvec, inliers = cv2.solvePnPRansac(
+        points[order].astype(np.float64), pixels[order].astype(np.float64), K, None, iterationsCount=iterations,
+        reprojectionError=threshold_px, confidence=0.999, flags=cv2.SOLVEPNP_P3P)
+    if not ok or inliers is None or len(inliers) < 6:
+        return empty
+    chosen = order[inliers.reshape(-1)]
+    rvec, tvec = cv2.solvePnPRefineLM(points[chosen].astype(np.float64), pixels[chosen].astype(np.float64), K, None,
+                                      rvec, tvec)
+    rotation, _ = cv2.Rodrigues(rvec)
+    T_world_cam = invert_pose(pose_matrix(rotation, tvec.reshape(3)))  # noqa: N806
+    if not np.all(np.isfinite(T_world_cam)):
+        return empty
+    projected = project(points, T_world_cam, K)
+    with np.errstate(invalid="ignore"):
+        inlier_mask = np.linalg.norm(projected - pixels, axis=1) <= threshold_px
+    return PnPSolution(T_world_cam, inlier_mask, projected)

@@ -1,0 +1,310 @@
+"""Tracking against the map: the `map` backend's per-frame step.
+
+Per frame: the odometry front end (vslam_core/engine.py) tracks the KLT tracks and measures the two-view
+motion from its keyframe (the 5-point essential matrix) → the landmarks the surviving tracks are linked to
+give 2-D–3-D correspondences → PnP in RANSAC, refined on the inliers (`MAP`); the step length stays the
+scale source's → if PnP fails its checks, the two-view pose (`TWO_VIEW`); if the tracks were lost (a gap, a
+jump), relocalisation against the landmarks of recent keyframes (`RELOCALISED`), and only if that fails a
+new map segment. A frame becomes a keyframe on parallax, landmark overlap or frame count, and is handed to
+local mapping; the pending bundle adjustment is applied at that moment (a fixed point: deterministic).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+
+import cv2
+import numpy as np
+
+from vslam_core.config import EngineConfig
+from vslam_core.engine import Odometry
+from vslam_core.features import match_descriptors
+from vslam_core.geometry import invert_pose, orthonormalise, rotation_angle
+from vslam_core.mapping.local_mapping import LocalMapping
+from vslam_core.mapping.pnp import PnPSolution, solve_pnp
+from vslam_core.results import (
+    BundleAdjusted,
+    FrameResult,
+    FrameStatus,
+    Health,
+    MapFrame,
+    PnPEstimate,
+    Reason,
+    Relocalisation,
+    TrackFate,
+    TrackingMode,
+)
+from vslam_core.scale import ScaleProvider, TwoView
+from vslam_core.sources.base import CameraIntrinsics, Frame
+
+UNUSABLE_IMAGE = {Reason.UNREADABLE_IMAGE, Reason.IMAGE_TOO_DARK, Reason.IMAGE_TOO_BRIGHT, Reason.IMAGE_BLURRED}
+HOLD_REASONS = {Reason.TOO_FEW_TRACKS, Reason.LOW_PARALLAX, Reason.NO_ESSENTIAL, Reason.TOO_FEW_INLIERS,
+                Reason.CHIRALITY}
+_RELATIVE_KEPT = 256  # frames whose pose is kept relative to their keyframe (the front end's keyframe is recent)
+
+
+class MapTracking:
+    """Monocular SLAM over a stream of frames: tracking against a map of keyframes and landmarks."""
+
+    def __init__(self, intrinsics: CameraIntrinsics, config: EngineConfig, scale: ScaleProvider) -> None:
+        self.config = config
+        self._cfg = config.map
+        self._K = intrinsics.K
+        self._scale = scale
+        self._odometry = Odometry(intrinsics, config, scale)
+        self.mapping = LocalMapping(self._K, config.map, config.scale, background=config.threads > 1)
+        self._links: dict[int, int] = {}  # live track id -> landmark id
+        self._segment = 0
+        self._reference = -1  # newest keyframe id
+        self._relative: dict[int, tuple[int, np.ndarray]] = {}  # run position -> (keyframe id, T_key_frame)
+        self._last_pose = np.eye(4)
+        self._since_keyframe = 0
+        self._gap = False  # unusable frames since the last one with a pose
+        self._orb = cv2.ORB_create(nfeatures=2000)
+
+    def close(self) -> None:
+        self.mapping.close()
+
+    def pose_of(self, position: int) -> np.ndarray:
+        """(4, 4) pose of an earlier frame, moved with its keyframe by every refinement since."""
+        entry = self._relative.get(position)
+        keyframe = self.mapping.map.keyframes.get(entry[0]) if entry is not None else None
+        if entry is None or keyframe is None:
+            return self._last_pose.copy()
+        return keyframe.T_world_cam @ entry[1]
+
+    def process(self, frame: Frame) -> FrameResult:
+        vo = self._odometry.process(frame)
+        timings = vo.timings_ms
+        if vo.status == FrameStatus.INIT:
+            return self._finish(frame, vo, np.eye(4), TrackingMode.INIT, None, None, [], "initialisation")
+        if vo.reason in UNUSABLE_IMAGE:
+            self._gap = True
+            return self._finish(frame, vo, None, TrackingMode.LOST, None, None, [], None)
+        clock = time.perf_counter()
+        two_view = self.pose_of(vo.keyframe_position) @ vo.T_key_cur if vo.T_key_cur is not None else None
+        alive = vo.track_fate >= TrackFate.NOT_USED
+        pnp = self._track_map(vo.position, vo.track_ids[alive], vo.track_cur[alive], two_view, vo)
+        timings["pnp"] = _lap(clock)
+        lost_tracks = vo.reason == Reason.TOO_FEW_TRACKS or Reason.RECOVERED in vo.health.reasons
+        warnings: list[Reason] = []
+        relocalisation = None
+        pose, mode, why = None, TrackingMode.LOST, None
+        if pnp is not None and pnp.rejected is None and pnp.T_world_cam is not None:
+            pose, mode = self._metric(pnp.T_world_cam, vo), TrackingMode.MAP
+        elif self._has_map() and (lost_tracks or self._gap):
+            clock = time.perf_counter()
+            relocalisation, found = self._relocalise(frame.image, vo.position)
+            timings["relocalise"] = _lap(clock)
+            if found is not None:
+                pnp, pose, mode, why = found, found.T_world_cam, TrackingMode.RELOCALISED, "relocalised"
+                warnings.append(Reason.RELOCALISED)
+        if pose is None and two_view is not None:
+            pose, mode = two_view, TrackingMode.TWO_VIEW
+            if pnp is not None and self._has_map():
+                warnings.append(Reason.PNP_REJECTED)
+        if relocalisation is not None and not relocalisation.success:
+            self._segment += 1  # the old map cannot be reached from here: start a new one
+            self._links.clear()
+            warnings.append(Reason.NEW_MAP_SEGMENT)
+            why = "new map segment"
+        return self._finish(frame, vo, pose, mode, pnp, relocalisation, warnings, why, two_view)
+
+    # -- tracking against the map ---------------------------------------------------------------------------
+
+    def _has_map(self) -> bool:
+        """The current segment has landmarks to track or relocalise against."""
+        return self._reference >= 0 and any(
+            self.mapping.map.keyframes[k].landmark_ids
+            for k in (k.id for k in self.mapping.map.recent_keyframes(2, self._segment)))
+
+    def _track_map(self, position: int, track_ids: np.ndarray, pixels: np.ndarray, two_view: np.ndarray | None,
+                   vo: FrameResult) -> PnPEstimate | None:
+        """PnP on the landmarks the (N,) tracks at (N, 2) pixels are linked to, with its checks; None before
+        the map has landmarks. Outlier tracks lose their link."""
+        cfg = self._cfg
+        landmarks = self.mapping.map.landmarks
+        rows = [(n, self._links[t]) for n, t in enumerate(track_ids.tolist())
+                if t in self._links and self._links[t] in landmarks]
+        if not rows and not self._links:
+            return None
+        landmark_ids = np.array([landmark for _, landmark in rows], np.int64)
+        observed = pixels[np.array([n for n, _ in rows], np.int64)].astype(np.float64).reshape(-1, 2)
+        if len(rows) < cfg.pnp_min_landmarks:
+            return PnPEstimate(landmark_ids, observed, np.full_like(observed, np.nan), np.zeros(len(rows), bool),
+                               None, f"only {len(rows)} landmarks tracked")
+        solution = solve_pnp(self.mapping.map.positions(landmark_ids), observed, self._K, cfg.pnp_threshold_px,
+                             cfg.pnp_iterations, (self.config.pose.seed, position))
+        rejected = self._check_pnp(solution, two_view, vo)
+        if rejected is None:
+            outliers = {int(t) for t, inlier in zip(track_ids[[n for n, _ in rows]], solution.inlier_mask, strict=True)
+                        if not inlier}
+            for track_id in outliers:
+                del self._links[track_id]
+        return PnPEstimate(landmark_ids, observed, solution.projected, solution.inlier_mask, solution.T_world_cam,
+                           rejected)
+
+    def _check_pnp(self, solution: PnPSolution, two_view: np.ndarray | None, vo: FrameResult) -> str | None:
+        """Why a PnP pose is not trusted, if it is not."""
+        cfg = self._cfg
+        if solution.T_world_cam is None:
+            return "no PnP solution"
+        inliers = int(solution.inlier_mask.sum())
+        if inliers < cfg.pnp_min_inliers:
+            return f"{inliers} inliers"
+        if inliers < cfg.pnp_min_inlier_ratio * len(solution.inlier_mask):
+            return f"inlier ratio {inliers / len(solution.inlier_mask):.2f}"
+        if two_view is not None and vo.T_key_cur is not None:
+            reference = self.pose_of(vo.keyframe_position)
+            pnp_motion = invert_pose(reference) @ solution.T_world_cam
+            disagreement = np.degrees(rotation_angle(pnp_motion[:3, :3].T @ vo.T_key_cur[:3, :3]))
+            if disagreement > cfg.max_rotation_disagreement_deg:
+                return f"rotation {disagreement:.1f}° from the two-view motion"
+        return None
+
+    def _metric(self, pose: np.ndarray, vo: FrameResult) -> np.ndarray:
+        """The PnP pose with its step from the front end's keyframe given the scale source's length (gt or
+        height): the map's scale never overrides the scale source."""
+        if self.config.scale == "none" or vo.scale is None:
+            return pose
+        reference = self.pose_of(vo.keyframe_position)
+        step = invert_pose(reference) @ pose
+        length = float(np.linalg.norm(step[:3, 3]))
+        if length < 1e-9:
+            return pose
+        step[:3, 3] *= vo.scale / length
+        return reference @ step
+
+    def _relocalise(self, image: np.ndarray, position: int) -> tuple[Relocalisation, PnPEstimate | None]:
+        """Match upright ORB descriptors of this frame to the landmarks of the segment's recent keyframes,
+        then PnP. Returns the attempt and, on success, the estimate (matched tracks are started and linked)."""
+        cfg = self._cfg
+        recent = self.mapping.map.recent_keyframes(cfg.reloc_keyframes, self._segment)
+        landmarks = self.mapping.map.landmarks
+        candidates = [i for i in self.mapping.map.landmarks_seen_by(recent) if landmarks[i].descriptor is not None]
+        keypoints = [cv2.KeyPoint(k.pt[0], k.pt[1], k.size, 0.0, k.response, k.octave)
+                     for k in self._orb.detect(image, None)]
+        keypoints, descriptors = self._orb.compute(image, keypoints)
+        failed = Relocalisation(False, None, len(candidates), 0, 0)
+        if descriptors is None or len(candidates) < cfg.pnp_min_landmarks:
+            return failed, None
+        train = np.array([landmarks[i].descriptor for i in candidates])
+        query_index, train_index = match_descriptors(descriptors, train, cfg.reloc_ratio)
+        failed = replace(failed, matches=len(query_index))
+        if len(query_index) < cfg.reloc_min_inliers:
+            return failed, None
+        landmark_ids = np.array(candidates, np.int64)[train_index]
+        pixels = np.array([keypoints[i].pt for i in query_index], np.float64)
+        solution = solve_pnp(self.mapping.map.positions(landmark_ids), pixels, self._K, cfg.reloc_threshold_px,
+                             cfg.reloc_iterations, (self.config.pose.seed, position, 1))
+        inliers = int(solution.inlier_mask.sum())
+        if solution.T_world_cam is None or inliers < cfg.reloc_min_inliers:
+            return replace(failed, inliers=inliers), None
+        found = set(landmark_ids[solution.inlier_mask].tolist())
+        best = max(recent, key=lambda k: (len(k.landmark_ids & found), k.id))
+        new_tracks = self._odometry.add_tracks(pixels[solution.inlier_mask].astype(np.float32))
+        self._links.update(zip(new_tracks.tolist(), landmark_ids[solution.inlier_mask].tolist(), strict=True))
+        return (Relocalisation(True, best.id, len(candidates), len(query_index), inliers),
+                PnPEstimate(landmark_ids, pixels, solution.projected, solution.inlier_mask, solution.T_world_cam))
+
+    # -- keyframes and the result ---------------------------------------------------------------------------
+
+    def _keyframe_reason(self, vo: FrameResult, pnp: PnPEstimate | None) -> str | None:
+        """What makes this tracked frame a keyframe, if anything."""
+        cfg = self._cfg
+        reference = self.mapping.map.keyframes[self._reference]
+        if self._since_keyframe >= cfg.keyframe_max_frames:
+            return f"{self._since_keyframe} frames"
+        alive = vo.track_fate >= TrackFate.NOT_USED
+        _, in_reference, in_frame = np.intersect1d(reference.track_ids, vo.track_ids[alive], assume_unique=True,
+                                                   return_indices=True)
+        if len(in_frame):
+            parallax = float(np.median(np.linalg.norm(vo.track_cur[alive][in_frame] - reference.pixels[in_reference],
+                                                      axis=1)))
+            if parallax >= cfg.keyframe_parallax_px:
+                return f"parallax {parallax:.0f} px"
+        if pnp is not None and pnp.T_world_cam is not None and reference.landmark_ids:
+            tracked = set(pnp.landmark_ids[pnp.inlier_mask].tolist())
+            if len(tracked) < cfg.keyframe_min_landmarks:
+                return f"{len(tracked)} landmarks tracked"
+            overlap = len(tracked & reference.landmark_ids) / len(reference.landmark_ids)
+            if overlap < cfg.keyframe_overlap:
+                return f"overlap {overlap:.2f}"
+        return None
+
+    def _metric_step(self, position: int, pose: np.ndarray) -> float | None:
+        """Distance from the previous keyframe by the scale source (the BA's range prior); None for unit scale."""
+        if self.config.scale == "none" or self._reference < 0:
+            return None
+        previous = self.mapping.map.keyframes[self._reference]
+        if self.config.scale == "gt":
+            empty = np.zeros((0, 3))
+            return self._scale.step_length(TwoView(previous.position, position, empty, empty[:, :2]))[0]
+        return float(np.linalg.norm(pose[:3, 3] - previous.T_world_cam[:3, 3]))
+
+    def _finish(self, frame: Frame, vo: FrameResult, pose: np.ndarray | None, mode: TrackingMode,
+                pnp: PnPEstimate | None, relocalisation: Relocalisation | None, warnings: list[Reason],
+                why: str | None, two_view: np.ndarray | None = None) -> FrameResult:
+        """Keyframe insertion when due, the pose stored relative to its keyframe, the front end re-anchored,
+        and the frame's result."""
+        held = pose is None
+        if pose is None:
+            pose = self._last_pose.copy()
+        else:
+            pose = orthonormalise(pose)
+            self._gap = False
+        self._since_keyframe += 1
+        if not held and why is None and mode in (TrackingMode.MAP, TrackingMode.TWO_VIEW):
+            why = self._keyframe_reason(vo, pnp)
+        keyframe = view = bundle = None
+        if why is not None:
+            clock = time.perf_counter()
+            collected = self.mapping.collect_bundle_adjustment()
+            bundle: BundleAdjusted | None = None
+            if collected is not None:
+                bundle, correction = collected
+                pose = orthonormalise(correction @ pose)
+            track_ids, pixels = self._odometry.live_tracks()
+            keyframe, links, view = self.mapping.insert_keyframe(
+                vo.position, self._segment, pose, track_ids, pixels, frame.image, self._metric_step(vo.position, pose),
+                why, self._links)
+            live = set(track_ids.tolist())
+            landmarks = self.mapping.map.landmarks
+            self._links = {t: m for t, m in {**self._links, **links}.items() if t in live and m in landmarks}
+            self._reference = keyframe.keyframe_id
+            self._since_keyframe = 0
+            vo.timings_ms["mapping"] = _lap(clock)
+        if self._reference >= 0:
+            self._relative[vo.position] = (self._reference,
+                                           invert_pose(self.mapping.map.keyframes[self._reference].T_world_cam) @ pose)
+            self._relative.pop(vo.position - _RELATIVE_KEPT, None)
+        self._last_pose = pose
+        self._odometry.set_keyframe_pose(self.pose_of(self._odometry.key_position))
+        return self._result(vo, pose, held, mode, pnp, relocalisation, warnings, two_view,
+                            MapFrame(mode, self._segment, two_view, pnp, keyframe, bundle, relocalisation, view))
+
+    def _result(self, vo: FrameResult, pose: np.ndarray, held: bool, mode: TrackingMode, pnp: PnPEstimate | None,
+                relocalisation: Relocalisation | None, warnings: list[Reason], two_view: np.ndarray | None,
+                mapping: MapFrame) -> FrameResult:
+        del pnp, relocalisation
+        points_world = vo.points_world
+        if two_view is not None and len(points_world):  # the front end's points, moved with the pose used
+            moved = pose @ invert_pose(two_view)
+            points_world = points_world @ moved[:3, :3].T + moved[:3, 3]
+        if held:
+            reason = vo.reason if vo.reason is not None else Reason.TRACKING_LOST
+            if vo.reason in HOLD_REASONS and vo.reason != Reason.LOW_PARALLAX:
+                reason = Reason.TRACKING_LOST
+            health = Health.of(reason, [r for r in vo.health.reasons if r != vo.reason] + warnings)
+            status = FrameStatus.HELD
+        else:
+            reason = None
+            health = Health.of(None, [r for r in vo.health.reasons if r not in HOLD_REASONS] + warnings)
+            status = FrameStatus.INIT if mode == TrackingMode.INIT else FrameStatus.OK
+        return replace(vo, T_world_cam=pose, status=status, reason=reason, points_world=points_world, health=health,
+                       mapping=mapping)
+
+
+def _lap(start: float) -> float:
+    return (time.perf_counter() - start) * 1000.0
