@@ -140,6 +140,7 @@ class MapConfig:
     scale_sigma_height: float = 0.05  # fraction of the distance with --scale height
     # relocalisation
     reloc_keyframes: int = 10  # landmarks of this many recent keyframes are searched
+    reloc_fast_threshold: int = 15  # FAST corners of the lost frame that are described and matched
     reloc_ratio: float = 0.8  # Lowe's ratio test of the descriptor matches
     reloc_threshold_px: float = 3.0
     reloc_iterations: int = 500

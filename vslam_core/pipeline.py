@@ -32,7 +32,7 @@ class RunResult:
 
     indices: list[int]  # source frame indices, one per processed frame
     timestamps: list[float | None]
-    poses: list[np.ndarray]  # (4, 4) T_world_cam per processed frame
+    poses: list[np.ndarray]  # (4, 4) T_world_cam per processed frame (map backend: refined by BA once complete)
     held: int = 0  # frames that kept the previous pose
     seconds: float = 0.0  # wall time of the whole run, decoding and sinks included
 
@@ -125,6 +125,8 @@ def run_odometry(
             for sink in sinks:
                 sink(frame, frame_result)
     finally:
+        if isinstance(engine, MapTracking):  # the map's refined poses replace the tracking-time ones
+            run.poses[:] = engine.refined_poses(len(run.poses))
         engine.close()
         run.seconds = time.perf_counter() - start
     return run

@@ -44,7 +44,8 @@ class LocalMapping:
         self._adjuster = BundleAdjuster(background)
         self._submitted: _Submitted | None = None
         self._sightings: dict[int, list[tuple[int, np.ndarray]]] = {}  # track id -> (keyframe id, pixel)s
-        self._orb = cv2.ORB_create(edgeThreshold=int(DESCRIPTOR_PATCH), patchSize=int(DESCRIPTOR_PATCH))
+        # upright ORB descriptors at level 0 (the car's camera hardly rolls): landmarks and relocalisation
+        self.describer = cv2.ORB_create(edgeThreshold=int(DESCRIPTOR_PATCH), patchSize=int(DESCRIPTOR_PATCH))
         self._window: list[int] = []  # keyframe ids of the current BA window
 
     def close(self) -> None:
@@ -123,9 +124,13 @@ class LocalMapping:
         fixed = older[-cfg.ba_max_fixed:] if cfg.ba_max_fixed > 0 else []
         keyframe_ids = self._window + fixed
         index = {k: n for n, k in enumerate(keyframe_ids)}
-        pose_index, point_index, pixels, kept = [], [], [], []
+        pose_index: list[int] = []
+        point_index: list[int] = []
+        pixels: list[np.ndarray] = []
+        kept: list[int] = []
         for landmark_id in landmark_ids:
-            seen = [(index[k], pixel) for k, pixel in self.map.landmarks[landmark_id].observations.items() if k in index]
+            observations = self.map.landmarks[landmark_id].observations
+            seen = [(index[k], pixel) for k, pixel in observations.items() if k in index]
             if len(seen) < 2:
                 continue
             for pose, pixel in seen:
@@ -246,7 +251,7 @@ class LocalMapping:
             return
         keypoints = [cv2.KeyPoint(float(p[0]), float(p[1]), DESCRIPTOR_PATCH, 0.0, 0.0, 0, i)
                      for i, p in ((i, self.map.landmarks[i].observations[keyframe.id]) for i in landmark_ids)]
-        described, descriptors = self._orb.compute(image, keypoints)
+        described, descriptors = self.describer.compute(image, keypoints)
         if descriptors is None:
             return
         for keypoint, descriptor in zip(described, descriptors, strict=True):

@@ -21,7 +21,7 @@ from vslam_core.config import EngineConfig
 from vslam_core.engine import Odometry
 from vslam_core.features import match_descriptors
 from vslam_core.geometry import invert_pose, orthonormalise, rotation_angle
-from vslam_core.mapping.local_mapping import LocalMapping
+from vslam_core.mapping.local_mapping import DESCRIPTOR_PATCH, LocalMapping
 from vslam_core.mapping.pnp import PnPSolution, solve_pnp
 from vslam_core.results import (
     BundleAdjusted,
@@ -41,7 +41,6 @@ from vslam_core.sources.base import CameraIntrinsics, Frame
 UNUSABLE_IMAGE = {Reason.UNREADABLE_IMAGE, Reason.IMAGE_TOO_DARK, Reason.IMAGE_TOO_BRIGHT, Reason.IMAGE_BLURRED}
 HOLD_REASONS = {Reason.TOO_FEW_TRACKS, Reason.LOW_PARALLAX, Reason.NO_ESSENTIAL, Reason.TOO_FEW_INLIERS,
                 Reason.CHIRALITY}
-_RELATIVE_KEPT = 256  # frames whose pose is kept relative to their keyframe (the front end's keyframe is recent)
 
 
 class MapTracking:
@@ -61,10 +60,16 @@ class MapTracking:
         self._last_pose = np.eye(4)
         self._since_keyframe = 0
         self._gap = False  # unusable frames since the last one with a pose
-        self._orb = cv2.ORB_create(nfeatures=2000)
 
     def close(self) -> None:
         self.mapping.close()
+
+    def refined_poses(self, count: int) -> list[np.ndarray]:
+        """(4, 4) poses of the first `count` frames after the last bundle adjustment: each frame moved with
+        its keyframe by every refinement since it was tracked. Applies the pending adjustment first."""
+        if self.mapping.collect_bundle_adjustment() is not None:
+            self._odometry.set_keyframe_pose(self.pose_of(self._odometry.key_position))
+        return [self.pose_of(position) for position in range(count)]
 
     def pose_of(self, position: int) -> np.ndarray:
         """(4, 4) pose of an earlier frame, moved with its keyframe by every refinement since."""
@@ -95,7 +100,7 @@ class MapTracking:
             pose, mode = self._metric(pnp.T_world_cam, vo), TrackingMode.MAP
         elif self._has_map() and (lost_tracks or self._gap):
             clock = time.perf_counter()
-            relocalisation, found = self._relocalise(frame.image, vo.position)
+            relocalisation, found = self.relocalise(frame.image, vo.position)
             timings["relocalise"] = _lap(clock)
             if found is not None:
                 pnp, pose, mode, why = found, found.T_world_cam, TrackingMode.RELOCALISED, "relocalised"
@@ -176,16 +181,17 @@ class MapTracking:
         step[:3, 3] *= vo.scale / length
         return reference @ step
 
-    def _relocalise(self, image: np.ndarray, position: int) -> tuple[Relocalisation, PnPEstimate | None]:
+    def relocalise(self, image: np.ndarray, position: int) -> tuple[Relocalisation, PnPEstimate | None]:
         """Match upright ORB descriptors of this frame to the landmarks of the segment's recent keyframes,
         then PnP. Returns the attempt and, on success, the estimate (matched tracks are started and linked)."""
         cfg = self._cfg
         recent = self.mapping.map.recent_keyframes(cfg.reloc_keyframes, self._segment)
         landmarks = self.mapping.map.landmarks
         candidates = [i for i in self.mapping.map.landmarks_seen_by(recent) if landmarks[i].descriptor is not None]
-        keypoints = [cv2.KeyPoint(k.pt[0], k.pt[1], k.size, 0.0, k.response, k.octave)
-                     for k in self._orb.detect(image, None)]
-        keypoints, descriptors = self._orb.compute(image, keypoints)
+        # FAST corners like the ones tracks (and so landmarks) are born at, described like the landmarks
+        corners = cv2.FastFeatureDetector_create(threshold=self._cfg.reloc_fast_threshold).detect(image, None)
+        keypoints = [cv2.KeyPoint(k.pt[0], k.pt[1], DESCRIPTOR_PATCH, 0.0, k.response, 0) for k in corners]
+        keypoints, descriptors = self.mapping.describer.compute(image, keypoints)
         failed = Relocalisation(False, None, len(candidates), 0, 0)
         if descriptors is None or len(candidates) < cfg.pnp_min_landmarks:
             return failed, None
@@ -257,11 +263,11 @@ class MapTracking:
         self._since_keyframe += 1
         if not held and why is None and mode in (TrackingMode.MAP, TrackingMode.TWO_VIEW):
             why = self._keyframe_reason(vo, pnp)
-        keyframe = view = bundle = None
+        keyframe = view = None
+        bundle: BundleAdjusted | None = None
         if why is not None:
             clock = time.perf_counter()
             collected = self.mapping.collect_bundle_adjustment()
-            bundle: BundleAdjusted | None = None
             if collected is not None:
                 bundle, correction = collected
                 pose = orthonormalise(correction @ pose)
@@ -278,7 +284,6 @@ class MapTracking:
         if self._reference >= 0:
             self._relative[vo.position] = (self._reference,
                                            invert_pose(self.mapping.map.keyframes[self._reference].T_world_cam) @ pose)
-            self._relative.pop(vo.position - _RELATIVE_KEPT, None)
         self._last_pose = pose
         self._odometry.set_keyframe_pose(self.pose_of(self._odometry.key_position))
         return self._result(vo, pose, held, mode, pnp, relocalisation, warnings, two_view,

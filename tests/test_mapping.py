@@ -1,0 +1,193 @@
+"""The map backend: bundle adjustment, PnP, relocalisation and the whole engine on real KITTI frames."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from vslam_core.config import EngineConfig
+from vslam_core.geometry import invert_pose, pose_matrix, rotation_angle, so3_exp
+from vslam_core.mapping.bundle_adjustment import BundleAdjuster, Problem, solve
+from vslam_core.mapping.pnp import project, solve_pnp
+from vslam_core.mapping.tracking import MapTracking
+from vslam_core.metrics import kitti_errors
+from vslam_core.pipeline import run_odometry
+from vslam_core.results import FrameResult, TrackingMode
+from vslam_core.scale import GroundTruthScale
+from vslam_core.sources.base import Frame, FrameRange
+from vslam_core.sources.kitti import KittiSource
+
+K = np.array([[718.856, 0.0, 607.19], [0.0, 718.856, 185.22], [0.0, 0.0, 1.0]])
+WIDTH, HEIGHT = 1241, 376
+
+
+def _street(rng: np.random.Generator, frames: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """A car driving forward and turning slowly past (300, 3) points 8–50 m ahead: (poses, points)."""
+    poses = np.array([pose_matrix(so3_exp(np.array([0.0, 0.04 * i, 0.0])), np.array([0.15 * i, 0.0, 0.8 * i]))
+                      for i in range(frames)])
+    points = np.column_stack((rng.uniform(-15, 15, 300), rng.uniform(-3, 2, 300), rng.uniform(8, 50, 300)))
+    return poses, points
+
+
+def _observe(poses: np.ndarray, points: np.ndarray, rng: np.random.Generator, noise_px: float
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Observations of the points inside the image: (pose index, point index, pixels) and the points seen."""
+    pose_index, point_index, pixels = [], [], []
+    for i, pose in enumerate(poses):
+        uv = project(points, pose, K)
+        inside = np.flatnonzero((uv[:, 0] > 0) & (uv[:, 0] < WIDTH) & (uv[:, 1] > 0) & (uv[:, 1] < HEIGHT))
+        pose_index += [i] * len(inside)
+        point_index += inside.tolist()
+        pixels.append(uv[inside] + rng.normal(0, noise_px, (len(inside), 2)))
+    seen, remapped = np.unique(point_index, return_inverse=True)
+    return np.array(pose_index), remapped, np.concatenate(pixels), points[seen]
+
+
+def _perturbed(pose: np.ndarray, rng: np.random.Generator, degrees: float, metres: float) -> np.ndarray:
+    return pose @ pose_matrix(so3_exp(rng.normal(0, np.radians(degrees), 3)), rng.normal(0, metres, 3))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_bundle_adjustment_recovers_a_perturbed_scene(seed: int) -> None:
+    """Six window poses perturbed by ~1° and 10 cm, landmarks by 30 cm, two older poses fixed, metric steps
+    as range priors: BA brings every pose back within 0.05° and 2 cm and the reprojection error to the
+    pixel noise."""
+    rng = np.random.default_rng(seed)
+    poses, points = _street(rng)
+    order = [2, 3, 4, 5, 6, 7, 0, 1]  # the window first, then the fixed poses (Problem's convention)
+    pose_index, point_index, pixels, seen = _observe(poses[order], points, rng, noise_px=0.3)
+    noisy = np.array([_perturbed(p, rng, 1.0, 0.1) if n < 6 else p for n, p in enumerate(poses[order])])
+    ranges = [(order.index(i), order.index(i + 1), float(np.linalg.norm(poses[i + 1, :3, 3] - poses[i, :3, 3])), 0.01)
+              for i in range(7)]
+    problem = Problem(K, noisy, 6, seen + rng.normal(0, 0.3, seen.shape), pose_index, point_index, pixels,
+                      np.array(ranges), fix_first=0, iterations=20, huber_px=1.5)
+    solution = solve(problem)
+    for refined, truth in zip(solution.poses, poses[order][:6], strict=True):
+        assert np.degrees(rotation_angle(truth[:3, :3].T @ refined[:3, :3])) < 0.05
+        assert np.linalg.norm(truth[:3, 3] - refined[:3, 3]) < 0.02
+    assert solution.cost_after < 0.01 * solution.cost_before
+    assert np.median(solution.errors_after) < 0.6 < np.median(solution.errors_before)
+
+
+def test_bundle_adjustment_in_the_worker_process_gives_the_same_solution() -> None:
+    rng = np.random.default_rng(3)
+    poses, points = _street(rng)
+    pose_index, point_index, pixels, seen = _observe(poses, points, rng, noise_px=0.5)
+    noisy = np.array([_perturbed(p, rng, 0.5, 0.05) if i >= 2 else p for i, p in enumerate(poses)])
+    problem = Problem(K, noisy, 8, seen, pose_index, point_index, pixels, np.zeros((0, 4)), fix_first=2,
+                      iterations=5, huber_px=1.5)
+    adjuster = BundleAdjuster(background=True)
+    try:
+        adjuster.submit(problem)
+        collected = adjuster.collect()
+    finally:
+        adjuster.close()
+    assert collected is not None
+    np.testing.assert_array_equal(collected[1].poses, solve(problem).poses)
+
+
+def test_pnp_recovers_the_pose_and_flags_outliers() -> None:
+    """P3P RANSAC + LM on 200 landmarks with 0.5 px noise and 25 % gross outliers: pose within 0.05° and
+    3 cm of the truth, the outliers flagged."""
+    rng = np.random.default_rng(4)
+    truth = pose_matrix(so3_exp(np.array([0.01, 0.3, -0.02])), np.array([2.0, -0.1, 5.0]))
+    points = np.column_stack((rng.uniform(-10, 14, 200), rng.uniform(-3, 2, 200), rng.uniform(12, 40, 200)))
+    pixels = project(points, truth, K) + rng.normal(0, 0.5, (200, 2))
+    outlier = rng.random(200) < 0.25
+    pixels[outlier] += rng.uniform(-80, 80, (int(outlier.sum()), 2))
+    solution = solve_pnp(points, pixels, K, threshold_px=2.0, iterations=200, seed=(0,))
+    assert solution.T_world_cam is not None
+    assert np.degrees(rotation_angle(truth[:3, :3].T @ solution.T_world_cam[:3, :3])) < 0.05
+    assert np.linalg.norm(truth[:3, 3] - solution.T_world_cam[:3, 3]) < 0.03
+    assert not solution.inlier_mask[outlier].any()
+    assert solution.inlier_mask[~outlier].mean() > 0.95
+
+
+def _map_run(kitti_root: Path, frames: FrameRange, threads: int = 1,
+             ) -> tuple[list[FrameResult], np.ndarray, np.ndarray]:
+    source = KittiSource(kitti_root, sequence="00", frames=frames)
+    results: list[FrameResult] = []
+    config = EngineConfig(backend="map", threads=threads)
+    run = run_odometry(source, config, (lambda _frame, result: results.append(result),))
+    assert source.ground_truth is not None
+    return results, run.pose_array(), source.ground_truth
+
+
+@pytest.mark.kitti
+def test_map_backend_tracks_real_kitti_against_its_map(kitti_root: Path) -> None:
+    results, poses, gt = _map_run(kitti_root, FrameRange(0, 150))
+    modes = [r.mapping.mode for r in results if r.mapping is not None]
+    assert len(modes) == 150
+    assert modes.count(TrackingMode.MAP) > 0.9 * 150
+    keyframes = [r.mapping.keyframe for r in results if r.mapping is not None and r.mapping.keyframe is not None]
+    assert 10 < len(keyframes) < 100
+    adjustments = [r.mapping.bundle_adjustment for r in results
+                   if r.mapping is not None and r.mapping.bundle_adjustment is not None]
+    assert len(adjustments) >= len(keyframes) - 2
+    assert np.mean([b.mean_error_after <= b.mean_error_before + 1e-9 for b in adjustments]) > 0.9
+    assert np.median([b.mean_error_after for b in adjustments]) < 1.0
+    t_err, r_err = kitti_errors(gt, poses)
+    assert t_err < 2.5 and r_err < 2.0  # measured 1.77 % and 1.56 °/100 m (vo backend: about the same)
+
+
+@pytest.mark.kitti
+def test_map_backend_is_deterministic_with_and_without_the_worker(kitti_root: Path) -> None:
+    _, inline, _ = _map_run(kitti_root, FrameRange(0, 60), threads=1)
+    _, background, _ = _map_run(kitti_root, FrameRange(0, 60), threads=2)
+    _, again, _ = _map_run(kitti_root, FrameRange(0, 60), threads=2)
+    np.testing.assert_array_equal(inline, background)
+    np.testing.assert_array_equal(background, again)
+
+
+@pytest.mark.kitti
+def test_relocalisation_finds_a_frame_in_the_map_of_real_kitti(kitti_root: Path) -> None:
+    """Build the map over frames 0–119 of 00, then relocalise frames 121 and 122 from their images alone
+    (descriptors against the landmarks of recent keyframes): the pose agrees with the one tracking gives
+    those frames in an uninterrupted run. (Inliers fall from ~190 at the next frame to ~30 four frames on:
+    single-scale upright descriptors; a wider reach is open work.)"""
+    source = KittiSource(kitti_root, sequence="00", frames=FrameRange(0, 124))
+    assert source.ground_truth is not None
+    tracked = run_odometry(source, EngineConfig(backend="map", threads=1)).pose_array()
+    engine = MapTracking(source.intrinsics, EngineConfig(backend="map", threads=1),
+                         GroundTruthScale(source.ground_truth))
+    try:
+        frames: list[Frame] = list(source)
+        for frame in frames[:120]:
+            engine.process(frame)
+        for position in (121, 122):
+            attempt, estimate = engine.relocalise(frames[position].image, position)
+            assert attempt.success and estimate is not None and estimate.T_world_cam is not None
+            assert attempt.inliers >= 30 and attempt.keyframe_id is not None
+            error = invert_pose(tracked[position]) @ estimate.T_world_cam
+            assert np.linalg.norm(error[:3, 3]) < 0.3
+            assert np.degrees(rotation_angle(error[:3, :3])) < 0.5
+    finally:
+        engine.close()
+
+
+def test_relocalisation_fails_cleanly_on_an_unrelated_image(kitti_root: Path) -> None:
+    source = KittiSource(kitti_root, sequence="00", frames=FrameRange(0, 40))
+    assert source.ground_truth is not None
+    engine = MapTracking(source.intrinsics, EngineConfig(backend="map", threads=1),
+                         GroundTruthScale(source.ground_truth))
+    try:
+        for frame in source:
+            engine.process(frame)
+        noise = cv2.GaussianBlur(np.random.default_rng(0).integers(0, 255, (HEIGHT, WIDTH), dtype=np.uint8), (3, 3), 0)
+        attempt, estimate = engine.relocalise(noise, 40)
+        assert not attempt.success and estimate is None
+    finally:
+        engine.close()
+
+
+def test_backend_vo_is_untouched_by_the_map_config(kitti_root: Path) -> None:
+    """Map parameters do not change the vo backend's trajectory."""
+    source = KittiSource(kitti_root, sequence="00", frames=FrameRange(0, 30))
+    plain = run_odometry(source, EngineConfig(backend="vo")).pose_array()
+    config = EngineConfig(backend="vo")
+    config = dataclasses.replace(config, map=dataclasses.replace(config.map, ba_window=3, keyframe_parallax_px=5.0))
+    np.testing.assert_array_equal(plain, run_odometry(source, config).pose_array())
