@@ -55,6 +55,13 @@ class Scale(StrEnum):
     height = "height"
 
 
+class Backend(StrEnum):
+    vo = "vo"
+    map = "map"
+
+
+BACKEND_HELP = ("vo = frame-to-keyframe odometry; map = keyframes and landmarks, tracking against the map, windowed "
+                "bundle adjustment, relocalisation [default: the config's backend, vo unless --config says otherwise]")
 CAMERA_HEIGHT_HELP = ("metres from the camera to the road, for --scale height [default: the source's own: KITTI "
                       "1.65 m, the synthetic street's]")
 
@@ -133,6 +140,7 @@ def _summary(source: FrameSource, run: RunResult, config: EngineConfig) -> None:
     lines = [
         f"frames      {run.frames} ({run.held} held the previous pose)",
         f"time        {run.seconds:.1f} s, {fps:.1f} frames/s",
+        f"backend     {config.backend}",
         f"scale       {config.scale}"
         + (f" (camera {default_camera_height(source.camera_height, config):.2f} m above the road; no ground truth "
            "used)" if config.scale == "height" else ""),
@@ -162,6 +170,7 @@ def run(
                                                 "= unit steps [default: gt when the source has ground truth]")]
     = None,
     camera_height: Annotated[float | None, typer.Option(min=0.01, help=CAMERA_HEIGHT_HELP)] = None,
+    backend: Annotated[Backend | None, typer.Option(help=BACKEND_HELP)] = None,
     config_file: Annotated[Path | None, typer.Option("--config", help="engine config (TOML)")] = None,
     output: Annotated[Path | None, typer.Option("--output", "-o", help="recording (.rrd) to write "
                                                 "[default: recordings/<source>_<time>.rrd]")] = None,
@@ -190,6 +199,8 @@ def run(
     elif config_file is None and src.ground_truth is None:
         config = config.with_scale("none")
     config = _with_camera_height(config, camera_height, src)
+    if backend is not None:
+        config = config.with_backend(backend.value)
 
     rrd = None if detail == Detail.OFF else (output or _default_output(src, frame_range))
     if rrd is not None:
@@ -205,6 +216,7 @@ def run(
         "frames": str(frame_range),
         "frame_count": str(len(src)),
         "scale": config.scale,
+        "backend": config.backend,
         **({"inject": inject} if inject else {}),
         **version_properties(),
     }
@@ -299,6 +311,7 @@ def eval_command(
                                          "height (no ground truth used); none: unit steps, scored after Sim(3) "
                                          "alignment")] = Scale.gt,
     camera_height: Annotated[float | None, typer.Option(min=0.01, help=CAMERA_HEIGHT_HELP)] = None,
+    backend: Annotated[Backend | None, typer.Option(help=BACKEND_HELP)] = None,
     config_file: Annotated[Path | None, typer.Option("--config", help="engine config (TOML)")] = None,
     report: Annotated[Path | None, typer.Option(help="folder for metrics.csv/.parquet, report.md, trajectories, "
                                                 "recordings and plots")] = None,
@@ -324,12 +337,16 @@ def eval_command(
             fail("give either SOURCE or --trajectory, not both")
         if gt is None:
             fail("--trajectory needs --gt (the ground-truth poses to compare with)")
+        if backend is not None:
+            fail("--backend chooses how the engine runs: it does not apply to --trajectory files")
         fmt = trajectory_format.value if trajectory_format is not None else None
         evaluation = evaluate_trajectory_file(trajectory, gt, fmt, report)  # type: ignore[arg-type]
-        scale_source = "external"
+        scale_source = backend_name = "external"
     else:
         config = load_config(config_file) if config_file is not None else EngineConfig()
         config = config.with_scale(scale.value)
+        if backend is not None:
+            config = config.with_backend(backend.value)
         frame_range = FrameRange.parse(frames)
         if sequences is not None:
             if source is None:
@@ -346,9 +363,9 @@ def eval_command(
             config = _with_camera_height(config, camera_height, src)
         evaluation = evaluate_sources(sources, config, report, err, detail if report is not None else Detail.OFF,
                                       {"frames": str(frame_range), "source_path": source or "synthetic"})
-        scale_source = config.scale
-    _print_evaluation(evaluation, scale_source, report, as_json, check_gates(evaluation.rows, max_t_err, max_r_err,
-                                                                             max_ate))
+        scale_source, backend_name = config.scale, config.backend
+    _print_evaluation(evaluation, scale_source, backend_name, report, as_json,
+                      check_gates(evaluation.rows, max_t_err, max_r_err, max_ate))
 
 
 def _with_camera_height(config: EngineConfig, camera_height: float | None, source: FrameSource) -> EngineConfig:
@@ -372,11 +389,11 @@ def _check_report_dir(report: Path, force: bool) -> None:
     _ensure_writable_folder(report, "report folder")
 
 
-def _print_evaluation(evaluation: Evaluation, scale: str, report: Path | None, as_json: bool,
+def _print_evaluation(evaluation: Evaluation, scale: str, backend: str, report: Path | None, as_json: bool,
                       failures: list[str]) -> None:
     if as_json:
-        data: dict[str, Any] = {"scale": scale, **evaluation.as_json(), "gates": {"passed": not failures,
-                                                                                  "failures": failures}}
+        data: dict[str, Any] = {"scale": scale, "backend": backend, **evaluation.as_json(),
+                                "gates": {"passed": not failures, "failures": failures}}
         print(json.dumps(data, indent=2, allow_nan=False))
     else:
         rows = evaluation.rows + ([evaluation.mean] if len(evaluation.rows) > 1 else [])

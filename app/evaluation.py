@@ -69,6 +69,7 @@ def evaluate_sources(
             "source": source.name,
             "frame_count": str(len(source)),
             "scale": config.scale,
+            "backend": config.backend,
             **version_properties(),
             **(properties or {}),
         }
@@ -79,7 +80,7 @@ def evaluate_sources(
             interrupted = run.interrupted
             break
         poses = run.result.pose_array()
-        row = metrics_row(source.name, gt[: len(poses)], poses, config.scale)
+        row = metrics_row(source.name, gt[: len(poses)], poses, config.scale, config.backend)
         row["fps"] = run.result.frames / run.result.seconds if run.result.seconds else math.nan
         rows.append(row)
         by_length[source.name] = kitti_errors_by_length(gt[: len(poses)], poses)
@@ -89,7 +90,7 @@ def evaluate_sources(
                 report_dir / f"{source.name}_top.png",
                 gt[: len(poses)],
                 poses,
-                f"{source.name}  ({len(poses)} frames, scale {config.scale})",
+                f"{source.name}  ({len(poses)} frames, scale {config.scale}, backend {config.backend})",
                 _subtitle(row),
             )
         if run.interrupted is not None:
@@ -120,10 +121,11 @@ def write_report(report_dir: Path, evaluation: Evaluation, config: EngineConfig)
     lines = [
         "# vslam evaluation",
         "",
-        f"vslam {vslam_core.__version__}, {datetime.now():%Y-%m-%d %H:%M}, scale source `{config.scale}`"
+        f"vslam {vslam_core.__version__}, {datetime.now():%Y-%m-%d %H:%M}, scale source `{config.scale}`, "
+        f"backend `{evaluation.mean.get('backend', config.backend)}`"
         + (" (estimates Sim(3)-aligned before scoring: known only up to scale)" if config.scale == "none" else ""),
         "",
-        markdown_table([{k: r.get(k) for k in COLUMNS if k != "scale" and k != "alignment"} for r in rows]),
+        markdown_table([{k: r.get(k) for k in COLUMNS if k not in ("scale", "backend", "alignment")} for r in rows]),
         "",
         "t_err, r_err: KITTI devkit segment errors (100–800 m, every 10th frame), no alignment. ATE: RMSE after "
         "Umeyama SE(3) / Sim(3) alignment. RPE: consecutive frames (and pairs 10 m of path apart), translation "
@@ -199,7 +201,7 @@ def evaluate_trajectory_file(
     gt_times, gt = load_trajectory(ground_truth, fmt)
     est, gt = associate(est_times, est, gt_times, gt, (estimate, ground_truth))
     est, gt = rebase_poses(est), rebase_poses(gt)
-    row = metrics_row(estimate.stem, gt, est, "external")
+    row = metrics_row(estimate.stem, gt, est, "external", "external")
     evaluation = Evaluation([row], mean_row([row]), {estimate.stem: kitti_errors_by_length(gt, est)})
     if report_dir is not None:
         write_top_view(

@@ -15,6 +15,7 @@ COLUMNS: dict[str, tuple[str, str]] = {
     "frames": ("frames", "{:d}"),
     "length_m": ("length m", "{:.1f}"),
     "scale": ("scale", "{}"),
+    "backend": ("backend", "{}"),
     "alignment": ("aligned", "{}"),
     "t_err": ("t_err %", "{:.2f}"),
     "r_err": ("r_err °/100 m", "{:.2f}"),
@@ -34,16 +35,19 @@ METRICS = ("t_err", "r_err", "ate_se3", "ate_sim3", "rpe_trans", "rpe_rot", "rpe
            "step_err_median", "step_err_abs", "path_length_err")
 
 
-def metrics_row(name: str, gt: np.ndarray, poses: np.ndarray, scale: str) -> dict[str, Any]:
+def metrics_row(name: str, gt: np.ndarray, poses: np.ndarray, scale: str, backend: str | None = None
+                ) -> dict[str, Any]:
     """Every metric of `poses` (N, 4, 4) against `gt` (N, 4, 4). With ``scale == "none"`` the estimate is
-    known only up to scale: it is Sim(3)-aligned to the ground truth first (``alignment = "sim3"``)."""
+    known only up to scale: it is Sim(3)-aligned to the ground truth first (``alignment = "sim3"``). With
+    `backend`, the row names the engine backend that produced the poses (``backend`` key, after ``scale``)."""
     alignment = "sim3" if scale == "none" else "none"
     estimate = sim3_aligned(gt, poses) if alignment == "sim3" and len(poses) > 2 else poses
     metrics = evaluate(gt, estimate).as_dict()
     metrics["rpe_trans_10m"], metrics["rpe_rot_10m"] = rpe_by_distance(gt, estimate, 10.0)
     # how far each step's length is from the truth: the scale source's own error
     metrics["step_err_median"], metrics["step_err_abs"], metrics["path_length_err"] = scale_errors(gt, estimate)
-    return {"sequence": name, "scale": scale, "alignment": alignment, **metrics}
+    return {"sequence": name, "scale": scale, **({"backend": backend} if backend is not None else {}),
+            "alignment": alignment, **metrics}
 
 
 def mean_row(rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -51,6 +55,7 @@ def mean_row(rows: list[dict[str, Any]]) -> dict[str, Any]:
     mean: dict[str, Any] = {
         "sequence": "mean",
         "scale": rows[0]["scale"] if rows else "",
+        **({"backend": rows[0]["backend"]} if rows and "backend" in rows[0] else {}),
         "alignment": rows[0]["alignment"] if rows else "",
     }
     for key in METRICS + ("fps",):

@@ -70,9 +70,9 @@ def test_json_has_the_documented_keys(report: tuple[Path, dict]) -> None:
     _, data = report
     assert [s["sequence"] for s in data["sequences"]] == ["kitti-00", "kitti-05"]
     for row in [*data["sequences"], data["mean"]]:
-        assert set(row) >= JSON_KEYS
+        assert set(row) >= JSON_KEYS | {"scale", "backend"}
     assert data["gates"] == {"passed": True, "failures": []}
-    assert data["scale"] == "gt"
+    assert data["scale"] == "gt" and data["backend"] == "vo"
 
 
 @pytest.mark.kitti

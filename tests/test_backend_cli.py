@@ -1,0 +1,103 @@
+"""`--backend vo|map` on `vslam run` and `vslam eval`: the option, its default (the config's) and where the
+backend is reported (summary, recording properties, eval JSON / CSV / report)."""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import polars as pl
+import pytest
+
+from app.rrd import read_entity
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def vslam(*args: str | Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "app.cli", *map(str, args)], capture_output=True, text=True,
+                          cwd=ROOT, timeout=600)
+
+
+def backend_line(stdout: str) -> str:
+    lines = [line for line in stdout.splitlines() if line.startswith("backend")]
+    assert len(lines) == 1, stdout
+    return re.sub(r"\s+", " ", lines[0].strip())
+
+
+@pytest.mark.kitti
+def test_run_with_the_map_backend(kitti_root: Path, tmp_path: Path) -> None:
+    trajectory = tmp_path / "x.txt"
+    result = vslam("run", kitti_root, "--sequence", "00", "--frames", "0:30", "--backend", "map", "--detail", "off",
+                   "--trajectory-out", trajectory)
+    assert result.returncode == 0, result.stderr
+    assert backend_line(result.stdout) == "backend map"
+    assert len(trajectory.read_text().splitlines()) == 30
+
+
+def test_unknown_backend_is_a_usage_error() -> None:
+    result = vslam("run", "synthetic", "--frames", "0:5", "--backend", "foo", "--detail", "off")
+    assert result.returncode == 2, result.stderr
+    assert "Traceback" not in result.stderr
+    errors = [line for line in result.stderr.splitlines() if "--backend" in line]
+    assert len(errors) == 1, result.stderr
+    assert "'foo'" in errors[0] and "'vo'" in errors[0] and "'map'" in errors[0]
+
+
+@pytest.mark.kitti
+def test_backend_option_overrides_the_config_file(kitti_root: Path, tmp_path: Path) -> None:
+    vo_config, map_config = tmp_path / "vo.toml", tmp_path / "map.toml"
+    vo_config.write_text('backend = "vo"\n')
+    map_config.write_text('backend = "map"\n')
+    common = ["run", kitti_root, "--sequence", "00", "--detail", "off"]
+    runs = {
+        "option": ["--frames", "0:30", "--backend", "vo"],
+        "config": ["--frames", "0:30", "--config", vo_config],
+        "option over config": ["--frames", "0:30", "--config", map_config, "--backend", "vo"],
+    }
+    trajectories = {}
+    for name, args in runs.items():
+        trajectories[name] = tmp_path / f"{name}.txt"
+        result = vslam(*common, *args, "--trajectory-out", trajectories[name])
+        assert result.returncode == 0, (name, result.stderr)
+        assert backend_line(result.stdout) == "backend vo", name
+    expected = trajectories["config"].read_bytes()
+    assert expected and all(path.read_bytes() == expected for path in trajectories.values())
+
+    # without the option, the config file's backend is used (and recorded in the run's properties)
+    rrd = tmp_path / "map.rrd"
+    result = vslam(*common[:-2], "--frames", "0:8", "--config", map_config, "--detail", "summary", "-o", rrd)
+    assert result.returncode == 0, result.stderr
+    assert backend_line(result.stdout) == "backend map"
+    properties = read_entity(rrd, "/__properties/run", static=True)
+    assert properties["backend"][0].to_list() == ["map"]
+
+
+def test_eval_reports_the_backend_next_to_the_scale(tmp_path: Path) -> None:
+    report = tmp_path / "report"
+    result = vslam("eval", "synthetic", "--frames", "0:20", "--backend", "map", "--json", "--report", report,
+                   "--detail", "off")
+    assert result.returncode == 0, result.stderr
+    data = json.loads(result.stdout)
+    assert data["scale"] == "gt" and data["backend"] == "map"
+    assert [row["backend"] for row in [*data["sequences"], data["mean"]]] == ["map", "map"]
+    table = pl.read_csv(report / "metrics.csv")
+    assert table.columns[1:3] == ["scale", "backend"] and table["backend"].to_list() == ["map", "map"]
+    assert "backend `map`" in (report / "report.md").read_text()
+
+    printed = vslam("eval", "synthetic", "--frames", "0:10")
+    assert printed.returncode == 0, printed.stderr
+    header, _, row = printed.stdout.splitlines()[:3]
+    assert "| scale | backend |" in header and "| gt | vo |" in row
+
+
+def test_backend_does_not_apply_to_trajectory_files(tmp_path: Path) -> None:
+    poses = tmp_path / "poses.txt"
+    poses.write_text("1 0 0 0 0 1 0 0 0 0 1 0\n" * 3)
+    result = vslam("eval", "--trajectory", poses, "--gt", poses, "--backend", "map")
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and "--backend" in lines[0], result.stderr
