@@ -1,9 +1,22 @@
-"""Accuracy of vslam's engine vs the paper configuration over sequences, windows and RANSAC seeds.
+"""Accuracy of vslam's engine (each backend) vs the paper configuration over sequences, windows and RANSAC seeds.
 
     python -m benchmarks.accuracy ../shared/data/kitti --sequences 00,05 --windows 0:300,0:150,150:300 \
-        --seeds 0,1,2 --csv accuracy.csv
+        --seeds 0,1,2 --backends vo,map --scale gt --csv accuracy.csv
 
-Prints a markdown table (mean and range over seeds and windows) and writes one CSV row per run.
+Runs every (system, backend, sequence, window, seed) in a multiprocessing pool of `--jobs` workers and prints
+a markdown table with one row per (system, backend): per sequence the mean and [min–max] over seeds and
+windows of KITTI t_err (%) and r_err (°/100 m), then the mean over sequences (of the per-sequence means).
+A second table gives runs, ATE Sim(3) and fps per sequence. One CSV row per run (`--csv`), with a `backend`
+column.
+
+The paper configuration (benchmarks/paper_baseline.py) has no backend and always takes its step length from
+ground truth: it runs once per (sequence, window, seed), with backend `-`, whatever `--backends` and
+`--scale` say. `--scale` (gt or height) and `--backends` apply to vslam.
+
+vslam runs with ``threads = 1`` here, whatever `--config` says: pool workers are daemonic processes, which
+may not start children, and with threads ≥ 2 the map backend runs its bundle adjustment in a worker process
+of its own. Trajectories are identical for any threads value (by design, and tested), so only fps differs
+from a default (2-thread) run; the pool's `--jobs` use the cores instead. Use benchmarks/speed.py for speed.
 """
 
 from __future__ import annotations
@@ -11,6 +24,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import itertools
+import math
 from multiprocessing import Pool
 from pathlib import Path
 
@@ -18,29 +32,106 @@ import numpy as np
 import polars as pl
 
 from benchmarks.paper_baseline import run_paper_configuration
-from vslam_core.config import EngineConfig, load_config
+from vslam_core.config import Backend, EngineConfig, ScaleSource, load_config
 from vslam_core.metrics import ate, kitti_errors
 from vslam_core.pipeline import run_odometry
 from vslam_core.sources.base import FrameRange
 from vslam_core.sources.kitti import KittiSource
 
+BACKENDS: tuple[Backend, ...] = ("vo", "map")
+SCALES: tuple[ScaleSource, ...] = ("gt", "height")
+NO_BACKEND = "-"  # the paper configuration's backend column
 
-def _one(job: tuple[str, str, str, str, int, str | None]) -> dict[str, object]:
-    system, root, sequence, window, seed, config_path = job
-    source = KittiSource(root, sequence=sequence, frames=FrameRange.parse(window))
+
+@dataclasses.dataclass(frozen=True)
+class Job:
+    system: str  # paper or vslam
+    backend: str  # vo, map, or NO_BACKEND for the paper configuration
+    root: str
+    sequence: str
+    window: str
+    seed: int
+    scale: str
+    config_path: str | None
+
+
+def benchmark_config(config_path: str | None, backend: Backend, scale: ScaleSource, seed: int) -> EngineConfig:
+    """vslam's config for one run: the file's (or the defaults), with this backend, scale source and RANSAC
+    seed, and one thread (see the module docstring)."""
+    config = load_config(config_path) if config_path else EngineConfig()
+    config = config.with_backend(backend).with_scale(scale)
+    return dataclasses.replace(config, threads=1, pose=dataclasses.replace(config.pose, seed=seed))
+
+
+def _one(job: Job) -> dict[str, object]:
+    source = KittiSource(job.root, sequence=job.sequence, frames=FrameRange.parse(job.window))
     gt = source.ground_truth
     assert gt is not None
-    if system == "paper":
-        baseline = run_paper_configuration(source, seed=seed)
-        poses, seconds = baseline.poses, baseline.seconds
+    if job.system == "paper":
+        baseline = run_paper_configuration(source, seed=job.seed)
+        poses, seconds, scale = baseline.poses, baseline.seconds, "gt"
     else:
-        config = load_config(config_path) if config_path else EngineConfig()
-        config = dataclasses.replace(config, pose=dataclasses.replace(config.pose, seed=seed))
+        assert job.backend in BACKENDS and job.scale in SCALES
+        config = benchmark_config(job.config_path, job.backend, job.scale, job.seed)
         run = run_odometry(source, config)
-        poses, seconds = run.pose_array(), run.seconds
+        poses, seconds, scale = run.pose_array(), run.seconds, config.scale
     t_err, r_err = kitti_errors(gt, poses)
-    return {"system": system, "sequence": sequence, "window": window, "seed": seed, "t_err": t_err,
-            "r_err": r_err, "ate_sim3": ate(gt, poses, "sim3"), "fps": len(poses) / seconds}
+    return {"system": job.system, "backend": job.backend, "scale": scale, "sequence": job.sequence,
+            "window": job.window, "seed": job.seed, "t_err": t_err, "r_err": r_err,
+            "ate_sim3": ate(gt, poses, "sim3"), "fps": len(poses) / seconds}
+
+
+def make_jobs(root: str, systems: list[str], backends: list[str], sequences: list[str], windows: list[str],
+              seeds: list[int], scale: str, config_path: str | None) -> list[Job]:
+    jobs = []
+    for system in systems:
+        for backend in backends if system != "paper" else [NO_BACKEND]:
+            for sequence, window, seed in itertools.product(sequences, windows, seeds):
+                jobs.append(Job(system, backend, root, sequence, window, seed, scale, config_path))
+    return jobs
+
+
+def _range_cell(values: pl.Series) -> str:
+    """mean [min–max] of the finite values (n/a when none: paths under 100 m have no KITTI segment)."""
+    finite = [v for v in values.to_list() if v is not None and math.isfinite(v)]
+    if not finite:
+        return "n/a"
+    missing = len(values) - len(finite)
+    return (f"{np.mean(finite):.2f} [{min(finite):.2f}–{max(finite):.2f}]"
+            + (f" ({missing} n/a)" if missing else ""))
+
+
+def _mean(values: list[float]) -> float:
+    finite = [v for v in values if math.isfinite(v)]
+    return float(np.mean(finite)) if finite else math.nan
+
+
+def _number(value: float) -> str:
+    return "n/a" if math.isnan(value) else f"{value:.2f}"
+
+
+def summary_tables(table: pl.DataFrame) -> str:
+    """The markdown tables printed by `main` (one row per (system, backend))."""
+    sequences = table["sequence"].unique(maintain_order=True).to_list()
+    groups = table.select("system", "backend").unique(maintain_order=True).iter_rows()
+    header = ["system", "backend"] + [f"{s} {m}" for s in sequences for m in ("t_err %", "r_err °/100 m")]
+    header += ["mean over sequences t_err %", "mean over sequences r_err °/100 m"]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    details = ["| system | backend | seq | runs | ATE Sim3 m | fps |", "|---|---|---|---|---|---|"]
+    for system, backend in groups:
+        part = table.filter((pl.col("system") == system) & (pl.col("backend") == backend))
+        cells: list[str] = []
+        means: dict[str, list[float]] = {"t_err": [], "r_err": []}
+        for sequence in sequences:
+            runs = part.filter(pl.col("sequence") == sequence)
+            for metric in ("t_err", "r_err"):
+                cells.append(_range_cell(runs[metric]))
+                means[metric].append(_mean(runs[metric].to_list()))
+            details.append(f"| {system} | {backend} | {sequence} | {len(runs)} | "
+                           f"{_number(_mean(runs['ate_sim3'].to_list()))} | {_mean(runs['fps'].to_list()):.1f} |")
+        cells += [_number(_mean(means["t_err"])), _number(_mean(means["r_err"]))]
+        lines.append(f"| {system} | {backend} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n\n" + "\n".join(details)
 
 
 def main() -> None:
@@ -50,41 +141,29 @@ def main() -> None:
     parser.add_argument("--windows", default="0:300")
     parser.add_argument("--seeds", default="0,1,2")
     parser.add_argument("--systems", default="paper,vslam")
+    parser.add_argument("--backends", default="vo,map", help="vslam's backends (the paper configuration has none)")
+    parser.add_argument("--scale", choices=SCALES, default="gt",
+                        help="vslam's scale source (the paper configuration always uses ground truth)")
     parser.add_argument("--config", default=None, help="TOML config for vslam (default: built-in defaults)")
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--csv", type=Path, default=None)
     args = parser.parse_args()
-    jobs = [
-        (system, str(args.root), seq, window, int(seed), args.config)
-        for system, seq, window, seed in itertools.product(
-            args.systems.split(","), args.sequences.split(","), args.windows.split(","), args.seeds.split(",")
-        )
-    ]
+    split = [part.strip() for part in args.backends.split(",") if part.strip()]
+    if not split or any(b not in BACKENDS for b in split):
+        parser.error(f"--backends {args.backends!r}: a comma-separated list of {', '.join(BACKENDS)}")
+    systems = [part.strip() for part in args.systems.split(",") if part.strip()]
+    if not systems or any(s not in ("paper", "vslam") for s in systems):
+        parser.error(f"--systems {args.systems!r}: a comma-separated list of paper, vslam")
+    jobs = make_jobs(str(args.root), systems, split, args.sequences.split(","), args.windows.split(","),
+                     [int(seed) for seed in args.seeds.split(",")], args.scale, args.config)
     with Pool(args.jobs) as pool:
         rows = pool.map(_one, jobs, chunksize=1)
     table = pl.DataFrame(rows)
     if args.csv:
         table.write_csv(args.csv)
-    summary = (
-        table.group_by("system", "sequence", maintain_order=True)
-        .agg(
-            pl.len().alias("runs"),
-            *[pl.col(m).mean().alias(m) for m in ("t_err", "r_err", "ate_sim3", "fps")],
-            *[pl.col(m).min().alias(f"{m}_min") for m in ("t_err", "r_err")],
-            *[pl.col(m).max().alias(f"{m}_max") for m in ("t_err", "r_err")],
-        )
-    )
-    print("| system | seq | runs | t_err % mean [min–max] | r_err °/100 m mean [min–max] | ATE Sim3 m | fps |")
-    print("|---|---|---|---|---|---|---|")
-    for r in summary.iter_rows(named=True):
-        print(f"| {r['system']} | {r['sequence']} | {r['runs']} | {r['t_err']:.2f} [{r['t_err_min']:.2f}–"
-              f"{r['t_err_max']:.2f}] | {r['r_err']:.2f} [{r['r_err_min']:.2f}–{r['r_err_max']:.2f}] | "
-              f"{r['ate_sim3']:.2f} | {r['fps']:.1f} |")
-    for system in table["system"].unique(maintain_order=True):
-        part = table.filter(pl.col("system") == system)
-        mean_t = np.mean([part.filter(pl.col("sequence") == s)["t_err"].mean() for s in part["sequence"].unique()])
-        mean_r = np.mean([part.filter(pl.col("sequence") == s)["r_err"].mean() for s in part["sequence"].unique()])
-        print(f"{system}: mean over sequences t_err {mean_t:.2f} %, r_err {mean_r:.2f} °/100 m")
+    print(f"KITTI {args.sequences}, windows {args.windows}, seeds {args.seeds}, vslam scale {args.scale} "
+          "(paper: gt); mean [min–max] over seeds and windows")
+    print(summary_tables(table))
 
 
 if __name__ == "__main__":
