@@ -1,262 +1,39 @@
-"""Turn the engine's per-frame results into Rerun entities (the only module that logs to Rerun).
-
-Entity layout (world = camera frame of the first frame, RDF: x right, y down, z forward):
-
-    /world                              ViewCoordinates.RDF (static)
-    /world/camera                       Transform3D T_world_cam per frame
-    /world/camera/image                 Pinhole (static) + JPEG frame
-    /world/camera/image/corners         Points2D: corners detected in this frame (track id on hover)
-    /world/camera/image/flow            Arrows2D: previous → current position per track, class = fate,
-                                        track id and age on hover (the arrow tips are the tracked corners)
-    /world/candidates                   the four (R, t) decompositions of E placed at the keyframe: a point
-                                        and three axes each, chirality count and chosen flag on hover
-    /world/points                       triangulated inliers of this frame (world coordinates)
-    /world/road/points, /world/road/plane   --scale height: the road points the plane was fitted to, and
-                                        an outline of that plane ahead of the camera (world coordinates)
-    /world/camera/image/road            --scale height: those road points in the image
-    /world/trajectory/estimate          one line segment per frame (O(1) per frame)
-    /world/trajectory/ground_truth      same, from the source's ground truth
-    /metrics/...                        per-frame scalars (tracks, RANSAC, motion, error, timing_ms)
-    /events                             text log: initialisation, re-detections, held frames
-    /health                             per frame: status ok / fail and reason codes (for `vslam inspect`)
-    /report                             static Markdown written at the end: the run's metrics table
-
-Detail levels: full = all of it; standard = no triangulated points and no per-track hover data;
-summary = no image and no per-point data (camera pose, trajectories, series, events); off = no file.
-
-Every per-frame row is buffered and sent as columns every `FLUSH_FRAMES` frames and on close: one
-`send_columns` per entity instead of one `log` per entity per frame, which cost ~80–200 µs of Python
-each (~25 a frame). Styles that never change are logged once, static.
-"""
+"""`Recorder`: one run's `.rrd` file, and the entities of the odometry front end (both backends)."""
 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass, field
-from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
-import pyarrow as pa
 import rerun as rr
-import rerun.blueprint as rrb
 
 import vslam_core
+from app.recording.blueprint import blueprint
+from app.recording.columns import FLUSH_FRAMES, ColumnBuffer, Part, add_event
+from app.recording.map import MapRecording
+from app.recording.metrics import METRICS, STAGES, frame_metrics
+from app.recording.styles import (
+    APPLICATION_ID,
+    AXIS_COLOURS,
+    CANDIDATE_COLOURS,
+    ESTIMATE_COLOUR,
+    FATE_STYLE,
+    GROUND_TRUTH_COLOUR,
+    NEW_CORNER_COLOUR,
+    ROAD_COLOUR,
+    Detail,
+)
 from app.report import markdown_table, metrics_row
 from app.rrd import RecordingError
 from vslam_core.config import EngineConfig
-from vslam_core.geometry import angle_between, invert_pose, rotation_angle
+from vslam_core.geometry import invert_pose
 from vslam_core.pipeline import RunResult
 from vslam_core.results import FrameResult, FrameStatus, HealthStatus, TrackFate
 from vslam_core.sources.base import Frame, FrameSource
-
-APPLICATION_ID = "vslam"
-FLUSH_FRAMES = 100  # buffered columns are sent this often (and on close)
-FLUSH_BYTES = 2**20  # ... or as soon as one entity holds this much (images, flow): memory stays flat
-PENDING_JPEG_BYTES = 64 * 1024  # what a JPEG still being encoded counts as (a KITTI frame at q75: ~61 KB)
-
-
-class Detail(StrEnum):
-    FULL = "full"
-    STANDARD = "standard"
-    SUMMARY = "summary"
-    OFF = "off"
-
-
-# Legend of the flow arrows: one annotation context, so the viewer explains the colours.
-FATE_STYLE: dict[TrackFate, tuple[str, tuple[int, int, int]]] = {
-    TrackFate.LOST: ("lost (KLT failed / left image)", (120, 120, 120)),
-    TrackFate.FB_REJECTED: ("rejected by forward–backward check", (255, 140, 0)),
-    TrackFate.NOT_USED: ("tracked, no keyframe position yet", (80, 160, 255)),
-    TrackFate.RANSAC_OUTLIER: ("RANSAC outlier", (230, 30, 30)),
-    TrackFate.CHIRALITY_FAILED: ("failed chirality (behind a camera)", (200, 0, 200)),
-    TrackFate.INLIER: ("inlier", (40, 220, 60)),
-}
-NEW_CORNER_COLOUR = (255, 230, 0)
-CANDIDATE_COLOURS = [(255, 200, 0), (0, 200, 255), (255, 0, 160), (160, 255, 0)]
-ROAD_COLOUR = (255, 120, 220)
-AXIS_COLOURS = [(255, 60, 60), (60, 255, 60), (60, 120, 255)]  # x, y, z of each candidate's camera
-ESTIMATE_COLOUR = (255, 80, 80)
-GROUND_TRUTH_COLOUR = (80, 255, 120)
-HEALTH_LEVELS = {HealthStatus.OK: 0, HealthStatus.WARN: 1, HealthStatus.FAIL: 2}
-STAGES = ("decode", "track", "essential", "chirality", "detect", "record")
-
-# Per-frame series, logged to /metrics/<group>/<series> only on frames that have a value (no NaN: it
-# would make identical runs compare unequal). One plot per group. `vslam inspect` reads them back.
-METRICS: dict[str, dict[str, tuple[str, tuple[int, int, int]]]] = {
-    "tracks": {
-        "alive": ("tracks alive", (40, 120, 255)),
-        "new_corners": ("corners detected", NEW_CORNER_COLOUR),
-        "fb_rejected": ("forward–backward rejects", (255, 140, 0)),
-        "road_points": ("road points in the plane fit (--scale height)", ROAD_COLOUR),
-    },
-    "ransac": {
-        "inliers": ("RANSAC inliers", (40, 220, 60)),
-        "chirality_margin": ("chirality margin (best − 2nd)", (200, 0, 200)),
-    },
-    "ratio": {"inlier_ratio": ("inlier ratio", (40, 220, 60))},
-    "health": {"status": ("health: 0 ok, 1 warn, 2 fail", (255, 140, 0))},
-    "motion": {"rotation_deg": ("rotation (°)", (255, 200, 0)), "scale": ("step length", (0, 200, 255))},
-    "road": {  # --scale height
-        "measured_step": ("step from this frame's road plane (m)", (255, 140, 0)),
-        "camera_height_m": ("camera height over the plane at the step used (m)", ROAD_COLOUR),
-    },
-    "error": {"position_m": ("position error (m)", ESTIMATE_COLOUR)},
-    "angle_error": {
-        "heading_deg": ("heading error (°)", (255, 80, 200)),
-        "translation_direction_deg": ("translation direction error (°)", (0, 200, 255)),
-    },
-    "timing_ms": {
-        "decode": ("decode (ms)", (150, 150, 150)),
-        "track": ("track (ms)", (40, 120, 255)),
-        "essential": ("essential (ms)", (230, 30, 30)),
-        "chirality": ("chirality (ms)", (200, 0, 200)),
-        "detect": ("detect (ms)", (255, 230, 0)),
-        "record": ("record (ms)", (0, 200, 200)),
-    },
-}
-
-
-def blueprint() -> rrb.Blueprint:
-    """Frame with overlays | 3-D world with trajectories and candidates | metric plots and events."""
-    whole_past = rr.VisibleTimeRange(
-        "frame", start=rr.TimeRangeBoundary.infinite(), end=rr.TimeRangeBoundary.cursor_relative()
-    )
-    return rrb.Blueprint(
-        rrb.Horizontal(
-            rrb.Vertical(
-                rrb.Spatial2DView(name="frame", origin="/world/camera/image"),
-                rrb.Spatial3DView(
-                    name="world",
-                    origin="/world",
-                    # follow the car from behind and above (RDF: −y is up, −z is behind)
-                    eye_controls=rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, eye_up=[0.0, -1.0, 0.0],
-                                                   tracking_entity="/world/camera"),
-                    # the trajectories keep their whole past; everything else shows the current frame
-                    overrides={
-                        "/world/trajectory/estimate": rrb.VisibleTimeRanges([whole_past]),
-                        "/world/trajectory/ground_truth": rrb.VisibleTimeRanges([whole_past]),
-                    },
-                ),
-                row_shares=[1, 2],
-            ),
-            rrb.Vertical(
-                rrb.Grid(
-                    rrb.TimeSeriesView(name="tracks", origin="/metrics/tracks"),
-                    rrb.TimeSeriesView(name="inliers", origin="/metrics/ransac"),
-                    rrb.TimeSeriesView(name="inlier ratio", origin="/metrics/ratio"),
-                    rrb.TimeSeriesView(name="health", origin="/metrics/health"),
-                    rrb.TimeSeriesView(name="motion", origin="/metrics/motion"),
-                    rrb.TimeSeriesView(name="scale from the road", origin="/metrics/road"),
-                    rrb.TimeSeriesView(name="position error (m)", origin="/metrics/error"),
-                    rrb.TimeSeriesView(name="angle errors (°)", origin="/metrics/angle_error"),
-                    rrb.TimeSeriesView(name="timing (ms)", origin="/metrics/timing_ms"),
-                    rrb.TextLogView(name="events", origin="/events"),
-                    rrb.TextDocumentView(name="report", origin="/report"),
-                    grid_columns=2,
-                ),
-            ),
-            column_shares=[3, 2],
-        ),
-        collapse_panels=True,
-    )
-
-
-Part = tuple[Callable[..., Any], dict[str, Any]]  # an archetype's `columns` method and one row's values
-
-
-@dataclass
-class _Rows:
-    """Buffered rows of one entity: frame indices, timestamps, and per archetype part the values and, for a
-    batch entity, the number of instances in each row."""
-
-    columns: list[Callable[..., Any]]
-    batch: bool
-    frames: list[int] = field(default_factory=list)
-    times: list[float | None] = field(default_factory=list)
-    values: list[dict[str, list[Any]]] = field(default_factory=list)
-    lengths: list[list[int]] = field(default_factory=list)
-    nbytes: int = 0
-
-
-class _ColumnBuffer:
-    """Per-frame rows, sent with one `send_columns` per entity on `flush` (or sooner, once an entity holds
-    `FLUSH_BYTES`). A row holds either one value per component (poses, scalars, text) or, with
-    `batch=True`, an array of instances per component (points, arrows), which are concatenated and
-    partitioned back into rows when sent."""
-
-    def __init__(self, rec: rr.RecordingStream) -> None:
-        self._rec = rec
-        self._rows: dict[str, _Rows] = {}
-
-    def add(self, entity: str, frame: Frame, *parts: Part, batch: bool = False) -> None:
-        rows = self._rows.get(entity)
-        if rows is None:
-            rows = self._rows[entity] = _Rows([columns for columns, _ in parts], batch,
-                                              values=[{name: [] for name in v} for _, v in parts],
-                                              lengths=[[] for _ in parts])
-        rows.frames.append(frame.index)
-        rows.times.append(frame.timestamp)
-        for buffered, lengths, (_, values) in zip(rows.values, rows.lengths, parts, strict=True):
-            for name, value in values.items():
-                buffered[name].append(value)
-                rows.nbytes += _size(value)
-            if batch:
-                lengths.append(len(next(iter(values.values()))))
-        if rows.nbytes >= FLUSH_BYTES:
-            self._send(entity, self._rows.pop(entity))
-
-    def add_scalar(self, entity: str, frame: Frame, value: float) -> None:
-        """`add` of one `Scalars` value, without the generic bookkeeping (~20 series per frame)."""
-        rows = self._rows.get(entity)
-        if rows is None:
-            rows = self._rows[entity] = _Rows([rr.Scalars.columns], False, values=[{"scalars": []}], lengths=[[]])
-        rows.frames.append(frame.index)
-        rows.times.append(frame.timestamp)
-        rows.values[0]["scalars"].append(value)
-
-    def flush(self) -> None:
-        for entity, rows in self._rows.items():
-            self._send(entity, rows)
-        self._rows.clear()
-
-    def _send(self, entity: str, rows: _Rows) -> None:
-        for values in rows.values:  # wait for values computed in the background (JPEG frames)
-            for name, column in values.items():
-                values[name] = [v.result() if isinstance(v, Future) else v for v in column]
-        indexes = [rr.TimeColumn("frame", sequence=rows.frames)]
-        times = [t for t in rows.times if t is not None]
-        if len(times) == len(rows.frames):
-            indexes.append(rr.TimeColumn("time", duration=times))
-        columns = []
-        for make, values, lengths in zip(rows.columns, rows.values, rows.lengths, strict=True):
-            if rows.batch:
-                columns += make(**{name: _concatenate(v) for name, v in values.items()}).partition(lengths)
-            else:
-                columns += make(**values)
-        self._rec.send_columns(entity, indexes=indexes, columns=columns)
-
-
-def _size(value: Any) -> int:
-    """Rough bytes held by one buffered value."""
-    if isinstance(value, np.ndarray):
-        return int(value.nbytes)
-    if isinstance(value, Future):
-        return PENDING_JPEG_BYTES
-    return len(value) if isinstance(value, bytes | str | list) else 8
-
-
-def _concatenate(batches: list[Any]) -> Any:
-    """One array (or list, for text) of the instances of all rows. Flat numeric arrays become Arrow
-    arrays: `AnyValues.columns` turns a numpy array into a list of one-element lists, ~70x slower."""
-    if isinstance(batches[0], np.ndarray):
-        values = np.concatenate(batches)
-        return pa.array(values) if values.ndim == 1 else values
-    return [value for batch in batches for value in batch]
 
 
 class Recorder:
@@ -291,12 +68,16 @@ class Recorder:
         self._rec = rr.RecordingStream(APPLICATION_ID, recording_id=properties.get("recording_id"),
                                        send_properties=False, batcher_config=batcher)
         self._rec.set_log_time_enabled(False)  # reproducible files: no wall-clock column
-        self._columns = _ColumnBuffer(self._rec)
-        self._rec.save(path, default_blueprint=blueprint())
+        self._columns = ColumnBuffer(self._rec)
+        self._rec.save(path, default_blueprint=blueprint(map_backend=config.backend == "map"))
         self._rec.send_recording_name(properties.get("name", source.name))
         self._rec.send_property("run", rr.AnyValues(**properties, detail=str(detail)))  # type: ignore[arg-type]
         self._rec.send_property("config", rr.AnyValues(**_flatten(config.to_dict())))
+        self._intrinsics = source.intrinsics
         self._log_static(source)
+        # the map backend's entities (statics logged here; nothing at all is logged with the odometry backend)
+        self._map = (MapRecording(self._rec, self._columns, source.intrinsics, detail) if config.backend == "map"
+                     else None)
 
     def __enter__(self) -> Recorder:
         return self
@@ -377,6 +158,10 @@ class Recorder:
         self._log_trajectories(frame, result)
         self._log_metrics(frame, result)
         self._log_events(frame, result)
+        if result.mapping is not None:
+            if self._map is None:
+                self._map = MapRecording(self._rec, columns, self._intrinsics, self.detail)
+            self._map.log_frame(frame, result, result.mapping)
         columns.add("/health", frame, (rr.AnyValues.columns, {"status": str(result.health.status),
                                                               "reasons": ",".join(result.health.reasons)}))
         timings = dict(result.timings_ms, record=(time.perf_counter() - start) * 1000.0)
@@ -481,8 +266,7 @@ class Recorder:
 
     def _log_events(self, frame: Frame, result: FrameResult) -> None:
         def event(text: str, level: str) -> None:
-            self._columns.add("/events", frame, (rr.TextLog.columns, {"text": f"frame {frame.index}: {text}",
-                                                                      "level": level}))
+            add_event(self._columns, frame, text, level)
 
         if result.status == FrameStatus.INIT:
             event(f"initialised with {len(result.new_corners)} corners", "INFO")
@@ -493,42 +277,6 @@ class Recorder:
             what = "pose held" if result.status == FrameStatus.HELD else "used"
             event(f"{health.status} ({what}): " + ", ".join(health.reasons),
                   "ERROR" if health.status == HealthStatus.FAIL else "WARN")
-
-
-def frame_metrics(result: FrameResult, ground_truth: np.ndarray | None) -> dict[str, float]:
-    """The per-frame series of one result (names as in `METRICS`); absent where a frame has no value."""
-    counts = result.fate_counts()
-    used = counts["ransac_outlier"] + counts["chirality_failed"] + counts["inlier"]
-    values: dict[str, float] = {
-        "status": HEALTH_LEVELS[result.health.status],
-        "alive": result.live_tracks,
-        "new_corners": len(result.new_corners),
-        "fb_rejected": counts["fb_rejected"],
-        "inliers": counts["inlier"],
-    }
-    if used:
-        values["inlier_ratio"] = counts["inlier"] / used
-    if len(result.candidate_poses) == 4:
-        in_front = sorted((c.in_front for c in result.candidate_poses), reverse=True)
-        values["chirality_margin"] = in_front[0] - in_front[1]
-    if result.T_key_cur is not None:
-        values["rotation_deg"] = float(np.degrees(rotation_angle(result.T_key_cur[:3, :3])))
-        values["scale"] = result.scale or 0.0
-    estimate = result.scale_estimate
-    if estimate is not None:
-        values["road_points"] = len(estimate.road_points)
-        if estimate.measured_step is not None and estimate.camera_height is not None:
-            values["measured_step"] = estimate.measured_step
-            values["camera_height_m"] = estimate.camera_height
-    if ground_truth is not None:
-        gt_pose = ground_truth[result.position]
-        values["position_m"] = float(np.linalg.norm(gt_pose[:3, 3] - result.T_world_cam[:3, 3]))
-        values["heading_deg"] = float(np.degrees(rotation_angle(gt_pose[:3, :3].T @ result.T_world_cam[:3, :3])))
-        if result.T_key_cur is not None:
-            gt_step = invert_pose(ground_truth[result.keyframe_position]) @ gt_pose
-            values["translation_direction_deg"] = float(
-                np.degrees(angle_between(gt_step[:3, 3], result.T_key_cur[:3, 3])))
-    return values
 
 
 def road_outline(normal: np.ndarray, height: float, half_width: float = 2.0, near: float = 4.0,

@@ -1,0 +1,75 @@
+"""Turn the engine's per-frame results into Rerun entities (the only module that logs to Rerun).
+
+Entity layout (world = camera frame of the first frame, RDF: x right, y down, z forward):
+
+    /world                              ViewCoordinates.RDF (static)
+    /world/camera                       Transform3D T_world_cam per frame
+    /world/camera/image                 Pinhole (static) + JPEG frame
+    /world/camera/image/corners         Points2D: corners detected in this frame (track id on hover)
+    /world/camera/image/flow            Arrows2D: previous → current position per track, class = fate,
+                                        track id and age on hover (the arrow tips are the tracked corners)
+    /world/candidates                   the four (R, t) decompositions of E placed at the keyframe: a point
+                                        and three axes each, chirality count and chosen flag on hover
+    /world/points                       triangulated inliers of this frame (world coordinates)
+    /world/road/points, /world/road/plane   --scale height: the road points the plane was fitted to, and
+                                        an outline of that plane ahead of the camera (world coordinates)
+    /world/camera/image/road            --scale height: those road points in the image
+    /world/trajectory/estimate          one line segment per frame (O(1) per frame)
+    /world/trajectory/ground_truth      same, from the source's ground truth
+    /metrics/...                        per-frame scalars (tracks, RANSAC, motion, error, timing_ms)
+    /events                             text log: initialisation, re-detections, held frames
+    /health                             per frame: status ok / fail and reason codes (for `vslam inspect`)
+    /report                             static Markdown written at the end: the run's metrics table
+
+With --backend map also /tracking, /metrics/tracking/*, /metrics/ba/*, /world/map/** and the image's
+landmarks and reprojection lines: see `app.recording.map`. The odometry backend writes none of them.
+
+Detail levels: full = all of it; standard = no triangulated points and no per-track hover data;
+summary = no image and no per-point data (camera pose, trajectories, series, events); off = no file.
+
+Every per-frame row is buffered and sent as columns every `FLUSH_FRAMES` frames and on close: one
+`send_columns` per entity instead of one `log` per entity per frame, which cost ~80–200 µs of Python
+each (~25 a frame). Styles that never change are logged once, static.
+
+Modules: `recorder` (the `Recorder` and the front end's entities), `map` (the map backend's entities),
+`columns` (the column buffer), `metrics` (the series), `blueprint` (the default layout), `styles` (detail
+levels, colours, legends).
+"""
+
+from app.recording.blueprint import blueprint
+from app.recording.columns import FLUSH_BYTES, FLUSH_FRAMES, ColumnBuffer
+from app.recording.map import MapRecording
+from app.recording.metrics import (
+    HEALTH_LEVELS,
+    MAP_METRICS,
+    MAP_STAGES,
+    METRICS,
+    MODE_LEVELS,
+    STAGES,
+    frame_metrics,
+    map_frame_metrics,
+)
+from app.recording.recorder import Recorder, road_outline, version_properties
+from app.recording.styles import APPLICATION_ID, FATE_STYLE, Detail
+
+__all__ = [
+    "APPLICATION_ID",
+    "FATE_STYLE",
+    "FLUSH_BYTES",
+    "FLUSH_FRAMES",
+    "HEALTH_LEVELS",
+    "MAP_METRICS",
+    "MAP_STAGES",
+    "METRICS",
+    "MODE_LEVELS",
+    "STAGES",
+    "ColumnBuffer",
+    "Detail",
+    "MapRecording",
+    "Recorder",
+    "blueprint",
+    "frame_metrics",
+    "map_frame_metrics",
+    "road_outline",
+    "version_properties",
+]

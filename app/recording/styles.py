@@ -1,0 +1,33 @@
+"""Detail levels, and the colours and legends shared by the entities, the plots and the blueprint."""
+
+from __future__ import annotations
+
+from enum import StrEnum
+
+from vslam_core.results import TrackFate
+
+APPLICATION_ID = "vslam"
+
+
+class Detail(StrEnum):
+    FULL = "full"
+    STANDARD = "standard"
+    SUMMARY = "summary"
+    OFF = "off"
+
+
+# Legend of the flow arrows: one annotation context, so the viewer explains the colours.
+FATE_STYLE: dict[TrackFate, tuple[str, tuple[int, int, int]]] = {
+    TrackFate.LOST: ("lost (KLT failed / left image)", (120, 120, 120)),
+    TrackFate.FB_REJECTED: ("rejected by forward–backward check", (255, 140, 0)),
+    TrackFate.NOT_USED: ("tracked, no keyframe position yet", (80, 160, 255)),
+    TrackFate.RANSAC_OUTLIER: ("RANSAC outlier", (230, 30, 30)),
+    TrackFate.CHIRALITY_FAILED: ("failed chirality (behind a camera)", (200, 0, 200)),
+    TrackFate.INLIER: ("inlier", (40, 220, 60)),
+}
+NEW_CORNER_COLOUR = (255, 230, 0)
+CANDIDATE_COLOURS = [(255, 200, 0), (0, 200, 255), (255, 0, 160), (160, 255, 0)]
+ROAD_COLOUR = (255, 120, 220)
+AXIS_COLOURS = [(255, 60, 60), (60, 255, 60), (60, 120, 255)]  # x, y, z of each candidate's camera
+ESTIMATE_COLOUR = (255, 80, 80)
+GROUND_TRUTH_COLOUR = (80, 255, 120)
