@@ -1,18 +1,39 @@
 """Speed of the engine against the paper configuration, with accuracy beside it (issue 6's yardstick).
 
     python -m benchmarks.speed ../shared/data/kitti --sequences 00,05 --frames 0:300 --csv speed.csv
+    python -m benchmarks.speed ../shared/data/kitti --taskset 0     # every row pinned to CPU 0
 
-Each configuration runs in its own process, one after the other, on the same frames: frames per second
-(decoding included), its ratio to the paper configuration's, the cost of recording over the same threading
-with recording off, ms per frame per stage, peak RSS, KB per frame of recording, and KITTI t_err / r_err.
-With 2 threads the next frame is decoded in the background, so `decode` overlaps the other stages.
-A memory check follows: peak RSS of a full recording over the first 100 frames and over all of them.
+Each configuration runs in its own fresh Python process (``python -m benchmarks.speed --measure LABEL``),
+one after the other, on the same frames: frames per second (decoding included), its ratio to the paper
+configuration's, the cost of recording over the same threading with recording off, ms per frame per stage,
+peak RSS, KB per frame of recording, and KITTI t_err / r_err. With 2 threads the next frame is decoded in
+the background, so `decode` overlaps the other stages.
+
+The `--backend map` rows (recording off, 1 and 2 threads) add: `pnp` (tracking against the map) and
+`mapping` (keyframe insertion and local mapping in the tracking thread, including the wait for the pending
+bundle adjustment) in ms per frame, keyframes per 100 frames, and bundle-adjustment solver ms per keyframe
+(gtsam's time as reported in `FrameResult.mapping.bundle_adjustment`, summed over the run and divided by
+its keyframes; the adjustment still pending at the end is applied to the output poses but reported by no
+frame, so it is not counted; with 2 threads it runs in a worker process beside tracking, with 1 thread
+inside `mapping`). Relocalisation time (`relocalise_ms`) is in the CSV only. Peak RSS is the measuring
+process's; the map backend's bundle-adjustment worker's (2 threads; 0 with 1 thread) is in the CSV as
+`worker_peak_rss_mb`.
+
+`--taskset CPU` runs every row under ``taskset -c CPU``: the engine, its decode thread and the map backend's
+worker all share that one core (the worker inherits the affinity), which shows what the background work
+costs when there is no second core.
+
+A memory check follows: peak RSS by run length of vslam with recording off, with a full recording, and of
+the map backend.
 """
 
 from __future__ import annotations
 
 import argparse
-import multiprocessing
+import json
+import resource
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -22,45 +43,57 @@ import polars as pl
 from app.recording import Detail, Recorder
 from benchmarks.memory import status_mb
 from benchmarks.paper_baseline import run_paper_configuration
-from vslam_core.config import EngineConfig
+from vslam_core.config import Backend, EngineConfig
 from vslam_core.metrics import kitti_errors
 from vslam_core.pipeline import run_odometry
 from vslam_core.results import FrameResult
 from vslam_core.sources.base import Frame, FrameRange
 from vslam_core.sources.kitti import KittiSource
 
-STAGES = ("decode", "track", "essential", "chirality", "detect", "match", "record")
-SYSTEMS = {
-    "paper configuration (1 thread)": ("paper", 1, Detail.OFF),
-    "vslam, recording off (1 thread)": ("vslam", 1, Detail.OFF),
-    "vslam --detail summary (1 thread)": ("vslam", 1, Detail.SUMMARY),
-    "vslam --detail full (1 thread)": ("vslam", 1, Detail.FULL),
-    "vslam, recording off (2 threads, default)": ("vslam", 2, Detail.OFF),
-    "vslam --detail summary (2 threads, default)": ("vslam", 2, Detail.SUMMARY),
-    "vslam --detail full (2 threads, default)": ("vslam", 2, Detail.FULL),
+STAGES = ("decode", "track", "essential", "chirality", "detect", "match", "pnp", "mapping", "record")
+CSV_STAGES = (*STAGES, "relocalise")
+NO_BACKEND = "-"  # the paper configuration's backend
+# label -> (system, backend, threads, detail)
+SYSTEMS: dict[str, tuple[str, str, int, Detail]] = {
+    "paper configuration (1 thread)": ("paper", NO_BACKEND, 1, Detail.OFF),
+    "vslam, recording off (1 thread)": ("vslam", "vo", 1, Detail.OFF),
+    "vslam --detail summary (1 thread)": ("vslam", "vo", 1, Detail.SUMMARY),
+    "vslam --detail full (1 thread)": ("vslam", "vo", 1, Detail.FULL),
+    "vslam --backend map, recording off (1 thread)": ("vslam", "map", 1, Detail.OFF),
+    "vslam, recording off (2 threads, default)": ("vslam", "vo", 2, Detail.OFF),
+    "vslam --detail summary (2 threads, default)": ("vslam", "vo", 2, Detail.SUMMARY),
+    "vslam --detail full (2 threads, default)": ("vslam", "vo", 2, Detail.FULL),
+    "vslam --backend map, recording off (2 threads, default)": ("vslam", "map", 2, Detail.OFF),
 }
-MEMORY_SYSTEM = "vslam --detail full (2 threads, default)"
+MEMORY_SYSTEMS = ("vslam, recording off (2 threads, default)", "vslam --detail full (2 threads, default)",
+                  "vslam --backend map, recording off (2 threads, default)")
 
 
-def _measure(args: tuple[str, str, str, str]) -> dict[str, object]:
-    label, root, sequence, frames = args
-    system, threads, detail = SYSTEMS[label]
+def _measure(label: str, root: str, sequence: str, frames: str) -> dict[str, object]:
+    system, backend, threads, detail = SYSTEMS[label]
     source = KittiSource(root, sequence=sequence, frames=FrameRange.parse(frames))
     gt = source.ground_truth
     assert gt is not None
-    stage_ms = dict.fromkeys(STAGES, 0.0)
+    stage_ms = dict.fromkeys(CSV_STAGES, 0.0)
     size = 0
+    keyframes, ba_ms = 0, 0.0
     if system == "paper":
         baseline = run_paper_configuration(source)
         poses, seconds = baseline.poses, baseline.seconds
         stage_ms.update(baseline.stage_ms)
     else:
-        config = EngineConfig(threads=threads)
+        engine_backend: Backend = "map" if backend == "map" else "vo"
+        config = EngineConfig(threads=threads, backend=engine_backend)
         with tempfile.TemporaryDirectory() as folder:
             path = Path(folder) / "run.rrd"
             recorder = Recorder(path, source, config, {"name": "speed"}, detail) if detail != Detail.OFF else None
 
             def sink(frame: Frame, result: FrameResult) -> None:
+                nonlocal keyframes, ba_ms
+                if result.mapping is not None:
+                    keyframes += result.mapping.keyframe is not None
+                    if result.mapping.bundle_adjustment is not None:
+                        ba_ms += result.mapping.bundle_adjustment.milliseconds
                 if recorder is not None:
                     start = time.perf_counter()
                     recorder.log_frame(frame, result)
@@ -75,20 +108,38 @@ def _measure(args: tuple[str, str, str, str]) -> dict[str, object]:
         poses, seconds = run.pose_array(), run.seconds
     t_err, r_err = kitti_errors(gt, poses)
     n = len(poses)
-    return {"system": label, "sequence": sequence, "frames": frames, "threads": threads, "detail": str(detail),
-            "fps": n / seconds, "t_err": t_err, "r_err": r_err,
+    is_map = backend == "map"
+    return {"system": label, "backend": backend, "sequence": sequence, "frames": frames, "threads": threads,
+            "detail": str(detail), "fps": n / seconds, "t_err": t_err, "r_err": r_err,
             "peak_rss_mb": status_mb("VmHWM"), "kb_per_frame": size / 1024 / n,
-            **{f"{stage}_ms": stage_ms.get(stage, 0.0) / n for stage in STAGES}}
+            # the map backend's bundle-adjustment worker (2 threads), reaped by then: ru_maxrss is in KB
+            "worker_peak_rss_mb": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024 if is_map else None,
+            "keyframes_per_100": 100 * keyframes / n if is_map else None,
+            "ba_ms_per_keyframe": (ba_ms / keyframes if keyframes else 0.0) if is_map else None,
+            **{f"{stage}_ms": stage_ms.get(stage, 0.0) / n for stage in CSV_STAGES}}
 
 
-def _in_own_process(label: str, root: str, sequence: str, frames: str, repeat: int = 1) -> dict[str, object]:
-    """The run with the median fps of `repeat` runs, each in a fresh process."""
+def _in_own_process(label: str, root: str, sequence: str, frames: str, repeat: int = 1,
+                    cpu: str | None = None) -> dict[str, object]:
+    """The run with the median fps of `repeat` runs, each in a fresh Python process (under ``taskset -c
+    CPU`` when `cpu` is given). A process of its own rather than a multiprocessing pool worker: those are
+    daemonic and may not start the map backend's bundle-adjustment worker."""
+    command = [sys.executable, "-m", "benchmarks.speed", root, "--measure", label, "--sequences", sequence,
+               "--frames", frames]
+    if cpu is not None:
+        command = ["taskset", "-c", cpu, *command]
     runs = []
     for _ in range(repeat):
-        with multiprocessing.get_context("spawn").Pool(1) as pool:
-            runs.append(pool.apply(_measure, ((label, root, sequence, frames),)))
-    runs.sort(key=lambda r: float(r["fps"]))  # type: ignore[arg-type]
+        done = subprocess.run(command, capture_output=True, text=True, cwd=Path(__file__).resolve().parents[1])
+        if done.returncode != 0:
+            raise RuntimeError(f"{' '.join(command)} failed ({done.returncode}):\n{done.stderr}")
+        runs.append(json.loads(done.stdout.strip().splitlines()[-1]))
+    runs.sort(key=lambda r: float(r["fps"]))
     return runs[len(runs) // 2]
+
+
+def _optional(value: object, fmt: str) -> str:
+    return "—" if value is None else fmt.format(value)
 
 
 def main() -> None:
@@ -100,38 +151,50 @@ def main() -> None:
     parser.add_argument("--memory-frames", default="0:50,0:100,0:200",
                         help="shorter runs for the memory check (beside --frames)")
     parser.add_argument("--csv", type=Path, default=None)
+    parser.add_argument("--taskset", metavar="CPU", default=None,
+                        help="run every row pinned to this CPU (taskset -c CPU), e.g. 0")
+    parser.add_argument("--measure", metavar="LABEL", choices=list(SYSTEMS), default=None,
+                        help=argparse.SUPPRESS)  # internal: one run of LABEL in this process, as JSON on stdout
     args = parser.parse_args()
-    rows = [_in_own_process(label, args.root, sequence, args.frames, args.repeat)
+    if args.measure is not None:
+        print(json.dumps(_measure(args.measure, args.root, args.sequences, args.frames)))
+        return
+    rows = [_in_own_process(label, args.root, sequence, args.frames, args.repeat, args.taskset)
             for sequence in args.sequences.split(",") for label in SYSTEMS]
     table = pl.DataFrame(rows)
     paper = table.filter(pl.col("system") == next(iter(SYSTEMS))).select("sequence", paper_fps="fps")
     off = (table.filter((pl.col("detail") == str(Detail.OFF)) & pl.col("system").str.starts_with("vslam"))
-           .select("sequence", "threads", off_fps="fps"))
-    table = (table.join(paper, on="sequence").join(off, on=["sequence", "threads"], how="left")
+           .select("sequence", "backend", "threads", off_fps="fps"))
+    table = (table.join(paper, on="sequence").join(off, on=["sequence", "backend", "threads"], how="left")
              .with_columns(x_paper=pl.col("fps") / pl.col("paper_fps"),
                            recording_cost_pct=100 * (pl.col("off_fps") / pl.col("fps") - 1))
              .drop("paper_fps", "off_fps"))
     if args.csv:
         table.write_csv(args.csv)
     stages = " | ".join(STAGES)
-    print(f"KITTI {args.sequences}, frames {args.frames}; median-fps run of {args.repeat}; ms per frame per stage")
-    print(f"| system | seq | fps | × paper | recording cost | t_err % | r_err °/100 m | {stages} | peak RSS MB "
-          "| KB/frame |")
-    print("|---|---|---|---|---|---|---|" + "---|" * len(STAGES) + "---|---|")
+    pinned = f"; every run pinned to CPU {args.taskset} (taskset -c {args.taskset})" if args.taskset else ""
+    print(f"KITTI {args.sequences}, frames {args.frames}; median-fps run of {args.repeat}; ms per frame per stage"
+          + pinned)
+    print(f"| system | seq | fps | × paper | recording cost | t_err % | r_err °/100 m | {stages} | keyframes/100 "
+          "frames | BA ms/keyframe | peak RSS MB | KB/frame |")
+    print("|---|---|---|---|---|---|---|" + "---|" * len(STAGES) + "---|---|---|---|")
     for r in table.iter_rows(named=True):
         cells = " | ".join(f"{r[f'{stage}_ms']:.1f}" for stage in STAGES)
         cost = "—" if r["detail"] == str(Detail.OFF) else f"{r['recording_cost_pct']:+.1f} %"
         print(f"| {r['system']} | {r['sequence']} | {r['fps']:.1f} | {r['x_paper']:.2f} | {cost} | {r['t_err']:.2f} "
-              f"| {r['r_err']:.2f} | {cells} | {r['peak_rss_mb']:.0f} | {r['kb_per_frame']:.1f} |")
+              f"| {r['r_err']:.2f} | {cells} | {_optional(r['keyframes_per_100'], '{:.1f}')} "
+              f"| {_optional(r['ba_ms_per_keyframe'], '{:.1f}')} | {r['peak_rss_mb']:.0f} | {r['kb_per_frame']:.1f} |")
 
     sequence = args.sequences.split(",")[0]
     print(f"\nPeak RSS (MB) by run length, KITTI {sequence}")
     lengths = [*args.memory_frames.split(","), args.frames]
     print("| system | " + " | ".join(f"frames {f}" for f in lengths) + " |")
     print("|---|" + "---|" * len(lengths))
-    for label in ("vslam, recording off (2 threads, default)", MEMORY_SYSTEM):
-        peaks = [_in_own_process(label, args.root, sequence, frames)["peak_rss_mb"] for frames in lengths]
+    for label in MEMORY_SYSTEMS:
+        peaks = [_in_own_process(label, args.root, sequence, frames, cpu=args.taskset)["peak_rss_mb"]
+                 for frames in lengths]
         print(f"| {label} | " + " | ".join(f"{peak:.0f}" for peak in peaks) + " |")
+
 
 if __name__ == "__main__":
     main()
