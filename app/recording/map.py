@@ -88,7 +88,8 @@ class MapRecording:
                 rec.log(f"/metrics/{group}/{name}", rr.SeriesLines(names=legend, colors=colour), static=True)
         for stage, (legend, colour) in MAP_TIMING.items():
             rec.log(f"/metrics/timing_ms/{stage}", rr.SeriesLines(names=legend, colors=colour), static=True)
-        rec.log("/world/map/keyframes/window", rr.LineStrips3D.from_fields(radii=0.04), static=True)
+        # labels "KF <id>" on hover only: drawn, the window's ~10 close keyframes' labels overlap
+        rec.log("/world/map/keyframes/window", rr.LineStrips3D.from_fields(radii=0.04, show_labels=False), static=True)
         rec.log("/world/map/keyframes/retired", rr.LineStrips3D.from_fields(radii=0.02, colors=RETIRED_COLOUR),
                 static=True)
         rec.log("/world/map/keyframe_path", rr.LineStrips3D.from_fields(radii=0.08, colors=KEYFRAME_PATH_COLOUR),
