@@ -60,6 +60,7 @@ class MapTracking:
         self._last_pose = np.eye(4)
         self._since_keyframe = 0
         self._gap = False  # unusable frames since the last one with a pose
+        self._segment_lost = False  # relocalisation failed: a new segment starts at the next frame with a pose
 
     def close(self) -> None:
         self.mapping.close()
@@ -109,9 +110,15 @@ class MapTracking:
             pose, mode = two_view, TrackingMode.TWO_VIEW
             if pnp is not None and self._has_map():
                 warnings.append(Reason.PNP_REJECTED)
-        if relocalisation is not None and not relocalisation.success:
-            self._segment += 1  # the old map cannot be reached from here: start a new one
-            self._links.clear()
+        if relocalisation is not None:
+            self._segment_lost = not relocalisation.success
+            if self._segment_lost:
+                self._links.clear()
+        if self._segment_lost and pose is not None:
+            # the old map cannot be reached from here: a new one starts, at a frame that has a pose (a held
+            # frame keeps trying to relocalise instead, and its stale pose never becomes a keyframe)
+            self._segment += 1
+            self._segment_lost = False
             warnings.append(Reason.NEW_MAP_SEGMENT)
             why = "new map segment"
         return self._finish(frame, vo, pose, mode, pnp, relocalisation, warnings, why, two_view)
@@ -286,13 +293,12 @@ class MapTracking:
                                            invert_pose(self.mapping.map.keyframes[self._reference].T_world_cam) @ pose)
         self._last_pose = pose
         self._odometry.set_keyframe_pose(self.pose_of(self._odometry.key_position))
-        return self._result(vo, pose, held, mode, pnp, relocalisation, warnings, two_view,
+        return self._result(vo, pose, held, mode, warnings, two_view,
                             MapFrame(mode, self._segment, two_view, pnp, keyframe, bundle, relocalisation, view))
 
-    def _result(self, vo: FrameResult, pose: np.ndarray, held: bool, mode: TrackingMode, pnp: PnPEstimate | None,
-                relocalisation: Relocalisation | None, warnings: list[Reason], two_view: np.ndarray | None,
-                mapping: MapFrame) -> FrameResult:
-        del pnp, relocalisation
+    def _result(self, vo: FrameResult, pose: np.ndarray, held: bool, mode: TrackingMode, warnings: list[Reason],
+                two_view: np.ndarray | None, mapping: MapFrame) -> FrameResult:
+        """The front end's result with the pose used, its health, and the map's part."""
         points_world = vo.points_world
         if two_view is not None and len(points_world):  # the front end's points, moved with the pose used
             moved = pose @ invert_pose(two_view)
