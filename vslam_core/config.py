@@ -114,8 +114,8 @@ class MapConfig:
     """`backend = "map"`: keyframes, landmarks, tracking against the map, windowed BA, relocalisation."""
 
     # keyframe selection: a frame becomes a keyframe when any of these holds
-    keyframe_parallax_px: float = 20.0  # median track displacement since the last keyframe reaches this
-    keyframe_overlap: float = 0.7  # fewer than this share of the last keyframe's landmarks are still tracked
+    keyframe_parallax_px: float = 30.0  # median track displacement since the last keyframe reaches this
+    keyframe_overlap: float = 0.5  # fewer than this share of the last keyframe's landmarks are still tracked
     keyframe_min_landmarks: int = 120  # fewer landmarks tracked than this
     keyframe_max_frames: int = 10  # this many frames since the last keyframe
     # landmarks
@@ -133,9 +133,9 @@ class MapConfig:
     # windowed bundle adjustment
     ba_window: int = 6  # keyframes optimised
     ba_max_fixed: int = 4  # older keyframes seeing the window's landmarks, held fixed (the nearest ones)
-    ba_iterations: int = 5
+    ba_iterations: int = 3
     ba_huber_px: float = 1.5  # Huber threshold of the reprojection error (sigma 1 px)
-    ba_max_landmarks: int = 600  # the window's landmarks with the most observations
+    ba_max_landmarks: int = 400  # the window's landmarks with the most observations
     scale_sigma_gt: float = 0.01  # m: keyframe-to-keyframe distance prior with --scale gt
     scale_sigma_height: float = 0.05  # fraction of the distance with --scale height
     # relocalisation
