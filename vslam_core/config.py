@@ -123,6 +123,7 @@ class MapConfig:
     max_reprojection_px: float = 2.0  # a new landmark reprojects this well into both keyframes
     cull_reprojection_px: float = 4.0  # after BA, an observation reprojecting worse than this is dropped
     min_observations: int = 3  # a landmark that leaves the window with fewer keyframes seeing it is culled
+    map_keyframes: int = 100  # landmarks none of the last this many keyframes sees are forgotten (memory bound)
     # tracking against the map
     pnp_min_landmarks: int = 30  # fewer landmarks seen: no PnP (two-view pose or relocalisation)
     pnp_threshold_px: float = 2.0  # RANSAC inlier threshold

@@ -5,7 +5,8 @@ triangulated (midpoint, then checked by reprojection into both) and observed by 
 it. Each keyframe hands the BA window (its last `ba_window` keyframes) to the `BundleAdjuster`; the
 solution is applied when the next keyframe arrives, a fixed point, so the same input always gives the
 same map however long the solver took. Memory stays bounded: a landmark that leaves the window seen by
-fewer than `min_observations` keyframes is dropped, as is every observation that reprojects badly after BA.
+fewer than `min_observations` keyframes is dropped, as is every observation that reprojects badly after BA,
+and a landmark none of the last `map_keyframes` keyframes sees is forgotten.
 """
 
 from __future__ import annotations
@@ -192,8 +193,9 @@ class LocalMapping:
         self._describe(keyframe, image)
         previous_window = self._window
         self._submit(segment)
-        culled = self._retire([k for k in previous_window if k not in self._window], alive_landmarks=
-                              set(track_landmarks.values()) | set(links.values()))
+        alive_landmarks = set(track_landmarks.values()) | set(links.values())
+        culled = self._retire([k for k in previous_window if k not in self._window], alive_landmarks)
+        culled += self._forget(keyframe.id - self._config.map_keyframes, alive_landmarks)
         event = KeyframeInserted(keyframe.id, position, keyframe.T_world_cam.copy(), why, len(observed), len(links),
                                  culled)
         return event, links, self._view(previous_window)
@@ -270,6 +272,21 @@ class LocalMapping:
                     self.map.remove_landmark(landmark_id)
                     culled += 1
         return culled
+
+    def _forget(self, keyframe_id: int, alive_landmarks: set[int]) -> int:
+        """The keyframe `map_keyframes` behind the newest: landmarks no later keyframe saw (and no track
+        follows) are dropped and its track list is released; its pose stays. Keeps memory bounded over a
+        long drive. Returns how many landmarks were dropped."""
+        keyframe = self.map.keyframes.get(keyframe_id)
+        if keyframe is None:
+            return 0
+        forgotten = [i for i in keyframe.landmark_ids
+                     if self.map.landmarks[i].last_keyframe <= keyframe_id and i not in alive_landmarks]
+        for landmark_id in forgotten:
+            self.map.remove_landmark(landmark_id)
+        keyframe.track_ids = keyframe.track_ids[:0]
+        keyframe.pixels = keyframe.pixels[:0]
+        return len(forgotten)
 
     def _view(self, previous_window: list[int]) -> MapView:
         """The window, its landmarks, and what left the window at this keyframe (for the recording)."""
