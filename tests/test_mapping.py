@@ -191,3 +191,29 @@ def test_backend_vo_is_untouched_by_the_map_config(kitti_root: Path) -> None:
     config = EngineConfig(backend="vo")
     config = dataclasses.replace(config, map=dataclasses.replace(config.map, ba_window=3, keyframe_parallax_px=5.0))
     np.testing.assert_array_equal(plain, run_odometry(source, config).pose_array())
+
+
+@pytest.mark.kitti
+def test_the_map_forgets_what_recent_keyframes_no_longer_see(kitti_root: Path) -> None:
+    """Memory bound: with `map_keyframes = 8`, every landmark left in the map is seen by one of the last 8
+    keyframes or followed by a live track, and old keyframes keep their pose but release their tracks."""
+    source = KittiSource(kitti_root, sequence="00", frames=FrameRange(0, 120))
+    assert source.ground_truth is not None
+    config = EngineConfig(backend="map", threads=1)
+    config = dataclasses.replace(config, map=dataclasses.replace(config.map, map_keyframes=8))
+    engine = MapTracking(source.intrinsics, config, GroundTruthScale(source.ground_truth))
+    try:
+        for frame in source:
+            engine.process(frame)
+        the_map = engine.mapping.map
+        newest = max(the_map.keyframes)
+        assert newest > 20
+        linked = set(engine._links.values())
+        for landmark in the_map.landmarks.values():
+            assert landmark.last_keyframe > newest - 8 or landmark.id in linked
+        for keyframe in the_map.keyframes.values():
+            if keyframe.id <= newest - 8:
+                assert len(keyframe.track_ids) == 0
+            assert np.all(np.isfinite(keyframe.T_world_cam))
+    finally:
+        engine.close()

@@ -274,14 +274,14 @@ class LocalMapping:
         return culled
 
     def _forget(self, keyframe_id: int, alive_landmarks: set[int]) -> int:
-        """The keyframe `map_keyframes` behind the newest: landmarks no later keyframe saw (and no track
-        follows) are dropped and its track list is released; its pose stays. Keeps memory bounded over a
-        long drive. Returns how many landmarks were dropped."""
+        """Landmarks no keyframe after `keyframe_id` (the one `map_keyframes` behind the newest) sees and no
+        track follows are dropped, and that keyframe releases its track list (its pose stays). Keeps memory
+        bounded over a long drive. Returns how many landmarks were dropped."""
         keyframe = self.map.keyframes.get(keyframe_id)
         if keyframe is None:
             return 0
-        forgotten = [i for i in keyframe.landmark_ids
-                     if self.map.landmarks[i].last_keyframe <= keyframe_id and i not in alive_landmarks]
+        forgotten = [i for i, landmark in self.map.landmarks.items()
+                     if landmark.last_keyframe <= keyframe_id and i not in alive_landmarks]
         for landmark_id in forgotten:
             self.map.remove_landmark(landmark_id)
         keyframe.track_ids = keyframe.track_ids[:0]

@@ -75,6 +75,8 @@ class Map:
     def remove_observation(self, landmark_id: int, keyframe_id: int) -> None:
         landmark = self.landmarks[landmark_id]
         landmark.observations.pop(keyframe_id, None)
+        if landmark.observations:
+            landmark.last_keyframe = max(landmark.observations)
         self.keyframes[keyframe_id].landmark_ids.discard(landmark_id)
 
     def remove_landmark(self, landmark_id: int) -> None:
