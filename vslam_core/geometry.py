@@ -78,6 +78,21 @@ def so3_exp(omega: np.ndarray) -> np.ndarray:
     return np.asarray(rotation)
 
 
+def so3_log(rotation: np.ndarray) -> np.ndarray:
+    """Inverse of `so3_exp`: (3, 3) rotation -> axis-angle (3,)."""
+    omega, _ = cv2.Rodrigues(np.asarray(rotation, dtype=np.float64))
+    return np.asarray(omega).reshape(3)
+
+
+def interpolate_pose(start: np.ndarray, end: np.ndarray, fraction: float) -> np.ndarray:
+    """(4, 4) pose `fraction` of the way from `start` to `end`: positions linearly, rotation along the
+    geodesic (R_start·exp(fraction·log(R_startᵀ·R_end)), spherical linear interpolation)."""
+    pose = np.eye(4)
+    pose[:3, :3] = start[:3, :3] @ so3_exp(fraction * so3_log(start[:3, :3].T @ end[:3, :3]))
+    pose[:3, 3] = (1.0 - fraction) * start[:3, 3] + fraction * end[:3, 3]
+    return pose
+
+
 def essential_from_pose(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
     """E = [t]ₓR for X_prev = R·X_cur + t."""
     return skew(np.asarray(translation).reshape(3)) @ rotation

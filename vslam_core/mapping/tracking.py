@@ -20,7 +20,7 @@ import numpy as np
 from vslam_core.config import EngineConfig
 from vslam_core.engine import Odometry
 from vslam_core.features import match_descriptors
-from vslam_core.geometry import invert_pose, orthonormalise, rotation_angle
+from vslam_core.geometry import interpolate_pose, invert_pose, orthonormalise, rotation_angle
 from vslam_core.mapping.local_mapping import DESCRIPTOR_PATCH, LocalMapping
 from vslam_core.mapping.pnp import PnPSolution, solve_pnp
 from vslam_core.results import (
@@ -60,6 +60,7 @@ class MapTracking:
         self._last_pose = np.eye(4)
         self._since_keyframe = 0
         self._gap = False  # unusable frames since the last one with a pose
+        self._held: set[int] = set()  # run positions whose pose was held (no tracking, no relocalisation)
         self._segment_lost = False  # relocalisation failed: a new segment starts at the next frame with a pose
 
     def close(self) -> None:
@@ -67,10 +68,27 @@ class MapTracking:
 
     def refined_poses(self, count: int) -> list[np.ndarray]:
         """(4, 4) poses of the first `count` frames after the last bundle adjustment: each frame moved with
-        its keyframe by every refinement since it was tracked. Applies the pending adjustment first."""
+        its keyframe by every refinement since it was tracked (the pending adjustment is applied first). A
+        gap of held frames between two frames with a pose is filled by interpolating between them: once
+        the motion across the gap is known, that is the best estimate of where the car was (the frames stay
+        flagged in their results)."""
         if self.mapping.collect_bundle_adjustment() is not None:
             self._odometry.set_keyframe_pose(self.pose_of(self._odometry.key_position))
-        return [self.pose_of(position) for position in range(count)]
+        poses = [self.pose_of(position) for position in range(count)]
+        position = 0
+        while position < count:
+            if position not in self._held or position == 0:
+                position += 1
+                continue
+            end = position
+            while end < count and end in self._held:
+                end += 1
+            if end < count:  # frames position..end-1 were held; end has a pose again
+                before, after = poses[position - 1], poses[end]
+                for gap in range(position, end):
+                    poses[gap] = interpolate_pose(before, after, (gap - position + 1) / (end - position + 1))
+            position = end
+        return poses
 
     def pose_of(self, position: int) -> np.ndarray:
         """(4, 4) pose of an earlier frame, moved with its keyframe by every refinement since."""
@@ -264,6 +282,7 @@ class MapTracking:
         held = pose is None
         if pose is None:
             pose = self._last_pose.copy()
+            self._held.add(vo.position)
         else:
             pose = orthonormalise(pose)
             self._gap = False
