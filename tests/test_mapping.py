@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
@@ -16,7 +17,7 @@ from vslam_core.mapping.pnp import project, solve_pnp
 from vslam_core.mapping.tracking import MapTracking
 from vslam_core.metrics import kitti_errors
 from vslam_core.pipeline import run_odometry
-from vslam_core.results import FrameResult, Reason, TrackingMode
+from vslam_core.results import FrameResult, FrameStatus, Reason, TrackingMode
 from vslam_core.scale import GroundTruthScale
 from vslam_core.sources.base import Frame, FrameRange
 from vslam_core.sources.faults import FaultInjector, parse_faults
@@ -233,24 +234,59 @@ def test_interpolate_pose_follows_the_geodesic() -> None:
 
 
 @pytest.mark.kitti
-def test_a_gap_of_unusable_frames_is_flagged_and_filled_in_the_output(kitti_root: Path) -> None:
-    """dark@40:47 on real KITTI 00: the dark frames are held and flagged in their results; once tracking
-    resumes, the output trajectory fills them between the poses before and after (within 0.5 m of where
-    the clean run puts them), and the run's accuracy stays close to the clean run's."""
+def test_dark_frames_are_coasted_through_and_flagged(kitti_root: Path) -> None:
+    """dark@40:47 on real KITTI 00: the dark frames are flagged (image_too_dark, coasted, held status) but
+    dead-reckoned from their contrast-normalised images, within 0.5 m and 0.5° of where the clean run puts
+    them; the run's accuracy stays close to the clean run's."""
     clean = KittiSource(kitti_root, sequence="00", frames=FrameRange(0, 180))
     faulty = FaultInjector(clean, parse_faults("dark@40:47"))
     results: list[FrameResult] = []
     config = EngineConfig(backend="map", threads=1)
     poses = run_odometry(faulty, config, (lambda _frame, result: results.append(result),)).pose_array()
+    clean_poses = run_odometry(clean, config).pose_array()
+    for position in range(40, 48):
+        result = results[position]
+        assert result.mapping is not None and result.mapping.mode == TrackingMode.COASTED
+        assert {Reason.IMAGE_TOO_DARK, Reason.COASTED} <= set(result.health.reasons)
+        assert result.status == FrameStatus.HELD
+        error = invert_pose(clean_poses[position]) @ poses[position]
+        assert np.linalg.norm(error[:3, 3]) < 0.5 and np.degrees(rotation_angle(error[:3, :3])) < 0.5
     gt = faulty.ground_truth
     assert gt is not None
-    gap = range(40, 48)
-    for position in gap:
-        assert results[position].mapping is not None and results[position].mapping.mode == TrackingMode.LOST
-        assert Reason.IMAGE_TOO_DARK in results[position].health.reasons
-    assert all(not np.allclose(poses[p], poses[p + 1]) for p in range(39, 48))  # filled, not held
+    assert kitti_errors(gt, poses)[0] < 1.5 * kitti_errors(gt, clean_poses)[0] + 0.3
+
+
+class _Unreadable:
+    """A source whose frames in `gap` could not be read (black placeholders with a defect)."""
+
+    def __init__(self, source: KittiSource, gap: range) -> None:
+        self._source, self._gap = source, gap
+        self.name, self.intrinsics, self.indices = source.name, source.intrinsics, source.indices
+        self.camera_height, self.ground_truth = source.camera_height, source.ground_truth
+
+    def __len__(self) -> int:
+        return len(self._source)
+
+    def __iter__(self) -> Iterator[Frame]:
+        for frame in self._source:
+            if frame.index in self._gap:
+                frame = dataclasses.replace(frame, image=np.zeros_like(frame.image), defect="corrupt file")
+            yield frame
+
+
+@pytest.mark.kitti
+def test_a_gap_nothing_can_place_is_held_then_filled_in_the_output(kitti_root: Path) -> None:
+    """Unreadable frames 40–47 (nothing to coast on): held and flagged in their results; once tracking
+    resumes, the output trajectory fills them between the poses before and after."""
+    clean = KittiSource(kitti_root, sequence="00", frames=FrameRange(0, 120))
+    results: list[FrameResult] = []
+    config = EngineConfig(backend="map", threads=1)
+    poses = run_odometry(_Unreadable(clean, range(40, 48)), config,
+                         (lambda _frame, result: results.append(result),)).pose_array()
     clean_poses = run_odometry(clean, config).pose_array()
-    assert max(float(np.linalg.norm(poses[p, :3, 3] - clean_poses[p, :3, 3])) for p in gap) < 0.5
-    clean_t, _ = kitti_errors(gt, clean_poses)
-    t_err, _ = kitti_errors(gt, poses)
-    assert t_err < 1.5 * clean_t + 0.3
+    for position in range(40, 48):
+        assert results[position].mapping is not None and results[position].mapping.mode == TrackingMode.LOST
+        assert Reason.UNREADABLE_IMAGE in results[position].health.reasons
+        np.testing.assert_array_equal(results[position].T_world_cam, results[39].T_world_cam)  # held
+    assert all(not np.allclose(poses[p], poses[p + 1]) for p in range(39, 48))  # filled in the output
+    assert max(float(np.linalg.norm(poses[p, :3, 3] - clean_poses[p, :3, 3])) for p in range(40, 48)) < 0.5

@@ -228,6 +228,15 @@ class Odometry:
         """Chain the next motions from this pose of the keyframe (the map's, refined)."""
         self._T_w_key = T_world_key.copy()
 
+    def rebase_keyframe(self) -> None:
+        """Measure the next motion from the last usable frame (its pose placed by the caller, e.g. by
+        relocalisation), not from an older keyframe the tracks no longer reach."""
+        if self._previous is None:
+            return
+        self._key_position = self._previous_position
+        self._key_image = self._previous
+        self._tracks.key_points = self._tracks.points.copy()
+
     def live_tracks(self) -> tuple[np.ndarray, np.ndarray]:
         """(N,) ids and (N, 2) float32 positions, in the last processed frame, of the tracks alive now."""
         return self._tracks.ids, self._tracks.points

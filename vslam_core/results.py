@@ -59,6 +59,7 @@ class Reason(StrEnum):
     PNP_REJECTED = "pnp_rejected"  # warn: tracking against the map failed its checks; the two-view pose was used
     RELOCALISED = "relocalised"  # warn: tracking was lost; the pose came from matching the map's landmarks
     NEW_MAP_SEGMENT = "new_map_segment"  # warn: relocalisation failed, a new map was started here
+    COASTED = "coasted"  # the image could not be tracked; its pose is dead-reckoned from the degraded image
 
 
 class HealthStatus(StrEnum):
@@ -101,6 +102,7 @@ class TrackingMode(StrEnum):
     TWO_VIEW = "two_view"  # essential matrix from the keyframe: before the map exists, or PnP failed its checks
     MAP = "map"  # PnP in RANSAC on the landmarks the frame's tracks see, refined on the inliers
     RELOCALISED = "relocalised"  # tracks were lost: descriptors matched to the map's landmarks, then PnP
+    COASTED = "coasted"  # a degraded frame: rotation from its contrast-normalised image, step from the scale source
     LOST = "lost"  # no pose: the previous one is held
 
 

@@ -89,12 +89,13 @@ def frame_metrics(result: FrameResult, ground_truth: np.ndarray | None) -> dict[
 
 # Map backend (--backend map): tracking mode and bundle adjustment. The mode as a number, so it plots as a
 # step line (the string is in the `/tracking` entity): 0 lost, 1 two-view (the first frame of a map segment,
-# `init`, counts as two-view: nothing but two-view geometry can follow it), 2 map (PnP), 3 relocalised.
-MODE_LEVELS = {TrackingMode.LOST: 0, TrackingMode.INIT: 1, TrackingMode.TWO_VIEW: 1, TrackingMode.MAP: 2,
-               TrackingMode.RELOCALISED: 3}
+# `init`, counts as two-view: nothing but two-view geometry can follow it), 2 map (PnP), 3 relocalised;
+# 0.5 coasted (a degraded frame whose pose was dead-reckoned).
+MODE_LEVELS = {TrackingMode.LOST: 0, TrackingMode.COASTED: 0.5, TrackingMode.INIT: 1, TrackingMode.TWO_VIEW: 1,
+               TrackingMode.MAP: 2, TrackingMode.RELOCALISED: 3}
 MAP_METRICS: dict[str, dict[str, tuple[str, tuple[int, int, int]]]] = {
     "tracking": {
-        "mode": ("tracking mode: 0 lost, 1 two-view, 2 map, 3 relocalised", (255, 200, 0)),
+        "mode": ("tracking mode: 0 lost, 0.5 coasted, 1 two-view, 2 map, 3 relocalised", (255, 200, 0)),
         "pnp_inliers": ("PnP inliers", (40, 220, 60)),
         "landmarks_tracked": ("landmarks tracked", (80, 160, 255)),
     },

@@ -20,7 +20,8 @@ import numpy as np
 from vslam_core.config import EngineConfig
 from vslam_core.engine import Odometry
 from vslam_core.features import match_descriptors
-from vslam_core.geometry import interpolate_pose, invert_pose, orthonormalise, rotation_angle
+from vslam_core.geometry import interpolate_pose, invert_pose, orthonormalise, pose_matrix, rotation_angle
+from vslam_core.mapping.coasting import degraded_motion
 from vslam_core.mapping.local_mapping import DESCRIPTOR_PATCH, LocalMapping
 from vslam_core.mapping.pnp import PnPSolution, solve_pnp
 from vslam_core.results import (
@@ -60,6 +61,7 @@ class MapTracking:
         self._last_pose = np.eye(4)
         self._since_keyframe = 0
         self._gap = False  # unusable frames since the last one with a pose
+        self._previous_image: np.ndarray | None = None  # the last frame's image, usable or not
         self._held: set[int] = set()  # run positions whose pose was held (no tracking, no relocalisation)
         self._segment_lost = False  # relocalisation failed: a new segment starts at the next frame with a pose
 
@@ -105,7 +107,9 @@ class MapTracking:
             return self._finish(frame, vo, np.eye(4), TrackingMode.INIT, None, None, [], "initialisation")
         if vo.reason in UNUSABLE_IMAGE:
             self._gap = True
-            return self._finish(frame, vo, None, TrackingMode.LOST, None, None, [], None)
+            coasted = self._coast(frame.image, vo.position)
+            return self._finish(frame, vo, coasted, TrackingMode.COASTED if coasted is not None else TrackingMode.LOST,
+                                None, None, [Reason.COASTED] if coasted is not None else [], None)
         clock = time.perf_counter()
         two_view = self.pose_of(vo.keyframe_position) @ vo.T_key_cur if vo.T_key_cur is not None else None
         alive = vo.track_fate >= TrackFate.NOT_USED
@@ -128,6 +132,11 @@ class MapTracking:
             pose, mode = two_view, TrackingMode.TWO_VIEW
             if pnp is not None and self._has_map():
                 warnings.append(Reason.PNP_REJECTED)
+        if pose is None and self._gap:  # the first frame after a gap that nothing else could place
+            pose = self._coast(frame.image, vo.position)
+            if pose is not None:
+                mode = TrackingMode.COASTED
+                warnings.append(Reason.COASTED)
         if relocalisation is not None:
             self._segment_lost = not relocalisation.success
             if self._segment_lost:
@@ -239,6 +248,18 @@ class MapTracking:
         return (Relocalisation(True, best.id, len(candidates), len(query_index), inliers),
                 PnPEstimate(landmark_ids, pixels, solution.projected, solution.inlier_mask, solution.T_world_cam))
 
+    def _coast(self, image: np.ndarray, position: int) -> np.ndarray | None:
+        """Dead reckoning from the previous frame: the rotation and direction the degraded images still give
+        (vslam_core/mapping/coasting.py), the step length from the scale source. None if they give none."""
+        if self._previous_image is None or self._reference < 0:
+            return None
+        motion = degraded_motion(self._previous_image, image, self._K)
+        if motion is None:
+            return None
+        empty = np.zeros((0, 3))
+        step, _ = self._scale.step_length(TwoView(position - 1, position, empty, empty[:, :2]))
+        return self._last_pose @ pose_matrix(motion[0], step * motion[1])
+
     # -- keyframes and the result ---------------------------------------------------------------------------
 
     def _keyframe_reason(self, vo: FrameResult, pnp: PnPEstimate | None) -> str | None:
@@ -285,7 +306,8 @@ class MapTracking:
             self._held.add(vo.position)
         else:
             pose = orthonormalise(pose)
-            self._gap = False
+            if mode != TrackingMode.COASTED or vo.reason not in UNUSABLE_IMAGE:
+                self._gap = False
         self._since_keyframe += 1
         if not held and why is None and mode in (TrackingMode.MAP, TrackingMode.TWO_VIEW):
             why = self._keyframe_reason(vo, pnp)
@@ -311,6 +333,9 @@ class MapTracking:
             self._relative[vo.position] = (self._reference,
                                            invert_pose(self.mapping.map.keyframes[self._reference].T_world_cam) @ pose)
         self._last_pose = pose
+        self._previous_image = frame.image
+        if mode in (TrackingMode.COASTED, TrackingMode.RELOCALISED) and vo.reason not in UNUSABLE_IMAGE:
+            self._odometry.rebase_keyframe()  # the front end measures the next frame from this one
         self._odometry.set_keyframe_pose(self.pose_of(self._odometry.key_position))
         return self._result(vo, pose, held, mode, warnings, two_view,
                             MapFrame(mode, self._segment, two_view, pnp, keyframe, bundle, relocalisation, view))
@@ -322,7 +347,7 @@ class MapTracking:
         if two_view is not None and len(points_world):  # the front end's points, moved with the pose used
             moved = pose @ invert_pose(two_view)
             points_world = points_world @ moved[:3, :3].T + moved[:3, 3]
-        if held:
+        if held or mode == TrackingMode.COASTED:  # no pose of its own measured: flagged as held
             reason = vo.reason if vo.reason is not None else Reason.TRACKING_LOST
             if vo.reason in HOLD_REASONS and vo.reason != Reason.LOW_PARALLAX:
                 reason = Reason.TRACKING_LOST
