@@ -5,8 +5,10 @@ motion from its keyframe (the 5-point essential matrix) → the landmarks the su
 give 2-D–3-D correspondences → PnP in RANSAC, refined on the inliers (`MAP`); the step length stays the
 scale source's → if PnP fails its checks, the two-view pose (`TWO_VIEW`); if the tracks were lost (a gap, a
 jump), relocalisation against the landmarks of recent keyframes (`RELOCALISED`), and only if that fails a
-new map segment. A frame becomes a keyframe on parallax, landmark overlap or frame count, and is handed to
-local mapping; the pending bundle adjustment is applied at that moment (a fixed point: deterministic).
+new map segment. A frame the health checks refuse (blurred, dark) is dead-reckoned from its degraded
+image (`COASTED`, vslam_core/mapping/coasting.py); one nothing can place keeps the last pose (`LOST`). A
+frame becomes a keyframe on parallax, landmark overlap or frame count, and is handed to local mapping; the
+pending bundle adjustment is applied at that moment (a fixed point: deterministic).
 """
 
 from __future__ import annotations
