@@ -117,9 +117,11 @@ def test_snapshot_writes_one_png_per_view(shots: dict[str, Path]) -> None:
                 name, picture.shape)
         assert picture.std() > 8, f"{name}.png looks blank"
     assert cv2.imread(str(shots["all"])).shape[:2] == (DEFAULT_SIZE[1], DEFAULT_SIZE[0])
-    for name in ("frame", "tracks", "inliers", "inlier_ratio", "motion", "position_error_m", "angle_errors",
-                 "timing_ms"):  # image overlays, plot lines
-        assert _colourful(cv2.imread(str(shots[name]))) > 0.005, f"{name}.png shows no coloured data"
+    assert _colourful(cv2.imread(str(shots["frame"]))) > 0.005, "frame.png shows no overlays"
+    for name in ("tracks", "inliers", "inlier_ratio", "motion", "position_error_m", "angle_errors", "timing_ms"):
+        picture = cv2.imread(str(shots[name]))  # a plot line crosses most pixel columns
+        coloured = (picture.max(axis=2).astype(int) - picture.min(axis=2)) > 60
+        assert coloured.any(axis=0).mean() > 0.3, f"{name}.png shows no coloured data"
     # the 3-D view shows the triangulated points: many separate bright dots over the dark grid
     world = cv2.imread(str(shots["world"]), cv2.IMREAD_GRAYSCALE)
     dots, _ = cv2.connectedComponents((world > 120).astype(np.uint8))
