@@ -383,7 +383,7 @@ def test_blueprint_follows_the_car_on_the_frame_timeline_with_whole_events(recor
     # the tracked entity must have something drawn (a bounding box): /world/camera (a transform only) had not,
     # and the view showed the whole trajectory with the car as a speck
     assert eye["EyeControls3D:tracking_entity"] == CAR_ENTITY
-    assert "Boxes3D:half_sizes" in read_entity(recording, CAR_ENTITY).columns
+    assert "Boxes3D:half_sizes" in read_entity(recording, CAR_ENTITY, static=True).columns
     distance = np.linalg.norm(np.subtract(eye["EyeControls3D:position"], eye["EyeControls3D:look_target"]))
     assert 10 < distance < 60  # metres behind and above the car
     assert rows["/time_panel"]["TimePanelBlueprint:timeline"] == "frame"
