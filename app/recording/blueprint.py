@@ -18,7 +18,7 @@ EYE_OFFSET = (0.0, -15.0, -20.0)
 
 def blueprint(map_backend: bool = False, *, image: bool = True, road_scale: bool = False,
               ground_truth: bool = True) -> rrb.Blueprint:
-    """Frame with overlays | 3-D world following the car | metric plots | events and report; on `frame`.
+    """Frame with overlays and 3-D world following the car | metric plots; below, events | report; on `frame`.
 
     Views that would stay empty are left out: the frame without `image` (detail `summary`), "scale from the
     road" without `road_scale` (`--scale height`), the error plots without `ground_truth`. `map_backend`: also
@@ -29,15 +29,13 @@ def blueprint(map_backend: bool = False, *, image: bool = True, road_scale: bool
         left.insert(0, rrb.Spatial2DView(name="frame", origin="/world/camera/image"))
     plots = _plots(road_scale, ground_truth) + (_map_plots() if map_backend else [])
     return rrb.Blueprint(
-        rrb.Horizontal(
-            rrb.Vertical(*left, row_shares=[1, 2][-len(left):]),
-            rrb.Vertical(
-                rrb.Grid(*plots, grid_columns=2),
-                rrb.Horizontal(events_view(), rrb.TextDocumentView(name="report", origin="/report"),
-                               column_shares=[3, 1]),
-                row_shares=[3, 1],
-            ),
-            column_shares=[3, 2],
+        rrb.Vertical(
+            rrb.Horizontal(rrb.Vertical(*left, row_shares=[1, 2][-len(left):]), rrb.Grid(*plots, grid_columns=2),
+                           column_shares=[3, 2]),
+            # the events across the window: their messages (up to ~100 characters) fit whole
+            rrb.Horizontal(events_view(), rrb.TextDocumentView(name="report", origin="/report"),
+                           column_shares=[4, 1]),
+            row_shares=[4, 1],
         ),
         rrb.TimePanel(timeline="frame", state="collapsed"),  # the recordings also hold `time`: the viewer picked it
         collapse_panels=True,
