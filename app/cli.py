@@ -22,7 +22,8 @@ from app.inspect import format_report, inspect_recording
 from app.recording import Detail, version_properties
 from app.report import json_ready, markdown_table
 from app.runner import record_run
-from app.viewer import open_recording, snapshot
+from app.snapshot import DEFAULT_SIZE, parse_frame, parse_size, snapshot
+from app.web import open_recording
 from vslam_core.config import EngineConfig, load_config
 from vslam_core.errors import VslamError
 from vslam_core.metrics import kitti_errors, paper_rms_error, scale_errors
@@ -264,11 +265,14 @@ def inspect(
 @app.command(name="snapshot")
 def snapshot_command(
     recording: Annotated[Path, typer.Argument(help="a .rrd written by vslam run")],
-    frame: Annotated[int, typer.Option(help="frame to show (the source's frame index)")],
+    frame: Annotated[str, typer.Option(help="frame to show: the source's frame index, or 'last'")],
     out_dir: Annotated[Path, typer.Option("--out", help="folder for one PNG per view")],
+    size: Annotated[str, typer.Option(help="viewer window WIDTHxHEIGHT: each view's PNG is about this large")]
+    = f"{DEFAULT_SIZE[0]}x{DEFAULT_SIZE[1]}",
 ) -> None:
     """Render every view of the recording's blueprint at one frame to PNG, with the real viewer, headless."""
-    paths = snapshot(_existing_recording(recording), frame, out_dir)
+    window = parse_size(size)
+    paths = snapshot(_existing_recording(recording), parse_frame(frame), out_dir, window_size=window)
     for path in paths:
         out.print(str(path), highlight=False)
 
@@ -277,10 +281,15 @@ def snapshot_command(
 def open_command(
     recording: Annotated[Path, typer.Argument(help="a .rrd written by vslam run")],
     web: Annotated[bool, typer.Option("--web", help="serve the web viewer on 127.0.0.1 instead")] = False,
-    port: Annotated[int | None, typer.Option(help="web viewer port (default: a free one)")] = None,
+    web_port: Annotated[int | None, typer.Option("--web-port", "--port",
+                                                 help="web viewer (HTTP) port (default: a free one)")] = None,
+    grpc_port: Annotated[int | None, typer.Option("--grpc-port",
+                                                  help="gRPC port the page loads the data from (default: a free "
+                                                       "one); fix both to set up an SSH tunnel in advance")]
+    = None,
 ) -> None:
     """Open a recording: the native viewer where a display exists, else the web viewer on 127.0.0.1."""
-    open_recording(_existing_recording(recording), web=web, port=port)
+    open_recording(_existing_recording(recording), web=web, web_port=web_port, grpc_port=grpc_port)
 
 
 @app.command()

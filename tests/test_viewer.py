@@ -13,21 +13,27 @@ import time
 import urllib.parse
 import urllib.request
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
 import pytest
+from rerun.chunk import RrdReader
 
-from app import viewer
+from app import snapshot as snapshots
+from app import viewer, web
+from app.recording.blueprint import CAR_ENTITY
 from app.rrd import read_entity
-from app.viewer import NO_VULKAN, ViewerError, choose_viewer, open_recording, snapshot, vulkan_icd_files
+from app.snapshot import DEFAULT_SIZE, snapshot
+from app.viewer import NO_VULKAN, ViewerError, choose_viewer, vulkan_icd_files
+from app.web import open_recording
 from vslam_core.errors import VslamError
 
 ROOT = Path(__file__).resolve().parents[1]
 FRAME = 10
-#: The views of app.recording.blueprint(), in the layout's reading order.
-VIEWS = ["frame", "world", "tracks", "inliers", "inlier_ratio", "health", "motion", "scale_from_the_road",
-         "position_error_m", "angle_errors", "timing_ms", "events", "report"]
+#: The views of app.recording.blueprint() for a run with ground truth and --scale gt, in reading order.
+VIEWS = ["frame", "world", "tracks", "inliers", "inlier_ratio", "health", "motion", "position_error_m",
+         "angle_errors", "timing_ms", "events", "report"]
 
 
 @pytest.fixture(scope="module")
@@ -106,11 +112,16 @@ def test_snapshot_writes_one_png_per_view(shots: dict[str, Path]) -> None:
         picture = cv2.imread(str(path))
         assert picture is not None, path
         assert min(picture.shape[:2]) > 100, (name, picture.shape)
+        if name != "all":  # each view maximised in the window: readable, whatever its share of the layout
+            assert picture.shape[1] >= 0.95 * DEFAULT_SIZE[0] and picture.shape[0] >= 0.6 * DEFAULT_SIZE[1], (
+                name, picture.shape)
         assert picture.std() > 8, f"{name}.png looks blank"
-    assert cv2.imread(str(shots["all"])).shape[:2] == (viewer.WINDOW_SIZE[1], viewer.WINDOW_SIZE[0])
-    for name in ("frame", "tracks", "inliers", "inlier_ratio", "motion", "position_error_m", "angle_errors",
-                 "timing_ms"):  # image overlays, plot lines
-        assert _colourful(cv2.imread(str(shots[name]))) > 0.005, f"{name}.png shows no coloured data"
+    assert cv2.imread(str(shots["all"])).shape[:2] == (DEFAULT_SIZE[1], DEFAULT_SIZE[0])
+    assert _colourful(cv2.imread(str(shots["frame"]))) > 0.005, "frame.png shows no overlays"
+    for name in ("tracks", "inliers", "inlier_ratio", "motion", "position_error_m", "angle_errors", "timing_ms"):
+        picture = cv2.imread(str(shots[name]))  # a plot line crosses most pixel columns
+        coloured = (picture.max(axis=2).astype(int) - picture.min(axis=2)) > 60
+        assert coloured.any(axis=0).mean() > 0.3, f"{name}.png shows no coloured data"
     # the 3-D view shows the triangulated points: many separate bright dots over the dark grid
     world = cv2.imread(str(shots["world"]), cv2.IMREAD_GRAYSCALE)
     dots, _ = cv2.connectedComponents((world > 120).astype(np.uint8))
@@ -214,21 +225,21 @@ def test_viewer_failure_after_start_still_stops_it(
 
     spy = _Spy()
     monkeypatch.setattr(viewer, "_start", spy)
-    monkeypatch.setattr(viewer, "_settled_screenshots", broken)
+    monkeypatch.setattr(snapshots, "_settled_screenshots", broken)
     with pytest.raises(ViewerError, match="the Rerun viewer failed: lost the viewer$"):
         snapshot(recording, FRAME, tmp_path)
     spy.assert_all_gone()
 
 
 def test_terminated_snapshot_stops_the_viewer_first(recording: Path, vulkan: None, tmp_path: Path) -> None:
-    code = ("import sys; from pathlib import Path; from app import viewer\n"
+    code = ("import sys; from pathlib import Path; from app import snapshot, viewer\n"
             "start = viewer._start\n"
             "def spy(args, env=None):\n"
             "    process = start(args, env)\n"
             "    print(process.popen.pid, flush=True)\n"
             "    return process\n"
             "viewer._start = spy\n"
-            "viewer.snapshot(Path(sys.argv[1]), 10, Path(sys.argv[2]))\n")
+            "snapshot.snapshot(Path(sys.argv[1]), 10, Path(sys.argv[2]))\n")
     proc = subprocess.Popen([sys.executable, "-c", code, str(recording), str(tmp_path)], cwd=ROOT,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
@@ -257,9 +268,9 @@ def test_choose_viewer() -> None:
 @pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
 def test_web_viewer_serves_on_loopback_until_stopped(recording: Path, stop: signal.Signals) -> None:
     port = viewer.free_port()
-    code = ("import signal, sys; from pathlib import Path; from app.viewer import open_recording; "
+    code = ("import signal, sys; from pathlib import Path; from app.web import open_recording; "
             "signal.signal(signal.SIGINT, signal.default_int_handler); "  # as in a terminal, even under CI
-            "open_recording(Path(sys.argv[1]), web=True, port=int(sys.argv[2]))")
+            "open_recording(Path(sys.argv[1]), web=True, web_port=int(sys.argv[2]))")
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
     proc = subprocess.Popen([sys.executable, "-c", code, str(recording), str(port)], cwd=ROOT, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
@@ -305,7 +316,7 @@ def test_web_viewer_port_in_use_is_a_clear_error(recording: Path) -> None:
         taken.listen()
         port = taken.getsockname()[1]
         with pytest.raises(ViewerError, match=f"port {port} on 127.0.0.1 is already in use"):
-            open_recording(recording, web=True, port=port)
+            open_recording(recording, web=True, web_port=port)
 
 
 def test_snapshot_command_writes_pngs_and_errors_in_one_line(recording: Path, vulkan: None, tmp_path: Path) -> None:
@@ -320,3 +331,176 @@ def test_snapshot_command_writes_pngs_and_errors_in_one_line(recording: Path, vu
                              str(out)], capture_output=True, text=True, cwd=ROOT, timeout=300)
     assert result.returncode == 2 and "Traceback" not in result.stderr
     assert "outside the recording's frames 0..14" in result.stderr
+
+
+# ------------------------------------------------------------------------- layout: issue 12, items 14–15
+
+
+def _blueprint(rrd: Path) -> dict[str, dict[str, Any]]:
+    """The blueprint embedded in a recording, read back without a viewer: {entity: {component: value}}."""
+    reader = RrdReader(rrd)
+    rows: dict[str, dict[str, Any]] = {}
+    for chunk in reader.stream(store=reader.blueprints()[0]).to_chunks():
+        batch = chunk.to_record_batch()
+        for name in batch.schema.names:
+            if ":" not in name:
+                continue
+            try:
+                value = batch.column(name).to_pylist()[-1]
+            except Exception:  # union-typed components (time ranges): not needed here
+                continue
+            if isinstance(value, list) and len(value) == 1:
+                value = value[0]
+            rows.setdefault(str(chunk.entity_path), {})[name] = value
+    return rows
+
+
+def _view_names(rows: dict[str, dict[str, Any]]) -> set[str]:
+    return {r["ViewBlueprint:display_name"] for r in rows.values() if "ViewBlueprint:display_name" in r}
+
+
+@pytest.mark.parametrize(
+    ("args", "present", "absent"),
+    [([], {"frame", "position error (m)"}, {"scale from the road"}),
+     (["--detail", "summary"], {"world", "events"}, {"frame", "scale from the road"}),
+     (["--scale", "height"], {"frame", "scale from the road"}, set())],
+    ids=["full-gt", "summary", "height"],
+)
+def test_views_without_data_are_left_out_of_the_blueprint(
+    args: list[str], present: set[str], absent: set[str], tmp_path: Path
+) -> None:
+    rrd = tmp_path / "r.rrd"
+    result = subprocess.run([sys.executable, "-m", "app.cli", "run", "--frames", "0:3", "-o", str(rrd), *args],
+                            capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert result.returncode == 0, result.stderr
+    names = _view_names(_blueprint(rrd))
+    assert present <= names and not absent & names, names
+
+
+def test_blueprint_follows_the_car_on_the_frame_timeline_with_whole_events(recording: Path) -> None:
+    rows = _blueprint(recording)
+    eye = next(r for r in rows.values() if "EyeControls3D:tracking_entity" in r)
+    # the tracked entity must have something drawn (a bounding box): /world/camera (a transform only) had not,
+    # and the view showed the whole trajectory with the car as a speck
+    assert eye["EyeControls3D:tracking_entity"] == CAR_ENTITY
+    assert "Boxes3D:half_sizes" in read_entity(recording, CAR_ENTITY, static=True).columns
+    distance = np.linalg.norm(np.subtract(eye["EyeControls3D:position"], eye["EyeControls3D:look_target"]))
+    assert 10 < distance < 60  # metres behind and above the car
+    assert rows["/time_panel"]["TimePanelBlueprint:timeline"] == "frame"
+    key = "TextLogColumns:text_log_columns"
+    columns = next(r[key] for r in rows.values() if key in r)
+    assert {"visible": False, "kind": 1} in columns  # no entity-path column: the body gets the room
+
+
+def test_world_view_shows_the_car_large_near_the_centre(shots: dict[str, Path]) -> None:
+    world = cv2.imread(str(shots["world"]))
+    h, w = world.shape[:2]
+    centre = world[h // 4: 3 * h // 4, w // 4: 3 * w // 4]
+    car = (np.abs(centre.astype(int) - 230).max(axis=2) <= 20)  # the light-grey wireframe box
+    ys, xs = np.nonzero(car)
+    assert len(xs) > 50, "no car near the centre of world.png"
+    assert xs.max() - xs.min() > 0.03 * w, "the car is a speck"
+
+
+def test_snapshot_cli_last_frame_and_size(recording: Path, vulkan: None, tmp_path: Path) -> None:
+    out = tmp_path / "last"
+    result = subprocess.run([sys.executable, "-m", "app.cli", "snapshot", str(recording), "--frame", "last",
+                             "--size", "800x500", "--out", str(out)], capture_output=True, text=True, cwd=ROOT,
+                            timeout=600)
+    assert result.returncode == 0, result.stderr
+    assert cv2.imread(str(out / "all.png")).shape[:2] == (500, 800)
+    shown = cv2.cvtColor(cv2.imread(str(out / "frame.png")), cv2.COLOR_BGR2GRAY)
+    assert shown.shape[1] >= 760
+
+    def similarity(frame: int) -> float:
+        image = cv2.resize(_recorded_frame(recording, frame), (shown.shape[1], shown.shape[0]))
+        return float(np.corrcoef(shown.ravel().astype(float), image.ravel().astype(float))[0, 1])
+
+    assert similarity(14) > similarity(0)  # the last frame of 0:15
+    for args, fragment in ((["--frame", "lastt"], "--frame 'lastt': give a frame index or 'last'"),
+                           (["--frame", "3", "--size", "10x10"], "--size '10x10': the window must be"),
+                           (["--frame", "3", "--size", "big"], "--size 'big': give WIDTHxHEIGHT")):
+        bad = subprocess.run([sys.executable, "-m", "app.cli", "snapshot", str(recording), "--out", str(out), *args],
+                             capture_output=True, text=True, cwd=ROOT, timeout=60)
+        assert bad.returncode == 2 and fragment in bad.stderr and "Traceback" not in bad.stderr, bad.stderr
+        assert len(bad.stderr.strip().splitlines()) == 1
+
+
+def test_parse_size_and_frame() -> None:
+    assert snapshots.parse_size("1280x720") == (1280, 720)
+    assert snapshots.parse_size(" 800 X 600 ") == (800, 600)
+    assert snapshots.parse_frame("last") == "last" and snapshots.parse_frame("12") == 12
+    with pytest.raises(ViewerError, match="the window must be 320x240 to 7680x4320 pixels"):
+        snapshots.parse_size("8000x8000")
+
+
+@pytest.mark.parametrize(
+    ("args", "fragment"),
+    [(["--grpc-port", "70000"], "--grpc-port 70000: give a TCP port in 1..65535"),
+     (["--web-port", "0"], "--web-port 0: give a TCP port in 1..65535"),
+     (["--port", "-5"], "--web-port -5: give a TCP port in 1..65535"),
+     (["--web-port", "40000", "--grpc-port", "40000"], "--web-port and --grpc-port are both 40000")],
+)
+def test_open_web_bad_ports_are_one_line_errors(recording: Path, args: list[str], fragment: str) -> None:
+    result = subprocess.run([sys.executable, "-m", "app.cli", "open", str(recording), "--web", *args],
+                            capture_output=True, text=True, cwd=ROOT, timeout=60)
+    assert result.returncode == 2 and fragment in result.stderr and "Traceback" not in result.stderr, result.stderr
+
+
+def test_connections_to_counts_established_clients() -> None:
+    with socket.socket() as server:
+        server.bind(("127.0.0.1", 0))
+        server.listen()
+        port = server.getsockname()[1]
+        assert web.connections_to(port) == 0
+        with socket.create_connection(("127.0.0.1", port)):
+            accepted, _ = server.accept()
+            with accepted:
+                assert web.connections_to(port) == 1
+
+
+def test_web_viewer_fixed_ports_browser_watch_and_frame_timeline(recording: Path, vulkan: None) -> None:
+    web_port, grpc_port = viewer.free_port(), viewer.free_port()
+    code = ("import sys; from pathlib import Path; from app.web import open_recording; "
+            "open_recording(Path(sys.argv[1]), web=True, web_port=int(sys.argv[2]), grpc_port=int(sys.argv[3]), "
+            "browser_wait_s=1)")
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    proc = subprocess.Popen([sys.executable, "-c", code, str(recording), str(web_port), str(grpc_port)], cwd=ROOT,
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        url = _wait_for_url(proc, timeout_s=30)
+        assert url == web.web_viewer_url(web_port, grpc_port)
+        lines = _lines_until(proc, "no browser connected yet", timeout_s=20)
+        assert any(f"-L {web_port}:127.0.0.1:{web_port} -L {grpc_port}:127.0.0.1:{grpc_port}" in line
+                   for line in lines), lines
+        assert lines[-1] == f"no browser connected yet: open {url}"
+        # a real viewer connects to the gRPC server, as the browser's page does, and lands on `frame`
+        with viewer.headless_viewer(time.monotonic() + 120, (640, 480)) as (_, client):
+            client.open(f"rerun+http://127.0.0.1:{grpc_port}/proxy")
+            assert _lines_until(proc, "browser connected", timeout_s=30)[-1].startswith("browser connected")
+            deadline = time.monotonic() + 60
+            while not (recordings := client.get_state().recordings) and time.monotonic() < deadline:
+                time.sleep(0.2)
+            assert recordings and recordings[0].current_timeline == "frame", recordings
+        proc.terminate()
+        proc.communicate(timeout=20)
+        assert _refused(web_port) and _refused(grpc_port)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+
+
+def _lines_until(proc: subprocess.Popen[str], fragment: str, timeout_s: float) -> list[str]:
+    """Lines printed by `proc` up to and including the first holding `fragment`."""
+    assert proc.stdout is not None
+    lines: list[str] = []
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        ready, _, _ = select.select([proc.stdout], [], [], 0.5)
+        if ready:
+            line = proc.stdout.readline().rstrip("\n")
+            lines.append(line)
+            if fragment in line:
+                return lines
+    pytest.fail(f"{fragment!r} not printed within {timeout_s} s: {lines}")

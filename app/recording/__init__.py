@@ -5,6 +5,7 @@ Entity layout (world = camera frame of the first frame, RDF: x right, y down, z 
     /world                              ViewCoordinates.RDF (static)
     /world/camera                       Transform3D T_world_cam per frame
     /world/camera/image                 Pinhole (static) + JPEG frame
+    /world/camera/car                   static wireframe box: the car, which the 3-D view follows
     /world/camera/image/corners         Points2D: corners detected in this frame (track id on hover)
     /world/camera/image/flow            Arrows2D: previous → current position per track, class = fate,
                                         track id and age on hover (the arrow tips are the tracked corners)

@@ -9,58 +9,78 @@ from app.recording.metrics import BA_ERROR_SERIES, MAP_METRICS
 
 #: Entities of the map backend that keep their whole past in the 3-D view (logged once each, they accumulate).
 MAP_WHOLE_PAST = ("/world/map/keyframes/retired", "/world/map/landmarks/retired")
+#: The car drawn around the camera (a static wireframe box, child of `/world/camera`): the 3-D view tracks it.
+CAR_ENTITY = "/world/camera/car"
+#: Where the 3-D view's eye sits relative to the car it follows (world frame, RDF: −y is up, −z is behind):
+#: 15 m above and 20 m behind the start direction, 25 m away, looking ~37° down.
+EYE_OFFSET = (0.0, -15.0, -20.0)
 
 
-def blueprint(map_backend: bool = False) -> rrb.Blueprint:
-    """Frame with overlays | 3-D world with trajectories and candidates | metric plots and events.
+def blueprint(map_backend: bool = False, *, image: bool = True, road_scale: bool = False,
+              ground_truth: bool = True) -> rrb.Blueprint:
+    """Frame with overlays and 3-D world following the car | metric plots; below, events | report; on `frame`.
 
-    `map_backend`: also the map (retired keyframes and landmarks keep their whole past) and the plots of the
-    tracking mode and bundle adjustment. Without it the layout is exactly the odometry backend's."""
+    Views that would stay empty are left out: the frame without `image` (detail `summary`), "scale from the
+    road" without `road_scale` (`--scale height`), the error plots without `ground_truth`. `map_backend`: also
+    the map (retired keyframes and landmarks keep their whole past) and the plots of the tracking mode and
+    bundle adjustment."""
+    left: list[rrb.Spatial2DView | rrb.Spatial3DView] = [world_view(map_backend)]
+    if image:
+        left.insert(0, rrb.Spatial2DView(name="frame", origin="/world/camera/image"))
+    plots = _plots(road_scale, ground_truth) + (_map_plots() if map_backend else [])
+    return rrb.Blueprint(
+        rrb.Vertical(
+            rrb.Horizontal(rrb.Vertical(*left, row_shares=[1, 2][-len(left):]), rrb.Grid(*plots, grid_columns=2),
+                           column_shares=[3, 2]),
+            # the events across the window: their messages (up to ~100 characters) fit whole
+            rrb.Horizontal(events_view(), rrb.TextDocumentView(name="report", origin="/report"),
+                           column_shares=[4, 1]),
+            row_shares=[4, 1],
+        ),
+        rrb.TimePanel(timeline="frame", state="collapsed"),  # the recordings also hold `time`: the viewer picked it
+        collapse_panels=True,
+    )
+
+
+def world_view(map_backend: bool) -> rrb.Spatial3DView:
+    """The 3-D world: trajectories with their whole past, the rest at the current frame; the eye follows the
+    car (`CAR_ENTITY`) from `EYE_OFFSET`, at any frame."""
     whole_past = rr.VisibleTimeRange(
         "frame", start=rr.TimeRangeBoundary.infinite(), end=rr.TimeRangeBoundary.cursor_relative()
     )
-    # the trajectories keep their whole past; everything else shows the current frame
-    overrides = {
-        "/world/trajectory/estimate": rrb.VisibleTimeRanges([whole_past]),
-        "/world/trajectory/ground_truth": rrb.VisibleTimeRanges([whole_past]),
-    }
-    if map_backend:
-        overrides.update({entity: rrb.VisibleTimeRanges([whole_past]) for entity in MAP_WHOLE_PAST})
-    return rrb.Blueprint(
-        rrb.Horizontal(
-            rrb.Vertical(
-                rrb.Spatial2DView(name="frame", origin="/world/camera/image"),
-                rrb.Spatial3DView(
-                    name="world",
-                    origin="/world",
-                    # follow the car from behind and above (RDF: −y is up, −z is behind)
-                    eye_controls=rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, eye_up=[0.0, -1.0, 0.0],
-                                                   tracking_entity="/world/camera"),
-                    overrides=overrides,  # type: ignore[arg-type]
-                ),
-                row_shares=[1, 2],
-            ),
-            rrb.Vertical(
-                rrb.Grid(
-                    rrb.TimeSeriesView(name="tracks", origin="/metrics/tracks"),
-                    rrb.TimeSeriesView(name="inliers", origin="/metrics/ransac"),
-                    rrb.TimeSeriesView(name="inlier ratio", origin="/metrics/ratio"),
-                    rrb.TimeSeriesView(name="health", origin="/metrics/health"),
-                    rrb.TimeSeriesView(name="motion", origin="/metrics/motion"),
-                    rrb.TimeSeriesView(name="scale from the road", origin="/metrics/road"),
-                    rrb.TimeSeriesView(name="position error (m)", origin="/metrics/error"),
-                    rrb.TimeSeriesView(name="angle errors (°)", origin="/metrics/angle_error"),
-                    rrb.TimeSeriesView(name="timing (ms)", origin="/metrics/timing_ms"),
-                    *(_map_plots() if map_backend else []),
-                    rrb.TextLogView(name="events", origin="/events"),
-                    rrb.TextDocumentView(name="report", origin="/report"),
-                    grid_columns=2,
-                ),
-            ),
-            column_shares=[3, 2],
-        ),
-        collapse_panels=True,
+    entities = ["/world/trajectory/estimate", "/world/trajectory/ground_truth",
+                *(MAP_WHOLE_PAST if map_backend else ())]
+    return rrb.Spatial3DView(
+        name="world",
+        origin="/world",
+        eye_controls=rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, eye_up=[0.0, -1.0, 0.0],
+                                       position=list(EYE_OFFSET), look_target=[0.0, 0.0, 0.0],
+                                       tracking_entity=CAR_ENTITY),
+        overrides={entity: rrb.VisibleTimeRanges([whole_past]) for entity in entities},
     )
+
+
+def events_view() -> rrb.TextLogView:
+    """The `/events` log: frame, level and the whole message (no entity-path column: it is always /events)."""
+    kind = rrb.encodings.TextLogColumnKind
+    return rrb.TextLogView(
+        name="events", origin="/events",
+        columns=rrb.archetypes.TextLogColumns(text_log_columns=[
+            rrb.encodings.TextLogColumn(kind.LogLevel),
+            rrb.encodings.TextLogColumn(kind.Body),
+            rrb.encodings.TextLogColumn(kind.EntityPath, visible=False)]),
+    )
+
+
+def _plots(road_scale: bool, ground_truth: bool) -> list[rrb.TimeSeriesView]:
+    plots = [("tracks", "tracks"), ("inliers", "ransac"), ("inlier ratio", "ratio"), ("health", "health"),
+             ("motion", "motion")]
+    if road_scale:
+        plots.append(("scale from the road", "road"))
+    if ground_truth:
+        plots += [("position error (m)", "error"), ("angle errors (°)", "angle_error")]
+    plots.append(("timing (ms)", "timing_ms"))
+    return [rrb.TimeSeriesView(name=name, origin=f"/metrics/{group}") for name, group in plots]
 
 
 def _map_plots() -> list[rrb.TimeSeriesView]:

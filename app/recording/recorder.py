@@ -12,7 +12,7 @@ import numpy as np
 import rerun as rr
 
 import vslam_core
-from app.recording.blueprint import blueprint
+from app.recording.blueprint import CAR_ENTITY, blueprint
 from app.recording.columns import FLUSH_FRAMES, ColumnBuffer, Part, add_event
 from app.recording.map import MapRecording
 from app.recording.metrics import METRICS, STAGES, frame_metrics
@@ -20,6 +20,7 @@ from app.recording.styles import (
     APPLICATION_ID,
     AXIS_COLOURS,
     CANDIDATE_COLOURS,
+    CAR_COLOUR,
     ESTIMATE_COLOUR,
     FATE_STYLE,
     GROUND_TRUTH_COLOUR,
@@ -69,7 +70,9 @@ class Recorder:
                                        send_properties=False, batcher_config=batcher)
         self._rec.set_log_time_enabled(False)  # reproducible files: no wall-clock column
         self._columns = ColumnBuffer(self._rec)
-        self._rec.save(path, default_blueprint=blueprint(map_backend=config.backend == "map"))
+        layout = blueprint(map_backend=config.backend == "map", image=detail in (Detail.FULL, Detail.STANDARD),
+                           road_scale=config.scale == "height", ground_truth=source.ground_truth is not None)
+        self._rec.save(path, default_blueprint=layout)
         self._rec.send_recording_name(properties.get("name", source.name))
         self._rec.send_property("run", rr.AnyValues(**properties, detail=str(detail)))  # type: ignore[arg-type]
         self._rec.send_property("config", rr.AnyValues(**_flatten(config.to_dict())))
@@ -125,6 +128,10 @@ class Recorder:
             static=True,
         )
         rec.log("/world/camera/image/corners", rr.Points2D.from_fields(radii=2.0, colors=NEW_CORNER_COLOUR),
+                static=True)
+        # the car around the camera (metres, camera frame: 1.6 m wide, roof to road under a camera 1.65 m up,
+        # 0.5 m of bonnet ahead of it): the 3-D view follows it
+        rec.log(CAR_ENTITY, rr.Boxes3D(centers=[[0.0, 0.75, -1.5]], half_sizes=[[0.8, 0.9, 2.0]], colors=[CAR_COLOUR]),
                 static=True)
         rec.log("/world/points", rr.Points3D.from_fields(radii=0.05, colors=(200, 200, 200)), static=True)
         rec.log("/world/road/points", rr.Points3D.from_fields(radii=0.07, colors=ROAD_COLOUR), static=True)
