@@ -34,7 +34,7 @@ from typing import IO, Literal
 import polars as pl
 from rerun.experimental import View, ViewerClient, ViewerState
 
-from app.rrd import first_line, read_entity, rerun_binary
+from app.rrd import first_line, read_entity, readable, rerun_binary
 from vslam_core.errors import VslamError
 
 log = logging.getLogger(__name__)
@@ -79,6 +79,14 @@ def recording_frames(rrd: Path) -> tuple[int, int]:
     camera = pl.concat([t.select("frame") for t in tables])
     frames = camera["frame"]
     return int(frames.min()), int(frames.max())  # type: ignore[arg-type]
+
+
+def _viewable(rrd: Path) -> Path:
+    """The file to hand the viewer: `rrd`, or for a recording cut short (no footer) its finalised copy."""
+    try:
+        return readable(rrd).path
+    except VslamError as exc:
+        raise ViewerError(first_line(exc)) from None
 
 
 def vulkan_available(env: Mapping[str, str] | None = None) -> bool:
@@ -326,7 +334,7 @@ def snapshot(
 def _settled_screenshots(
     client: ViewerClient, rrd: Path, frame: int, deadline: float, whole_window: bool
 ) -> list[tuple[str, bytes]]:
-    opened = client.open(str(rrd.resolve()))
+    opened = client.open(str(_viewable(rrd).resolve()))
     if not opened.store_ids:
         raise ViewerError(f"{rrd}: the Rerun viewer opened no recording from this file")
     store_id = opened.store_ids[0]
@@ -428,7 +436,7 @@ def serve_web(rrd: Path, port: int | None = None, timeout_s: float = 30) -> Iter
         web_port = port if port is not None else free_port()
         grpc_port = free_port()
         process = _start(["--serve-web", "--bind", HOST, "--port", str(grpc_port),
-                          "--web-viewer-port", str(web_port), str(rrd.resolve())])
+                          "--web-viewer-port", str(web_port), str(_viewable(rrd).resolve())])
         try:
             if not _wait_listening(process, web_port, deadline):
                 if process.address_in_use() and port is None:
@@ -478,7 +486,7 @@ def open_recording(rrd: Path, web: bool = False, port: int | None = None) -> Non
 
 def _run_native(rrd: Path) -> None:
     # A port of our own: `rerun file.rrd` would otherwise hand the file to any viewer already on 9876.
-    process = _start(["--bind", HOST, "--port", str(free_port()), str(rrd.resolve())])
+    process = _start(["--bind", HOST, "--port", str(free_port()), str(_viewable(rrd).resolve())])
     try:
         code = process.popen.wait()
         if code != 0:
