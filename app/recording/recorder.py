@@ -38,6 +38,8 @@ from vslam_core.sources.base import Frame, FrameSource
 
 #: How long to wait for Rerun's writer thread to catch up before calling the file unwritable.
 WRITE_TIMEOUT_S = 120.0
+#: How often (seconds) to check that Rerun's writer thread is still writing: a full disk stops the run this soon.
+WRITE_CHECK_S = 1.0
 
 
 class Recorder:
@@ -66,6 +68,7 @@ class Recorder:
         self._previous_position: np.ndarray | None = None
         self._frames = 0
         self._failed = False  # Rerun's writer stopped (full disk): reported once
+        self._checked_at = time.monotonic()
         # send_properties=False: no wall-clock start time, so two runs of the same input compare equal
         # Fewer, larger chunks than the default (0.2 s / 2 MiB): each chunk carries its own schema, and at
         # ~3 frames a chunk the schemas alone were ~16 KB per frame.
@@ -108,6 +111,7 @@ class Recorder:
         (silenced in `app/__init__.py`) and stops; the flush then fails, and we stop the run."""
         if self._failed:
             return
+        self._checked_at = time.monotonic()
         try:
             self._rec.flush(timeout_sec=WRITE_TIMEOUT_S)
         except RuntimeError:
@@ -191,6 +195,8 @@ class Recorder:
         self._frames += 1
         if self._frames % FLUSH_FRAMES == 0:
             columns.flush()
+            self._check_written()
+        elif time.monotonic() - self._checked_at > WRITE_CHECK_S:  # images are sent every ~1 MiB
             self._check_written()
 
     def _log_image_and_tracks(self, frame: Frame, result: FrameResult) -> None:
