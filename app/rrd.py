@@ -34,7 +34,7 @@ class Readable:
     cut_short: bool  # no footer: the run was killed (SIGKILL, OOM, CI timeout), crashed or ran out of disk
 
 
-_COPIES: dict[tuple[str, int, int], Path] = {}  # (file, size, mtime) → finalised copy, made once per process
+_READABLE: dict[tuple[str, int, int], Readable] = {}  # (file, size, mtime) → what to read, found once per process
 
 
 def readable(path: Path) -> Readable:
@@ -45,15 +45,16 @@ def readable(path: Path) -> Readable:
         raise RecordingError(f"{path}: no such recording")
     if path.is_dir():
         raise RecordingError(f"{path}: is a folder, not a Rerun recording")
-    if has_footer(path, strict=True):
-        return Readable(path, cut_short=False)
     stat = path.stat()
     key = (str(path.resolve()), stat.st_size, stat.st_mtime_ns)
-    if key not in _COPIES:
-        copy = Path(tempfile.mkdtemp(prefix="vslam-finalised-", dir=_copies_dir())) / path.name
-        finalise(path, copy)
-        _COPIES[key] = copy
-    return Readable(_COPIES[key], cut_short=True)
+    if key not in _READABLE:
+        if has_footer(path, strict=True):
+            _READABLE[key] = Readable(path, cut_short=False)
+        else:
+            copy = Path(tempfile.mkdtemp(prefix="finalised-", dir=_copies_dir())) / path.name
+            finalise(path, copy)
+            _READABLE[key] = Readable(copy, cut_short=True)
+    return _READABLE[key]
 
 
 def has_footer(path: Path, strict: bool = False) -> bool:

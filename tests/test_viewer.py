@@ -147,7 +147,7 @@ def test_frame_view_shows_the_recorded_image_at_the_requested_frame(shots: dict[
 @pytest.mark.parametrize(
     ("content", "fragment"),
     [(None, "no such recording"), (b"not a recording\n", "not a readable Rerun recording"),
-     ("truncated", "truncated or unfinished recording")],
+     ("truncated", "no camera frames in this recording")],  # cut before its camera rows were written
 )
 def test_bad_files_are_one_line_errors_naming_the_file(
     content: bytes | str | None, fragment: str, recording: Path, tmp_path: Path
