@@ -309,3 +309,28 @@ def test_failed_run_with_a_default_output_says_where_the_recording_is(kitti_root
     assert len(kept) == 1 and kept[0].startswith("recordings/kitti-00_")
     verify(tmp_path / kept[0])
     assert camera_frames(tmp_path / kept[0]) == list(range(5))
+
+
+def test_trajectory_is_written_per_frame_and_refined_poses_replace_it_atomically(tmp_path: Path) -> None:
+    """The map backend's refined poses differ from those written during the run: the file is rewritten
+    beside and renamed into place (no temporary file left, never a mix of both)."""
+    from app.trajectory_out import TrajectoryWriter
+    from vslam_core.pipeline import RunResult
+    from vslam_core.sources.base import Frame
+
+    claimed = claim(tmp_path / "t.txt", False, "trajectory")
+    writer = TrajectoryWriter(claimed, "tum")
+    tracked = [np.eye(4) for _ in range(3)]
+    for i, pose in enumerate(tracked):
+        pose[0, 3] = float(i)
+        frame = Frame(index=i, timestamp=0.1 * i, image=np.zeros((2, 2), np.uint8))
+        writer(frame, type("Result", (), {"T_world_cam": pose})())  # type: ignore[arg-type]
+        assert len(claimed.path.read_text().splitlines()) == i + 1  # on disk at once
+    refined = [pose.copy() for pose in tracked]
+    for pose in refined:
+        pose[2, 3] = 5.0
+    writer.finish(RunResult([0, 1, 2], [0.0, 0.1, 0.2], refined))
+    claimed.release()
+    rows = [line.split() for line in (tmp_path / "t.txt").read_text().splitlines()]
+    assert [float(r[3]) for r in rows] == [5.0, 5.0, 5.0] and [float(r[0]) for r in rows] == [0.0, 0.1, 0.2]
+    assert [p.name for p in tmp_path.iterdir()] == ["t.txt"]
