@@ -185,7 +185,8 @@ def run(
     result, interrupted = recorded.result, recorded.interrupted
     if recorded.failure is None:
         _summary(src, result, config)
-    out.print(describe_outputs(outputs, recorded.failure is not None), highlight=False)
+    if where := describe_outputs(outputs, recorded.failure is not None):
+        out.print(where, highlight=False)
     if recorded.failure is not None:
         raise recorded.failure  # after saying where the outputs (kept up to the failure) are
     if interrupted is not None:
