@@ -145,9 +145,9 @@ def format_report(report: dict[str, Any]) -> str:
         f"versions    vslam {props.get('vslam_version', '?')}, OpenCV {props.get('opencv_version', '?')}, "
         f"Rerun {props.get('rerun_version', '?')}",
         f"frames      {frames['count']} ({frames['first']}..{frames['last']})",
-        *([f"cut short   the run stopped without finalising the file (killed, crashed or out of disk) after "
-           f"frame {frames['last']} of {props.get('frames', '?')}; this holds frames {frames['first']}.."
-           f"{frames['last']} (`vslam repair` writes a finalised copy)"] if report["cut_short"] else []),
+        *([f"cut short   after frame {frames['last']} (no footer: the run was killed, crashed or ran out of disk); "
+           f"it holds frames {frames['first']}..{frames['last']} of the {props.get('frame_count', '?')} the run "
+           "was to process; `vslam repair` writes a finalised copy"] if report["cut_short"] else []),
         "",
         "stage          mean ms   median    p95     max",
     ]

@@ -160,8 +160,8 @@ def test_inspect_says_a_killed_recording_was_cut_short_and_where(killed_run: tup
     last = max(camera_frames(rrd))
     text = vslam("inspect", rrd)
     assert text.returncode == 0, text.stderr
-    assert f"cut short   the run stopped without finalising the file (killed, crashed or out of disk) after frame " \
-           f"{last} of :" in text.stdout
+    assert f"cut short   after frame {last} (no footer: the run was killed, crashed or ran out of disk); it holds " \
+           f"frames 0..{last} of the 300 the run was to process" in text.stdout
     report = json.loads(vslam("inspect", rrd, "--json").stdout)
     assert report["cut_short"] is True and report["frames"]["last"] == last and report["frames"]["first"] == 0
 
