@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import sys
 import uuid
-from datetime import datetime
 from enum import StrEnum
 from pathlib import Path
 from typing import Annotated, Any, NoReturn
@@ -19,9 +18,11 @@ from app.compare import compare_recordings, format_differences
 from app.crop import crop_recording
 from app.evaluation import REPORT_FILES, Evaluation, check_gates, evaluate_sources, evaluate_trajectory_file
 from app.inspect import format_report, inspect_recording
+from app.outputs import claimed, ensure_folder
 from app.recording import Detail, version_properties
+from app.repair import format_repair, repair_recording, repaired_path
 from app.report import json_ready, markdown_table
-from app.runner import record_run
+from app.runner import claim_run_outputs, describe_outputs, record_run
 from app.snapshot import DEFAULT_SIZE, parse_frame, parse_size, snapshot
 from app.web import open_recording
 from vslam_core.config import EngineConfig, load_config
@@ -31,7 +32,6 @@ from vslam_core.pipeline import RunResult
 from vslam_core.scale import default_camera_height
 from vslam_core.sources.base import FrameRange, FrameSource
 from vslam_core.sources.open import open_source
-from vslam_core.trajectory_io import write_kitti_poses, write_tum_poses
 
 app = typer.Typer(
     name="vslam",
@@ -42,7 +42,6 @@ app = typer.Typer(
 )
 err = Console(stderr=True, soft_wrap=True)
 out = Console(soft_wrap=True)
-RECORDINGS = Path("recordings")
 
 
 @app.callback()
@@ -83,57 +82,16 @@ def fail(message: str, code: int = 2) -> NoReturn:
     raise typer.Exit(code)
 
 
-def _check_new_file(path: Path, force: bool, what: str) -> None:
-    if path.exists() and not force:
-        fail(f"{path}: {what} exists already (use --force to replace it)")
-    if path.exists() and path.is_dir():
-        fail(f"{path}: is a folder, not a {what} file")
-    _ensure_writable_folder(path.parent if str(path.parent) else Path("."), "output folder")
-
-
-def _check_new_recording(path: Path, force: bool) -> None:
+def _recording_path(path: Path) -> Path:
     if path.suffix != ".rrd":
         fail(f"{path}: a recording must end in .rrd")
-    _check_new_file(path, force, "recording")
-
-
-def _ensure_writable_folder(folder: Path, what: str) -> None:
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        fail(f"{folder}: cannot create {what} ({exc.strerror})")
-    if not _writable(folder):
-        fail(f"{folder}: {what} is not writable")
-
-
-def _writable(folder: Path) -> bool:
-    probe = folder / f".vslam-write-test-{uuid.uuid4().hex}"
-    try:
-        probe.touch()
-        probe.unlink()
-    except OSError:
-        return False
-    return True
-
-
-def _default_output(source: FrameSource, frames: FrameRange) -> Path:
-    selection = "" if str(frames) == ":" else "_" + str(frames).replace(":", "-")
-    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-    return RECORDINGS / f"{source.name}{selection}_{stamp}.rrd"
+    return path
 
 
 def _recording_id(source: FrameSource, frames: FrameRange, config: EngineConfig) -> str:
     """Same input and config → same recording id, so two runs' files compare equal."""
     key = json.dumps([source.name, str(frames), len(source), config.to_dict()], sort_keys=True)
     return str(uuid.uuid5(uuid.NAMESPACE_URL, "vslam:" + key))
-
-
-def _write_trajectory(path: Path, run: RunResult, fmt: TrajectoryFormat) -> None:
-    if fmt is TrajectoryFormat.kitti:
-        write_kitti_poses(path, run.pose_array())
-    else:
-        stamps = np.array([t if t is not None else float(i) for t, i in zip(run.timestamps, run.indices, strict=True)])
-        write_tum_poses(path, stamps, run.pose_array())
 
 
 def _summary(source: FrameSource, run: RunResult, config: EngineConfig) -> None:
@@ -174,7 +132,8 @@ def run(
     backend: Annotated[Backend | None, typer.Option(help=BACKEND_HELP)] = None,
     config_file: Annotated[Path | None, typer.Option("--config", help="engine config (TOML)")] = None,
     output: Annotated[Path | None, typer.Option("--output", "-o", help="recording (.rrd) to write "
-                                                "[default: recordings/<source>_<time>.rrd]")] = None,
+                                                "[default: recordings/<source>_<frames>_<time>-<run id>.rrd]")]
+    = None,
     detail: Annotated[Detail, typer.Option(help="full = every intermediate; standard = no 3-D points or per-track "
                                             "hover data; summary = no image or per-point data; off = no file")]
     = Detail.FULL,
@@ -188,7 +147,8 @@ def run(
                                                "overexposed, blur, frozen, drop, brightness, noise)")] = None,
     on_bad_frame: Annotated[BadFrame, typer.Option(help="an unreadable image: fail (stop, naming the file) or "
                                                    "skip (hold the pose, log an event)")] = BadFrame.fail,
-    force: Annotated[bool, typer.Option("--force", help="replace existing output files")] = False,
+    force: Annotated[bool, typer.Option("--force", help="replace existing output files (never one another run "
+                                        "is writing)")] = False,
 ) -> None:
     """Run the odometry on a source and write a Rerun recording (and optionally the trajectory)."""
     frame_range = FrameRange.parse(frames)
@@ -203,12 +163,10 @@ def run(
     if backend is not None:
         config = config.with_backend(backend.value)
 
-    rrd = None if detail == Detail.OFF else (output or _default_output(src, frame_range))
-    if rrd is not None:
-        _check_new_recording(rrd, force)
-    if trajectory_out is not None:
-        _check_new_file(trajectory_out, force, "trajectory")
-
+    recording = _recording_path(output) if output is not None and detail != Detail.OFF else None
+    outputs = claim_run_outputs(recording, detail != Detail.OFF, src.name, str(frame_range), trajectory_out,
+                                trajectory_format.value, force)
+    rrd = outputs.recording.path if outputs.recording is not None else None
     properties = {
         "name": f"vslam {src.name} frames {frame_range} scale {config.scale}",
         "recording_id": _recording_id(src, frame_range, config),
@@ -221,18 +179,17 @@ def run(
         **({"inject": inject} if inject else {}),
         **version_properties(),
     }
-    recorded = record_run(src, config, rrd, properties, err, detail, jpeg_quality)
+    try:
+        recorded = record_run(src, config, rrd, properties, err, detail, jpeg_quality, outputs.trajectory)
+    finally:
+        outputs.release()
     result, interrupted = recorded.result, recorded.interrupted
-    if trajectory_out is not None and result.frames:
-        _write_trajectory(trajectory_out, result, trajectory_format)
+    if recorded.failure is None:
+        _summary(src, result, config)
+    if where := describe_outputs(outputs, recorded.failure is not None):
+        out.print(where, highlight=False)
     if recorded.failure is not None:
-        raise recorded.failure  # after the recording and the trajectory of the frames before it were saved
-
-    _summary(src, result, config)
-    if rrd is not None:
-        out.print(f"recording   {rrd}", highlight=False)
-    if trajectory_out is not None:
-        out.print(f"trajectory  {trajectory_out} ({trajectory_format.value}, {result.frames} poses)", highlight=False)
+        raise recorded.failure  # after saying where the outputs (kept up to the failure) are
     if interrupted is not None:
         last = result.indices[-1] if result.indices else None
         fail(f"interrupted by {interrupted} after {result.frames} frames"
@@ -304,8 +261,8 @@ def crop(
     if selection.start is None or selection.end is None or selection.step != 1:
         fail(f"--frames {frames!r}: give START:END, e.g. 120:160")
     _existing_recording(recording)
-    _check_new_recording(output, force)
-    summary = crop_recording(recording, (selection.start, selection.end), output)
+    with claimed(_recording_path(output), force, "recording"):
+        summary = crop_recording(recording, (selection.start, selection.end), output)
     out.print(f"{output}: frames {summary.first_frame}..{summary.last_frame} ({summary.frame_count} frames), "
               f"{summary.output_bytes / 1e6:.1f} MB (from {summary.input_bytes / 1e6:.1f} MB)", highlight=False)
 
@@ -395,7 +352,7 @@ def _check_report_dir(report: Path, force: bool) -> None:
     existing = [name for name in REPORT_FILES if (report / name).exists()]
     if existing and not force:
         fail(f"{report}: holds a report already ({existing[0]}; use --force to replace it)")
-    _ensure_writable_folder(report, "report folder")
+    ensure_folder(report, "report folder")
 
 
 def _print_evaluation(evaluation: Evaluation, scale: str, backend: str, report: Path | None, as_json: bool,
@@ -432,9 +389,24 @@ def compare(
         fail(f"--labels {labels!r}: give two different names, e.g. before,after")
     _existing_recording(first)
     _existing_recording(second)
-    _check_new_recording(output, force)
-    result = compare_recordings(first, second, output, (names[0], names[1]))
+    with claimed(_recording_path(output), force, "recording"):
+        result = compare_recordings(first, second, output, (names[0], names[1]))
     out.print(format_differences(result), highlight=False)
+
+
+@app.command()
+def repair(
+    recording: Annotated[Path, typer.Argument(help="a .rrd cut short (killed run, full disk) or any recording")],
+    output: Annotated[Path | None, typer.Option("--output", "-o", help="the finalised .rrd to write "
+                                                "[default: <name>.repaired.rrd beside it]")] = None,
+    force: Annotated[bool, typer.Option("--force", help="replace an existing output")] = False,
+) -> None:
+    """Finalise a recording cut short (no footer: the run was killed, crashed or ran out of disk) into a
+    complete copy holding every frame it recorded."""
+    target = _recording_path(output or repaired_path(_existing_recording(recording)))
+    with claimed(target, force, "recording"):
+        summary = repair_recording(recording, target)
+    out.print(format_repair(summary), highlight=False)
 
 
 def main() -> None:

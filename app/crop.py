@@ -28,7 +28,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 from rerun.chunk import Chunk, RrdReader, StoreEntry
 
-from app.rrd import RecordingError, first_line, open_store, run_rerun_cli, same_file, work_dir_beside
+from app.rrd import RecordingError, first_line, open_store, readable, run_rerun_cli, same_file, work_dir_beside
 
 FRAME = "frame"
 
@@ -133,7 +133,7 @@ def _add_blueprints(source: Path, reader: RrdReader, blueprints: list[StoreEntry
                              "cannot separate the blueprint")
     only_blueprint = work / "blueprint.rrd"
     drops = [arg for entity in sorted(entities) for arg in ("--drop-entity", entity)]
-    run_rerun_cli(source, "rrd", "filter", "-o", str(only_blueprint), *drops, str(source))
+    run_rerun_cli(source, "rrd", "filter", "-o", str(only_blueprint), *drops, str(readable(source).path))
     combined = work / "combined.rrd"
     run_rerun_cli(source, "rrd", "filter", "-o", str(combined), str(only_blueprint), str(cropped))
 

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from app.recording import METRICS, STAGES
-from app.rrd import RecordingError, read_entity
+from app.rrd import RecordingError, read_entity, readable
 
 SCHEMA_VERSION = 1
 
@@ -93,9 +93,11 @@ def inspect_recording(path: Path) -> dict[str, Any]:
     """Everything `vslam inspect --json` prints (see README: "vslam inspect --json")."""
     if not path.is_file():
         raise RecordingError(f"{path}: no such recording")
+    cut_short = readable(path).cut_short
     camera = read_entity(path, "/world/camera")
     if camera.is_empty() or "frame" not in camera.columns:
-        raise RecordingError(f"{path}: no camera frames in this recording (not written by `vslam run`?)")
+        raise RecordingError(f"{path}: no camera frames in this recording (not written by `vslam run`?)"
+                             + (" (cut short before the first frame was written)" if cut_short else ""))
     frames = camera["frame"].to_list()
     health = read_entity(path, "/health")
     flagged = []
@@ -116,6 +118,7 @@ def inspect_recording(path: Path) -> dict[str, Any]:
         "properties": _properties(path, "run"),
         "config": _properties(path, "config"),
         "frames": {"count": len(frames), "first": int(min(frames)), "last": int(max(frames))},
+        "cut_short": cut_short,
         "stages_ms": {stage: _stats(timing[stage]) for stage in STAGES},
         "series": {
             "tracks_alive": _stats(tracks["alive"]),
@@ -142,6 +145,9 @@ def format_report(report: dict[str, Any]) -> str:
         f"versions    vslam {props.get('vslam_version', '?')}, OpenCV {props.get('opencv_version', '?')}, "
         f"Rerun {props.get('rerun_version', '?')}",
         f"frames      {frames['count']} ({frames['first']}..{frames['last']})",
+        *([f"cut short   after frame {frames['last']} (no footer: the run was killed, crashed or ran out of disk); "
+           f"it holds frames {frames['first']}..{frames['last']} of the {props.get('frame_count', '?')} the run "
+           "was to process; `vslam repair` writes a finalised copy"] if report["cut_short"] else []),
         "",
         "stage          mean ms   median    p95     max",
     ]

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import atexit
+import functools
 import os
 import shutil
 import subprocess
@@ -10,6 +12,7 @@ import tempfile
 import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 import polars as pl
@@ -23,19 +26,80 @@ class RecordingError(VslamError):
     """A file that is missing, truncated or not a Rerun recording."""
 
 
-@contextmanager
-def _reading(path: Path) -> Iterator[RrdReader]:
-    """An `RrdReader` of a complete `.rrd`; every way the file can be bad becomes one `RecordingError`."""
+@dataclass(frozen=True)
+class Readable:
+    """What to read for a recording: the file itself, or for one cut short a finalised temporary copy."""
+
+    path: Path
+    cut_short: bool  # no footer: the run was killed (SIGKILL, OOM, CI timeout), crashed or ran out of disk
+
+
+_READABLE: dict[tuple[str, int, int], Readable] = {}  # (file, size, mtime) → what to read, found once per process
+
+
+def readable(path: Path) -> Readable:
+    """`path` when it is a complete recording. A recording cut short has chunks but no footer, which
+    `RrdReader.store()` and the viewer's random access need: it is read from a finalised copy made once
+    per process with `rerun rrd filter` (`finalise`). Every way the file can be bad is a `RecordingError`."""
     if not path.exists():
         raise RecordingError(f"{path}: no such recording")
     if path.is_dir():
         raise RecordingError(f"{path}: is a folder, not a Rerun recording")
+    stat = path.stat()
+    key = (str(path.resolve()), stat.st_size, stat.st_mtime_ns)
+    if key not in _READABLE:
+        if has_footer(path, strict=True):
+            _READABLE[key] = Readable(path, cut_short=False)
+        else:
+            copy = Path(tempfile.mkdtemp(prefix="finalised-", dir=_copies_dir())) / path.name
+            finalise(path, copy)
+            _READABLE[key] = Readable(copy, cut_short=True)
+    return _READABLE[key]
+
+
+def has_footer(path: Path, strict: bool = False) -> bool:
+    """Whether `path` is a finalised recording (footer and manifest). A file the reader cannot open at all
+    is `False`, or with `strict` a `RecordingError`."""
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", RerunWarning)
-            reader = RrdReader(path)
-        if any("no footer" in str(w.message) for w in caught):
-            raise RecordingError(f"{path}: truncated or unfinished recording (no RRD footer)")
+            RrdReader(path)
+    except Exception as exc:  # the reader raises plain exceptions for every kind of bad file
+        if strict:
+            raise RecordingError(f"{path}: not a readable Rerun recording ({first_line(exc)})") from None
+        return False
+    return not any("no footer" in str(w.message) for w in caught)
+
+
+def finalise(source: Path, output: Path) -> None:
+    """Write `source`'s whole messages to `output` with a footer: `rerun rrd filter` reads a footer-less
+    file message by message and stops cleanly at a half-written last one (what SIGKILL or a full disk
+    leaves). Raises `RecordingError` when nothing usable is left."""
+    run_rerun_cli(source, "rrd", "filter", "--continue-on-error", "-o", str(output), str(source))
+    try:
+        recordings = RrdReader(output).recordings()
+    except Exception as exc:  # noqa: BLE001 - any failure means the copy is unusable
+        raise RecordingError(f"{source}: not a readable Rerun recording ({first_line(exc)})") from None
+    if not recordings:
+        raise RecordingError(f"{source}: not a readable Rerun recording (no recording data in it)")
+
+
+@functools.cache
+def _copies_dir() -> Path:
+    folder = Path(tempfile.mkdtemp(prefix="vslam-"))
+    atexit.register(shutil.rmtree, folder, ignore_errors=True)
+    return folder
+
+
+@contextmanager
+def _reading(path: Path) -> Iterator[RrdReader]:
+    """An `RrdReader` of the recording (of its finalised copy when it was cut short); every way the file can
+    be bad becomes one `RecordingError`."""
+    data = readable(path).path
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RerunWarning)
+            reader = RrdReader(data)
         yield reader
     except RecordingError:
         raise
@@ -62,7 +126,8 @@ def first_line(exc: BaseException) -> str:
 
 
 def open_store(source: Path) -> tuple[RrdReader, StoreEntry, list[StoreEntry]]:
-    """Reader, the one recording store, and the blueprint stores of a complete (footered) `.rrd`."""
+    """Reader, the one recording store, and the blueprint stores of a `.rrd` (of its finalised copy when it
+    was cut short: see `readable`)."""
     with _reading(source) as reader:
         recordings, blueprints = reader.recordings(), reader.blueprints()
         if len(recordings) != 1:

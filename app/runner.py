@@ -12,7 +12,10 @@ from types import FrameType
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
+from app.outputs import ClaimedFile, OutputError, claim, default_recording
 from app.recording import Detail, Recorder
+from app.rrd import has_footer
+from app.trajectory_out import Format, TrajectoryWriter
 from vslam_core.config import EngineConfig
 from vslam_core.errors import VslamError
 from vslam_core.pipeline import FrameSink, RunResult, run_odometry
@@ -69,6 +72,61 @@ def _signals_stop_between_frames() -> Iterator[_StopRequest]:
             signal.signal(signum, handler)
 
 
+@dataclass
+class RunOutputs:
+    """The files one run writes, claimed for it alone (see `app.outputs`)."""
+
+    recording: ClaimedFile | None
+    trajectory_file: ClaimedFile | None
+    trajectory: TrajectoryWriter | None
+
+    def release(self) -> None:
+        for claimed in (self.recording, self.trajectory_file):
+            if claimed is not None:
+                claimed.release(keep=claimed is self.recording or bool(self.trajectory and self.trajectory.lines))
+
+
+def claim_run_outputs(output: Path | None, record: bool, source_name: str, frames: str, trajectory: Path | None,
+                      trajectory_format: Format, force: bool) -> RunOutputs:
+    """Claim the recording (`output`, or a fresh default name when `record`) and the trajectory file before
+    the run starts; `OutputError` in one line if one is taken."""
+    recording: ClaimedFile | None = None
+    if output is not None:
+        recording = claim(output, force, "recording")
+    elif record:
+        for attempt in range(3):  # a default name is new by construction; a clash means another id
+            try:
+                recording = claim(default_recording(source_name, frames), False, "recording")
+                break
+            except OutputError:
+                if attempt == 2:
+                    raise
+    if trajectory is None:
+        return RunOutputs(recording, None, None)
+    try:
+        trajectory_file = claim(trajectory, force, "trajectory")
+    except OutputError:
+        if recording is not None:
+            recording.release(keep=False)
+        raise
+    return RunOutputs(recording, trajectory_file, TrajectoryWriter(trajectory_file, trajectory_format))
+
+
+def describe_outputs(outputs: RunOutputs, failed: bool) -> str:
+    """Where the outputs are (also, and above all, after a failure): one line each."""
+    lines = []
+    if outputs.recording is not None:
+        path = outputs.recording.path
+        complete = has_footer(path)
+        lines.append(f"recording   {path}" + ("" if complete else
+                                              f" (cut short: finalise with `vslam repair {path}`)"))
+    if outputs.trajectory is not None and outputs.trajectory_file is not None:
+        writer = outputs.trajectory
+        if writer.lines or not failed:
+            lines.append(f"trajectory  {writer.path} ({writer.format}, {writer.lines} poses)")
+    return "\n".join(lines)
+
+
 def record_run(
     source: FrameSource,
     config: EngineConfig,
@@ -77,10 +135,13 @@ def record_run(
     console: Console,
     detail: Detail = Detail.FULL,
     jpeg_quality: int = 75,
+    trajectory: TrajectoryWriter | None = None,
 ) -> RecordedRun:
-    """Run the engine over `source`, recording to `rrd` (None: no recording). Ctrl-C, SIGTERM and bad input
-    (a `VslamError` from the source) stop the run cleanly: the recording is finalised and the frames
-    processed so far are returned with what stopped them."""
+    """Run the engine over `source`, recording to `rrd` (None: no recording) and writing each frame's pose
+    to `trajectory` as it goes. Ctrl-C, SIGTERM, bad input (a `VslamError` from the source) and a write
+    error (full disk: `OutputError`) stop the run cleanly: the outputs keep what was written, the recording
+    is finalised where the disk allows, and the frames processed so far are returned with what stopped
+    them."""
     result = RunResult([], [], [])
     interrupted: Interrupted | None = None
     failure: VslamError | None = None
@@ -93,15 +154,42 @@ def record_run(
             progress.advance(task)
             stop.check()
 
-        sinks: tuple[FrameSink, ...] = (advance,) if recorder is None else (recorder.log_frame, advance)
+        # the trajectory first: a frame the recorder fails on still has its pose on disk
+        sinks: list[FrameSink] = [trajectory] if trajectory is not None else []
+        sinks += [recorder.log_frame] if recorder is not None else []
         try:
-            run_odometry(source, config, sinks, result)
+            run_odometry(source, config, (*sinks, advance), result)
         except Interrupted as exc:
             interrupted = exc
         except VslamError as exc:
             failure = exc
         finally:
-            if recorder is not None:
-                recorder.finish(result, interrupted is not None or failure is not None)
+            closing = _close_outputs(recorder, trajectory, result, interrupted is not None or failure is not None)
+        failure = _with_progress(failure or closing, result)  # the first error is the one to report
         interrupted = interrupted or stop.interruption()  # a signal during the last frame or finalising
     return RecordedRun(result, interrupted, failure)
+
+
+def _with_progress(failure: VslamError | None, result: RunResult) -> VslamError | None:
+    """A write error, with how far the run got (its outputs keep that much)."""
+    if not isinstance(failure, OutputError):
+        return failure
+    done = f"at frame {result.indices[-1]}" if result.indices else "before the first frame"
+    return OutputError(f"{failure}; the run stopped {done}, the outputs keep what was written")
+
+
+def _close_outputs(recorder: Recorder | None, trajectory: TrajectoryWriter | None, result: RunResult,
+                   stopped: bool) -> VslamError | None:
+    """Finish both outputs whatever happens to the other; the first write error, if any."""
+    first: VslamError | None = None
+    if recorder is not None:
+        try:
+            recorder.finish(result, stopped)
+        except VslamError as exc:
+            first = exc
+    if trajectory is not None:
+        try:
+            trajectory.finish(result)
+        except VslamError as exc:
+            first = first or exc
+    return first

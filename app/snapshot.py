@@ -137,7 +137,7 @@ def _write_pictures(shots: list[tuple[str, bytes]], out_dir: Path) -> list[Path]
 def _settled_screenshots(
     client: ViewerClient, rrd: Path, frame: int, deadline: float, whole_window: bool
 ) -> list[tuple[str, bytes]]:
-    opened = client.open(str(rrd.resolve()))
+    opened = client.open(str(viewer.viewable(rrd).resolve()))
     if not opened.store_ids:
         raise ViewerError(f"{rrd}: the Rerun viewer opened no recording from this file")
     store_id = opened.store_ids[0]

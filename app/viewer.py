@@ -29,7 +29,7 @@ from typing import IO, Any, Literal
 import polars as pl
 from rerun.experimental import ViewerClient
 
-from app.rrd import first_line, read_entity, rerun_binary
+from app.rrd import first_line, read_entity, readable, rerun_binary
 from vslam_core.errors import VslamError
 
 log = logging.getLogger(__name__)
@@ -70,6 +70,14 @@ def recording_frames(rrd: Path) -> tuple[int, int]:
     camera = pl.concat([t.select("frame") for t in tables])
     frames = camera["frame"]
     return int(frames.min()), int(frames.max())  # type: ignore[arg-type]
+
+
+def viewable(rrd: Path) -> Path:
+    """The file to hand the viewer: `rrd`, or for a recording cut short (no footer) its finalised copy."""
+    try:
+        return readable(rrd).path
+    except VslamError as exc:
+        raise ViewerError(first_line(exc)) from None
 
 
 def vulkan_available(env: Mapping[str, str] | None = None) -> bool:

@@ -79,7 +79,7 @@ def serve_web(rrd: Path, web_port: int | None = None, grpc_port: int | None = No
         web = web_port if web_port is not None else free_port()
         grpc = grpc_port if grpc_port is not None else free_port()
         process = viewer._start(["--serve-web", "--bind", HOST, "--port", str(grpc),
-                                 "--web-viewer-port", str(web), str(rrd.resolve())])
+                                 "--web-viewer-port", str(web), str(viewer.viewable(rrd).resolve())])
         try:
             if not _wait_listening(process, web, deadline):
                 if process.address_in_use() and (web_port is None or grpc_port is None):
@@ -173,7 +173,8 @@ def open_recording(rrd: Path, web: bool = False, web_port: int | None = None, gr
 
 def _run_native(rrd: Path) -> None:
     # A port of our own: `rerun file.rrd` would otherwise hand the file to any viewer already on 9876.
-    process = viewer._start(["--bind", HOST, "--port", str(free_port()), str(rrd.resolve())])
+    viewable = viewer.viewable(rrd).resolve()
+    process = viewer._start(["--bind", HOST, "--port", str(free_port()), str(viewable)])
     try:
         code = process.popen.wait()
         if code != 0:

@@ -268,15 +268,16 @@ def test_corrupt_image_is_skipped_with_an_event(corrupt_sequence: Path, tmp_path
 def test_bad_recordings_are_one_line_errors_for_every_command(kitti_run: tuple[Path, Path, str],
                                                               tmp_path: Path) -> None:
     rrd, _, _ = kitti_run
+    # cut before its camera rows (sent at the end of a 40-frame run): no command but crop can use it
     truncated = tmp_path / "truncated.rrd"
     truncated.write_bytes(rrd.read_bytes()[: len(rrd.read_bytes()) // 2])
     garbage = tmp_path / "garbage.rrd"
     garbage.write_text("not a recording")
     missing = tmp_path / "missing.rrd"
     for bad in (truncated, garbage, missing):
-        for args in (["inspect", bad], ["crop", bad, "--frames", "1:3", "-o", tmp_path / "c.rrd"],
-                     ["snapshot", bad, "--frame", "1", "--out", tmp_path / "shots"],
-                     ["open", bad, "--web"], ["compare", bad, rrd, "-o", tmp_path / "ab.rrd"]):
+        for args in (["inspect", bad], ["snapshot", bad, "--frame", "1", "--out", tmp_path / "shots"],
+                     ["open", bad, "--web"], ["compare", bad, rrd, "-o", tmp_path / "ab.rrd"],
+                     *([] if bad is truncated else [["crop", bad, "--frames", "1:3", "-o", tmp_path / "c.rrd"]])):
             result = vslam(*args)
             assert result.returncode == 2, (args, result.stderr)
             assert "Traceback" not in result.stderr and str(bad) in result.stderr, (args, result.stderr)

@@ -226,20 +226,26 @@ def test_folder_source(tmp_path: Path) -> None:
     assert_fails(tmp_path, (0, 5), tmp_path / "out.rrd", str(tmp_path), "folder")
 
 
-def test_truncated_source(full: Path, tmp_path: Path) -> None:
+def test_truncated_source_is_cropped_from_what_it_holds(full: Path, tmp_path: Path) -> None:
+    """A recording cut mid-message (a killed run) is read up to its last whole message."""
     truncated = tmp_path / "truncated.rrd"
-    truncated.write_bytes(full.read_bytes()[: full.stat().st_size // 2])
-    assert_fails(truncated, (0, 5), tmp_path / "out.rrd", "truncated.rrd", "no RRD footer")
+    truncated.write_bytes(full.read_bytes()[: full.stat().st_size - 1000])
+    summary = crop_recording(truncated, (0, 5), tmp_path / "out.rrd")
+    assert (summary.first_frame, summary.last_frame) == (0, 4)
+    assert rerun_cli("rrd", "verify", tmp_path / "out.rrd").returncode == 0
+    assert RrdReader(tmp_path / "out.rrd").blueprints()  # the blueprint came along
 
 
-def test_unfinished_source_without_footer(tmp_path: Path) -> None:
+def test_unfinished_source_without_footer_is_cropped(tmp_path: Path) -> None:
     path = tmp_path / "unfinished.rrd"
     rec = rr.RecordingStream("crop-test", recording_id="unfinished", send_properties=False)
     rec.save(path, write_footer=False)
     rec.set_time("frame", sequence=1)
     rec.log("/a", rr.Points3D([[0.0, 0.0, 0.0]]))
     rec.disconnect()
-    assert_fails(path, (0, 5), tmp_path / "out.rrd", "unfinished.rrd", "no RRD footer")
+    summary = crop_recording(path, (0, 5), tmp_path / "out.rrd")
+    assert (summary.first_frame, summary.last_frame, summary.frame_count) == (1, 1, 1)
+    assert rerun_cli("rrd", "verify", tmp_path / "out.rrd").returncode == 0
 
 
 @pytest.mark.parametrize("content", [b"", b"hello, not a recording\n", b"RRF2" + bytes(200)])

@@ -74,8 +74,19 @@ def read_kitti_poses(path: str | Path, max_rows: int | None = None) -> np.ndarra
 def write_kitti_poses(path: str | Path, poses: np.ndarray) -> None:
     """Write (N, 4, 4) poses as KITTI text, one row-major 3x4 matrix a line."""
     poses = np.asarray(poses, dtype=np.float64)
-    lines = [" ".join(f"{v:.9e}" for v in pose[:3, :].reshape(-1)) for pose in poses]
-    Path(path).write_text("\n".join(lines) + "\n")
+    Path(path).write_text("".join(kitti_line(pose) for pose in poses))
+
+
+def kitti_line(pose: np.ndarray) -> str:
+    """One KITTI line (with its newline): the row-major 3x4 [R|t] of a (4, 4) pose."""
+    return " ".join(f"{v:.9e}" for v in np.asarray(pose, dtype=np.float64)[:3, :].reshape(-1)) + "\n"
+
+
+def tum_line(stamp: float, pose: np.ndarray) -> str:
+    """One TUM line (with its newline): ``timestamp tx ty tz qx qy qz qw``."""
+    qx, qy, qz, qw = quaternion_from_rotation(pose[:3, :3])
+    tx, ty, tz = pose[:3, 3]
+    return f"{stamp:.6f} {tx:.9f} {ty:.9f} {tz:.9f} {qx:.9f} {qy:.9f} {qz:.9f} {qw:.9f}\n"
 
 
 def quaternion_from_rotation(rotation: np.ndarray) -> np.ndarray:
@@ -129,12 +140,7 @@ def read_tum_poses(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
 
 def write_tum_poses(path: str | Path, timestamps: np.ndarray, poses: np.ndarray) -> None:
     """Write timestamps (N,) and (N, 4, 4) poses as TUM text."""
-    lines = []
-    for stamp, pose in zip(timestamps, poses, strict=True):
-        qx, qy, qz, qw = quaternion_from_rotation(pose[:3, :3])
-        tx, ty, tz = pose[:3, 3]
-        lines.append(f"{stamp:.6f} {tx:.9f} {ty:.9f} {tz:.9f} {qx:.9f} {qy:.9f} {qz:.9f} {qw:.9f}")
-    Path(path).write_text("\n".join(lines) + "\n")
+    Path(path).write_text("".join(tum_line(stamp, pose) for stamp, pose in zip(timestamps, poses, strict=True)))
 
 
 def detect_format(path: str | Path) -> TrajectoryFormat:

@@ -12,6 +12,7 @@ import numpy as np
 import rerun as rr
 
 import vslam_core
+from app.outputs import OutputError, write_failure
 from app.recording.blueprint import CAR_ENTITY, blueprint
 from app.recording.columns import FLUSH_FRAMES, ColumnBuffer, Part, add_event
 from app.recording.map import MapRecording
@@ -29,12 +30,17 @@ from app.recording.styles import (
     Detail,
 )
 from app.report import markdown_table, metrics_row
-from app.rrd import RecordingError
+from app.rrd import RecordingError, has_footer
 from vslam_core.config import EngineConfig
 from vslam_core.geometry import invert_pose
 from vslam_core.pipeline import RunResult
 from vslam_core.results import FrameResult, FrameStatus, HealthStatus, TrackFate
 from vslam_core.sources.base import Frame, FrameSource
+
+#: How long to wait for Rerun's writer thread to catch up before calling the file unwritable.
+WRITE_TIMEOUT_S = 120.0
+#: How often (seconds) to check that Rerun's writer thread is still writing: a full disk stops the run this soon.
+WRITE_CHECK_S = 1.0
 
 
 class Recorder:
@@ -62,6 +68,8 @@ class Recorder:
         self._scale = config.scale
         self._previous_position: np.ndarray | None = None
         self._frames = 0
+        self._failed = False  # Rerun's writer stopped (full disk): reported once
+        self._checked_at = time.monotonic()
         # send_properties=False: no wall-clock start time, so two runs of the same input compare equal
         # Fewer, larger chunks than the default (0.2 s / 2 MiB): each chunk carries its own schema, and at
         # ~3 frames a chunk the schemas alone were ~16 KB per frame.
@@ -89,13 +97,29 @@ class Recorder:
         self.close()
 
     def close(self) -> None:
-        """Send the buffered columns, flush and write the footer; the file is valid afterwards."""
+        """Send the buffered columns, flush and write the footer; the file is valid afterwards. Raises
+        `OutputError` if the file could not be written (full disk): it keeps what was written."""
         try:
             self._columns.flush()
+            self._check_written()
         finally:
             if self._encoder is not None:
                 self._encoder.shutdown(cancel_futures=True)
             self._rec.disconnect()
+        if not self._failed and not has_footer(self.path):  # the footer itself did not fit
+            raise OutputError(write_failure(self.path))
+
+    def _check_written(self) -> None:
+        """Wait until Rerun's writer thread has written what was sent. That thread only logs its write errors
+        (silenced in `app/__init__.py`) and stops; the flush then fails, and we stop the run."""
+        if self._failed:
+            return
+        self._checked_at = time.monotonic()
+        try:
+            self._rec.flush(timeout_sec=WRITE_TIMEOUT_S)
+        except RuntimeError:
+            self._failed = True
+            raise OutputError(write_failure(self.path)) from None
 
     def finish(self, run: RunResult, interrupted: bool) -> None:
         """Log the run's verdict (metrics table against ground truth, when there is one) and close."""
@@ -178,6 +202,9 @@ class Recorder:
         self._frames += 1
         if self._frames % FLUSH_FRAMES == 0:
             columns.flush()
+            self._check_written()
+        elif time.monotonic() - self._checked_at > WRITE_CHECK_S:  # images are sent every ~1 MiB
+            self._check_written()
 
     def _log_image_and_tracks(self, frame: Frame, result: FrameResult) -> None:
         columns = self._columns

@@ -1,0 +1,337 @@
+"""Nothing lost in CI or on a bad day (issue 12): two runs at once, a killed run, a full disk.
+
+Every test runs the real CLI in a subprocess and reads the files back."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import resource
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from datetime import datetime
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from app.outputs import OutputError, claim, default_recording
+from app.rrd import has_footer, read_entity, readable
+from app.snapshot import snapshot
+from app.viewer import recording_frames, vulkan_available
+from vslam_core.trajectory_io import read_kitti_poses
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def command(*args: str | Path) -> list[str]:
+    return [sys.executable, "-m", "app.cli", *map(str, args)]
+
+
+def vslam(*args: str | Path, cwd: Path | None = None, **kwargs: object) -> subprocess.CompletedProcess[str]:
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return subprocess.run(command(*args), capture_output=True, text=True, cwd=cwd or ROOT, timeout=600, env=env,
+                          **kwargs)  # type: ignore[call-overload, no-any-return]
+
+
+def one_error_line(stderr: str) -> str:
+    lines = [line for line in stderr.splitlines() if line.strip()]
+    assert len(lines) == 1, stderr
+    assert lines[0].startswith("error: ") and "Traceback" not in stderr
+    return lines[0]
+
+
+def verify(path: Path) -> None:
+    check = subprocess.run(["rerun", "rrd", "verify", str(path)], capture_output=True, text=True, timeout=120)
+    assert check.returncode == 0, check.stderr
+
+
+def camera_frames(path: Path) -> list[int]:
+    return [int(f) for f in read_entity(path, "/world/camera")["frame"].to_list()]
+
+
+# ------------------------------------------------------------------------------------ 1. parallel runs
+
+
+def test_default_names_of_runs_started_in_the_same_second_differ() -> None:
+    now = datetime(2026, 11, 23, 15, 0, 0)
+    names = {default_recording("kitti-00", "0:300", now) for _ in range(50)}
+    assert len(names) == 50
+    assert all(str(n).startswith("recordings/kitti-00_0-300_20261123-150000-") for n in names)
+
+
+def test_two_runs_at_once_write_two_complete_recordings(tmp_path: Path) -> None:
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    runs = [subprocess.Popen(command("run", "--frames", "0:15", "--detail", "summary"), cwd=tmp_path, env=env,
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for _ in range(2)]
+    outputs = [run.communicate(timeout=300) for run in runs]
+    assert [run.returncode for run in runs] == [0, 0], outputs
+    files = sorted((tmp_path / "recordings").iterdir())
+    assert len(files) == 2, files
+    for path in files:
+        verify(path)
+        assert camera_frames(path) == list(range(15))
+    printed = sorted(line.split()[1] for stdout, _ in outputs for line in stdout.splitlines()
+                     if line.startswith("recording"))
+    assert printed == sorted(str(p.relative_to(tmp_path)) for p in files)
+
+
+@pytest.mark.parametrize("force", [False, True])
+def test_two_runs_racing_for_one_output_exactly_one_wins(tmp_path: Path, force: bool) -> None:
+    rrd, trajectory = tmp_path / "same.rrd", tmp_path / "same.txt"
+    args = ["run", "--frames", "0:15", "--detail", "summary", "-o", rrd, "--trajectory-out", trajectory]
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    runs = [subprocess.Popen(command(*args, *(["--force"] if force else [])), cwd=ROOT, env=env,
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for _ in range(2)]
+    outputs = [run.communicate(timeout=300) for run in runs]
+    codes = sorted(run.returncode for run in runs)
+    if force and codes == [0, 0]:  # the second started after the first had finished: it replaced it, fine
+        pytest.skip("the runs did not overlap")
+    assert codes == [0, 2], outputs
+    loser = next(err for run, (_, err) in zip(runs, outputs, strict=True) if run.returncode == 2)
+    line = one_error_line(loser)
+    assert str(rrd) in line and ("another run is writing" in line or "exists already" in line)
+    verify(rrd)
+    assert camera_frames(rrd) == list(range(15))
+    assert len(read_kitti_poses(trajectory)) == 15
+
+
+def test_an_output_another_process_holds_is_refused_even_with_force(tmp_path: Path) -> None:
+    held = claim(tmp_path / "held.rrd", False, "recording")
+    try:
+        result = vslam("run", "--frames", "0:3", "-o", held.path, "--force")
+        assert result.returncode == 2
+        assert "another run is writing this recording" in one_error_line(result.stderr)
+        with pytest.raises(OutputError, match="another run is writing"):
+            claim(held.path, True, "recording")
+    finally:
+        held.release()
+
+
+def test_a_taken_trajectory_leaves_no_empty_recording_behind(tmp_path: Path) -> None:
+    (tmp_path / "t.txt").write_text("mine\n")
+    result = vslam("run", "--frames", "0:3", "--trajectory-out", "t.txt", cwd=tmp_path)
+    assert "t.txt: trajectory exists already (use --force to replace it)" in one_error_line(result.stderr)
+    assert (tmp_path / "t.txt").read_text() == "mine\n"
+    assert not list((tmp_path / "recordings").glob("*.rrd"))
+
+
+# ----------------------------------------------------------------------------------- 2. a killed run
+
+
+@pytest.fixture(scope="module")
+def killed_run(kitti_root: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """A KITTI run SIGKILLed once its recording passed 12 MB (~150 frames): no footer, no clean-up."""
+    folder = tmp_path_factory.mktemp("killed")
+    rrd, trajectory = folder / "killed.rrd", folder / "killed.txt"
+    process = subprocess.Popen(command("run", kitti_root, "--sequence", "00", "-o", rrd, "--trajectory-out",
+                                       trajectory), cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 120
+    while (not rrd.exists() or rrd.stat().st_size < 12_000_000) and time.monotonic() < deadline:
+        assert process.poll() is None, process.stderr.read() if process.stderr else ""
+        time.sleep(0.05)
+    process.kill()
+    process.wait(timeout=30)
+    assert process.returncode == -signal.SIGKILL
+    assert not has_footer(rrd)
+    return rrd, trajectory
+
+
+@pytest.mark.kitti
+def test_killed_run_trajectory_holds_the_poses_done_so_far(killed_run: tuple[Path, Path], kitti_root: Path) -> None:
+    rrd, trajectory = killed_run
+    poses = read_kitti_poses(trajectory)
+    recorded = camera_frames(rrd)
+    assert len(recorded) <= len(poses) < 300  # written per frame: at least every frame the recording holds
+    # the same poses a complete run gives, up to where it was killed
+    complete = trajectory.with_name("complete.txt")
+    assert vslam("run", kitti_root, "--sequence", "00", "--frames", f"0:{len(poses)}", "--detail", "off",
+                 "--trajectory-out", complete).returncode == 0
+    assert np.allclose(read_kitti_poses(complete), poses, atol=1e-6)
+
+
+@pytest.mark.kitti
+def test_inspect_says_a_killed_recording_was_cut_short_and_where(killed_run: tuple[Path, Path]) -> None:
+    rrd, _ = killed_run
+    last = max(camera_frames(rrd))
+    text = vslam("inspect", rrd)
+    assert text.returncode == 0, text.stderr
+    assert f"cut short   after frame {last} (no footer: the run was killed, crashed or ran out of disk); it holds " \
+           f"frames 0..{last} of the 300 the run was to process" in text.stdout
+    report = json.loads(vslam("inspect", rrd, "--json").stdout)
+    assert report["cut_short"] is True and report["frames"]["last"] == last and report["frames"]["first"] == 0
+
+
+@pytest.mark.kitti
+def test_crop_compare_and_repair_read_a_killed_recording(killed_run: tuple[Path, Path], tmp_path: Path) -> None:
+    rrd, _ = killed_run
+    last = max(camera_frames(rrd))
+    cropped = tmp_path / "crop.rrd"
+    result = vslam("crop", rrd, "--frames", f"{last - 9}:{last + 1}", "-o", cropped)
+    assert result.returncode == 0, result.stderr
+    verify(cropped)
+    assert camera_frames(cropped) == list(range(last - 9, last + 1))
+
+    both = tmp_path / "ab.rrd"
+    result = vslam("compare", rrd, cropped, "-o", both)
+    assert result.returncode == 0, result.stderr
+    verify(both)
+    assert len(read_entity(both, "/a/world/camera")) == last + 1
+
+    repaired = tmp_path / "repaired.rrd"
+    result = vslam("repair", rrd, "-o", repaired)
+    assert result.returncode == 0, result.stderr
+    assert f"frames 0..{last} ({last + 1} frames)" in result.stdout and "was cut short" in result.stdout
+    verify(repaired)
+    assert has_footer(repaired) and camera_frames(repaired) == list(range(last + 1))
+    assert len(read_entity(repaired, "/world/camera/image")) >= last + 1  # the images came along
+    again = vslam("repair", rrd, "-o", repaired)
+    assert "exists already" in one_error_line(again.stderr)
+    default = vslam("repair", cropped)  # complete already: a plain copy beside it
+    assert default.returncode == 0 and "was complete already" in default.stdout
+    verify(cropped.with_name("crop.repaired.rrd"))
+
+
+@pytest.mark.kitti
+def test_open_and_snapshot_load_a_killed_recording(killed_run: tuple[Path, Path], tmp_path: Path) -> None:
+    rrd, _ = killed_run
+    last = max(camera_frames(rrd))
+    assert recording_frames(rrd) == (0, last)  # what `open` checks before starting a viewer on the file
+    viewable = readable(rrd)
+    assert viewable.cut_short and has_footer(viewable.path) and viewable.path.name == rrd.name
+    if not vulkan_available():
+        pytest.skip("no Vulkan driver: the snapshot part needs one")
+    paths = snapshot(rrd, last - 5, tmp_path / "shots")
+    assert paths and all(p.stat().st_size > 0 for p in paths)
+
+
+@pytest.mark.kitti
+def test_a_recording_cut_mid_message_is_read_up_to_the_cut(killed_run: tuple[Path, Path], tmp_path: Path) -> None:
+    rrd, _ = killed_run
+    cut = tmp_path / "cut.rrd"
+    cut.write_bytes(rrd.read_bytes()[: rrd.stat().st_size - 1000])  # a half-written last message
+    result = vslam("inspect", cut)
+    assert result.returncode == 0, result.stderr
+    assert "cut short" in result.stdout
+
+
+# ----------------------------------------------------------------------------------- 3. a full disk
+
+
+@contextlib.contextmanager
+def small_filesystem(folder: Path, size: str) -> Iterator[Path]:
+    """A tmpfs of `size` mounted on `folder` (root only; the test is skipped elsewhere)."""
+    folder.mkdir()
+    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(folder)],
+                             capture_output=True, text=True)
+    if mounted.returncode != 0:
+        pytest.skip(f"cannot mount a small tmpfs here ({mounted.stderr.strip()})")
+    try:
+        yield folder
+    finally:
+        subprocess.run(["umount", "-l", str(folder)], check=False)
+
+
+def assert_stopped_on_full_disk(result: subprocess.CompletedProcess[str], path: Path, mount: Path) -> None:
+    assert result.returncode == 2, result.stderr
+    line = one_error_line(result.stderr)  # no Rerun log lines, no traceback
+    assert line.startswith(f"error: {path}: disk full (no space left on {mount}); the run stopped at frame "), line
+
+
+@pytest.mark.kitti
+def test_full_disk_under_the_recording_stops_the_run_in_one_line(kitti_root: Path, tmp_path: Path) -> None:
+    with small_filesystem(tmp_path / "small", "3m") as small:
+        rrd, trajectory = small / "x.rrd", tmp_path / "x.txt"
+        result = vslam("run", kitti_root, "--sequence", "00", "-o", rrd, "--trajectory-out", trajectory)
+        assert_stopped_on_full_disk(result, rrd, small)
+        stopped_at = int(result.stderr.split("stopped at frame ")[1].split(",")[0])
+        assert stopped_at < 150  # ~50 frames fill 3 MB: stopped within about a second, not at the end
+        assert f"recording   {rrd} (cut short: finalise with `vslam repair {rrd}`)" in result.stdout
+        poses = read_kitti_poses(trajectory)  # the trajectory (on another disk) has every frame processed
+        assert len(poses) == stopped_at + 1
+        assert rrd.stat().st_size > 2_000_000  # what was written is kept
+        repaired = tmp_path / "repaired.rrd"
+        assert vslam("repair", rrd, "-o", repaired).returncode == 0
+        assert len(read_entity(repaired, "/world/camera/image")) > 20
+
+
+@pytest.mark.kitti
+def test_full_disk_under_the_trajectory_keeps_whole_lines(kitti_root: Path, tmp_path: Path) -> None:
+    with small_filesystem(tmp_path / "small", "64k") as small:
+        filler = small / "filler"
+        with contextlib.suppress(OSError), filler.open("wb") as file:
+            file.write(b"\0" * 60_000)
+        rrd, trajectory = tmp_path / "x.rrd", small / "x.txt"
+        result = vslam("run", kitti_root, "--sequence", "00", "--frames", "0:100", "-o", rrd, "--trajectory-out",
+                       trajectory)
+        assert_stopped_on_full_disk(result, trajectory, small)
+        poses = read_kitti_poses(trajectory)  # whole lines only: the half-written one was cut off
+        assert 1 <= len(poses) < 100
+        assert f"trajectory  {trajectory} (kitti, {len(poses)} poses)" in result.stdout
+        verify(rrd)  # the recording, on a disk with room, is finalised
+        assert camera_frames(rrd) == list(range(len(poses)))
+
+
+def _limit_file_size() -> None:
+    resource.setrlimit(resource.RLIMIT_FSIZE, (3_000_000, resource.RLIM_INFINITY))
+    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # the write fails with EFBIG instead of killing us
+
+
+@pytest.mark.kitti
+def test_file_size_limit_stops_the_run_in_one_line(kitti_root: Path, tmp_path: Path) -> None:
+    """The same path without root: `ulimit -f` makes Rerun's writer fail (EFBIG rather than ENOSPC)."""
+    rrd = tmp_path / "x.rrd"
+    result = vslam("run", kitti_root, "--sequence", "00", "-o", rrd, preexec_fn=_limit_file_size)
+    assert result.returncode == 2, result.stderr
+    line = one_error_line(result.stderr)
+    assert line.startswith(f"error: {rrd}: file size limit reached (ulimit -f); the run stopped at frame "), line
+    assert rrd.stat().st_size > 2_000_000
+
+
+# -------------------------------------------------------------------------- 16. where a failed run's output went
+
+
+@pytest.mark.kitti
+def test_failed_run_with_a_default_output_says_where_the_recording_is(kitti_root: Path, tmp_path: Path) -> None:
+    images = tmp_path / "seq" / "sequences" / "00" / "image_0"
+    images.mkdir(parents=True)
+    for i in range(8):
+        shutil.copy(kitti_root / "sequences" / "00" / "image_0" / f"{i:06d}.png", images / f"{i:06d}.png")
+    (images / "000005.png").write_bytes(b"\x89PNG\r\n\x1a\n" + b"\0" * 100)
+    shutil.copy(kitti_root / "sequences" / "00" / "calib.txt", images.parent / "calib.txt")
+    result = vslam("run", tmp_path / "seq", "--sequence", "00", "--scale", "none", cwd=tmp_path)
+    assert "000005.png" in one_error_line(result.stderr)
+    kept = [line.split()[1] for line in result.stdout.splitlines() if line.startswith("recording")]
+    assert len(kept) == 1 and kept[0].startswith("recordings/kitti-00_")
+    verify(tmp_path / kept[0])
+    assert camera_frames(tmp_path / kept[0]) == list(range(5))
+
+
+def test_trajectory_is_written_per_frame_and_refined_poses_replace_it_atomically(tmp_path: Path) -> None:
+    """The map backend's refined poses differ from those written during the run: the file is rewritten
+    beside and renamed into place (no temporary file left, never a mix of both)."""
+    from app.trajectory_out import TrajectoryWriter
+    from vslam_core.pipeline import RunResult
+    from vslam_core.sources.base import Frame
+
+    claimed = claim(tmp_path / "t.txt", False, "trajectory")
+    writer = TrajectoryWriter(claimed, "tum")
+    tracked = [np.eye(4) for _ in range(3)]
+    for i, pose in enumerate(tracked):
+        pose[0, 3] = float(i)
+        frame = Frame(index=i, timestamp=0.1 * i, image=np.zeros((2, 2), np.uint8))
+        writer(frame, type("Result", (), {"T_world_cam": pose})())  # type: ignore[arg-type]
+        assert len(claimed.path.read_text().splitlines()) == i + 1  # on disk at once
+    refined = [pose.copy() for pose in tracked]
+    for pose in refined:
+        pose[2, 3] = 5.0
+    writer.finish(RunResult([0, 1, 2], [0.0, 0.1, 0.2], refined))
+    claimed.release()
+    rows = [line.split() for line in (tmp_path / "t.txt").read_text().splitlines()]
+    assert [float(r[3]) for r in rows] == [5.0, 5.0, 5.0] and [float(r[0]) for r in rows] == [0.0, 0.1, 0.2]
+    assert [p.name for p in tmp_path.iterdir()] == ["t.txt"]
