@@ -10,13 +10,22 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Annotated, Any, NoReturn
 
-import cv2
 import numpy as np
 import typer
 from rich.console import Console
+from rich.markup import escape
 
+from app.checks import (
+    EXIT_NOTHING_TRACKED,
+    camera_height_problem,
+    input_warnings,
+    nothing_tracked,
+    output_problem,
+    port_problem,
+)
 from app.compare import compare_recordings, format_differences
 from app.crop import crop_recording
+from app.entry import run as run_app
 from app.evaluation import REPORT_FILES, Evaluation, check_gates, evaluate_sources, evaluate_trajectory_file
 from app.inspect import format_report, inspect_recording
 from app.recording import Detail, version_properties
@@ -24,7 +33,6 @@ from app.report import json_ready, markdown_table
 from app.runner import record_run
 from app.viewer import open_recording, snapshot
 from vslam_core.config import EngineConfig, load_config
-from vslam_core.errors import VslamError
 from vslam_core.metrics import kitti_errors, paper_rms_error, scale_errors
 from vslam_core.pipeline import RunResult
 from vslam_core.scale import default_camera_height
@@ -38,14 +46,29 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    # plain help: shows every [default: …] (Rich took them for markup), no type hint on flags, no boxes
+    rich_markup_mode=None,
+    context_settings={"help_option_names": ["-h", "--help"]},
 )
 err = Console(stderr=True, soft_wrap=True)
 out = Console(soft_wrap=True)
 RECORDINGS = Path("recordings")
 
 
+def _print_version(value: bool) -> None:
+    if value:
+        versions = version_properties()
+        print(f"vslam {versions['vslam_version']} (OpenCV {versions['opencv_version']}, Rerun "
+              f"{versions['rerun_version']}, Python {sys.version.split()[0]})")
+        raise typer.Exit()
+
+
 @app.callback()
-def _root() -> None:
+def _root(
+    version: Annotated[bool, typer.Option("--version", callback=_print_version, is_eager=True,
+                                          help="print the versions of vslam, OpenCV, Rerun and Python, and exit")]
+    = False,
+) -> None:
     """Monocular visual odometry with every intermediate step recorded to Rerun."""
 
 
@@ -78,8 +101,18 @@ class TrajectoryFormat(StrEnum):
 
 def fail(message: str, code: int = 2) -> NoReturn:
     """One line on stderr, a non-zero exit, no traceback."""
-    err.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    err.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
     raise typer.Exit(code)
+
+
+def warn(message: str) -> None:
+    """One line on stderr; the run goes on."""
+    err.print(f"[bold yellow]warning:[/] {escape(message)}", highlight=False, soft_wrap=True)
+
+
+def _refuse(problem: str | None, code: int = 2) -> None:
+    if problem is not None:
+        fail(problem, code)
 
 
 def _check_new_file(path: Path, force: bool, what: str) -> None:
@@ -169,7 +202,7 @@ def run(
                                                 "known camera height over the road (no ground truth used), none "
                                                 "= unit steps [default: gt when the source has ground truth]")]
     = None,
-    camera_height: Annotated[float | None, typer.Option(min=0.01, help=CAMERA_HEIGHT_HELP)] = None,
+    camera_height: Annotated[float | None, typer.Option(help=CAMERA_HEIGHT_HELP)] = None,
     backend: Annotated[Backend | None, typer.Option(help=BACKEND_HELP)] = None,
     config_file: Annotated[Path | None, typer.Option("--config", help="engine config (TOML)")] = None,
     output: Annotated[Path | None, typer.Option("--output", "-o", help="recording (.rrd) to write "
@@ -201,6 +234,10 @@ def run(
     config = _with_camera_height(config, camera_height, src)
     if backend is not None:
         config = config.with_backend(backend.value)
+
+    _refuse(output_problem(output, detail == Detail.OFF))
+    for warning in input_warnings(src, config):
+        warn(warning)
 
     rrd = None if detail == Detail.OFF else (output or _default_output(src, frame_range))
     if rrd is not None:
@@ -237,6 +274,7 @@ def run(
         fail(f"interrupted by {interrupted} after {result.frames} frames"
              + (f" (last frame {last})" if last is not None else "") + "; outputs hold the frames processed",
              interrupted.code)
+    _refuse(nothing_tracked(result), EXIT_NOTHING_TRACKED)
 
 
 def _existing_recording(path: Path) -> Path:
@@ -277,10 +315,12 @@ def snapshot_command(
 def open_command(
     recording: Annotated[Path, typer.Argument(help="a .rrd written by vslam run")],
     web: Annotated[bool, typer.Option("--web", help="serve the web viewer on 127.0.0.1 instead")] = False,
-    port: Annotated[int | None, typer.Option(help="web viewer port (default: a free one)")] = None,
+    port: Annotated[int | None, typer.Option(help="web viewer port, 1-65535 (0: a free one, printed in the URL) "
+                                             "[default: a free one]")] = None,
 ) -> None:
     """Open a recording: the native viewer where a display exists, else the web viewer on 127.0.0.1."""
-    open_recording(_existing_recording(recording), web=web, port=port)
+    _refuse(port_problem(port))
+    open_recording(_existing_recording(recording), web=web, port=port or None)  # 0: a free one
 
 
 @app.command()
@@ -310,7 +350,7 @@ def eval_command(
     scale: Annotated[Scale, typer.Option(help="gt: ground-truth step length; height: from the known camera "
                                          "height (no ground truth used); none: unit steps, scored after Sim(3) "
                                          "alignment")] = Scale.gt,
-    camera_height: Annotated[float | None, typer.Option(min=0.01, help=CAMERA_HEIGHT_HELP)] = None,
+    camera_height: Annotated[float | None, typer.Option(help=CAMERA_HEIGHT_HELP)] = None,
     backend: Annotated[Backend | None, typer.Option(help=BACKEND_HELP)] = None,
     config_file: Annotated[Path | None, typer.Option("--config", help="engine config (TOML)")] = None,
     report: Annotated[Path | None, typer.Option(help="folder for metrics.csv/.parquet, report.md, trajectories, "
@@ -352,8 +392,8 @@ def eval_command(
             if source is None:
                 fail("--sequences needs SOURCE, the KITTI dataset root")
             sources: list[FrameSource] = [
-                open_source(source, sequence=s.strip(), frames=frame_range, on_bad_frame=on_bad_frame.value,
-                            inject=inject)
+                open_source(source, sequence=s.strip(), frames=frame_range, ground_truth=gt,
+                            on_bad_frame=on_bad_frame.value, inject=inject)
                 for s in sequences.split(",") if s.strip()
             ]
         else:
@@ -371,6 +411,7 @@ def eval_command(
 def _with_camera_height(config: EngineConfig, camera_height: float | None, source: FrameSource) -> EngineConfig:
     """`--camera-height` into the config, and a check (before anything runs) that `--scale height` knows
     the camera's height."""
+    _refuse(camera_height_problem(camera_height))
     if camera_height is not None:
         if config.scale != "height":
             fail("--camera-height only applies with --scale height")
@@ -429,14 +470,9 @@ def compare(
 
 
 def main() -> None:
-    """Entry point: every `VslamError` becomes one line on stderr and exit code 2."""
-    # OpenCV's own log lines (e.g. for a corrupt PNG) would precede our one-line error: we report it.
-    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
-    try:
-        app()
-    except VslamError as exc:
-        err.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
-        sys.exit(2)
+    """Entry point: every `VslamError` and usage error becomes one line on stderr and exit code 2."""
+    run_app(app, lambda message: err.print(f"[bold red]error:[/] {escape(message)}", highlight=False,
+                                           soft_wrap=True))
 
 
 if __name__ == "__main__":

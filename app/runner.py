@@ -1,4 +1,5 @@
-"""One run of the engine as the CLI does it: progress bar, optional recording, safe interruption."""
+"""One run of the engine as the CLI does it: progress (a bar, or plain lines without a terminal), optional
+recording, safe interruption."""
 
 from __future__ import annotations
 
@@ -10,8 +11,8 @@ from pathlib import Path
 from types import FrameType
 
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
+from app.progress import progress
 from app.recording import Detail, Recorder
 from vslam_core.config import EngineConfig
 from vslam_core.errors import VslamError
@@ -85,12 +86,10 @@ def record_run(
     interrupted: Interrupted | None = None
     failure: VslamError | None = None
     recorder = Recorder(rrd, source, config, properties, detail, jpeg_quality) if rrd is not None else None
-    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
-    with Progress(*columns, console=console, transient=True) as progress, _signals_stop_between_frames() as stop:
-        task = progress.add_task(source.name, total=len(source))
+    with progress(console, source.name, len(source)) as step, _signals_stop_between_frames() as stop:
 
         def advance(_frame: Frame, _result: FrameResult) -> None:
-            progress.advance(task)
+            step()
             stop.check()
 
         sinks: tuple[FrameSink, ...] = (advance,) if recorder is None else (recorder.log_frame, advance)

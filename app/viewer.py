@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes.util
+import errno
 import logging
 import os
 import re
@@ -123,13 +124,16 @@ def free_port() -> int:
         return int(sock.getsockname()[1])
 
 
-def _port_is_free(port: int) -> bool:
+def _bind_problem(port: int) -> str | None:
+    """Why `port` cannot be bound on 127.0.0.1 right now (None: it can)."""
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
         try:
             sock.bind((HOST, port))
-        except OSError:
-            return False
-    return True
+        except PermissionError:
+            return "permission denied (ports below 1024 need root)"
+        except OSError as exc:
+            return "already in use" if exc.errno == errno.EADDRINUSE else (exc.strerror or str(exc))
+    return None
 
 
 def view_file_name(name: str) -> str:
@@ -421,8 +425,8 @@ def serve_web(rrd: Path, port: int | None = None, timeout_s: float = 30) -> Iter
 
     Yields the URL to open and the server process (its group is killed on exit).
     """
-    if port is not None and not _port_is_free(port):
-        raise ViewerError(f"port {port} on {HOST} is already in use")
+    if port is not None and (problem := _bind_problem(port)) is not None:
+        raise ViewerError(f"port {port} on {HOST}: {problem}")
     deadline = time.monotonic() + timeout_s
     for _attempt in range(3):
         web_port = port if port is not None else free_port()
@@ -462,6 +466,9 @@ def open_recording(rrd: Path, web: bool = False, port: int | None = None) -> Non
     """
     recording_frames(rrd)
     kind = choose_viewer(os.environ, web)
+    if kind == "native" and port is not None:
+        raise ViewerError("--port sets the web viewer's port, and a display was found so the native viewer would "
+                          "open: add --web")
     with _stop_viewer_on_sigterm():
         try:
             if kind == "web":

@@ -304,7 +304,7 @@ def test_web_viewer_port_in_use_is_a_clear_error(recording: Path) -> None:
         taken.bind(("127.0.0.1", 0))
         taken.listen()
         port = taken.getsockname()[1]
-        with pytest.raises(ViewerError, match=f"port {port} on 127.0.0.1 is already in use"):
+        with pytest.raises(ViewerError, match=f"port {port} on 127.0.0.1: already in use"):
             open_recording(recording, web=True, port=port)
 
 
@@ -320,3 +320,32 @@ def test_snapshot_command_writes_pngs_and_errors_in_one_line(recording: Path, vu
                              str(out)], capture_output=True, text=True, cwd=ROOT, timeout=300)
     assert result.returncode == 2 and "Traceback" not in result.stderr
     assert "outside the recording's frames 0..14" in result.stderr
+
+
+def test_port_0_serves_on_a_free_port_and_says_which(recording: Path) -> None:
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "open", str(recording), "--web", "--port", "0"],
+                            cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    try:
+        started = time.monotonic()
+        url = _wait_for_url(proc, timeout_s=30)
+        assert time.monotonic() - started < 25  # not the 30 s time-out on port 0
+        port = int(re.match(r"http://127\.0\.0\.1:(\d+)/", url).group(1))  # type: ignore[union-attr]
+        assert 0 < port <= 65535
+        with urllib.request.urlopen(url, timeout=10) as response:
+            assert response.status == 200
+        proc.send_signal(signal.SIGTERM)  # (SIGINT may be ignored in a background job)
+        _, stderr = proc.communicate(timeout=20)
+        assert "Traceback" not in stderr
+        assert _refused(port)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+
+
+def test_port_with_the_native_viewer_is_refused(recording: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("DISPLAY", ":99")
+    with pytest.raises(ViewerError, match="--port sets the web viewer's port.*add --web"):
+        open_recording(recording, web=False, port=9090)
