@@ -12,8 +12,6 @@ from pathlib import Path
 import cv2
 import pytest
 
-from app.progress import PlainProgress
-
 ROOT = Path(__file__).resolve().parents[1]
 INTRINSICS = "718.856,718.856,607.1928,185.2157"
 
@@ -199,6 +197,8 @@ def test_unknown_option_is_one_line() -> None:
 
 
 def test_plain_progress_every_5_percent_or_10_seconds() -> None:
+    from app.progress import PlainProgress
+
     lines: list[str] = []
     now = [0.0]
     progress = PlainProgress("kitti-00", 200, lines.append, clock=lambda: now[0])
