@@ -379,6 +379,10 @@ def eval_command(
             fail("--trajectory needs --gt (the ground-truth poses to compare with)")
         if backend is not None:
             fail("--backend chooses how the engine runs: it does not apply to --trajectory files")
+        engine_options = {"--frames": frames, "--inject": inject, "--config": config_file,
+                          "--camera-height": camera_height}
+        for option in (name for name, value in engine_options.items() if value is not None):
+            fail(f"{option} applies to runs of the engine: it does not apply to --trajectory files")
         fmt = trajectory_format.value if trajectory_format is not None else None
         evaluation = evaluate_trajectory_file(trajectory, gt, fmt, report)  # type: ignore[arg-type]
         scale_source = backend_name = "external"
