@@ -405,6 +405,8 @@ def eval_command(
                                    inject=inject)]
         for src in sources:
             config = _with_camera_height(config, camera_height, src)
+        for warning in dict.fromkeys(w for src in sources for w in input_warnings(src, config)):
+            warn(warning)
         evaluation = evaluate_sources(sources, config, report, err, detail if report is not None else Detail.OFF,
                                       {"frames": str(frame_range), "source_path": source or "synthetic"})
         scale_source, backend_name = config.scale, config.backend
