@@ -9,13 +9,21 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Annotated, Any, NoReturn
 
-import cv2
 import numpy as np
 import typer
 from rich.console import Console
+from rich.markup import escape
 
+from app.checks import (
+    EXIT_NOTHING_TRACKED,
+    camera_height_problem,
+    input_warnings,
+    nothing_tracked,
+    output_problem,
+)
 from app.compare import compare_recordings, format_differences
 from app.crop import crop_recording
+from app.entry import run as run_app
 from app.evaluation import REPORT_FILES, Evaluation, check_gates, evaluate_sources, evaluate_trajectory_file
 from app.inspect import format_report, inspect_recording
 from app.outputs import claimed, ensure_folder
@@ -24,9 +32,8 @@ from app.repair import format_repair, repair_recording, repaired_path
 from app.report import json_ready, markdown_table
 from app.runner import claim_run_outputs, describe_outputs, record_run
 from app.snapshot import DEFAULT_SIZE, parse_frame, parse_size, snapshot
-from app.web import open_recording
+from app.web import open_recording, port_problem
 from vslam_core.config import EngineConfig, load_config
-from vslam_core.errors import VslamError
 from vslam_core.metrics import kitti_errors, paper_rms_error, scale_errors
 from vslam_core.pipeline import RunResult
 from vslam_core.scale import default_camera_height
@@ -39,13 +46,28 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    # plain help: shows every [default: …] (Rich took them for markup), no type hint on flags, no boxes
+    rich_markup_mode=None,
+    context_settings={"help_option_names": ["-h", "--help"]},
 )
 err = Console(stderr=True, soft_wrap=True)
 out = Console(soft_wrap=True)
 
 
+def _print_version(value: bool) -> None:
+    if value:
+        versions = version_properties()
+        print(f"vslam {versions['vslam_version']} (OpenCV {versions['opencv_version']}, Rerun "
+              f"{versions['rerun_version']}, Python {sys.version.split()[0]})")
+        raise typer.Exit()
+
+
 @app.callback()
-def _root() -> None:
+def _root(
+    version: Annotated[bool, typer.Option("--version", callback=_print_version, is_eager=True,
+                                          help="print the versions of vslam, OpenCV, Rerun and Python, and exit")]
+    = False,
+) -> None:
     """Monocular visual odometry with every intermediate step recorded to Rerun."""
 
 
@@ -78,8 +100,18 @@ class TrajectoryFormat(StrEnum):
 
 def fail(message: str, code: int = 2) -> NoReturn:
     """One line on stderr, a non-zero exit, no traceback."""
-    err.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    err.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
     raise typer.Exit(code)
+
+
+def warn(message: str) -> None:
+    """One line on stderr; the run goes on."""
+    err.print(f"[bold yellow]warning:[/] {escape(message)}", highlight=False, soft_wrap=True)
+
+
+def _refuse(problem: str | None, code: int = 2) -> None:
+    if problem is not None:
+        fail(problem, code)
 
 
 def _recording_path(path: Path) -> Path:
@@ -128,7 +160,7 @@ def run(
                                                 "known camera height over the road (no ground truth used), none "
                                                 "= unit steps [default: gt when the source has ground truth]")]
     = None,
-    camera_height: Annotated[float | None, typer.Option(min=0.01, help=CAMERA_HEIGHT_HELP)] = None,
+    camera_height: Annotated[float | None, typer.Option(help=CAMERA_HEIGHT_HELP)] = None,
     backend: Annotated[Backend | None, typer.Option(help=BACKEND_HELP)] = None,
     config_file: Annotated[Path | None, typer.Option("--config", help="engine config (TOML)")] = None,
     output: Annotated[Path | None, typer.Option("--output", "-o", help="recording (.rrd) to write "
@@ -163,6 +195,10 @@ def run(
     if backend is not None:
         config = config.with_backend(backend.value)
 
+    _refuse(output_problem(output, detail == Detail.OFF))
+    for warning in input_warnings(src, config):
+        warn(warning)
+
     recording = _recording_path(output) if output is not None and detail != Detail.OFF else None
     outputs = claim_run_outputs(recording, detail != Detail.OFF, src.name, str(frame_range), trajectory_out,
                                 trajectory_format.value, force)
@@ -195,6 +231,7 @@ def run(
         fail(f"interrupted by {interrupted} after {result.frames} frames"
              + (f" (last frame {last})" if last is not None else "") + "; outputs hold the frames processed",
              interrupted.code)
+    _refuse(nothing_tracked(result), EXIT_NOTHING_TRACKED)
 
 
 def _existing_recording(path: Path) -> Path:
@@ -246,6 +283,8 @@ def open_command(
     = None,
 ) -> None:
     """Open a recording: the native viewer where a display exists, else the web viewer on 127.0.0.1."""
+    _refuse(port_problem(web_port, "--web-port"))
+    _refuse(port_problem(grpc_port, "--grpc-port"))
     open_recording(_existing_recording(recording), web=web, web_port=web_port, grpc_port=grpc_port)
 
 
@@ -276,7 +315,7 @@ def eval_command(
     scale: Annotated[Scale, typer.Option(help="gt: ground-truth step length; height: from the known camera "
                                          "height (no ground truth used); none: unit steps, scored after Sim(3) "
                                          "alignment")] = Scale.gt,
-    camera_height: Annotated[float | None, typer.Option(min=0.01, help=CAMERA_HEIGHT_HELP)] = None,
+    camera_height: Annotated[float | None, typer.Option(help=CAMERA_HEIGHT_HELP)] = None,
     backend: Annotated[Backend | None, typer.Option(help=BACKEND_HELP)] = None,
     config_file: Annotated[Path | None, typer.Option("--config", help="engine config (TOML)")] = None,
     report: Annotated[Path | None, typer.Option(help="folder for metrics.csv/.parquet, report.md, trajectories, "
@@ -305,6 +344,10 @@ def eval_command(
             fail("--trajectory needs --gt (the ground-truth poses to compare with)")
         if backend is not None:
             fail("--backend chooses how the engine runs: it does not apply to --trajectory files")
+        engine_options = {"--frames": frames, "--inject": inject, "--config": config_file,
+                          "--camera-height": camera_height}
+        for option in (name for name, value in engine_options.items() if value is not None):
+            fail(f"{option} applies to runs of the engine: it does not apply to --trajectory files")
         fmt = trajectory_format.value if trajectory_format is not None else None
         evaluation = evaluate_trajectory_file(trajectory, gt, fmt, report)  # type: ignore[arg-type]
         scale_source = backend_name = "external"
@@ -318,8 +361,8 @@ def eval_command(
             if source is None:
                 fail("--sequences needs SOURCE, the KITTI dataset root")
             sources: list[FrameSource] = [
-                open_source(source, sequence=s.strip(), frames=frame_range, on_bad_frame=on_bad_frame.value,
-                            inject=inject)
+                open_source(source, sequence=s.strip(), frames=frame_range, ground_truth=gt,
+                            on_bad_frame=on_bad_frame.value, inject=inject)
                 for s in sequences.split(",") if s.strip()
             ]
         else:
@@ -327,6 +370,8 @@ def eval_command(
                                    inject=inject)]
         for src in sources:
             config = _with_camera_height(config, camera_height, src)
+        for warning in dict.fromkeys(w for src in sources for w in input_warnings(src, config)):
+            warn(warning)
         evaluation = evaluate_sources(sources, config, report, err, detail if report is not None else Detail.OFF,
                                       {"frames": str(frame_range), "source_path": source or "synthetic"})
         scale_source, backend_name = config.scale, config.backend
@@ -337,6 +382,7 @@ def eval_command(
 def _with_camera_height(config: EngineConfig, camera_height: float | None, source: FrameSource) -> EngineConfig:
     """`--camera-height` into the config, and a check (before anything runs) that `--scale height` knows
     the camera's height."""
+    _refuse(camera_height_problem(camera_height))
     if camera_height is not None:
         if config.scale != "height":
             fail("--camera-height only applies with --scale height")
@@ -410,14 +456,9 @@ def repair(
 
 
 def main() -> None:
-    """Entry point: every `VslamError` becomes one line on stderr and exit code 2."""
-    # OpenCV's own log lines (e.g. for a corrupt PNG) would precede our one-line error: we report it.
-    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
-    try:
-        app()
-    except VslamError as exc:
-        err.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
-        sys.exit(2)
+    """Entry point: every `VslamError` and usage error becomes one line on stderr and exit code 2."""
+    run_app(app, lambda message: err.print(f"[bold red]error:[/] {escape(message)}", highlight=False,
+                                           soft_wrap=True))
 
 
 if __name__ == "__main__":

@@ -1,4 +1,5 @@
-"""One run of the engine as the CLI does it: progress bar, optional recording, safe interruption."""
+"""One run of the engine as the CLI does it: progress (a bar, or plain lines without a terminal), optional
+recording, safe interruption."""
 
 from __future__ import annotations
 
@@ -10,9 +11,9 @@ from pathlib import Path
 from types import FrameType
 
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
 from app.outputs import ClaimedFile, OutputError, claim, default_recording
+from app.progress import progress
 from app.recording import Detail, Recorder
 from app.rrd import has_footer
 from app.trajectory_out import Format, TrajectoryWriter
@@ -146,12 +147,10 @@ def record_run(
     interrupted: Interrupted | None = None
     failure: VslamError | None = None
     recorder = Recorder(rrd, source, config, properties, detail, jpeg_quality) if rrd is not None else None
-    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
-    with Progress(*columns, console=console, transient=True) as progress, _signals_stop_between_frames() as stop:
-        task = progress.add_task(source.name, total=len(source))
+    with progress(console, source.name, len(source)) as step, _signals_stop_between_frames() as stop:
 
         def advance(_frame: Frame, _result: FrameResult) -> None:
-            progress.advance(task)
+            step()
             stop.check()
 
         # the trajectory first: a frame the recorder fails on still has its pose on disk

@@ -17,6 +17,7 @@ not used here.
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import socket
 import sys
@@ -34,12 +35,18 @@ PORT_RANGE = (1, 65535)
 _TCP_ESTABLISHED = "01"
 
 
-def check_web_port(port: int | None, option: str) -> int | None:
-    """`port` when it is None (pick a free one) or a TCP port 1..65535; `ViewerError` naming `option` otherwise
-    (0 would let the OS pick a port no tunnel could know in advance)."""
+def port_problem(port: int | None, option: str) -> str | None:
+    """Why `port` is not a TCP port 1..65535 (None: it is, or it is None = pick a free one). 0 is refused too:
+    the OS would pick a port no tunnel could know in advance."""
     if port is not None and not PORT_RANGE[0] <= port <= PORT_RANGE[1]:
-        raise ViewerError(f"{option} {port}: give a TCP port in {PORT_RANGE[0]}..{PORT_RANGE[1]} "
-                          "(or leave it out for a free one)")
+        return f"{option} {port}: give a TCP port in {PORT_RANGE[0]}..{PORT_RANGE[1]} (or leave it out for a free one)"
+    return None
+
+
+def check_web_port(port: int | None, option: str) -> int | None:
+    """`port` if `port_problem` finds none, else `ViewerError`."""
+    if (problem := port_problem(port, option)) is not None:
+        raise ViewerError(problem)
     return port
 
 
@@ -53,13 +60,16 @@ def tunnel_hint(web_port: int, grpc_port: int) -> str:
     return f"ssh -N -L {web_port}:{HOST}:{web_port} -L {grpc_port}:{HOST}:{grpc_port} <this host>"
 
 
-def _port_is_free(port: int) -> bool:
+def _bind_problem(port: int) -> str | None:
+    """Why `port` cannot be bound on 127.0.0.1 right now (None: it can)."""
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
         try:
             sock.bind((HOST, port))
-        except OSError:
-            return False
-    return True
+        except PermissionError:
+            return "permission denied (ports below 1024 need root)"
+        except OSError as exc:
+            return "already in use" if exc.errno == errno.EADDRINUSE else (exc.strerror or str(exc))
+    return None
 
 
 @contextlib.contextmanager
@@ -72,8 +82,8 @@ def serve_web(rrd: Path, web_port: int | None = None, grpc_port: int | None = No
     if web_port is not None and web_port == grpc_port:
         raise ViewerError(f"--web-port and --grpc-port are both {web_port}: the web viewer needs two ports")
     for port in (web_port, grpc_port):
-        if port is not None and not _port_is_free(port):
-            raise ViewerError(f"port {port} on {HOST} is already in use")
+        if port is not None and (problem := _bind_problem(port)) is not None:
+            raise ViewerError(f"port {port} on {HOST}: {problem}")
     deadline = time.monotonic() + timeout_s
     for _attempt in range(3):
         web = web_port if web_port is not None else free_port()
@@ -156,6 +166,9 @@ def open_recording(rrd: Path, web: bool = False, web_port: int | None = None, gr
     check_web_port(grpc_port, "--grpc-port")
     viewer.recording_frames(rrd)
     kind = choose_viewer(os.environ, web)
+    if kind == "native" and (web_port is not None or grpc_port is not None):
+        raise ViewerError("--web-port and --grpc-port set the web viewer's ports, and a display was found so the "
+                          "native viewer would open: add --web")
     with viewer.stop_viewer_on_sigterm():
         try:
             if kind == "web":

@@ -315,7 +315,7 @@ def test_web_viewer_port_in_use_is_a_clear_error(recording: Path) -> None:
         taken.bind(("127.0.0.1", 0))
         taken.listen()
         port = taken.getsockname()[1]
-        with pytest.raises(ViewerError, match=f"port {port} on 127.0.0.1 is already in use"):
+        with pytest.raises(ViewerError, match=f"port {port} on 127.0.0.1: already in use"):
             open_recording(recording, web=True, web_port=port)
 
 
@@ -504,3 +504,9 @@ def _lines_until(proc: subprocess.Popen[str], fragment: str, timeout_s: float) -
             if fragment in line:
                 return lines
     pytest.fail(f"{fragment!r} not printed within {timeout_s} s: {lines}")
+
+
+def test_ports_with_the_native_viewer_are_refused(recording: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("DISPLAY", ":99")
+    with pytest.raises(ViewerError, match="--web-port and --grpc-port set the web viewer's ports.*add --web"):
+        open_recording(recording, web=False, web_port=9090)

@@ -8,7 +8,8 @@ A TOML file mirrors the dataclasses: top-level keys of `EngineConfig` plus one t
     [pose]
     ransac_threshold_px = 0.5
 
-Unknown keys and wrong types raise `ConfigError` naming the key.
+Unknown keys, wrong types and values out of their range (`vslam_core/config_ranges.py`) raise `ConfigError`
+naming the key.
 """
 
 from __future__ import annotations
@@ -230,8 +231,12 @@ def _build(cls: type, data: dict[str, Any], prefix: str) -> Any:
 
 
 def config_from_dict(data: dict[str, Any]) -> EngineConfig:
-    """Build an `EngineConfig` from nested dicts (as TOML gives them), checking every key."""
+    """Build an `EngineConfig` from nested dicts (as TOML gives them), checking every key, its type and its
+    range (and the rules between keys)."""
+    from vslam_core.config_ranges import check_config  # it names EngineConfig's fields: imported late
+
     config: EngineConfig = _build(EngineConfig, data, "")
+    check_config(config)
     return config
 
 

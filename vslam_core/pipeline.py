@@ -9,7 +9,7 @@ import queue
 import threading
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TypeVar
 
 import numpy as np
@@ -17,7 +17,7 @@ import numpy as np
 from vslam_core.config import EngineConfig
 from vslam_core.engine import Odometry
 from vslam_core.mapping.tracking import MapTracking
-from vslam_core.results import FrameResult, FrameStatus
+from vslam_core.results import FrameResult, FrameStatus, Reason
 from vslam_core.scale import make_scale_provider
 from vslam_core.sources.base import Frame, FrameSource
 
@@ -34,6 +34,8 @@ class RunResult:
     timestamps: list[float | None]
     poses: list[np.ndarray]  # (4, 4) T_world_cam per processed frame (map backend: refined by BA once complete)
     held: int = 0  # frames that kept the previous pose
+    tracked: int = 0  # frames whose motion was measured (status ok, or dead-reckoned by the map backend)
+    held_reasons: dict[str, int] = field(default_factory=dict)  # why frames were held: reason -> frames
     seconds: float = 0.0  # wall time of the whole run, decoding and sinks included
 
     @property
@@ -122,6 +124,10 @@ def run_odometry(
             run.timestamps.append(frame.timestamp)
             run.poses.append(frame_result.T_world_cam)
             run.held += frame_result.status == FrameStatus.HELD
+            reasons = frame_result.health.reasons
+            run.tracked += frame_result.status == FrameStatus.OK or Reason.COASTED in reasons
+            if frame_result.status == FrameStatus.HELD and reasons:
+                run.held_reasons[reasons[0]] = run.held_reasons.get(reasons[0], 0) + 1
             for sink in sinks:
                 sink(frame, frame_result)
     finally:

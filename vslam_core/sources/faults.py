@@ -80,6 +80,15 @@ class FaultInjector:
     """A source whose frames pass through the given faults (a `FrameSource` itself)."""
 
     def __init__(self, source: FrameSource, faults: list[Fault]) -> None:
+        selected = source.indices
+        for fault in faults:
+            if not any(fault.covers(i) for i in selected):
+                where = "frames " + (f"{selected[0]}..{selected[-1]}" if selected else "none")
+                step = selected[1] - selected[0] if len(selected) > 1 else 1
+                raise SourceError(
+                    f"--inject {fault.kind}@{fault.first}" + (f":{fault.last}" if fault.last != fault.first else "")
+                    + f": no selected frame is affected (the run reads {where}" + (f", step {step}" if step > 1 else "")
+                    + ")")
         self._source = source
         self.faults = faults
         self._dropped = {i for i in source.indices if any(f.kind == "drop" and f.covers(i) for f in faults)}

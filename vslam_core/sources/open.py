@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 
 from vslam_core.errors import SourceError
@@ -45,7 +46,10 @@ def _open(
     gt_format: GroundTruthFormat,
     on_bad_frame: BadFramePolicy,
 ) -> FrameSource:
+    given = {"--sequence": sequence, "--intrinsics": intrinsics, "--calib": calib, "--gt": ground_truth}
     if spec is None or spec == SYNTHETIC:
+        _refuse(given, ("--sequence", "--intrinsics", "--calib", "--gt"),
+                "the synthetic street has its own camera and exact ground truth, and no sequences")
         return SyntheticStreet(frames=frames)
     path = Path(spec)
     if not path.exists():
@@ -53,12 +57,16 @@ def _open(
     if path.is_file():
         if path.suffix.lower() not in VIDEO_SUFFIXES:
             raise SourceError(f"{path}: not a video ({', '.join(sorted(VIDEO_SUFFIXES))}) nor a folder")
+        _refuse(given, ("--sequence",), f"{path} is a video, not a KITTI dataset root")
         if intrinsics is None and calib is None:
             raise SourceError(f"{path}: a video needs --intrinsics fx,fy,cx,cy")
         return VideoSource(path, _intrinsics(intrinsics, calib), frames=frames, ground_truth=ground_truth,
                            gt_format=gt_format)
     if (path / "sequences").is_dir() or (path / "image_0").is_dir():
+        _refuse(given, ("--intrinsics", "--calib", "--gt"),
+                "a KITTI sequence has its own calib.txt and poses/NN.txt")
         return KittiSource(path, sequence=sequence, frames=frames, on_bad_frame=on_bad_frame)
+    _refuse(given, ("--sequence",), f"{path} is an image folder, not a KITTI dataset root")
     return ImageFolderSource(
         path,
         intrinsics=parse_intrinsics(intrinsics) if intrinsics is not None else None,
@@ -68,6 +76,13 @@ def _open(
         frames=frames,
         on_bad_frame=on_bad_frame,
     )
+
+
+def _refuse(given: Mapping[str, object], options: tuple[str, ...], reason: str) -> None:
+    """An option the source would silently ignore is an error saying why (never quietly dropped)."""
+    for option in options:
+        if given[option] is not None:
+            raise SourceError(f"{option} does not apply here: {reason}")
 
 
 def _intrinsics(text: str | None, calib: Path | None) -> PartialIntrinsics:

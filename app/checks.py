@@ -1,0 +1,67 @@
+"""Checks on what a user asked for that go beyond one value's type: ports, options that would be silently
+ignored, implausible inputs (warnings) and a run that tracked nothing.
+
+Each returns a one-line message (or None); the CLI prints it and picks the exit code.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from vslam_core.config import EngineConfig
+from vslam_core.config_ranges import range_problem
+from vslam_core.errors import ConfigError
+from vslam_core.pipeline import RunResult
+from vslam_core.scale import default_camera_height
+from vslam_core.sources.base import FrameSource
+
+#: exit code of a run in which no frame could be tracked (the recording and trajectory are still written)
+EXIT_NOTHING_TRACKED = 3
+#: a camera higher than this above the road is not on a car (warning only)
+PLAUSIBLE_CAMERA_HEIGHT_M = 10.0
+
+
+def camera_height_problem(metres: float | None) -> str | None:
+    """`--camera-height` against the range of `height.camera_height_m`."""
+    if metres is None:
+        return None
+    problem = range_problem("height.camera_height_m", metres)
+    return None if problem is None else f"--camera-height {metres:g}: {problem.partition(' is ')[2]}"
+
+
+def output_problem(output: Path | None, detail_off: bool) -> str | None:
+    """`-o FILE` with `--detail off` would be dropped without a word."""
+    if output is not None and detail_off:
+        return f"--output {output}: --detail off writes no recording (drop one of the two)"
+    return None
+
+
+def input_warnings(source: FrameSource, config: EngineConfig) -> list[str]:
+    """Inputs that are valid but probably a mistake: one line each."""
+    warnings = []
+    k = source.intrinsics
+    if not (0 <= k.cx < k.width and 0 <= k.cy < k.height):
+        warnings.append(f"the principal point ({k.cx:g}, {k.cy:g}) lies outside the {k.width}x{k.height} image "
+                        "(are the intrinsics fx,fy,cx,cy, in pixels of this image?)")
+    height: float | None = config.height.camera_height_m or None
+    if config.scale == "height":
+        try:
+            height = default_camera_height(source.camera_height, config)
+        except ConfigError:
+            height = None  # reported as an error elsewhere
+    if height is not None and height > PLAUSIBLE_CAMERA_HEIGHT_M:
+        warnings.append(f"camera height {height:g} m above the road: implausible for a car (over "
+                        f"{PLAUSIBLE_CAMERA_HEIGHT_M:g} m; is it in metres?)")
+    return warnings
+
+
+def nothing_tracked(result: RunResult) -> str | None:
+    """A run of two frames or more in which no frame's motion could be measured."""
+    if result.frames < 2 or result.tracked > 0:
+        return None
+    why = ""
+    if result.held_reasons:
+        reason, count = max(result.held_reasons.items(), key=lambda item: item[1])
+        why = f" (mostly {reason}: {count} frames)"
+    return (f"no frame could be tracked: {result.held} of {result.frames} frames held the first pose{why}; "
+            "the outputs were written")

@@ -1,0 +1,217 @@
+"""The valid range of every numeric engine parameter, and the rules between parameters.
+
+`check_config` is run on every config a user gives (a TOML file, or a CLI option that sets a value such as
+``--camera-height``): a value out of range is one `ConfigError` line naming the key, the value and the range,
+before anything runs. Ranges are what the code can work with (OpenCV's limits, a ratio in [0, 1], a count of
+points a model needs), with generous upper bounds; they do not judge whether a value is a good idea.
+`tests/test_config.py` checks that every numeric field has a range here and that the defaults pass.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from vslam_core.errors import ConfigError
+
+if TYPE_CHECKING:
+    from vslam_core.config import EngineConfig
+
+INF = math.inf
+
+
+@dataclass(frozen=True)
+class Range:
+    """low ≤ value ≤ high (or < when open on that side); `also`: single values allowed outside, with a
+    meaning (e.g. 0 = the source's own camera height)."""
+
+    low: float
+    high: float
+    low_open: bool = False
+    high_open: bool = False
+    also: tuple[float, ...] = ()
+    note: str = ""
+
+    def contains(self, value: float) -> bool:
+        if value in self.also:
+            return True
+        above = value > self.low if self.low_open else value >= self.low
+        below = value < self.high if self.high_open else value <= self.high
+        return bool(above and below)  # NaN: both False
+
+    def interval(self) -> str:
+        def number(v: float) -> str:
+            if math.isinf(v):
+                return "inf" if v > 0 else "-inf"
+            return f"{v:g}"
+
+        low_open = self.low_open or math.isinf(self.low)
+        high_open = self.high_open or math.isinf(self.high)
+        return f"{'(' if low_open else '['}{number(self.low)}, {number(self.high)}{')' if high_open else ']'}"
+
+    def __str__(self) -> str:
+        text = self.interval()
+        if self.also:
+            text = " or ".join(f"{v:g}" for v in self.also) + f" or {text}"
+        return text + (f" ({self.note})" if self.note else "")
+
+
+def closed(low: float, high: float = INF, note: str = "") -> Range:
+    return Range(low, high, note=note)
+
+
+def positive(high: float = INF, note: str = "") -> Range:
+    """(0, high]"""
+    return Range(0.0, high, low_open=True, note=note)
+
+
+FRACTION = closed(0.0, 1.0)
+PIXEL_SIZE = positive(1000.0)
+FAST = closed(1, 255)
+COUNT = closed(0, 10_000_000)
+ITERATIONS = closed(1, 1_000_000)
+PYRAMID = closed(0, 10)
+
+#: dotted config key -> valid range (every int and float field of `EngineConfig` and its sections)
+RANGES: dict[str, Range] = {
+    "threads": closed(1, 256),
+    # detector
+    "detector.fast_threshold": FAST,
+    "detector.target_tracks": closed(1, 100_000),
+    "detector.redetect_below": closed(0, 100_000),
+    "detector.grid_rows": closed(1, 100),
+    "detector.grid_cols": closed(1, 100),
+    "detector.min_distance_px": closed(0, 1000),
+    # tracker (OpenCV's calcOpticalFlowPyrLK needs a window > 2 px and maxLevel ≥ 0)
+    "tracker.window_px": closed(3, 101),
+    "tracker.max_level": PYRAMID,
+    "tracker.predicted_max_level": closed(-1, 10, note="-1: no prediction"),
+    "tracker.backward_max_level": PYRAMID,
+    "tracker.max_iterations": closed(1, 1000),
+    "tracker.epsilon": positive(10.0),
+    "tracker.fb_threshold_px": Range(0.0, INF, low_open=True, note="inf: no forward-backward check"),
+    "tracker.border_px": closed(0, 1000),
+    # pose (the 5-point solver needs 5 correspondences; RANSAC's confidence lies strictly between 0 and 1)
+    "pose.ransac_probability": Range(0.0, 1.0, low_open=True, high_open=True),
+    "pose.ransac_threshold_px": positive(100.0),
+    "pose.ransac_max_iterations": ITERATIONS,
+    "pose.seed": closed(0, 2**63 - 1),
+    "pose.chirality_max_depth": Range(0.0, INF, low_open=True, high_open=True),
+    "pose.min_tracks": closed(5, 100_000),
+    "pose.min_inliers": closed(5, 100_000),
+    "pose.min_parallax_px": closed(0.0, 1000.0),
+    # health
+    "health.dark_mean": closed(0.0, 255.0),
+    "health.bright_saturated": FRACTION,
+    "health.blur_sharpness": closed(0.0, 1e9),
+    "health.noise_sigma": closed(0.0, 255.0),
+    "health.brightness_jump": closed(0.0, 255.0),
+    "health.warn_tracks": COUNT,
+    "health.warn_inlier_ratio": FRACTION,
+    "health.ambiguous_chirality": FRACTION,
+    "health.rotation_parallax_px": closed(0.0, 1000.0),
+    "health.step_jump": closed(1.0, 1000.0),
+    # height scale
+    "height.camera_height_m": Range(0.1, 100.0, also=(0.0,), note="0: the source's own"),
+    "height.road_top_px": closed(0.0, 10_000.0),
+    "height.road_half_width_px": positive(10_000.0),
+    "height.road_tracks": closed(1, 100_000),
+    "height.road_fast_threshold": FAST,
+    "height.max_tilt_deg": positive(90.0),
+    "height.inlier_fraction": positive(1.0),
+    "height.ransac_iterations": ITERATIONS,
+    "height.min_road_points": closed(3, 100_000),
+    "height.window": closed(1, 1000),
+    "height.max_jump": positive(100.0),
+    # map backend
+    "map.keyframe_parallax_px": positive(10_000.0),
+    "map.keyframe_overlap": FRACTION,
+    "map.keyframe_min_landmarks": COUNT,
+    "map.keyframe_max_frames": closed(1, 100_000),
+    "map.min_triangulation_deg": Range(0.0, 90.0, high_open=True),
+    "map.max_reprojection_px": PIXEL_SIZE,
+    "map.cull_reprojection_px": PIXEL_SIZE,
+    "map.min_observations": closed(1, 1000),
+    "map.map_keyframes": closed(1, 100_000),
+    "map.pnp_min_landmarks": closed(4, 100_000),
+    "map.pnp_threshold_px": PIXEL_SIZE,
+    "map.pnp_iterations": ITERATIONS,
+    "map.pnp_min_inliers": closed(4, 100_000),
+    "map.pnp_min_inlier_ratio": FRACTION,
+    "map.max_rotation_disagreement_deg": positive(180.0),
+    "map.ba_window": closed(1, 1000),
+    "map.ba_max_fixed": closed(0, 1000),
+    "map.ba_iterations": closed(1, 1000),
+    "map.ba_huber_px": PIXEL_SIZE,
+    "map.ba_max_landmarks": closed(1, 10_000_000),
+    "map.scale_sigma_gt": positive(100.0),
+    "map.scale_sigma_height": positive(10.0),
+    "map.reloc_keyframes": closed(1, 1000),
+    "map.reloc_fast_threshold": FAST,
+    "map.reloc_ratio": positive(1.0),
+    "map.reloc_threshold_px": PIXEL_SIZE,
+    "map.reloc_iterations": ITERATIONS,
+    "map.reloc_min_inliers": closed(4, 100_000),
+}
+
+
+@dataclass(frozen=True)
+class Rule:
+    """A relation between parameters: `holds(values)` over the dotted keys it names."""
+
+    keys: tuple[str, ...]
+    holds: Callable[..., bool]
+    text: str
+
+
+RULES: tuple[Rule, ...] = (
+    Rule(("detector.redetect_below", "detector.target_tracks"), lambda below, target: below <= target,
+         "redetect_below must not exceed target_tracks"),
+    Rule(("pose.min_inliers", "pose.min_tracks"), lambda inliers, tracks: inliers <= tracks,
+         "min_inliers must not exceed min_tracks"),
+    Rule(("map.map_keyframes", "map.ba_window", "map.ba_max_fixed"), lambda kept, window, fixed: kept >= window + fixed,
+         "map_keyframes must be at least ba_window + ba_max_fixed (the BA window's landmarks must not be forgotten)"),
+    Rule(("map.map_keyframes", "map.reloc_keyframes"), lambda kept, reloc: kept >= reloc,
+         "map_keyframes must be at least reloc_keyframes"),
+)
+
+
+def flat_values(config: EngineConfig) -> dict[str, Any]:
+    """Every leaf value of the config under its dotted key (``tracker.window_px``)."""
+    values: dict[str, Any] = {}
+
+    def walk(obj: Any, prefix: str) -> None:
+        for f in dataclasses.fields(obj):
+            value = getattr(obj, f.name)
+            if dataclasses.is_dataclass(value):
+                walk(value, f"{prefix}{f.name}.")
+            else:
+                values[prefix + f.name] = value
+
+    walk(config, "")
+    return values
+
+
+def range_problem(key: str, value: Any) -> str | None:
+    """'-5 is out of range [3, 101]' when `value` is outside `key`'s range, else None."""
+    valid = RANGES.get(key)
+    if valid is None or isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    if valid.contains(value):
+        return None
+    return f"{value!r} is out of range {valid}"
+
+
+def check_config(config: EngineConfig) -> None:
+    """`ConfigError` (one line) for the first value out of its range, then for the first broken rule."""
+    values = flat_values(config)
+    for key, value in values.items():
+        if (problem := range_problem(key, value)) is not None:
+            raise ConfigError(f"config key {key!r}: {problem}")
+    for rule in RULES:
+        if not rule.holds(*(values[key] for key in rule.keys)):
+            given = ", ".join(f"{key} = {values[key]!r}" for key in rule.keys)
+            raise ConfigError(f"config keys {given}: {rule.text}")
