@@ -40,7 +40,8 @@ def vslam(*args: str | Path, cwd: Path | None = None, **kwargs: object) -> subpr
 
 
 def one_error_line(stderr: str) -> str:
-    lines = [line for line in stderr.splitlines() if line.strip()]
+    """The one line that is not progress (stderr carries `progress …` lines without a terminal)."""
+    lines = [line for line in stderr.splitlines() if line.strip() and not line.startswith("progress ")]
     assert len(lines) == 1, stderr
     assert lines[0].startswith("error: ") and "Traceback" not in stderr
     return lines[0]
