@@ -149,19 +149,16 @@ def _settled_screenshots(
             if time.monotonic() > deadline:
                 raise ViewerError(f"{rrd}: the recording's blueprint has no visible view")
             time.sleep(0.1)
+    _pause_at(client, store_id, frame, rrd, deadline)
     layout = client.get_blueprint(store_id=store_id).blueprint
     order = layout_order(layout)
     views.sort(key=lambda v: order.index(v.view_id) if v.view_id in order else len(order))
-    client.set_time("frame", sequence=frame, play_state="paused", recording=store_id)
-    while not _time_cursor_at(client.get_state(), store_id, frame):  # applied on the viewer's next frame
-        if time.monotonic() > deadline:
-            raise ViewerError(f"{rrd}: the viewer did not move to frame {frame}")
-        time.sleep(0.1)
 
     window = _settled(client, None, rrd, deadline)
     shots = []
     for view in views:  # each view alone, maximised: as large as the window allows
         client.set_blueprint(maximised(layout, view.view_id), store_id=store_id)
+        _pause_at(client, store_id, frame, rrd, deadline)  # the blueprint holds the time panel's play state
         shots.append((view.name or view.view_class, _settled(client, view.view_id, rrd, deadline)))
     client.set_blueprint(layout, store_id=store_id)
     if whole_window:
@@ -174,6 +171,15 @@ def _settled_screenshots(
         for report in view.reports:
             log.warning("view %r: %s: %s", view.name, report.severity, report.summary)
     return shots
+
+
+def _pause_at(client: ViewerClient, store_id: str, frame: int, rrd: Path, deadline: float) -> None:
+    """Move the time cursor to `frame` on the `frame` timeline, paused, and wait until the viewer shows it."""
+    client.set_time("frame", sequence=frame, play_state="paused", recording=store_id)
+    while not _time_cursor_at(client.get_state(), store_id, frame):  # applied on the viewer's next frame
+        if time.monotonic() > deadline:
+            raise ViewerError(f"{rrd}: the viewer did not move to frame {frame}")
+        time.sleep(0.1)
 
 
 def maximised(layout: dict[str, Any], view_id: str) -> dict[str, Any]:
