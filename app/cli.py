@@ -19,6 +19,7 @@ from app.compare import compare_recordings, format_differences
 from app.crop import crop_recording
 from app.evaluation import REPORT_FILES, Evaluation, check_gates, evaluate_sources, evaluate_trajectory_file
 from app.inspect import format_report, inspect_recording
+from app.matching import DEFAULT_TOLERANCE_MS, MatchMode
 from app.recording import Detail, version_properties
 from app.report import json_ready, markdown_table
 from app.runner import record_run
@@ -318,6 +319,15 @@ def eval_command(
     detail: Annotated[Detail, typer.Option(help="detail of the recordings written to --report")] = Detail.FULL,
     trajectory: Annotated[Path | None, typer.Option(help="evaluate this trajectory file instead of running")] = None,
     gt: Annotated[Path | None, typer.Option(help="ground truth for --trajectory (or an image folder)")] = None,
+    gt_times: Annotated[Path | None, typer.Option(help="timestamps of a KITTI --gt (the sequence's times.txt, "
+                                                  "line i = pose row i): TUM rows are then matched by time")]
+    = None,
+    match: Annotated[MatchMode, typer.Option(help="--trajectory rows: auto = by timestamp when both sides have "
+                                             "times, else row by row if the files have the same length; "
+                                             "timestamps; rows = row i is frame i, whatever the lengths")]
+    = MatchMode.auto,
+    time_tolerance: Annotated[float, typer.Option(min=0.0, help="timestamp matching tolerance (ms)")]
+    = DEFAULT_TOLERANCE_MS,
     trajectory_format: Annotated[TrajectoryFormat | None, typer.Option("--format", help="kitti or tum "
                                                                        "[default: from the columns]")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="print the metrics as JSON (keys in README)")] = False,
@@ -340,9 +350,12 @@ def eval_command(
         if backend is not None:
             fail("--backend chooses how the engine runs: it does not apply to --trajectory files")
         fmt = trajectory_format.value if trajectory_format is not None else None
-        evaluation = evaluate_trajectory_file(trajectory, gt, fmt, report)  # type: ignore[arg-type]
+        evaluation = evaluate_trajectory_file(trajectory, gt, fmt, report,  # type: ignore[arg-type]
+                                              gt_times, match, time_tolerance)
         scale_source = backend_name = "external"
     else:
+        if gt_times is not None or match is not MatchMode.auto:
+            fail("--gt-times and --match apply to --trajectory files only")
         config = load_config(config_file) if config_file is not None else EngineConfig()
         config = config.with_scale(scale.value)
         if backend is not None:
@@ -398,6 +411,8 @@ def _print_evaluation(evaluation: Evaluation, scale: str, backend: str, report: 
     else:
         rows = evaluation.rows + ([evaluation.mean] if len(evaluation.rows) > 1 else [])
         out.print(markdown_table([{k: v for k, v in r.items() if k != "alignment"} for r in rows]), highlight=False)
+        if evaluation.matching is not None:
+            out.print(evaluation.matching.describe(), highlight=False)
         if report is not None:
             out.print(f"report      {report / 'report.md'}", highlight=False)
     if evaluation.interrupted is not None:

@@ -17,12 +17,13 @@ import polars as pl
 from rich.console import Console
 
 import vslam_core
+from app.matching import DEFAULT_TOLERANCE_MS, Matching, MatchMode, gt_times_for, match_poses
 from app.plots import write_top_view
 from app.recording import Detail, version_properties
 from app.report import COLUMNS, json_ready, markdown_table, mean_row, metrics_row
 from app.runner import Interrupted, record_run
 from vslam_core.config import EngineConfig
-from vslam_core.errors import SourceError, TrajectoryFormatError
+from vslam_core.errors import SourceError
 from vslam_core.metrics import kitti_errors_by_length
 from vslam_core.sources.base import FrameSource, rebase_poses
 from vslam_core.trajectory_io import (
@@ -42,9 +43,11 @@ class Evaluation:
     mean: dict[str, Any]
     by_length: dict[str, dict[float, tuple[float, float, int]]] = field(default_factory=dict)
     interrupted: Interrupted | None = None
+    matching: Matching | None = None  # --trajectory files: how their rows were paired with the ground truth
 
     def as_json(self) -> dict[str, Any]:
-        return json_ready({"sequences": self.rows, "mean": self.mean})
+        extra = {"matching": self.matching.as_json()} if self.matching is not None else {}
+        return json_ready({"sequences": self.rows, "mean": self.mean, **extra})
 
 
 def evaluate_sources(
@@ -156,6 +159,8 @@ def write_report(report_dir: Path, evaluation: Evaluation, config: EngineConfig)
     ]
     if plots:
         lines += ["", "## Trajectories (top view)", "", *plots]
+    if evaluation.matching is not None:
+        lines[3:3] = [f"Rows {evaluation.matching.describe()}.", ""]
     if evaluation.interrupted is not None:
         lines += ["", f"**Interrupted by {evaluation.interrupted}**: the tables cover the frames processed."]
     (report_dir / "report.md").write_text("\n".join(lines) + "\n")
@@ -169,40 +174,27 @@ def load_trajectory(path: Path, fmt: TrajectoryFormat | None) -> tuple[np.ndarra
     return None, read_kitti_poses(path)
 
 
-def associate(
-    est_times: np.ndarray | None, est: np.ndarray, gt_times: np.ndarray | None, gt: np.ndarray, names: tuple[Path, Path]
-) -> tuple[np.ndarray, np.ndarray]:
-    """Frame-aligned (estimate, ground truth): by timestamp (nearest within 10 ms) when both files have
-    them, else row by row (row i = frame i; extra ground-truth rows are ignored)."""
-    if est_times is not None and gt_times is not None:
-        order = np.argsort(gt_times)
-        nearest = np.clip(np.searchsorted(gt_times[order], est_times), 1, len(gt_times) - 1)
-        before, after = order[nearest - 1], order[nearest]
-        pick = np.where(np.abs(gt_times[before] - est_times) <= np.abs(gt_times[after] - est_times), before, after)
-        close = np.abs(gt_times[pick] - est_times) <= 0.01
-        if close.sum() < 3:
-            raise TrajectoryFormatError(f"{names[0]}: fewer than 3 timestamps match {names[1]} (within 10 ms)")
-        return est[close], gt[pick[close]]
-    if len(gt) > len(est):
-        return est, gt[: len(est)]  # a KITTI poses file covers the whole sequence: row i = frame i
-    if len(est) != len(gt):
-        raise TrajectoryFormatError(
-            f"{names[0]} has {len(est)} poses but {names[1]} only {len(gt)}: they must be frame-aligned "
-            "(or both TUM files with timestamps)"
-        )
-    return est, gt
-
-
 def evaluate_trajectory_file(
-    estimate: Path, ground_truth: Path, fmt: TrajectoryFormat | None, report_dir: Path | None
+    estimate: Path,
+    ground_truth: Path,
+    fmt: TrajectoryFormat | None,
+    report_dir: Path | None,
+    gt_times: Path | None = None,
+    match: MatchMode = MatchMode.auto,
+    tolerance_ms: float = DEFAULT_TOLERANCE_MS,
 ) -> Evaluation:
-    """Score any system's trajectory file against ground truth, both re-based to their first pose."""
+    """Score any system's trajectory file against ground truth, both re-based to their first pose; rows are
+    matched by timestamp when both sides have times (`gt_times`: a KITTI ``times.txt`` for a KITTI ground
+    truth), else row by row (see `app.matching`)."""
     est_times, est = load_trajectory(estimate, fmt)
-    gt_times, gt = load_trajectory(ground_truth, fmt)
-    est, gt = associate(est_times, est, gt_times, gt, (estimate, ground_truth))
+    own_gt_times, gt = load_trajectory(ground_truth, fmt)
+    times = gt_times_for(gt_times, own_gt_times, len(gt), ground_truth)
+    est, gt, matching = match_poses(est_times, est, times, gt, (estimate, ground_truth), match, tolerance_ms)
     est, gt = rebase_poses(est), rebase_poses(gt)
     row = metrics_row(estimate.stem, gt, est, "external", "external")
-    evaluation = Evaluation([row], mean_row([row]), {estimate.stem: kitti_errors_by_length(gt, est)})
+    row["matching"] = matching.describe()
+    evaluation = Evaluation([row], mean_row([row]), {estimate.stem: kitti_errors_by_length(gt, est)},
+                            matching=matching)
     if report_dir is not None:
         write_top_view(
             report_dir / f"{estimate.stem}_top.png", gt, est, f"{estimate.name}  ({len(est)} poses)", _subtitle(row)
