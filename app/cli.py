@@ -319,6 +319,9 @@ def eval_command(
     detail: Annotated[Detail, typer.Option(help="detail of the recordings written to --report")] = Detail.FULL,
     trajectory: Annotated[Path | None, typer.Option(help="evaluate this trajectory file instead of running")] = None,
     gt: Annotated[Path | None, typer.Option(help="ground truth for --trajectory (or an image folder)")] = None,
+    intrinsics: Annotated[str | None, typer.Option(help="fx,fy,cx,cy of an image folder or video SOURCE")] = None,
+    calib: Annotated[Path | None, typer.Option(help="KITTI-style calib file (P0 line) of an image folder or video "
+                                               "SOURCE, instead of --intrinsics")] = None,
     gt_times: Annotated[Path | None, typer.Option(help="timestamps of a KITTI --gt (the sequence's times.txt, "
                                                   "line i = pose row i): TUM rows are then matched by time")]
     = None,
@@ -349,6 +352,8 @@ def eval_command(
             fail("--trajectory needs --gt (the ground-truth poses to compare with)")
         if backend is not None:
             fail("--backend chooses how the engine runs: it does not apply to --trajectory files")
+        if intrinsics is not None or calib is not None:
+            fail("--intrinsics and --calib describe the camera of a SOURCE: they do not apply to --trajectory files")
         fmt = trajectory_format.value if trajectory_format is not None else None
         evaluation = evaluate_trajectory_file(trajectory, gt, fmt, report,  # type: ignore[arg-type]
                                               gt_times, match, time_tolerance)
@@ -364,14 +369,16 @@ def eval_command(
         if sequences is not None:
             if source is None:
                 fail("--sequences needs SOURCE, the KITTI dataset root")
+            if intrinsics is not None or calib is not None:
+                fail("--intrinsics and --calib are for image folders and videos: KITTI sequences have calib.txt")
             sources: list[FrameSource] = [
                 open_source(source, sequence=s.strip(), frames=frame_range, on_bad_frame=on_bad_frame.value,
                             inject=inject)
                 for s in sequences.split(",") if s.strip()
             ]
         else:
-            sources = [open_source(source, frames=frame_range, ground_truth=gt, on_bad_frame=on_bad_frame.value,
-                                   inject=inject)]
+            sources = [open_source(source, frames=frame_range, intrinsics=intrinsics, calib=calib, ground_truth=gt,
+                                   on_bad_frame=on_bad_frame.value, inject=inject)]
         for src in sources:
             config = _with_camera_height(config, camera_height, src)
         evaluation = evaluate_sources(sources, config, report, err, detail if report is not None else Detail.OFF,
