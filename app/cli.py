@@ -16,12 +16,12 @@ import typer
 from rich.console import Console
 
 from app.compare import compare_recordings, format_differences
-from app.crop import crop_recording
+from app.crop import crop_recording, parse_crop_frames
 from app.evaluation import REPORT_FILES, Evaluation, check_gates, evaluate_sources, evaluate_trajectory_file
 from app.inspect import format_report, inspect_recording
 from app.matching import DEFAULT_TOLERANCE_MS, MatchMode
 from app.recording import Detail, version_properties
-from app.report import json_ready, markdown_table
+from app.report import json_ready, markdown_table, scored_estimate
 from app.runner import record_run
 from app.viewer import open_recording, snapshot
 from vslam_core.config import EngineConfig, load_config
@@ -29,7 +29,7 @@ from vslam_core.errors import VslamError
 from vslam_core.metrics import kitti_errors, paper_rms_error, scale_errors
 from vslam_core.pipeline import RunResult
 from vslam_core.scale import default_camera_height
-from vslam_core.sources.base import FrameRange, FrameSource
+from vslam_core.sources.base import FrameRange, FrameSource, describe_indices
 from vslam_core.sources.open import open_source
 from vslam_core.trajectory_io import write_kitti_poses, write_tum_poses
 
@@ -153,10 +153,14 @@ def _summary(source: FrameSource, run: RunResult, config: EngineConfig) -> None:
             median, _, path = scale_errors(gt, run.pose_array())
             lines.append(f"step length {median:+.1f} % median error per frame, path length {path:+.1f} % vs ground "
                          "truth")
-        t_err, r_err = kitti_errors(gt, run.pose_array())
+        scored = scored_estimate(gt, run.pose_array(), config.scale)  # --scale none: Sim(3)-aligned, as eval
+        aligned = config.scale == "none"
+        t_err, r_err = kitti_errors(gt, scored)
         lines.append(f"KITTI       t_err {t_err:.2f} %   r_err {r_err:.2f} °/100 m"
-                     + ("   (path < 100 m: no segment)" if np.isnan(t_err) else ""))
-        lines.append(f"paper RMS   {paper_rms_error(gt, run.pose_array()):.2f} m (x–z, no alignment)")
+                     + ("   (path < 100 m: no segment)" if np.isnan(t_err) else "")
+                     + ("   (after Sim(3) alignment: --scale none has unit steps)" if aligned else ""))
+        lines.append(f"paper RMS   {paper_rms_error(gt, scored):.2f} m (x–z, "
+                     + ("after Sim(3) alignment)" if aligned else "no alignment)"))
     out.print("\n".join(lines), highlight=False)
 
 
@@ -165,7 +169,9 @@ def run(
     source: Annotated[str | None, typer.Argument(help="KITTI root or sequence folder, image folder, video "
                                                  "file, or 'synthetic' (the default: no download)")] = None,
     sequence: Annotated[str | None, typer.Option("--sequence", "-s", help="KITTI sequence, e.g. 00")] = None,
-    frames: Annotated[str | None, typer.Option(help="START:END[:STEP] of the source's frames (END excluded)")] = None,
+    frames: Annotated[str | None, typer.Option(help="START:END[:STEP] of the source's frames (END excluded; an END "
+                                               "past the last frame is clamped to it, like a Python slice)")]
+    = None,
     scale: Annotated[Scale | None, typer.Option(help="translation length: gt = ground truth, height = from the "
                                                 "known camera height over the road (no ground truth used), none "
                                                 "= unit steps [default: gt when the source has ground truth]")]
@@ -209,12 +215,13 @@ def run(
     if trajectory_out is not None:
         _check_new_file(trajectory_out, force, "trajectory")
 
+    selected = describe_indices(src.indices)  # the real range (`--frames` left out or clamped), e.g. 0:300
     properties = {
-        "name": f"vslam {src.name} frames {frame_range} scale {config.scale}",
+        "name": f"vslam {src.name} frames {selected} scale {config.scale}",
         "recording_id": _recording_id(src, frame_range, config),
         "source": src.name,
         "source_path": source or "synthetic",
-        "frames": str(frame_range),
+        "frames": selected,
         "frame_count": str(len(src)),
         "scale": config.scale,
         "backend": config.backend,
@@ -287,17 +294,17 @@ def open_command(
 @app.command()
 def crop(
     recording: Annotated[Path, typer.Argument(help="a .rrd written by vslam run")],
-    frames: Annotated[str, typer.Option(help="START:END of the frame timeline to keep (END excluded)")],
+    frames: Annotated[str, typer.Option(help="START:END of the frame timeline to keep (END excluded, either may be "
+                                        "left out; clamped to the recording's frames like a Python slice; "
+                                        "no STEP)")],
     output: Annotated[Path, typer.Option("--output", "-o", help="the cropped .rrd to write")],
     force: Annotated[bool, typer.Option("--force", help="replace an existing output")] = False,
 ) -> None:
     """Cut a recording down to the frames that matter (static data and blueprint kept)."""
-    selection = FrameRange.parse(frames)
-    if selection.start is None or selection.end is None or selection.step != 1:
-        fail(f"--frames {frames!r}: give START:END, e.g. 120:160")
+    selection = parse_crop_frames(frames)
     _existing_recording(recording)
     _check_new_recording(output, force)
-    summary = crop_recording(recording, (selection.start, selection.end), output)
+    summary = crop_recording(recording, selection, output)
     out.print(f"{output}: frames {summary.first_frame}..{summary.last_frame} ({summary.frame_count} frames), "
               f"{summary.output_bytes / 1e6:.1f} MB (from {summary.input_bytes / 1e6:.1f} MB)", highlight=False)
 
@@ -307,7 +314,8 @@ def eval_command(
     source: Annotated[str | None, typer.Argument(help="KITTI root (with --sequences), sequence folder, image "
                                                  "folder with --gt, or 'synthetic'")] = None,
     sequences: Annotated[str | None, typer.Option(help="KITTI sequences, e.g. 00,05")] = None,
-    frames: Annotated[str | None, typer.Option(help="START:END[:STEP] of every sequence (END excluded)")] = None,
+    frames: Annotated[str | None, typer.Option(help="START:END[:STEP] of every sequence (END excluded; an END past "
+                                               "the last frame is clamped to it, like a Python slice)")] = None,
     scale: Annotated[Scale, typer.Option(help="gt: ground-truth step length; height: from the known camera "
                                          "height (no ground truth used); none: unit steps, scored after Sim(3) "
                                          "alignment")] = Scale.gt,
@@ -382,7 +390,7 @@ def eval_command(
         for src in sources:
             config = _with_camera_height(config, camera_height, src)
         evaluation = evaluate_sources(sources, config, report, err, detail if report is not None else Detail.OFF,
-                                      {"frames": str(frame_range), "source_path": source or "synthetic"})
+                                      {"source_path": source or "synthetic", **({"inject": inject} if inject else {})})
         scale_source, backend_name = config.scale, config.backend
     _print_evaluation(evaluation, scale_source, backend_name, report, as_json,
                       check_gates(evaluation.rows, max_t_err, max_r_err, max_ate))
@@ -418,6 +426,9 @@ def _print_evaluation(evaluation: Evaluation, scale: str, backend: str, report: 
     else:
         rows = evaluation.rows + ([evaluation.mean] if len(evaluation.rows) > 1 else [])
         out.print(markdown_table([{k: v for k, v in r.items() if k != "alignment"} for r in rows]), highlight=False)
+        if scale == "none":
+            out.print("alignment   every number is of the Sim(3)-aligned estimate (--scale none: unit steps, no "
+                      "metric scale)", highlight=False)
         if evaluation.matching is not None:
             out.print(evaluation.matching.describe(), highlight=False)
         if report is not None:

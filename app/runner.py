@@ -102,6 +102,15 @@ def record_run(
             failure = exc
         finally:
             if recorder is not None:
-                recorder.finish(result, interrupted is not None or failure is not None)
+                recorder.finish(result, _stopped(result, interrupted or stop.interruption(), failure))
         interrupted = interrupted or stop.interruption()  # a signal during the last frame or finalising
     return RecordedRun(result, interrupted, failure)
+
+
+def _stopped(result: RunResult, interrupted: Interrupted | None, failure: VslamError | None) -> str | None:
+    """Why a run ended before its last frame, for the recording (None: it did not)."""
+    if interrupted is not None:
+        return f"interrupted by {interrupted} after {result.frames} frames"
+    if failure is not None:
+        return f"stopped by an error after {result.frames} frames: {failure}"
+    return None
