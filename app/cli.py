@@ -22,14 +22,15 @@ from app.checks import (
     output_problem,
 )
 from app.compare import compare_recordings, format_differences
-from app.crop import crop_recording
+from app.crop import crop_recording, parse_crop_frames
 from app.entry import run as run_app
 from app.evaluation import REPORT_FILES, Evaluation, check_gates, evaluate_sources, evaluate_trajectory_file
 from app.inspect import format_report, inspect_recording
+from app.matching import DEFAULT_TOLERANCE_MS, MatchMode
 from app.outputs import claimed, ensure_folder
 from app.recording import Detail, version_properties
 from app.repair import format_repair, repair_recording, repaired_path
-from app.report import json_ready, markdown_table
+from app.report import json_ready, markdown_table, scored_estimate
 from app.runner import claim_run_outputs, describe_outputs, record_run
 from app.snapshot import DEFAULT_SIZE, parse_frame, parse_size, snapshot
 from app.web import open_recording, port_problem
@@ -37,7 +38,7 @@ from vslam_core.config import EngineConfig, load_config
 from vslam_core.metrics import kitti_errors, paper_rms_error, scale_errors
 from vslam_core.pipeline import RunResult
 from vslam_core.scale import default_camera_height
-from vslam_core.sources.base import FrameRange, FrameSource
+from vslam_core.sources.base import FrameRange, FrameSource, describe_indices
 from vslam_core.sources.open import open_source
 
 app = typer.Typer(
@@ -143,10 +144,14 @@ def _summary(source: FrameSource, run: RunResult, config: EngineConfig) -> None:
             median, _, path = scale_errors(gt, run.pose_array())
             lines.append(f"step length {median:+.1f} % median error per frame, path length {path:+.1f} % vs ground "
                          "truth")
-        t_err, r_err = kitti_errors(gt, run.pose_array())
+        scored = scored_estimate(gt, run.pose_array(), config.scale)  # --scale none: Sim(3)-aligned, as eval
+        aligned = config.scale == "none"
+        t_err, r_err = kitti_errors(gt, scored)
         lines.append(f"KITTI       t_err {t_err:.2f} %   r_err {r_err:.2f} °/100 m"
-                     + ("   (path < 100 m: no segment)" if np.isnan(t_err) else ""))
-        lines.append(f"paper RMS   {paper_rms_error(gt, run.pose_array()):.2f} m (x–z, no alignment)")
+                     + ("   (path < 100 m: no segment)" if np.isnan(t_err) else "")
+                     + ("   (after Sim(3) alignment: --scale none has unit steps)" if aligned else ""))
+        lines.append(f"paper RMS   {paper_rms_error(gt, scored):.2f} m (x–z, "
+                     + ("after Sim(3) alignment)" if aligned else "no alignment)"))
     out.print("\n".join(lines), highlight=False)
 
 
@@ -155,7 +160,9 @@ def run(
     source: Annotated[str | None, typer.Argument(help="KITTI root or sequence folder, image folder, video "
                                                  "file, or 'synthetic' (the default: no download)")] = None,
     sequence: Annotated[str | None, typer.Option("--sequence", "-s", help="KITTI sequence, e.g. 00")] = None,
-    frames: Annotated[str | None, typer.Option(help="START:END[:STEP] of the source's frames (END excluded)")] = None,
+    frames: Annotated[str | None, typer.Option(help="START:END[:STEP] of the source's frames (END excluded; an END "
+                                               "past the last frame is clamped to it, like a Python slice)")]
+    = None,
     scale: Annotated[Scale | None, typer.Option(help="translation length: gt = ground truth, height = from the "
                                                 "known camera height over the road (no ground truth used), none "
                                                 "= unit steps [default: gt when the source has ground truth]")]
@@ -199,16 +206,17 @@ def run(
     for warning in input_warnings(src, config):
         warn(warning)
 
+    selected = describe_indices(src.indices)  # the real range (`--frames` left out or clamped), e.g. 0:300
     recording = _recording_path(output) if output is not None and detail != Detail.OFF else None
-    outputs = claim_run_outputs(recording, detail != Detail.OFF, src.name, str(frame_range), trajectory_out,
+    outputs = claim_run_outputs(recording, detail != Detail.OFF, src.name, selected, trajectory_out,
                                 trajectory_format.value, force)
     rrd = outputs.recording.path if outputs.recording is not None else None
     properties = {
-        "name": f"vslam {src.name} frames {frame_range} scale {config.scale}",
+        "name": f"vslam {src.name} frames {selected} scale {config.scale}",
         "recording_id": _recording_id(src, frame_range, config),
         "source": src.name,
         "source_path": source or "synthetic",
-        "frames": str(frame_range),
+        "frames": selected,
         "frame_count": str(len(src)),
         "scale": config.scale,
         "backend": config.backend,
@@ -291,17 +299,17 @@ def open_command(
 @app.command()
 def crop(
     recording: Annotated[Path, typer.Argument(help="a .rrd written by vslam run")],
-    frames: Annotated[str, typer.Option(help="START:END of the frame timeline to keep (END excluded)")],
+    frames: Annotated[str, typer.Option(help="START:END of the frame timeline to keep (END excluded, either may be "
+                                        "left out; clamped to the recording's frames like a Python slice; "
+                                        "no STEP)")],
     output: Annotated[Path, typer.Option("--output", "-o", help="the cropped .rrd to write")],
     force: Annotated[bool, typer.Option("--force", help="replace an existing output")] = False,
 ) -> None:
     """Cut a recording down to the frames that matter (static data and blueprint kept)."""
-    selection = FrameRange.parse(frames)
-    if selection.start is None or selection.end is None or selection.step != 1:
-        fail(f"--frames {frames!r}: give START:END, e.g. 120:160")
+    selection = parse_crop_frames(frames)
     _existing_recording(recording)
     with claimed(_recording_path(output), force, "recording"):
-        summary = crop_recording(recording, (selection.start, selection.end), output)
+        summary = crop_recording(recording, selection, output)
     out.print(f"{output}: frames {summary.first_frame}..{summary.last_frame} ({summary.frame_count} frames), "
               f"{summary.output_bytes / 1e6:.1f} MB (from {summary.input_bytes / 1e6:.1f} MB)", highlight=False)
 
@@ -311,7 +319,8 @@ def eval_command(
     source: Annotated[str | None, typer.Argument(help="KITTI root (with --sequences), sequence folder, image "
                                                  "folder with --gt, or 'synthetic'")] = None,
     sequences: Annotated[str | None, typer.Option(help="KITTI sequences, e.g. 00,05")] = None,
-    frames: Annotated[str | None, typer.Option(help="START:END[:STEP] of every sequence (END excluded)")] = None,
+    frames: Annotated[str | None, typer.Option(help="START:END[:STEP] of every sequence (END excluded; an END past "
+                                               "the last frame is clamped to it, like a Python slice)")] = None,
     scale: Annotated[Scale, typer.Option(help="gt: ground-truth step length; height: from the known camera "
                                          "height (no ground truth used); none: unit steps, scored after Sim(3) "
                                          "alignment")] = Scale.gt,
@@ -323,6 +332,18 @@ def eval_command(
     detail: Annotated[Detail, typer.Option(help="detail of the recordings written to --report")] = Detail.FULL,
     trajectory: Annotated[Path | None, typer.Option(help="evaluate this trajectory file instead of running")] = None,
     gt: Annotated[Path | None, typer.Option(help="ground truth for --trajectory (or an image folder)")] = None,
+    intrinsics: Annotated[str | None, typer.Option(help="fx,fy,cx,cy of an image folder or video SOURCE")] = None,
+    calib: Annotated[Path | None, typer.Option(help="KITTI-style calib file (P0 line) of an image folder or video "
+                                               "SOURCE, instead of --intrinsics")] = None,
+    gt_times: Annotated[Path | None, typer.Option(help="timestamps of a KITTI --gt (the sequence's times.txt, "
+                                                  "line i = pose row i): TUM rows are then matched by time")]
+    = None,
+    match: Annotated[MatchMode, typer.Option(help="--trajectory rows: auto = by timestamp when both sides have "
+                                             "times, else row by row if the files have the same length; "
+                                             "timestamps; rows = row i is frame i, whatever the lengths")]
+    = MatchMode.auto,
+    time_tolerance: Annotated[float, typer.Option(min=0.0, help="timestamp matching tolerance (ms)")]
+    = DEFAULT_TOLERANCE_MS,
     trajectory_format: Annotated[TrajectoryFormat | None, typer.Option("--format", help="kitti or tum "
                                                                        "[default: from the columns]")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="print the metrics as JSON (keys in README)")] = False,
@@ -348,10 +369,15 @@ def eval_command(
                           "--camera-height": camera_height}
         for option in (name for name, value in engine_options.items() if value is not None):
             fail(f"{option} applies to runs of the engine: it does not apply to --trajectory files")
+        if intrinsics is not None or calib is not None:
+            fail("--intrinsics and --calib describe the camera of a SOURCE: they do not apply to --trajectory files")
         fmt = trajectory_format.value if trajectory_format is not None else None
-        evaluation = evaluate_trajectory_file(trajectory, gt, fmt, report)  # type: ignore[arg-type]
+        evaluation = evaluate_trajectory_file(trajectory, gt, fmt, report,  # type: ignore[arg-type]
+                                              gt_times, match, time_tolerance)
         scale_source = backend_name = "external"
     else:
+        if gt_times is not None or match is not MatchMode.auto:
+            fail("--gt-times and --match apply to --trajectory files only")
         config = load_config(config_file) if config_file is not None else EngineConfig()
         config = config.with_scale(scale.value)
         if backend is not None:
@@ -360,20 +386,22 @@ def eval_command(
         if sequences is not None:
             if source is None:
                 fail("--sequences needs SOURCE, the KITTI dataset root")
+            if intrinsics is not None or calib is not None:
+                fail("--intrinsics and --calib are for image folders and videos: KITTI sequences have calib.txt")
             sources: list[FrameSource] = [
                 open_source(source, sequence=s.strip(), frames=frame_range, ground_truth=gt,
                             on_bad_frame=on_bad_frame.value, inject=inject)
                 for s in sequences.split(",") if s.strip()
             ]
         else:
-            sources = [open_source(source, frames=frame_range, ground_truth=gt, on_bad_frame=on_bad_frame.value,
-                                   inject=inject)]
+            sources = [open_source(source, frames=frame_range, intrinsics=intrinsics, calib=calib, ground_truth=gt,
+                                   on_bad_frame=on_bad_frame.value, inject=inject)]
         for src in sources:
             config = _with_camera_height(config, camera_height, src)
         for warning in dict.fromkeys(w for src in sources for w in input_warnings(src, config)):
             warn(warning)
         evaluation = evaluate_sources(sources, config, report, err, detail if report is not None else Detail.OFF,
-                                      {"frames": str(frame_range), "source_path": source or "synthetic"})
+                                      {"source_path": source or "synthetic", **({"inject": inject} if inject else {})})
         scale_source, backend_name = config.scale, config.backend
     _print_evaluation(evaluation, scale_source, backend_name, report, as_json,
                       check_gates(evaluation.rows, max_t_err, max_r_err, max_ate))
@@ -410,6 +438,11 @@ def _print_evaluation(evaluation: Evaluation, scale: str, backend: str, report: 
     else:
         rows = evaluation.rows + ([evaluation.mean] if len(evaluation.rows) > 1 else [])
         out.print(markdown_table([{k: v for k, v in r.items() if k != "alignment"} for r in rows]), highlight=False)
+        if scale == "none":
+            out.print("alignment   every number is of the Sim(3)-aligned estimate (--scale none: unit steps, no "
+                      "metric scale)", highlight=False)
+        if evaluation.matching is not None:
+            out.print(evaluation.matching.describe(), highlight=False)
         if report is not None:
             out.print(f"report      {report / 'report.md'}", highlight=False)
     if evaluation.interrupted is not None:

@@ -43,6 +43,7 @@ import rerun.blueprint as rrb
 from rerun.chunk import Chunk, LazyChunkStream, RrdReader, StoreEntry
 
 from app.inspect import inspect_recording
+from app.provenance import run_differences
 from app.recording import APPLICATION_ID, METRICS, STAGES
 from app.rrd import (
     RecordingError,
@@ -441,6 +442,7 @@ def format_differences(result: ComparisonResult) -> str:
              f"name        {result.recording_name}"]
     for label, path, report in zip(result.labels, result.inputs, result.reports, strict=True):
         lines.append(f"{label:<11} {path}: {report['recording_name']}")
+    lines += run_differences(*result.reports)  # how the runs were made: properties and config, A → B
     lines.append("")
     for row in [header, *rows]:
         cells = [row[0].ljust(widths[0]), *(cell.rjust(width) for cell, width in zip(row[1:], widths[1:],

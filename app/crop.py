@@ -2,6 +2,8 @@
 
 How (rerun-sdk 0.41):
 
+0. The run properties (``/__properties/run``: ``frames``, ``frame_count``, and a new ``cropped_from``) and the
+   recording name are rewritten to say which frames the cropped file holds (`app.provenance`).
 1. The recording store is cropped in-process with the chunk API: ``RrdReader(src).stream()`` →
    ``flat_map`` (static chunks and chunks without a ``frame`` time pass through untouched, temporal
    chunks keep only their rows with START <= frame < END, re-wrapped with ``Chunk.from_record_batch``,
@@ -21,6 +23,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,6 +31,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 from rerun.chunk import Chunk, RrdReader, StoreEntry
 
+from app.provenance import cropped_properties
 from app.rrd import RecordingError, first_line, open_store, readable, run_rerun_cli, same_file, work_dir_beside
 
 FRAME = "frame"
@@ -48,9 +52,11 @@ class CropSummary:
 class _FrameFilter:
     """`flat_map` callback: keeps rows with ``start <= frame < end``; remembers what it saw."""
 
-    def __init__(self, start: int, end: int) -> None:
+    def __init__(self, start: int, end: int, replacements: dict[str, Chunk] | None = None) -> None:
         self.start = start
         self.end = end
+        self.replacements = replacements or {}  # static chunks to swap, by entity path (the run properties)
+        self.replaced = set(self.replacements)
         self.kept: set[int] = set()
         self.lowest: int | None = None
         self.highest: int | None = None
@@ -58,6 +64,11 @@ class _FrameFilter:
 
     def __call__(self, chunk: Chunk) -> list[Chunk]:
         self.entities.add(chunk.entity_path)
+        if chunk.is_static and chunk.entity_path in self.replacements:  # once, however often it was logged
+            replacement = self.replacements.pop(chunk.entity_path, None)
+            return [replacement] if replacement is not None else []
+        if chunk.is_static and chunk.entity_path in self.replaced:
+            return []
         if chunk.is_static or FRAME not in chunk.timeline_names:
             return [chunk]
         batch = chunk.to_record_batch()
@@ -82,10 +93,32 @@ class _FrameFilter:
         return Chunk.from_record_batch(rows)
 
 
-def crop_recording(source: Path, frames: tuple[int, int], output: Path) -> CropSummary:
-    """Write the frames ``START <= frame < END`` of `source` to `output`, with all static data (properties,
-    recording name, Pinhole, styles…) and the embedded blueprint. Raises `RecordingError`."""
-    start, end = frames
+def parse_crop_frames(text: str) -> tuple[int, int | None]:
+    """``"START:END"`` of the frame timeline (END excluded; either may be left out: ``:140``, ``110:``) as
+    (start, end or None). The range is clamped to the recording's frames like a Python slice; crop keeps a
+    contiguous range, so there is no STEP. Raises `RecordingError` with what crop accepts."""
+    expected = f"--frames {text!r}: expected START:END of the frame timeline, e.g. 120:160 (END excluded; no STEP)"
+    parts = text.strip().split(":")
+    if len(parts) != 2:
+        raise RecordingError(expected)
+    try:
+        start, end = (int(p) if p.strip() else None for p in parts)
+    except ValueError:
+        raise RecordingError(expected) from None
+    first = 0 if start is None else start
+    if first < 0 or (end is not None and end < 0):
+        raise RecordingError(f"--frames {text!r}: negative frame numbers are not supported")
+    if end is not None and end <= first:
+        raise RecordingError(f"--frames {text!r}: selects no frame (END must be greater than START; END is "
+                             "excluded)")
+    return first, end
+
+
+def crop_recording(source: Path, frames: tuple[int, int | None], output: Path) -> CropSummary:
+    """Write the frames ``START <= frame < END`` of `source` to `output` (END None: to the last frame), with all
+    static data (Pinhole, styles…) and the embedded blueprint; the run properties and recording name are
+    rewritten to say which frames the file holds. Raises `RecordingError`."""
+    start, end = frames[0], (frames[1] if frames[1] is not None else sys.maxsize)
     if start >= end:
         raise RecordingError(f"{source}: empty frame range {start}:{end} (START must be below END; END is excluded)")
     if start < 0:
@@ -97,7 +130,7 @@ def crop_recording(source: Path, frames: tuple[int, int], output: Path) -> CropS
     work = work_dir_beside(output)
     try:
         cropped = work / "recording.rrd"
-        keep = _FrameFilter(start, end)
+        keep = _FrameFilter(start, end, cropped_properties(source, start, end))
         try:
             reader.stream(store=recording).flat_map(keep).write_rrd(
                 cropped, application_id=recording.application_id, recording_id=recording.recording_id)
@@ -106,7 +139,8 @@ def crop_recording(source: Path, frames: tuple[int, int], output: Path) -> CropS
         except Exception as exc:  # the reader raises plain exceptions for corrupt chunks
             raise RecordingError(f"{source}: cannot read the recording ({first_line(exc)})") from None
         if not keep.kept:
-            raise RecordingError(f"{source}: frames {start}:{end} select no frame ({_own_range(keep)})")
+            wanted = f"{start}:{frames[1] if frames[1] is not None else ''}"
+            raise RecordingError(f"{source}: frames {wanted} select no frame ({_own_range(keep)})")
 
         result = cropped
         if blueprints:

@@ -17,14 +17,15 @@ import polars as pl
 from rich.console import Console
 
 import vslam_core
+from app.matching import DEFAULT_TOLERANCE_MS, Matching, MatchMode, gt_times_for, match_poses
 from app.plots import write_top_view
 from app.recording import Detail, version_properties
-from app.report import COLUMNS, json_ready, markdown_table, mean_row, metrics_row
+from app.report import COLUMNS, json_ready, markdown_table, mean_row, metrics_row, scored_estimate
 from app.runner import Interrupted, record_run
 from vslam_core.config import EngineConfig
-from vslam_core.errors import SourceError, TrajectoryFormatError
+from vslam_core.errors import SourceError
 from vslam_core.metrics import kitti_errors_by_length
-from vslam_core.sources.base import FrameSource, rebase_poses
+from vslam_core.sources.base import FrameSource, describe_indices, rebase_poses
 from vslam_core.trajectory_io import (
     TrajectoryFormat,
     detect_format,
@@ -42,9 +43,13 @@ class Evaluation:
     mean: dict[str, Any]
     by_length: dict[str, dict[float, tuple[float, float, int]]] = field(default_factory=dict)
     interrupted: Interrupted | None = None
+    matching: Matching | None = None  # --trajectory files: how their rows were paired with the ground truth
+    inject: str | None = None  # faults injected into every sequence (--inject)
+    notes: list[str] = field(default_factory=list)  # which sequence was interrupted, after how many frames
 
     def as_json(self) -> dict[str, Any]:
-        return json_ready({"sequences": self.rows, "mean": self.mean})
+        extra = {"matching": self.matching.as_json()} if self.matching is not None else {}
+        return json_ready({"sequences": self.rows, "mean": self.mean, **extra})
 
 
 def evaluate_sources(
@@ -59,14 +64,17 @@ def evaluate_sources(
     recording, trajectory and plot there, then the tables."""
     rows, by_length = [], {}
     interrupted = None
-    for source in sources:
+    notes: list[str] = []  # how the runs ended early, for report.md
+    for position, source in enumerate(sources):
         gt = source.ground_truth
         if gt is None:
             raise SourceError(f"{source.name}: no ground truth, nothing to evaluate against")
         rrd = report_dir / f"{source.name}.rrd" if report_dir is not None and detail != Detail.OFF else None
+        selected = describe_indices(source.indices)
         props = {
-            "name": f"vslam eval {source.name} scale {config.scale}",
+            "name": f"vslam eval {source.name} frames {selected} scale {config.scale}",
             "source": source.name,
+            "frames": selected,
             "frame_count": str(len(source)),
             "scale": config.scale,
             "backend": config.backend,
@@ -76,30 +84,40 @@ def evaluate_sources(
         run = record_run(source, config, rrd, props, console, detail)
         if run.failure is not None:
             raise run.failure
-        if run.result.frames < 3:
-            interrupted = run.interrupted
-            break
-        poses = run.result.pose_array()
-        row = metrics_row(source.name, gt[: len(poses)], poses, config.scale, config.backend)
-        row["fps"] = run.result.frames / run.result.seconds if run.result.seconds else math.nan
-        rows.append(row)
-        by_length[source.name] = kitti_errors_by_length(gt[: len(poses)], poses)
-        if report_dir is not None:
-            write_kitti_poses(report_dir / f"{source.name}.txt", poses)
-            write_top_view(
-                report_dir / f"{source.name}_top.png",
-                gt[: len(poses)],
-                poses,
-                f"{source.name}  ({len(poses)} frames, scale {config.scale}, backend {config.backend})",
-                _subtitle(row),
-            )
+        if run.result.frames >= 3:
+            row, lengths = _score(source.name, gt, run.result.pose_array(), config, report_dir)
+            row["fps"] = run.result.frames / run.result.seconds if run.result.seconds else math.nan
+            rows.append(row)
+            by_length[source.name] = lengths
         if run.interrupted is not None:
             interrupted = run.interrupted
+            notes.append(f"{source.name}: interrupted by {interrupted} after {run.result.frames} of {len(source)} "
+                         "frames" + (" (its row covers those frames only)" if run.result.frames >= 3
+                                     else " (too few to score: no row)"))
+            if position + 1 < len(sources):
+                notes.append("not run: " + ", ".join(s.name for s in sources[position + 1:]))
             break
-    evaluation = Evaluation(rows, mean_row(rows), by_length, interrupted)
-    if report_dir is not None and rows:
+    evaluation = Evaluation(rows, mean_row(rows), by_length, interrupted, inject=(properties or {}).get("inject"),
+                            notes=notes)
+    if report_dir is not None and (rows or notes):
         write_report(report_dir, evaluation, config)
     return evaluation
+
+
+def _score(name: str, gt: np.ndarray, poses: np.ndarray, config: EngineConfig, report_dir: Path | None
+           ) -> tuple[dict[str, Any], dict[float, tuple[float, float, int]]]:
+    """The metrics row and per-length KITTI errors of one run; with `report_dir`, its trajectory (as run) and
+    top view (the scored estimate: Sim(3)-aligned with --scale none) there."""
+    gt = gt[: len(poses)]
+    row = metrics_row(name, gt, poses, config.scale, config.backend)
+    scored = scored_estimate(gt, poses, config.scale)
+    if report_dir is not None:
+        write_kitti_poses(report_dir / f"{name}.txt", poses)
+        aligned = " Sim(3)-aligned" if row["alignment"] == "sim3" else ""
+        write_top_view(report_dir / f"{name}_top.png", gt, scored,
+                       f"{name}  ({len(poses)} frames, scale {config.scale}{aligned}, backend {config.backend})",
+                       _subtitle(row))
+    return row, kitti_errors_by_length(gt, scored)
 
 
 def _subtitle(row: dict[str, Any]) -> str:
@@ -118,19 +136,22 @@ def write_report(report_dir: Path, evaluation: Evaluation, config: EngineConfig)
     table.write_csv(report_dir / "metrics.csv")
     table.write_parquet(report_dir / "metrics.parquet")
     rows = evaluation.rows + ([evaluation.mean] if len(evaluation.rows) > 1 else [])
+    aligned = config.scale == "none"
     lines = [
         "# vslam evaluation",
         "",
         f"vslam {vslam_core.__version__}, {datetime.now():%Y-%m-%d %H:%M}, scale source `{config.scale}`, "
-        f"backend `{evaluation.mean.get('backend', config.backend)}`"
-        + (" (estimates Sim(3)-aligned before scoring: known only up to scale)" if config.scale == "none" else ""),
+        f"backend `{evaluation.mean.get('backend', config.backend)}`.",
         "",
+        *_provenance_lines(evaluation, aligned),
         markdown_table([{k: r.get(k) for k in COLUMNS if k not in ("scale", "backend", "alignment")} for r in rows]),
         "",
-        "t_err, r_err: KITTI devkit segment errors (100–800 m, every 10th frame), no alignment. ATE: RMSE after "
-        "Umeyama SE(3) / Sim(3) alignment. RPE: consecutive frames (and pairs 10 m of path apart), translation "
-        "RMSE and mean rotation. Paper "
-        "RMS: the seed paper's x–z position RMS, no alignment.",
+        ("Every number is of the Sim(3)-aligned estimate. " if aligned else "")
+        + "t_err, r_err: KITTI devkit segment errors (100–800 m, every 10th frame), "
+        + ("after that alignment" if aligned else "no alignment")
+        + ". ATE: RMSE after Umeyama SE(3) / Sim(3) alignment. RPE: consecutive frames (and pairs 10 m of path "
+        "apart), translation RMSE and mean rotation. Paper RMS: the seed paper's x–z position RMS, "
+        + ("after that alignment." if aligned else "no alignment."),
     ]
     if evaluation.by_length:
         lengths = sorted({length for v in evaluation.by_length.values() for length in v})
@@ -156,9 +177,23 @@ def write_report(report_dir: Path, evaluation: Evaluation, config: EngineConfig)
     ]
     if plots:
         lines += ["", "## Trajectories (top view)", "", *plots]
-    if evaluation.interrupted is not None:
-        lines += ["", f"**Interrupted by {evaluation.interrupted}**: the tables cover the frames processed."]
     (report_dir / "report.md").write_text("\n".join(lines) + "\n")
+
+
+def _provenance_lines(evaluation: Evaluation, aligned: bool) -> list[str]:
+    """What report.md says before its table: alignment, row matching, injected faults, interruption."""
+    lines = []
+    if aligned:
+        lines.append("`--scale none`: the estimates have unit steps (no metric scale), so each is Sim(3)-aligned "
+                     "onto the ground truth before scoring and plotting.")
+    if evaluation.matching is not None:
+        lines.append(f"Rows {evaluation.matching.describe()}.")
+    if evaluation.matching is None:
+        lines.append(f"Faults injected into every sequence: `{evaluation.inject}` (`--inject`)." if evaluation.inject
+                     else "No faults injected.")
+    if evaluation.notes:
+        lines.append(f"**Interrupted by {evaluation.interrupted}**: " + "; ".join(evaluation.notes) + ".")
+    return [line for item in lines for line in (item, "")]
 
 
 def load_trajectory(path: Path, fmt: TrajectoryFormat | None) -> tuple[np.ndarray | None, np.ndarray]:
@@ -169,40 +204,27 @@ def load_trajectory(path: Path, fmt: TrajectoryFormat | None) -> tuple[np.ndarra
     return None, read_kitti_poses(path)
 
 
-def associate(
-    est_times: np.ndarray | None, est: np.ndarray, gt_times: np.ndarray | None, gt: np.ndarray, names: tuple[Path, Path]
-) -> tuple[np.ndarray, np.ndarray]:
-    """Frame-aligned (estimate, ground truth): by timestamp (nearest within 10 ms) when both files have
-    them, else row by row (row i = frame i; extra ground-truth rows are ignored)."""
-    if est_times is not None and gt_times is not None:
-        order = np.argsort(gt_times)
-        nearest = np.clip(np.searchsorted(gt_times[order], est_times), 1, len(gt_times) - 1)
-        before, after = order[nearest - 1], order[nearest]
-        pick = np.where(np.abs(gt_times[before] - est_times) <= np.abs(gt_times[after] - est_times), before, after)
-        close = np.abs(gt_times[pick] - est_times) <= 0.01
-        if close.sum() < 3:
-            raise TrajectoryFormatError(f"{names[0]}: fewer than 3 timestamps match {names[1]} (within 10 ms)")
-        return est[close], gt[pick[close]]
-    if len(gt) > len(est):
-        return est, gt[: len(est)]  # a KITTI poses file covers the whole sequence: row i = frame i
-    if len(est) != len(gt):
-        raise TrajectoryFormatError(
-            f"{names[0]} has {len(est)} poses but {names[1]} only {len(gt)}: they must be frame-aligned "
-            "(or both TUM files with timestamps)"
-        )
-    return est, gt
-
-
 def evaluate_trajectory_file(
-    estimate: Path, ground_truth: Path, fmt: TrajectoryFormat | None, report_dir: Path | None
+    estimate: Path,
+    ground_truth: Path,
+    fmt: TrajectoryFormat | None,
+    report_dir: Path | None,
+    gt_times: Path | None = None,
+    match: MatchMode = MatchMode.auto,
+    tolerance_ms: float = DEFAULT_TOLERANCE_MS,
 ) -> Evaluation:
-    """Score any system's trajectory file against ground truth, both re-based to their first pose."""
+    """Score any system's trajectory file against ground truth, both re-based to their first pose; rows are
+    matched by timestamp when both sides have times (`gt_times`: a KITTI ``times.txt`` for a KITTI ground
+    truth), else row by row (see `app.matching`)."""
     est_times, est = load_trajectory(estimate, fmt)
-    gt_times, gt = load_trajectory(ground_truth, fmt)
-    est, gt = associate(est_times, est, gt_times, gt, (estimate, ground_truth))
+    own_gt_times, gt = load_trajectory(ground_truth, fmt)
+    times = gt_times_for(gt_times, own_gt_times, len(gt), ground_truth)
+    est, gt, matching = match_poses(est_times, est, times, gt, (estimate, ground_truth), match, tolerance_ms)
     est, gt = rebase_poses(est), rebase_poses(gt)
     row = metrics_row(estimate.stem, gt, est, "external", "external")
-    evaluation = Evaluation([row], mean_row([row]), {estimate.stem: kitti_errors_by_length(gt, est)})
+    row["matching"] = matching.describe()
+    evaluation = Evaluation([row], mean_row([row]), {estimate.stem: kitti_errors_by_length(gt, est)},
+                            matching=matching)
     if report_dir is not None:
         write_top_view(
             report_dir / f"{estimate.stem}_top.png", gt, est, f"{estimate.name}  ({len(est)} poses)", _subtitle(row)

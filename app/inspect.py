@@ -11,17 +11,18 @@ from typing import Any
 
 import numpy as np
 
+from app.provenance import PROPERTIES, config_lines, latest_static_row, non_default, read_properties
 from app.recording import METRICS, STAGES
 from app.rrd import RecordingError, read_entity, readable
 
 SCHEMA_VERSION = 1
 
 
-def _scalars(path: Path, group: str) -> dict[str, np.ndarray]:
+def _scalars(path: Path, group: str, prefix: str = "") -> dict[str, np.ndarray]:
     """Values of each series of one metric group, over the frames that have one."""
     series = {}
     for name in METRICS[group]:
-        table = read_entity(path, f"/metrics/{group}/{name}")
+        table = read_entity(path, f"{prefix}/metrics/{group}/{name}")
         values = [v[0] for v in table["Scalars:scalars"].to_list()] if not table.is_empty() else []
         series[name] = np.asarray(values, dtype=np.float64)
     return series
@@ -37,16 +38,6 @@ def _stats(values: np.ndarray) -> dict[str, float] | None:
         "p95": float(np.percentile(values, 95)),
         "min": float(values.min()),
         "max": float(values.max()),
-    }
-
-
-def _properties(path: Path, name: str) -> dict[str, Any]:
-    table = read_entity(path, f"/__properties/{name}", static=True)
-    if table.is_empty():
-        return {}
-    row = table.row(0, named=True)
-    return {
-        k: (v[0] if isinstance(v, list) and len(v) == 1 else v) for k, v in row.items() if not k.startswith("rerun.")
     }
 
 
@@ -66,15 +57,20 @@ def flagged_ranges(frames: list[int], statuses: list[str], reasons: list[str]) -
     return [{k: v for k, v in r.items() if k != "_next"} for r in ranges]
 
 
-def _accuracy(path: Path) -> dict[str, float] | None:
-    position = _scalars(path, "error")["position_m"]
+def _accuracy(path: Path, prefix: str = "") -> dict[str, float] | None:
+    position = _scalars(path, "error", prefix)["position_m"]
     if not len(position):
         return None
-    angles = _scalars(path, "angle_error")
-    camera = read_entity(path, "/world/camera")
-    ground_truth = read_entity(path, "/world/trajectory/ground_truth")
-    translations = camera["Transform3D:translation"].to_list()
-    estimate_xyz = np.array([t[0] if isinstance(t[0], list) else t for t in translations], np.float64).reshape(-1, 3)
+    angles = _scalars(path, "angle_error", prefix)
+    camera = read_entity(path, f"{prefix}/world/camera")
+    ground_truth = read_entity(path, f"{prefix}/world/trajectory/ground_truth")
+    aligned = read_entity(path, f"{prefix}/world/trajectory/estimate_sim3", static=True)  # --scale none
+    if not aligned.is_empty():
+        estimate_xyz = np.array(aligned["LineStrips3D:strips"][0][0], np.float64).reshape(-1, 3)
+    else:
+        translations = camera["Transform3D:translation"].to_list()
+        estimate_xyz = np.array([t[0] if isinstance(t[0], list) else t for t in translations],
+                                np.float64).reshape(-1, 3)
     gt_xyz = np.array([strips[0][1] for strips in ground_truth["LineStrips3D:strips"].to_list()]).reshape(-1, 3)
     n = min(len(estimate_xyz), len(gt_xyz))
     xz = (estimate_xyz[:n] - gt_xyz[:n])[:, [0, 2]]
@@ -89,34 +85,56 @@ def _accuracy(path: Path) -> dict[str, float] | None:
     }
 
 
+def _accuracy_alignment(path: Path, prefix: str = "") -> str:
+    """``sim3`` when the recording's position errors are of the Sim(3)-aligned estimate (--scale none)."""
+    aligned = read_entity(path, f"{prefix}/world/trajectory/estimate_sim3", static=True)
+    return "none" if aligned.is_empty() else "sim3"
+
+
 def inspect_recording(path: Path) -> dict[str, Any]:
-    """Everything `vslam inspect --json` prints (see README: "vslam inspect --json")."""
+    """Everything `vslam inspect --json` prints (see README: "vslam inspect --json"). A `vslam compare`
+    output gives ``comparison`` (labels, input files) and ``runs`` (``a`` and ``b``: each run's report)."""
     if not path.is_file():
         raise RecordingError(f"{path}: no such recording")
+    comparison = read_properties(path, f"{PROPERTIES}/compare")
+    if comparison and read_entity(path, "/world/camera").is_empty():
+        return {
+            "schema": SCHEMA_VERSION, "file": str(path), "bytes": path.stat().st_size,
+            "recording_name": _recording_name(path), "comparison": comparison,
+            "runs": {prefix: _run_report(path, f"/{prefix}") for prefix in ("a", "b")},
+        }
+    return {"schema": SCHEMA_VERSION, "file": str(path), "bytes": path.stat().st_size,
+            "recording_name": _recording_name(path), **_run_report(path)}
+
+
+def _recording_name(path: Path) -> str | None:
+    name = latest_static_row(path, PROPERTIES).get("RecordingInfo:name")
+    return name[0] if name else None
+
+
+def _run_report(path: Path, prefix: str = "") -> dict[str, Any]:
+    """One run's part of the report; `prefix` ``/a`` or ``/b`` for a run inside a comparison."""
     cut_short = readable(path).cut_short
-    camera = read_entity(path, "/world/camera")
+    camera = read_entity(path, f"{prefix}/world/camera")
     if camera.is_empty() or "frame" not in camera.columns:
         raise RecordingError(f"{path}: no camera frames in this recording (not written by `vslam run`?)"
                              + (" (cut short before the first frame was written)" if cut_short else ""))
     frames = camera["frame"].to_list()
-    health = read_entity(path, "/health")
+    health = read_entity(path, f"{prefix}/health")
     flagged = []
     if not health.is_empty():
         reasons = health["reasons"].to_list() if "reasons" in health.columns else [None] * len(health)
         flagged = flagged_ranges(
             health["frame"].to_list(), [v[0] for v in health["status"].to_list()], [v[0] if v else "" for v in reasons]
         )
-    timing = _scalars(path, "timing_ms")
-    tracks, ransac, ratio = _scalars(path, "tracks"), _scalars(path, "ransac"), _scalars(path, "ratio")
-    name_table = read_entity(path, "/__properties", static=True)
-    name = name_table["RecordingInfo:name"][0][0] if "RecordingInfo:name" in name_table.columns else None
+    timing = _scalars(path, "timing_ms", prefix)
+    tracks, ransac = _scalars(path, "tracks", prefix), _scalars(path, "ransac", prefix)
+    ratio = _scalars(path, "ratio", prefix)
+    config = read_properties(path, f"{PROPERTIES}{prefix}/config")
     return {
-        "schema": SCHEMA_VERSION,
-        "file": str(path),
-        "bytes": path.stat().st_size,
-        "recording_name": name,
-        "properties": _properties(path, "run"),
-        "config": _properties(path, "config"),
+        "properties": read_properties(path, f"{PROPERTIES}{prefix}/run"),
+        "config": config,
+        "config_non_default": {key: value for key, _, value in non_default(config)} if config else {},
         "frames": {"count": len(frames), "first": int(min(frames)), "last": int(max(frames))},
         "cut_short": cut_short,
         "stages_ms": {stage: _stats(timing[stage]) for stage in STAGES},
@@ -128,29 +146,47 @@ def inspect_recording(path: Path) -> dict[str, Any]:
             "inlier_ratio": _stats(ratio["inlier_ratio"]),
             "chirality_margin": _stats(ransac["chirality_margin"]),
         },
-        "accuracy": _accuracy(path),
+        "accuracy": _accuracy(path, prefix),
+        "accuracy_alignment": _accuracy_alignment(path, prefix),
         "flagged": flagged,
     }
 
 
 def format_report(report: dict[str, Any]) -> str:
-    """The human-readable form of `inspect_recording`."""
+    """The human-readable form of `inspect_recording` (a comparison: both runs, one after the other)."""
+    head = [f"recording   {report['file']} ({report['bytes'] / 1e6:.1f} MB)", f"name        {report['recording_name']}"]
+    if "runs" not in report:
+        return "\n".join(head + _format_run(report))
+    compare = report["comparison"]
+    head.append("comparison  of two runs (vslam compare)")
+    for prefix, run in report["runs"].items():
+        label = compare.get(f"label_{prefix}", prefix)
+        head += ["", f"── run {prefix.upper()}: {label} ({compare.get(f'file_{prefix}', '?')})", *_format_run(run)]
+    return "\n".join(head)
+
+
+def _format_run(report: dict[str, Any]) -> list[str]:
     props = report["properties"]
     frames = report["frames"]
     lines = [
-        f"recording   {report['file']} ({report['bytes'] / 1e6:.1f} MB)",
-        f"name        {report['recording_name']}",
         f"source      {props.get('source', '?')} ({props.get('source_path', '?')}), frames {props.get('frames', '?')}, "
-        f"scale {props.get('scale', '?')}, detail {props.get('detail', '?')}",
+        f"scale {props.get('scale', '?')}, backend {props.get('backend', '?')}, detail {props.get('detail', '?')}",
         f"versions    vslam {props.get('vslam_version', '?')}, OpenCV {props.get('opencv_version', '?')}, "
         f"Rerun {props.get('rerun_version', '?')}",
-        f"frames      {frames['count']} ({frames['first']}..{frames['last']})",
+        f"frames      {frames['count']} ({frames['first']}..{frames['last']})"
+        + (f"; cropped from frames {props['cropped_from']}" if "cropped_from" in props else ""),
         *([f"cut short   after frame {frames['last']} (no footer: the run was killed, crashed or ran out of disk); "
            f"it holds frames {frames['first']}..{frames['last']} of the {props.get('frame_count', '?')} the run "
            "was to process; `vslam repair` writes a finalised copy"] if report["cut_short"] else []),
-        "",
-        "stage          mean ms   median    p95     max",
     ]
+    if "stopped" in props:
+        lines.append(f"stopped     {props['stopped']}")
+    lines.append(f"inject      {props.get('inject') or 'none (no faults injected)'}")
+    if report["config"]:
+        changed = non_default(report["config"])
+        lines.append("config      " + ("; ".join(config_lines(changed, arrow=False)) + " (differ from the defaults)"
+                                       if changed else "the defaults"))
+    lines += ["", "stage          mean ms   median    p95     max"]
     for stage, stats in report["stages_ms"].items():
         if stats is not None:
             lines.append(
@@ -172,9 +208,12 @@ def format_report(report: dict[str, Any]) -> str:
             f"{accuracy['final_heading_error_deg']:.2f}°; mean direction error "
             f"{accuracy['mean_translation_direction_error_deg']:.2f}°"
         )
+        if report.get("accuracy_alignment") == "sim3":
+            lines.append("            (position errors and paper RMS after Sim(3) alignment: --scale none has unit "
+                         "steps; heading and direction errors need none)")
     flagged = report["flagged"]
     lines.append(f"flagged     {len(flagged)} range(s)" + (":" if flagged else ""))
     for item in flagged:
         span = f"{item['start']}" if item["start"] == item["end"] else f"{item['start']}..{item['end']}"
         lines.append(f"  frames {span:<12} {item['status']:<5} {', '.join(item['reasons'])}")
-    return "\n".join(lines)
+    return lines

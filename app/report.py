@@ -41,13 +41,19 @@ def metrics_row(name: str, gt: np.ndarray, poses: np.ndarray, scale: str, backen
     known only up to scale: it is Sim(3)-aligned to the ground truth first (``alignment = "sim3"``). With
     `backend`, the row names the engine backend that produced the poses (``backend`` key, after ``scale``)."""
     alignment = "sim3" if scale == "none" else "none"
-    estimate = sim3_aligned(gt, poses) if alignment == "sim3" and len(poses) > 2 else poses
+    estimate = scored_estimate(gt, poses, scale)
     metrics = evaluate(gt, estimate).as_dict()
     metrics["rpe_trans_10m"], metrics["rpe_rot_10m"] = rpe_by_distance(gt, estimate, 10.0)
     # how far each step's length is from the truth: the scale source's own error
     metrics["step_err_median"], metrics["step_err_abs"], metrics["path_length_err"] = scale_errors(gt, estimate)
     return {"sequence": name, "scale": scale, **({"backend": backend} if backend is not None else {}),
             "alignment": alignment, **metrics}
+
+
+def scored_estimate(gt: np.ndarray, poses: np.ndarray, scale: str) -> np.ndarray:
+    """The estimate as it is scored, printed and plotted: with ``scale == "none"`` (unit steps, no metric
+    scale) Sim(3)-aligned onto the ground truth, else as it is."""
+    return sim3_aligned(gt, poses) if scale == "none" and len(poses) > 2 else poses
 
 
 def mean_row(rows: list[dict[str, Any]]) -> dict[str, Any]:

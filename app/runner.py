@@ -163,7 +163,8 @@ def record_run(
         except VslamError as exc:
             failure = exc
         finally:
-            closing = _close_outputs(recorder, trajectory, result, interrupted is not None or failure is not None)
+            stopped = _stopped(result, interrupted or stop.interruption(), failure)
+            closing = _close_outputs(recorder, trajectory, result, stopped)
         failure = _with_progress(failure or closing, result)  # the first error is the one to report
         interrupted = interrupted or stop.interruption()  # a signal during the last frame or finalising
     return RecordedRun(result, interrupted, failure)
@@ -178,7 +179,7 @@ def _with_progress(failure: VslamError | None, result: RunResult) -> VslamError 
 
 
 def _close_outputs(recorder: Recorder | None, trajectory: TrajectoryWriter | None, result: RunResult,
-                   stopped: bool) -> VslamError | None:
+                   stopped: str | None) -> VslamError | None:
     """Finish both outputs whatever happens to the other; the first write error, if any."""
     first: VslamError | None = None
     if recorder is not None:
@@ -192,3 +193,12 @@ def _close_outputs(recorder: Recorder | None, trajectory: TrajectoryWriter | Non
         except VslamError as exc:
             first = first or exc
     return first
+
+
+def _stopped(result: RunResult, interrupted: Interrupted | None, failure: VslamError | None) -> str | None:
+    """Why a run ended before its last frame, for the recording (None: it did not)."""
+    if interrupted is not None:
+        return f"interrupted by {interrupted} after {result.frames} frames"
+    if failure is not None:
+        return f"stopped by an error after {result.frames} frames: {failure}"
+    return None

@@ -18,6 +18,8 @@ from polars.testing import assert_frame_equal
 from rerun.chunk import Chunk, RrdReader
 
 from app.crop import CropSummary, crop_recording
+from app.inspect import inspect_recording
+from app.provenance import read_properties
 from app.rrd import RecordingError, read_entity, rerun_binary
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -111,8 +113,13 @@ def test_no_temporal_row_outside_the_range(full: Path, cropped: tuple[Path, Crop
 
 
 def test_static_data_is_kept_verbatim(full: Path, cropped: tuple[Path, CropSummary]) -> None:
+    """Every static chunk but the run properties and the recording name (rewritten: see below)."""
     out, _ = cropped
-    original, kept = chunks_by_id(full, static=True), chunks_by_id(out, static=True)
+    rewritten = {"/__properties", "/__properties/run"}
+    original = {k: v for k, v in chunks_by_id(full, static=True).items()
+                if v.schema.metadata[b"rerun:entity_path"].decode() not in rewritten}
+    kept = {k: v for k, v in chunks_by_id(out, static=True).items()
+            if v.schema.metadata[b"rerun:entity_path"].decode() not in rewritten}
     assert kept.keys() == original.keys()
     for chunk_id, batch in original.items():
         assert kept[chunk_id].equals(batch), chunk_id
@@ -122,14 +129,20 @@ def test_static_data_is_kept_verbatim(full: Path, cropped: tuple[Path, CropSumma
 
 
 def test_properties_and_recording_name(full: Path, cropped: tuple[Path, CropSummary]) -> None:
+    """The cropped file says which frames it holds (issue 12, item 10), and keeps everything else."""
     out, _ = cropped
-    run = read_entity(out, "/__properties/run", static=True)
-    assert run["recording_id"].to_list() and run["frames"].to_list() == [["0:30"]]
-    assert_frame_equal(run, read_entity(full, "/__properties/run", static=True))
-    assert_frame_equal(read_entity(out, "/__properties/**", static=True),
-                       read_entity(full, "/__properties/**", static=True))
-    assert read_entity(out, "/__properties", static=True)["RecordingInfo:name"].to_list() == \
-        read_entity(full, "/__properties", static=True)["RecordingInfo:name"].to_list()
+    before = read_properties(full, "/__properties/run")
+    after = read_properties(out, "/__properties/run")
+    assert before["frames"] == "0:30" and before["frame_count"] == "30"
+    assert after["frames"] == "10:20" and after["frame_count"] == "10" and after["cropped_from"] == "0:30"
+    assert after["name"] == "vslam synthetic-street frames 10:20 scale gt"
+    assert {k: v for k, v in after.items() if k not in ("frames", "frame_count", "cropped_from", "name")} == \
+        {k: v for k, v in before.items() if k not in ("frames", "frame_count", "name")}
+    assert_frame_equal(read_entity(out, "/__properties/config", static=True),
+                       read_entity(full, "/__properties/config", static=True))
+    report = inspect_recording(out)
+    assert report["recording_name"] == "vslam synthetic-street frames 10:20 scale gt"
+    assert report["properties"]["frame_count"] == "10"
     assert RrdReader(out).recordings() == RrdReader(full).recordings()  # same application and recording id
 
 

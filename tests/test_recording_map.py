@@ -46,7 +46,7 @@ def record(kitti_root: Path, path: Path, backend: str, frames: int) -> list[Fram
     try:
         run_odometry(source, config, (recorder.log_frame, lambda _f, r: results.append(r)), run)
     finally:
-        recorder.finish(run, interrupted=False)
+        recorder.finish(run, None)
     return results
 
 

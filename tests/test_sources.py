@@ -259,8 +259,8 @@ def test_video_round_trip_and_selection(tmp_path: Path) -> None:
     for frame in picked:
         assert np.abs(frame.image.astype(int) - frames[frame.index]).mean() < 4
 
-    with pytest.raises(SourceError, match="out of range"):
-        VideoSource(video, partial_00(), frames=FrameRange(0, 9))
+    with pytest.raises(SourceError, match="selects no frame"):
+        VideoSource(video, partial_00(), frames=FrameRange(40, 50))
 
 
 def test_video_colour_frames_ground_truth_and_size_check(tmp_path: Path) -> None:
@@ -443,10 +443,11 @@ def test_bad_times(tmp_path: Path) -> None:
     assert_names(exc, times)
 
 
-def test_frame_range_out_of_range(tmp_path: Path) -> None:
+def test_frame_range_end_is_clamped_start_past_the_end_is_an_error(tmp_path: Path) -> None:
     root = make_kitti(tmp_path, n=4)
-    with pytest.raises(SourceError, match="out of range") as exc:
-        KittiSource(root, "00", frames=FrameRange(2, 10))
+    assert KittiSource(root, "00", frames=FrameRange(2, 10)).indices == [2, 3]  # like a Python slice
+    with pytest.raises(SourceError, match="selects no frame, the source has 4 frames") as exc:
+        KittiSource(root, "00", frames=FrameRange(4, 10))
     assert_names(exc, root / "sequences" / "00")
     with pytest.raises(SourceError, match="selects no frame"):
         KittiSource(root, "00", frames=FrameRange(2, 2))

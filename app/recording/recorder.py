@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
@@ -29,13 +30,17 @@ from app.recording.styles import (
     ROAD_COLOUR,
     Detail,
 )
-from app.report import markdown_table, metrics_row
+from app.report import markdown_table, metrics_row, scored_estimate
 from app.rrd import RecordingError, has_footer
 from vslam_core.config import EngineConfig
 from vslam_core.geometry import invert_pose
 from vslam_core.pipeline import RunResult
 from vslam_core.results import FrameResult, FrameStatus, HealthStatus, TrackFate
-from vslam_core.sources.base import Frame, FrameSource
+from vslam_core.sources.base import Frame, FrameSource, describe_indices
+
+#: --scale none: the position error and the estimate after Sim(3) alignment (logged when the run ends).
+ALIGNED_ERROR = "/metrics/error/position_m"
+ALIGNED_ESTIMATE = "/world/trajectory/estimate_sim3"
 
 #: How long to wait for Rerun's writer thread to catch up before calling the file unwritable.
 WRITE_TIMEOUT_S = 120.0
@@ -82,7 +87,8 @@ class Recorder:
                            road_scale=config.scale == "height", ground_truth=source.ground_truth is not None)
         self._rec.save(path, default_blueprint=layout)
         self._rec.send_recording_name(properties.get("name", source.name))
-        self._rec.send_property("run", rr.AnyValues(**properties, detail=str(detail)))  # type: ignore[arg-type]
+        self._properties = {**properties, "detail": str(detail)}
+        self._rec.send_property("run", rr.AnyValues(**self._properties))  # type: ignore[arg-type]
         self._rec.send_property("config", rr.AnyValues(**_flatten(config.to_dict())))
         self._intrinsics = source.intrinsics
         self._log_static(source)
@@ -121,18 +127,49 @@ class Recorder:
             self._failed = True
             raise OutputError(write_failure(self.path)) from None
 
-    def finish(self, run: RunResult, interrupted: bool) -> None:
-        """Log the run's verdict (metrics table against ground truth, when there is one) and close."""
+    def finish(self, run: RunResult, stopped: str | None) -> None:
+        """Log the run's verdict (metrics table against ground truth, when there is one) and close. `stopped`
+        says why a run ended early (interrupted, bad input): the run properties and the recording name are
+        then re-logged to say which frames the file really holds (``frames``, ``frame_count``, ``stopped``)."""
         try:
+            if stopped is not None:
+                self._restate_frames(run, stopped)
             lines = [f"# {self._name}", "", f"{run.frames} frames, {run.held} held the previous pose"
-                     + (" — interrupted" if interrupted else "")]
+                     + (f" — {stopped}" if stopped else "")]
             if self._gt is not None and run.frames > 2:
                 row = metrics_row(self._source_name, self._gt[: run.frames], run.pose_array(), self._scale)
                 lines += ["", markdown_table([row])]
+                if self._scale == "none":
+                    self._log_aligned(run)
+                    lines += ["", "Every number is of the estimate after Sim(3) alignment onto the ground truth "
+                              "(--scale none: unit steps, no metric scale)."]
             self._rec.log("/report", rr.TextDocument("\n".join(lines), media_type=rr.MediaType.MARKDOWN),
                           static=True)
         finally:
             self.close()
+
+    def _log_aligned(self, run: RunResult) -> None:
+        """--scale none: the per-frame position error (not logged while running: unit steps against metres)
+        and the whole estimate, both after Sim(3) alignment onto the ground truth, as `vslam eval` scores it."""
+        assert self._gt is not None
+        gt = self._gt[: run.frames]
+        aligned = scored_estimate(gt, run.pose_array(), self._scale)
+        errors = np.linalg.norm(aligned[:, :3, 3] - gt[:, :3, 3], axis=1)
+        self._rec.log(ALIGNED_ERROR, rr.SeriesLines(names="position error after Sim(3) alignment (m)",
+                                                    colors=ESTIMATE_COLOUR), static=True)
+        self._rec.send_columns(ALIGNED_ERROR, indexes=[rr.TimeColumn("frame", sequence=list(run.indices))],
+                               columns=rr.Scalars.columns(scalars=errors))
+        self._rec.log(ALIGNED_ESTIMATE, rr.LineStrips3D([aligned[:, :3, 3]], colors=ESTIMATE_COLOUR, radii=0.12,
+                                                        labels=["estimate after Sim(3) alignment"]), static=True)
+
+    def _restate_frames(self, run: RunResult, stopped: str) -> None:
+        """Static properties are last-write-wins: re-log them with the frames actually processed."""
+        held = describe_indices(list(run.indices))
+        properties = {**self._properties, "frames": held, "frame_count": str(run.frames), "stopped": stopped}
+        self._name = re.sub(r"\bframes \S+", f"frames {held}", self._name, count=1)
+        properties["name"] = self._name
+        self._rec.send_recording_name(self._name)
+        self._rec.send_property("run", rr.AnyValues(**properties))  # type: ignore[arg-type]
 
     def _log_static(self, source: FrameSource) -> None:
         """Pinhole, legend, and every style that does not change from frame to frame (logged once)."""
@@ -293,6 +330,8 @@ class Recorder:
 
     def _log_metrics(self, frame: Frame, result: FrameResult) -> None:
         values = frame_metrics(result, self._gt)
+        if self._scale == "none":  # unit steps against metres: logged after Sim(3) alignment at the end
+            values.pop("position_m", None)
         for group, series in METRICS.items():
             for name in series:
                 if name in values and group != "timing_ms":

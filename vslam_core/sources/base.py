@@ -2,7 +2,8 @@
 
 A source yields `Frame`s (index in the source, timestamp, grey image), knows its camera intrinsics and
 may know ground truth. Frames are selected with a `FrameRange` (Python slice semantics on the source's
-own frame indices: ``0:300`` is frames 0..299).
+own frame indices: ``0:300`` is frames 0..299; an END past the last frame is clamped to it, and only a
+range that selects no frame is an error).
 
 Ground truth, when present, is an (N, 4, 4) array of camera-to-world poses T_w_c for the N *selected*
 frames, re-based so that the first selected frame is the identity (world = camera frame of the first
@@ -80,16 +81,19 @@ class FrameRange:
         if (start is not None and start < 0) or (end is not None and end < 0):
             raise SourceError(f"--frames {text!r}: negative frame numbers are not supported")
         if start is not None and end is not None and end <= start:
-            raise SourceError(f"--frames {text!r}: END must be greater than START")
+            raise SourceError(f"--frames {text!r}: selects no frame (END must be greater than START; END is "
+                              "excluded)")
         return cls(start, end, step)
 
     def indices(self, available: int) -> list[int]:
-        """The selected source indices among ``range(available)``; an error if the range is out of it."""
+        """The selected source indices among ``range(available)``. END past the last frame is clamped to the
+        source's length, as a Python slice is; a range that selects nothing (START at or past the end) is
+        a `SourceError`."""
         start = 0 if self.start is None else self.start
-        end = available if self.end is None else self.end
-        if start >= available or end > available:
+        end = available if self.end is None else min(self.end, available)
+        if start >= available:
             raise SourceError(
-                f"--frames {self}: out of range, the source has {available} frames (0:{available})"
+                f"--frames {self}: selects no frame, the source has {available} frames (0:{available})"
             )
         return list(range(start, end, self.step))
 
@@ -141,3 +145,16 @@ def rebase_poses(poses: np.ndarray) -> np.ndarray:
         return poses.copy()
     first_inv = np.linalg.inv(poses[0])
     return np.einsum("ij,njk->nik", first_inv, poses)
+
+
+def describe_indices(indices: list[int]) -> str:
+    """What a list of selected source indices covers, as the START:END[:STEP] that gives it (``0:300``,
+    ``0:300:2``); ``A..B (N frames)`` when it is not evenly spaced (e.g. frames dropped); ``none`` if empty."""
+    if not indices:
+        return "none"
+    first, last = indices[0], indices[-1]
+    steps = {b - a for a, b in zip(indices, indices[1:], strict=False)}
+    if len(steps) <= 1:
+        step = steps.pop() if steps else 1
+        return f"{first}:{last + 1}" + (f":{step}" if step != 1 else "")
+    return f"{first}..{last} ({len(indices)} frames)"

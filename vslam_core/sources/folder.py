@@ -22,9 +22,9 @@ from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange
 from vslam_core.sources.kitti import (
     BadFramePolicy,
     GroundTruthFormat,
+    first_image_size,
     list_images,
     read_frame,
-    read_grey_image,
     read_ground_truth,
     read_p0_intrinsics,
     read_times,
@@ -119,8 +119,7 @@ class ImageFolderSource:
         self.folder = Path(path)
         self._files = list_images(self.folder)
         self._indices = select(frames, len(self._files), self.folder)
-        first = read_grey_image(self._files[self._indices[0]])
-        self._size = (first.shape[1], first.shape[0])
+        self._size = first_image_size(self._files, self._indices, on_bad_frame, self.folder)
 
         if intrinsics is not None and calib is not None:
             raise SourceError(f"{self.folder}: give either intrinsics or a calib file, not both")

@@ -151,6 +151,22 @@ def read_frame(
         return Frame(index=index, timestamp=stamp, image=np.zeros((size[1], size[0]), np.uint8), defect=str(exc))
 
 
+def first_image_size(files: list[Path], indices: list[int], on_bad_frame: BadFramePolicy, where: object
+                     ) -> tuple[int, int]:
+    """(width, height) of the first selected image. With ``on_bad_frame="skip"`` unreadable images are passed
+    over (they become placeholder frames of this size); `SourceError` when none can be read, or with
+    ``"fail"`` when the first cannot."""
+    for index in indices:
+        try:
+            image = read_grey_image(files[index])
+        except SourceError:
+            if on_bad_frame == "fail":
+                raise
+            continue
+        return image.shape[1], image.shape[0]
+    raise SourceError(f"{where}: none of the {len(indices)} selected images can be read")
+
+
 def select(frames: FrameRange | None, available: int, where: object) -> list[int]:
     """``frames.indices(available)`` (every frame when None); `SourceError` if nothing is selected."""
     try:
@@ -219,8 +235,7 @@ class KittiSource:
         self._files = list_images(self.folder / "image_0", "KITTI image folder")
         self._indices = select(frames, len(self._files), self.folder)
         fx, fy, cx, cy = read_p0_intrinsics(self.folder / "calib.txt")
-        first = read_grey_image(self._files[self._indices[0]])
-        self._size = (first.shape[1], first.shape[0])
+        self._size = first_image_size(self._files, self._indices, on_bad_frame, self.folder)
         self._intrinsics = CameraIntrinsics(fx, fy, cx, cy, width=self._size[0], height=self._size[1])
 
         times_file = self.folder / "times.txt"
