@@ -45,6 +45,7 @@ from rerun.chunk import Chunk, LazyChunkStream, RrdReader, StoreEntry
 from app.inspect import inspect_recording
 from app.provenance import run_differences
 from app.recording import APPLICATION_ID, METRICS, STAGES
+from app.recording.blueprint import CAR_ENTITY, EYE_OFFSET
 from app.rrd import (
     RecordingError,
     first_line,
@@ -315,7 +316,8 @@ def blueprint(labels: tuple[str, str] = ("A", "B"),
                 name=f"{label}: world",
                 origin=world,
                 eye_controls=rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, eye_up=[0.0, -1.0, 0.0],
-                                               tracking_entity=f"{world}/camera"),
+                                               position=list(EYE_OFFSET), look_target=[0.0, 0.0, 0.0],
+                                               tracking_entity=f"/{prefix}{CAR_ENTITY}"),  # as `vslam run`'s
                 # overrides on a parent are not inherited: one per trajectory entity
                 overrides={f"{world}/trajectory/estimate": whole_past,
                            f"{world}/trajectory/ground_truth": whole_past},

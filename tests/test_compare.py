@@ -311,3 +311,16 @@ def test_snapshot_shows_both_runs_and_overlaid_plots(shots: dict[str, Path]) -> 
     estimates = ((r > 150) & (r > g + 60) & (r > b + 60)) | ((b > 150) & (b > r + 60))
     truth = (g > 150) & (g > r + 60) & (g > b + 30)
     assert estimates.sum() > 100 and truth.sum() > 100
+
+
+def test_both_world_views_follow_their_car(compared: ComparisonResult) -> None:
+    reader = RrdReader(compared.output)
+    tracked = set()
+    for chunk in reader.stream(store=reader.blueprints()[0]).to_chunks():
+        batch = chunk.to_record_batch()
+        if "EyeControls3D:tracking_entity" in batch.schema.names:
+            values = batch.column("EyeControls3D:tracking_entity").to_pylist()
+            tracked |= {v[0] if isinstance(v, list) else v for v in values if v}
+    assert {"/a/world/camera/car", "/b/world/camera/car"} <= tracked, tracked
+    for prefix in "ab":  # something drawn to follow (the camera entity alone is a transform)
+        assert "Boxes3D:half_sizes" in read_entity(compared.output, f"/{prefix}/world/camera/car", static=True).columns
