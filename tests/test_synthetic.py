@@ -130,10 +130,12 @@ def test_frame_range_selection(street: SyntheticStreet) -> None:
     np.testing.assert_array_equal(first.image, street.render(10))
 
 
-@pytest.mark.parametrize("frames", [FrameRange(290, 301), FrameRange(300, None), FrameRange(None, 400)])
-def test_out_of_range_frames_raise(frames: FrameRange) -> None:
-    with pytest.raises(SourceError):
-        SyntheticStreet(frames=frames)
+def test_end_past_the_last_frame_is_clamped_an_empty_range_raises() -> None:
+    """The one frame-range rule (a Python slice's): END is clamped; only a range selecting nothing fails."""
+    assert SyntheticStreet(n_frames=20, frames=FrameRange(15, 21)).indices == [15, 16, 17, 18, 19]
+    assert len(SyntheticStreet(n_frames=20, frames=FrameRange(None, 400))) == 20
+    with pytest.raises(SourceError, match="selects no frame"):
+        SyntheticStreet(n_frames=20, frames=FrameRange(20, None))
 
 
 def test_fast_corners_everywhere(frames_0_1: tuple[np.ndarray, np.ndarray]) -> None:
