@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import errno
 import json
 import sys
 import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager
 from enum import StrEnum
 from pathlib import Path
 from typing import Annotated, Any, NoReturn
@@ -27,7 +30,7 @@ from app.entry import run as run_app
 from app.evaluation import REPORT_FILES, Evaluation, check_gates, evaluate_sources, evaluate_trajectory_file
 from app.inspect import format_report, inspect_recording
 from app.matching import DEFAULT_TOLERANCE_MS, MatchMode
-from app.outputs import claimed, ensure_folder
+from app.outputs import claimed, lock_folder, write_failure
 from app.recording import Detail, version_properties
 from app.repair import format_repair, repair_recording, repaired_path
 from app.report import json_ready, markdown_table, scored_estimate
@@ -372,8 +375,9 @@ def eval_command(
         if intrinsics is not None or calib is not None:
             fail("--intrinsics and --calib describe the camera of a SOURCE: they do not apply to --trajectory files")
         fmt = trajectory_format.value if trajectory_format is not None else None
-        evaluation = evaluate_trajectory_file(trajectory, gt, fmt, report,  # type: ignore[arg-type]
-                                              gt_times, match, time_tolerance)
+        with _report_writes(report):
+            evaluation = evaluate_trajectory_file(trajectory, gt, fmt, report,  # type: ignore[arg-type]
+                                                  gt_times, match, time_tolerance)
         scale_source = backend_name = "external"
     else:
         if gt_times is not None or match is not MatchMode.auto:
@@ -400,8 +404,10 @@ def eval_command(
             config = _with_camera_height(config, camera_height, src)
         for warning in dict.fromkeys(w for src in sources for w in input_warnings(src, config)):
             warn(warning)
-        evaluation = evaluate_sources(sources, config, report, err, detail if report is not None else Detail.OFF,
-                                      {"source_path": source or "synthetic", **({"inject": inject} if inject else {})})
+        with _report_writes(report):
+            evaluation = evaluate_sources(sources, config, report, err, detail if report is not None else Detail.OFF,
+                                          {"source_path": source or "synthetic", **({"inject": inject} if inject
+                                                                                    else {})})
         scale_source, backend_name = config.scale, config.backend
     _print_evaluation(evaluation, scale_source, backend_name, report, as_json,
                       check_gates(evaluation.rows, max_t_err, max_r_err, max_ate))
@@ -420,13 +426,27 @@ def _with_camera_height(config: EngineConfig, camera_height: float | None, sourc
     return config
 
 
+@contextmanager
+def _report_writes(report: Path | None) -> Iterator[None]:
+    """A report file that cannot be written (full disk) ends the command in one line, not a traceback."""
+    try:
+        yield
+    except OSError as exc:
+        if report is None:
+            raise
+        path = Path(exc.filename) if exc.filename else report  # a write() error names no file
+        # EIO (cv2 gives no reason): the file system tells whether it is full
+        fail(write_failure(path, None if exc.errno in (None, errno.EIO) else exc))
+
+
 def _check_report_dir(report: Path, force: bool) -> None:
+    """Refuse a folder holding a report (without --force) or one another command is writing; hold it."""
     if report.exists() and not report.is_dir():
         fail(f"{report}: not a folder")
+    lock_folder(report, "report folder")  # before the check: of two evals started at once, one writes
     existing = [name for name in REPORT_FILES if (report / name).exists()]
     if existing and not force:
         fail(f"{report}: holds a report already ({existing[0]}; use --force to replace it)")
-    ensure_folder(report, "report folder")
 
 
 def _print_evaluation(evaluation: Evaluation, scale: str, backend: str, report: Path | None, as_json: bool,

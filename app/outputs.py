@@ -176,3 +176,24 @@ def mount_point(path: Path) -> str:
     while not os.path.ismount(current) and current != current.parent:
         current = current.parent
     return str(current)
+
+
+#: Held (flock) by the command writing a report folder: `vslam eval --report`.
+FOLDER_LOCK = ".vslam.lock"
+
+
+def lock_folder(folder: Path, what: str) -> int:
+    """Hold an exclusive lock on `folder` (its `FOLDER_LOCK` file) for the rest of this process, so two
+    commands never write one folder; the kernel drops it when the process ends, even by SIGKILL. Returns the
+    descriptor; `OutputError` in one line if another command holds the folder."""
+    ensure_folder(folder, what)
+    try:
+        fd = os.open(folder / FOLDER_LOCK, os.O_WRONLY | os.O_CREAT | os.O_CLOEXEC, 0o644)
+    except OSError as exc:
+        raise OutputError(f"{folder}: cannot lock the {what} ({exc.strerror})") from None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        os.close(fd)
+        raise OutputError(f"{folder}: another command is writing this {what}") from None
+    return fd

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import math
 from pathlib import Path
 
@@ -72,5 +73,7 @@ def top_view(
 def write_top_view(
     path: Path, ground_truth: np.ndarray | None, estimate: np.ndarray, title: str, subtitle: str = ""
 ) -> None:
-    if not cv2.imwrite(str(path), top_view(ground_truth, estimate, title, subtitle)):
-        raise OSError(f"{path}: could not write the plot")
+    encoded, png = cv2.imencode(".png", top_view(ground_truth, estimate, title, subtitle))
+    if not encoded:
+        raise OSError(errno.EIO, "could not encode the plot", str(path))
+    path.write_bytes(png.tobytes())  # not cv2.imwrite: a full disk raises ENOSPC here, libpng only prints

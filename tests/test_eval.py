@@ -136,6 +136,24 @@ def test_existing_report_needs_force(tmp_path: Path) -> None:
     assert (tmp_path / "report.md").read_text() == "an earlier report"
 
 
+def test_report_folder_another_eval_is_writing_is_refused(tmp_path: Path) -> None:
+    """Two evals into one --report folder: the second is refused while the first holds it (even with --force)."""
+    import fcntl
+    import os
+
+    from app.outputs import FOLDER_LOCK
+
+    fd = os.open(tmp_path / FOLDER_LOCK, os.O_WRONLY | os.O_CREAT)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # as a running `vslam eval --report` holds it
+        result = vslam("eval", "synthetic", "--frames", "0:5", "--report", tmp_path, "--force")
+    finally:
+        os.close(fd)
+    assert result.returncode == 2, result.stderr
+    assert f"{tmp_path}: another command is writing this report folder" in result.stderr
+    assert "Traceback" not in result.stderr and not (tmp_path / "report.md").exists()
+
+
 def test_json_ready_replaces_nan_at_any_depth() -> None:
     """`inspect --json` and `eval --json` print JSON, which has no NaN (e.g. a metric on a too-short path)."""
     from app.report import json_ready
