@@ -53,6 +53,16 @@ def test_name_and_properties_give_the_real_frame_range(small_kitti: Path, tmp_pa
     assert int(props["frame_count"]) == len(read_entity(rrd, "/world/camera"))
 
 
+def _interrupt_once_grown(process: subprocess.Popen[str], rrd: Path) -> None:
+    """SIGINT once `rrd` holds ~2 MB (some frames written); the run must exit 130."""
+    deadline = time.monotonic() + 60
+    while (not rrd.exists() or rrd.stat().st_size < 2_000_000) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    process.send_signal(signal.SIGINT)
+    _, stderr = process.communicate(timeout=60)
+    assert process.returncode == 130, stderr
+
+
 @pytest.mark.kitti
 def test_interrupted_run_says_what_the_recording_holds(kitti_root: Path, tmp_path: Path) -> None:
     rrd, trajectory = tmp_path / "i.rrd", tmp_path / "i.txt"
@@ -61,12 +71,7 @@ def test_interrupted_run_says_what_the_recording_holds(kitti_root: Path, tmp_pat
          "--trajectory-out", str(trajectory)],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
-    deadline = time.monotonic() + 60
-    while (not rrd.exists() or rrd.stat().st_size < 2_000_000) and time.monotonic() < deadline:
-        time.sleep(0.2)
-    process.send_signal(signal.SIGINT)
-    _, stderr = process.communicate(timeout=60)
-    assert process.returncode == 130, stderr
+    _interrupt_once_grown(process, rrd)
     count = len(read_kitti_poses(trajectory))
     assert 1 <= count < 300
     props = read_properties(rrd, "/__properties/run")
@@ -94,12 +99,7 @@ def test_report_md_states_the_interruption(kitti_root: Path, tmp_path: Path) -> 
         [sys.executable, "-m", "app.cli", "eval", str(kitti_root), "--sequences", "00,05", "--report", str(report),
          "--detail", "full"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     rrd = report / "kitti-00.rrd"
-    deadline = time.monotonic() + 60
-    while (not rrd.exists() or rrd.stat().st_size < 2_000_000) and time.monotonic() < deadline:
-        time.sleep(0.2)
-    process.send_signal(signal.SIGINT)
-    _, stderr = process.communicate(timeout=60)
-    assert process.returncode == 130, stderr
+    _interrupt_once_grown(process, rrd)
     text = (report / "report.md").read_text()
     assert "**Interrupted by SIGINT**: kitti-00: interrupted by SIGINT after " in text
     assert "of 300 frames" in text and "not run: kitti-05" in text

@@ -6,7 +6,6 @@ import re
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
-from typing import Any
 
 import cv2
 import numpy as np
@@ -14,6 +13,7 @@ import rerun as rr
 
 import vslam_core
 from app.outputs import OutputError, write_failure
+from app.provenance import flatten
 from app.recording.blueprint import CAR_ENTITY, blueprint
 from app.recording.columns import FLUSH_FRAMES, ColumnBuffer, Part, add_event
 from app.recording.map import MapRecording
@@ -89,7 +89,7 @@ class Recorder:
         self._rec.send_recording_name(properties.get("name", source.name))
         self._properties = {**properties, "detail": str(detail)}
         self._rec.send_property("run", rr.AnyValues(**self._properties))  # type: ignore[arg-type]
-        self._rec.send_property("config", rr.AnyValues(**_flatten(config.to_dict())))
+        self._rec.send_property("config", rr.AnyValues(**flatten(config.to_dict())))
         self._intrinsics = source.intrinsics
         self._log_static(source)
         # the map backend's entities (statics logged here; nothing at all is logged with the odometry backend)
@@ -361,17 +361,6 @@ def road_outline(normal: np.ndarray, height: float, half_width: float = 2.0, nea
         y = (height - normal[0] * x - normal[2] * z) / normal[1]
         corners.append((x, y, z))
     return np.array(corners)
-
-
-def _flatten(data: dict[str, Any], prefix: str = "") -> dict[str, Any]:
-    """{"pose": {"seed": 0}} -> {"pose.seed": 0} for recording properties."""
-    flat: dict[str, Any] = {}
-    for key, value in data.items():
-        if isinstance(value, dict):
-            flat.update(_flatten(value, f"{prefix}{key}."))
-        else:
-            flat[f"{prefix}{key}"] = value
-    return flat
 
 
 def version_properties() -> dict[str, str]:
