@@ -14,16 +14,30 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import Literal, Protocol, runtime_checkable
 
 import numpy as np
 
 from vslam_core.errors import SourceError
 
+#: Lens distortion models: OpenCV's and ROS's names (Kalibr's ``radtan``/``equidistant`` map onto them).
+DistortionModel = Literal["none", "plumb_bob", "rational_polynomial", "equidistant", "fov"]
+#: How many coefficients each model takes (plumb_bob: k1 k2 p1 p2 [k3]; rational: k1 k2 p1 p2 k3 k4 k5 k6;
+#: equidistant: k1 k2 k3 k4, the Kannala–Brandt fisheye of cv2.fisheye; fov: ω, the field-of-view model of
+#: Devernay & Faugeras used by TUM monoVO).
+DISTORTION_COEFFICIENTS: dict[str, tuple[int, ...]] = {
+    "none": (0,), "plumb_bob": (4, 5), "rational_polynomial": (8,), "equidistant": (4,), "fov": (1,),
+}
+
 
 @dataclass(frozen=True)
 class CameraIntrinsics:
-    """Pinhole intrinsics of a rectified camera (pixels)."""
+    """A camera's pinhole intrinsics (pixels) and its lens distortion.
+
+    The distortion maps ideal pinhole pixels (K) to the raw image's pixels; ``model="none"`` is a rectified
+    camera. `vslam_core.lens` undistorts tracked points with it. ``origin`` says where the calibration came
+    from (e.g. ``CameraInfo /cam/camera_info`` or a file name), for the recording.
+    """
 
     fx: float
     fy: float
@@ -31,6 +45,23 @@ class CameraIntrinsics:
     cy: float
     width: int
     height: int
+    model: DistortionModel = "none"
+    coefficients: tuple[float, ...] = ()
+    origin: str = ""
+
+    def __post_init__(self) -> None:
+        allowed = DISTORTION_COEFFICIENTS.get(self.model)
+        if allowed is None:
+            raise SourceError(f"unknown lens distortion model {self.model!r} (known: "
+                              f"{', '.join(DISTORTION_COEFFICIENTS)})")
+        if len(self.coefficients) not in allowed:
+            raise SourceError(f"lens model {self.model} takes {' or '.join(map(str, allowed))} coefficients, "
+                              f"got {len(self.coefficients)}")
+
+    @property
+    def distorted(self) -> bool:
+        """True when the lens bends lines (a model other than ``none`` with a non-zero coefficient)."""
+        return self.model != "none" and any(c != 0.0 for c in self.coefficients)
 
     @property
     def K(self) -> np.ndarray:  # noqa: N802 - the standard name of the matrix
