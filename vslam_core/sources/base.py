@@ -168,6 +168,18 @@ class FrameSource(Protocol):
     def __iter__(self) -> Iterator[Frame]: ...
 
 
+def source_properties(source: FrameSource) -> dict[str, str]:
+    """A source's own run properties (a log's topic and stamp source, …), if it has any: a source may have a
+    ``properties`` attribute (dict[str, str]); the calibration is described separately."""
+    return dict(getattr(source, "properties", {}) or {})
+
+
+def source_notes(source: FrameSource) -> list[str]:
+    """What a source noticed about its input that the user should hear (out-of-order stamps, receive times
+    used for missing header stamps, …): an optional ``notes`` attribute (list[str])."""
+    return list(getattr(source, "notes", []) or [])
+
+
 def rebase_poses(poses: np.ndarray) -> np.ndarray:
     """Express (N, 4, 4) camera-to-world poses in the camera frame of the first one: T_0^-1 · T_i."""
     if poses.ndim != 3 or poses.shape[1:] != (4, 4):

@@ -22,7 +22,14 @@ import cv2
 import numpy as np
 
 from vslam_core.errors import SourceError
-from vslam_core.sources.base import CameraIntrinsics, Frame, FrameSource, rebase_poses
+from vslam_core.sources.base import (
+    CameraIntrinsics,
+    Frame,
+    FrameSource,
+    rebase_poses,
+    source_notes,
+    source_properties,
+)
 
 FAULT_KINDS = ("dark", "overexposed", "blur", "frozen", "drop", "brightness", "noise")
 
@@ -109,6 +116,14 @@ class FaultInjector:
     @property
     def camera_height(self) -> float | None:
         return self._source.camera_height
+
+    @property
+    def properties(self) -> dict[str, str]:
+        return source_properties(self._source)
+
+    @property
+    def notes(self) -> list[str]:
+        return source_notes(self._source)
 
     @property
     def ground_truth(self) -> np.ndarray | None:

@@ -1,0 +1,65 @@
+"""Timestamps of logged frames: matching ground truth to frames by time, and checking a log's stamp order."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from vslam_core.errors import SourceError
+from vslam_core.sources.base import rebase_poses
+
+DEFAULT_GT_TOLERANCE_S = 0.010
+
+
+def nearest_in_time(query: np.ndarray, reference: np.ndarray, tolerance_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """For each of the (N,) `query` times, the index of the nearest of the (M,) `reference` times (any
+    order) and whether it is within `tolerance_s`. Returns ((N,) int64 indices, (N,) bool close)."""
+    query = np.asarray(query, np.float64)
+    reference = np.asarray(reference, np.float64)
+    if len(reference) == 0:
+        return np.zeros(len(query), np.int64), np.zeros(len(query), bool)
+    order = np.argsort(reference, kind="stable")
+    ordered = reference[order]
+    right = np.clip(np.searchsorted(ordered, query), 0, len(ordered) - 1)
+    left = np.clip(right - 1, 0, len(ordered) - 1)
+    take_left = np.abs(ordered[left] - query) <= np.abs(ordered[right] - query)
+    pick = order[np.where(take_left, left, right)]
+    return pick.astype(np.int64), np.abs(reference[pick] - query) <= tolerance_s
+
+
+def ground_truth_at(
+    frame_stamps: np.ndarray, gt_stamps: np.ndarray, gt_poses: np.ndarray, tolerance_s: float, where: str
+) -> np.ndarray:
+    """(N, 4, 4) ground-truth camera poses of the frames stamped (N,) `frame_stamps`, each the pose of
+    the (M,) `gt_stamps` nearest in time, re-based on the first frame. Every frame must have one within
+    `tolerance_s`: otherwise a `SourceError` naming the first frame without and the ground truth's span."""
+    pick, close = nearest_in_time(frame_stamps, gt_stamps, tolerance_s)
+    if len(gt_stamps) == 0:
+        raise SourceError(f"{where}: the ground truth has no poses")
+    if not close.all():
+        first = int(np.argmin(close))
+        raise SourceError(
+            f"{where}: no ground-truth pose within {tolerance_s * 1000:g} ms of frame {first} "
+            f"(stamp {frame_stamps[first]:.6f} s; the ground truth spans {np.min(gt_stamps):.6f}–"
+            f"{np.max(gt_stamps):.6f} s, {int((~close).sum())} of {len(close)} frames unmatched): choose "
+            "--frames inside it or widen --gt-tolerance")
+    return rebase_poses(np.asarray(gt_poses, np.float64)[pick])
+
+
+def stamp_problems(stamps: np.ndarray) -> list[str]:
+    """What is wrong with a log's (N,) frame stamps in arrival order: out-of-order and duplicate stamps,
+    as short notes (empty when they increase strictly)."""
+    stamps = np.asarray(stamps, np.float64)
+    steps = np.diff(stamps)
+    notes = []
+    if (backwards := int((steps < 0).sum())) > 0:
+        first = int(np.argmax(steps < 0)) + 1
+        notes.append(f"{backwards} frames arrived out of stamp order (first: message {first}); frames are "
+                     "used in stamp order")
+    if (repeated := int((steps == 0).sum()) + _duplicates_out_of_order(stamps, steps)) > 0:
+        notes.append(f"{repeated} frames repeat an earlier stamp (kept in arrival order)")
+    return notes
+
+
+def _duplicates_out_of_order(stamps: np.ndarray, steps: np.ndarray) -> int:
+    """Repeated stamps that are not next to each other in arrival order."""
+    return len(stamps) - len(np.unique(stamps)) - int((steps == 0).sum())
