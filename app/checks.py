@@ -11,9 +11,10 @@ from pathlib import Path
 from vslam_core.config import EngineConfig
 from vslam_core.config_ranges import range_problem
 from vslam_core.errors import ConfigError
+from vslam_core.mapping.tracking import unsupported_camera
 from vslam_core.pipeline import RunResult
 from vslam_core.scale import default_camera_height
-from vslam_core.sources.base import FrameSource
+from vslam_core.sources.base import FrameSource, source_notes
 
 #: exit code of a run in which no frame could be tracked (the recording and trajectory are still written)
 EXIT_NOTHING_TRACKED = 3
@@ -36,9 +37,15 @@ def output_problem(output: Path | None, detail_off: bool) -> str | None:
     return None
 
 
+def backend_problem(source: FrameSource, config: EngineConfig) -> str | None:
+    """A backend that cannot handle this source's camera, refused before any output is written."""
+    return unsupported_camera(source.intrinsics) if config.backend == "map" else None
+
+
 def input_warnings(source: FrameSource, config: EngineConfig) -> list[str]:
-    """Inputs that are valid but probably a mistake: one line each."""
-    warnings = []
+    """Inputs that are valid but probably a mistake, and what the source noticed (e.g. a log's out-of-order
+    stamps): one line each."""
+    warnings = source_notes(source)
     k = source.intrinsics
     if not (0 <= k.cx < k.width and 0 <= k.cy < k.height):
         warnings.append(f"the principal point ({k.cx:g}, {k.cy:g}) lies outside the {k.width}x{k.height} image "

@@ -131,8 +131,11 @@ def _run_report(path: Path, prefix: str = "") -> dict[str, Any]:
     tracks, ransac = _scalars(path, "tracks", prefix), _scalars(path, "ransac", prefix)
     ratio = _scalars(path, "ratio", prefix)
     config = read_properties(path, f"{PROPERTIES}{prefix}/config")
+    properties = read_properties(path, f"{PROPERTIES}{prefix}/run")
     return {
-        "properties": read_properties(path, f"{PROPERTIES}{prefix}/run"),
+        "properties": properties,
+        "calibration": {key.removeprefix("calibration_"): value for key, value in properties.items()
+                        if key.startswith("calibration_")} or None,
         "config": config,
         "config_non_default": {key: value for key, _, value in non_default(config)} if config else {},
         "frames": {"count": len(frames), "first": int(min(frames)), "last": int(max(frames))},
@@ -171,6 +174,7 @@ def _format_run(report: dict[str, Any]) -> list[str]:
     lines = [
         f"source      {props.get('source', '?')} ({props.get('source_path', '?')}), frames {props.get('frames', '?')}, "
         f"scale {props.get('scale', '?')}, backend {props.get('backend', '?')}, detail {props.get('detail', '?')}",
+        *_camera_lines(props),
         f"versions    vslam {props.get('vslam_version', '?')}, OpenCV {props.get('opencv_version', '?')}, "
         f"Rerun {props.get('rerun_version', '?')}",
         f"frames      {frames['count']} ({frames['first']}..{frames['last']})"
@@ -217,3 +221,19 @@ def _format_run(report: dict[str, Any]) -> list[str]:
         span = f"{item['start']}" if item["start"] == item["end"] else f"{item['start']}..{item['end']}"
         lines.append(f"  frames {span:<12} {item['status']:<5} {', '.join(item['reasons'])}")
     return lines
+
+
+def _camera_lines(props: dict[str, Any]) -> list[str]:
+    """The calibration the run used and, for a log, its topic and stamps (recordings of older versions have
+    neither)."""
+    lines = []
+    if "calibration_model" in props:
+        coefficients = props.get("calibration_coefficients", "-")
+        lines.append(f"camera      {props.get('calibration_size', '?')}, {props.get('calibration_K', '?')}, lens "
+                     f"{props['calibration_model']}" + (f" [{coefficients}]" if coefficients != "-" else "")
+                     + f", from {props.get('calibration_origin', '?')}")
+    if "topic" in props:
+        lines.append(f"log         {props.get('log_format', '?')}, topic {props['topic']}, stamps "
+                     f"{props.get('stamps', '?')}")
+    return lines
+

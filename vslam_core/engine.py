@@ -1,5 +1,9 @@
 """The odometry engine: one frame in, one `FrameResult` out (pure computation, no I/O, no Rerun).
 
+Corners and tracks live on the raw image (`FrameResult.track_*` are raw pixels); with a distorted lens the
+two-view geometry works on their ideal pinhole pixels (`vslam_core.lens`), so `pixels_cur` and the road
+pixels of the scale estimate are ideal pixels too.
+
 Per frame: KLT-track the live tracks (forward–backward checked) → 5-point essential matrix in RANSAC
 between the keyframe and this frame → the four candidate poses and their chirality counts → (refined)
 winner → scale → T_w_cur = T_w_key · T_key_cur → re-detect FAST corners where tracks are missing.
@@ -27,6 +31,7 @@ from vslam_core.geometry import (
     refine_relative_pose,
     triangulate,
 )
+from vslam_core.lens import inside_mask, undistort_pixels, valid_pixel_mask
 from vslam_core.quality import ImageStats, image_stats
 from vslam_core.results import FrameResult, FrameStatus, Health, Reason, ScaleEstimate, TrackFate
 from vslam_core.road import RoadBand
@@ -85,6 +90,7 @@ class Odometry:
         self.config = config
         self.intrinsics = intrinsics
         self._K = intrinsics.K
+        self._usable = valid_pixel_mask(intrinsics)  # None: every raw pixel can be undistorted
         self._scale = scale
         self._tracks = _Tracks.empty()
         self._next_id = 0
@@ -127,13 +133,15 @@ class Odometry:
                 grid = (cfg.detector.grid_rows, cfg.detector.grid_cols)
                 predicted = tracks.points + fill_flow(tracks.flow, tracks.points, image.shape, grid)
             tracked, ok, fb_error = track_points(self._previous, image, tracks.points, cfg.tracker, predicted)
+            ok &= inside_mask(tracked, self._usable)  # a track entering a lens's unusable border ends there
             survived = ok & (fb_error <= cfg.tracker.fb_threshold_px)
             used = survived & ~np.isnan(tracks.key_points[:, 0])
             fate[ok & ~survived] = TrackFate.FB_REJECTED
             fate[survived] = TrackFate.NOT_USED  # until the two-view step classifies the used ones
             timings["track"] = _lap(clock)
 
-            motion, parallax = self._estimate_motion(tracked[used], tracks.key_points[used], timings)
+            motion, parallax = self._estimate_motion(self._ideal(tracked[used]), self._ideal(tracks.key_points[used]),
+                                                     timings)
             if motion.inlier_mask is not None:
                 fate[used] = motion.fates()
             lost = motion.reason == Reason.TOO_FEW_TRACKS
@@ -264,11 +272,19 @@ class Odometry:
         assert self._key_image is not None
         clock = time.perf_counter()
         p_key, p_cur = match_features(self._key_image, image)
+        keep = inside_mask(p_key, self._usable) & inside_mask(p_cur, self._usable)
+        p_key, p_cur = self._ideal(p_key[keep]), self._ideal(p_cur[keep])
         timings["match"] = _lap(clock)
         if len(p_cur) < self.config.pose.min_tracks:
             return _Motion(reason=Reason.TOO_FEW_TRACKS), 0.0
         parallax = float(np.median(np.linalg.norm(p_cur - p_key, axis=1)))
         return self._two_view(p_cur, p_key, timings), parallax
+
+    def _ideal(self, raw: np.ndarray) -> np.ndarray:
+        """(N, 2) raw image pixels as float32 ideal pinhole pixels (the lens's distortion removed)."""
+        if not self.intrinsics.distorted:
+            return raw
+        return undistort_pixels(raw, self.intrinsics).astype(np.float32)
 
     def _unusable(self, frame: Frame, stats: ImageStats) -> Reason | None:
         """Why this frame's image cannot be tracked at all, if so."""
@@ -402,7 +418,7 @@ class Odometry:
         if wanted <= 0 or x1 <= x0 or y0 >= y1:
             return np.zeros((0, 2), np.float32)
         detector = replace(self.config.detector, fast_threshold=cfg.road_fast_threshold, grid_rows=2, grid_cols=4)
-        return detect_corners(image, existing, wanted, detector, region=(x0, y0, x1, y1))
+        return detect_corners(image, existing, wanted, detector, region=(x0, y0, x1, y1), usable=self._usable)
 
     def _replenish(self, image: np.ndarray, timings: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
         """Detect new corners away from live tracks when too few are left; they start new tracks."""
@@ -411,7 +427,7 @@ class Odometry:
         tracks = self._tracks
         corners = np.zeros((0, 2), np.float32)
         if len(tracks) < cfg.redetect_below or self._previous is None:
-            corners = detect_corners(image, tracks.points, cfg.target_tracks - len(tracks), cfg)
+            corners = detect_corners(image, tracks.points, cfg.target_tracks - len(tracks), cfg, usable=self._usable)
         if self.config.scale == "height":
             corners = np.concatenate((corners, self._road_corners(image, np.concatenate((tracks.points, corners)))))
         if not len(corners):

@@ -13,23 +13,25 @@ from vslam_core.config import DetectorConfig, TrackerConfig
 
 def detect_corners(
     image: np.ndarray, existing: np.ndarray, wanted: int, config: DetectorConfig,
-    region: tuple[int, int, int, int] | None = None,
+    region: tuple[int, int, int, int] | None = None, usable: np.ndarray | None = None,
 ) -> np.ndarray:
     """Up to `wanted` FAST corners, strongest first within each cell of a grid_rows x grid_cols grid and
     at least `min_distance_px` from every `existing` (M, 2) point, so new corners fill the empty parts of
     the image instead of piling up on one façade. `region` (x0, y0, x1, y1) limits the search to a
-    rectangle. Returns (K, 2) float32 full-image coordinates, K ≤ wanted."""
+    rectangle; `usable` (H, W) uint8 (0 = not usable: a lens's unusable border) excludes pixels. Returns
+    (K, 2) float32 full-image coordinates, K ≤ wanted."""
     if wanted <= 0:
         return np.zeros((0, 2), np.float32)
     if region is not None:
         x0, y0, x1, y1 = region
         offset = np.array([x0, y0], np.float32)
-        found = detect_corners(image[y0:y1, x0:x1], existing - offset, wanted, config)
+        found = detect_corners(image[y0:y1, x0:x1], existing - offset, wanted, config,
+                               usable=None if usable is None else usable[y0:y1, x0:x1])
         return found + offset
     height, width = image.shape
-    mask = None
+    mask = None if usable is None else usable.copy()
     if config.min_distance_px > 0 and len(existing):
-        mask = np.full((height, width), 255, np.uint8)
+        mask = np.full((height, width), 255, np.uint8) if mask is None else mask
         for x, y in np.round(existing).astype(np.int32):
             cv2.circle(mask, (int(x), int(y)), config.min_distance_px, 0, -1)
     detector = cv2.FastFeatureDetector_create(threshold=config.fast_threshold, nonmaxSuppression=True)

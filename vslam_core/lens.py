@@ -136,3 +136,11 @@ def inside_mask(points: np.ndarray, mask: np.ndarray | None) -> np.ndarray:
     ok = np.zeros(len(points), bool)
     ok[inside] = mask[pixels[inside, 1], pixels[inside, 0]] > 0
     return ok
+
+
+def undistortion_maps(camera: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray]:
+    """(H, W) float32 x and y maps for ``cv2.remap``: where each pixel of the ideal pinhole image (same K and
+    size) lies in the raw image. Remapping a raw frame with them gives the frame the 3-D view's pinhole sees."""
+    ys, xs = np.mgrid[0:camera.height, 0:camera.width]
+    raw = distort_pixels(np.column_stack((xs.ravel(), ys.ravel())), camera).astype(np.float32)
+    return raw[:, 0].reshape(xs.shape), raw[:, 1].reshape(xs.shape)

@@ -14,19 +14,23 @@ CAR_ENTITY = "/world/camera/car"
 #: Where the 3-D view's eye sits relative to the car it follows (world frame, RDF: −y is up, −z is behind):
 #: 15 m above and 20 m behind the start direction, 25 m away, looking ~37° down.
 EYE_OFFSET = (0.0, -15.0, -20.0)
+#: A distorted lens at detail full: the frame undistorted to the pinhole K, in a 2-D view of its own.
+UNDISTORTED = "/world/camera/undistorted"
 
 
 def blueprint(map_backend: bool = False, *, image: bool = True, road_scale: bool = False,
-              ground_truth: bool = True) -> rrb.Blueprint:
+              ground_truth: bool = True, undistorted: bool = False) -> rrb.Blueprint:
     """Frame with overlays and 3-D world following the car | metric plots; below, events | report; on `frame`.
 
     Views that would stay empty are left out: the frame without `image` (detail `summary`), "scale from the
     road" without `road_scale` (`--scale height`), the error plots without `ground_truth`. `map_backend`: also
     the map (retired keyframes and landmarks keep their whole past) and the plots of the tracking mode and
-    bundle adjustment."""
-    left: list[rrb.Spatial2DView | rrb.Spatial3DView] = [world_view(map_backend)]
+    bundle adjustment. `undistorted` (a distorted lens): the undistorted frame beside the raw one."""
+    left: list[rrb.Spatial2DView | rrb.Spatial3DView | rrb.Horizontal] = [world_view(map_backend)]
     if image:
-        left.insert(0, rrb.Spatial2DView(name="frame", origin="/world/camera/image"))
+        frame = rrb.Spatial2DView(name="frame", origin="/world/camera/image")
+        left.insert(0, rrb.Horizontal(frame, rrb.Spatial2DView(name="undistorted", origin=UNDISTORTED))
+                    if undistorted else frame)
     plots = _plots(road_scale, ground_truth) + (_map_plots() if map_backend else [])
     return rrb.Blueprint(
         rrb.Vertical(
@@ -53,6 +57,7 @@ def world_view(map_backend: bool) -> rrb.Spatial3DView:
     return rrb.Spatial3DView(
         name="world",
         origin="/world",
+        contents=["+ /world/**", f"- {UNDISTORTED}/**"],  # the raw frame (with its overlays) is on the frustum
         eye_controls=rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, eye_up=[0.0, -1.0, 0.0],
                                        position=list(EYE_OFFSET), look_target=[0.0, 0.0, 0.0],
                                        tracking_entity=CAR_ENTITY),

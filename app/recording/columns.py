@@ -84,7 +84,7 @@ class ColumnBuffer:
         indexes = [rr.TimeColumn("frame", sequence=rows.frames)]
         times = [t for t in rows.times if t is not None]
         if len(times) == len(rows.frames):
-            indexes.append(rr.TimeColumn("time", duration=times))
+            indexes.append(time_column(times))
         columns = []
         for make, values, lengths in zip(rows.columns, rows.values, rows.lengths, strict=True):
             if rows.batch:
@@ -115,3 +115,15 @@ def _concatenate(batches: list[Any]) -> Any:
 def add_event(columns: ColumnBuffer, frame: Frame, text: str, level: str) -> None:
     """One line of the `/events` text log, prefixed with the frame index."""
     columns.add("/events", frame, (rr.TextLog.columns, {"text": f"frame {frame.index}: {text}", "level": level}))
+
+
+#: Stamps after this many seconds are Unix times (a ROS log's header stamps), not time since the start.
+UNIX_STAMPS_AFTER_S = 1e9
+
+
+def time_column(times: list[float]) -> rr.TimeColumn:
+    """The `time` timeline: a date and time for a log's Unix stamps, else a duration since the start."""
+    if times and times[0] > UNIX_STAMPS_AFTER_S:
+        return rr.TimeColumn("time", timestamp=times)
+    return rr.TimeColumn("time", duration=times)
+

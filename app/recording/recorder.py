@@ -14,7 +14,7 @@ import rerun as rr
 import vslam_core
 from app.outputs import OutputError, write_failure
 from app.provenance import flatten
-from app.recording.blueprint import CAR_ENTITY, blueprint
+from app.recording.blueprint import CAR_ENTITY, UNDISTORTED, blueprint
 from app.recording.columns import FLUSH_FRAMES, ColumnBuffer, Part, add_event
 from app.recording.map import MapRecording
 from app.recording.metrics import METRICS, STAGES, frame_metrics
@@ -34,6 +34,7 @@ from app.report import markdown_table, metrics_row, scored_estimate
 from app.rrd import RecordingError, has_footer
 from vslam_core.config import EngineConfig
 from vslam_core.geometry import invert_pose
+from vslam_core.lens import distort_pixels, undistortion_maps
 from vslam_core.pipeline import RunResult
 from vslam_core.results import FrameResult, FrameStatus, HealthStatus, TrackFate
 from vslam_core.sources.base import Frame, FrameSource, describe_indices
@@ -83,14 +84,18 @@ class Recorder:
                                        send_properties=False, batcher_config=batcher)
         self._rec.set_log_time_enabled(False)  # reproducible files: no wall-clock column
         self._columns = ColumnBuffer(self._rec)
+        undistorted = source.intrinsics.distorted and detail == Detail.FULL
         layout = blueprint(map_backend=config.backend == "map", image=detail in (Detail.FULL, Detail.STANDARD),
-                           road_scale=config.scale == "height", ground_truth=source.ground_truth is not None)
+                           road_scale=config.scale == "height", ground_truth=source.ground_truth is not None,
+                           undistorted=undistorted)
         self._rec.save(path, default_blueprint=layout)
         self._rec.send_recording_name(properties.get("name", source.name))
         self._properties = {**properties, "detail": str(detail)}
         self._rec.send_property("run", rr.AnyValues(**self._properties))  # type: ignore[arg-type]
         self._rec.send_property("config", rr.AnyValues(**flatten(config.to_dict())))
         self._intrinsics = source.intrinsics
+        # a distorted lens at full detail: also the frame as the pinhole sees it (the 3-D view's geometry)
+        self._undistort = undistortion_maps(source.intrinsics) if undistorted else None
         self._log_static(source)
         # the map backend's entities (statics logged here; nothing at all is logged with the odometry backend)
         self._map = (MapRecording(self._rec, self._columns, source.intrinsics, detail) if config.backend == "map"
@@ -182,6 +187,9 @@ class Recorder:
                        camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=1.0),
             static=True,
         )
+        if self._undistort is not None:
+            rec.log(UNDISTORTED, rr.Pinhole(image_from_camera=intr.K, resolution=[intr.width, intr.height],
+                                            camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=1.0), static=True)
         rec.log(
             "/world/camera/image/flow",
             rr.AnnotationContext([(int(f), label, colour) for f, (label, colour) in FATE_STYLE.items()]),
@@ -248,6 +256,10 @@ class Recorder:
         jpeg: bytes | Future[bytes] = (self._encoder.submit(self._encode, frame.image) if self._encoder is not None
                                        else self._encode(frame.image))
         columns.add("/world/camera/image", frame, (rr.EncodedImage.columns, {"blob": jpeg, "media_type": "image/jpeg"}))
+        if self._undistort is not None:
+            ideal = cv2.remap(frame.image, *self._undistort, cv2.INTER_LINEAR)
+            blob = self._encoder.submit(self._encode, ideal) if self._encoder is not None else self._encode(ideal)
+            columns.add(UNDISTORTED, frame, (rr.EncodedImage.columns, {"blob": blob, "media_type": "image/jpeg"}))
         full = self.detail == Detail.FULL
         corners: list[Part] = [(rr.Points2D.columns, {"positions": result.new_corners})]
         if full:
@@ -305,7 +317,7 @@ class Recorder:
         points, pixels, outline = np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 5, 3))
         if estimate is not None:
             points = estimate.road_points @ pose[:3, :3].T + pose[:3, 3]
-            pixels = estimate.road_pixels
+            pixels = distort_pixels(estimate.road_pixels, self._intrinsics)  # ideal → raw image pixels
             if estimate.plane_normal is not None and estimate.camera_height is not None:
                 outline = (road_outline(estimate.plane_normal, estimate.camera_height) @ pose[:3, :3].T
                            + pose[:3, 3])[None]

@@ -21,6 +21,7 @@ import numpy as np
 
 from vslam_core.config import EngineConfig
 from vslam_core.engine import Odometry
+from vslam_core.errors import ConfigError
 from vslam_core.features import match_descriptors
 from vslam_core.geometry import interpolate_pose, invert_pose, orthonormalise, pose_matrix, rotation_angle
 from vslam_core.mapping.coasting import degraded_motion
@@ -46,10 +47,21 @@ HOLD_REASONS = {Reason.TOO_FEW_TRACKS, Reason.LOW_PARALLAX, Reason.NO_ESSENTIAL,
                 Reason.CHIRALITY}
 
 
+def unsupported_camera(intrinsics: CameraIntrinsics) -> str | None:
+    """Why this backend cannot run on this camera, if so: its PnP, landmarks and relocalisation treat raw
+    pixels as pinhole ones, so a distorted lens is refused rather than tracked wrongly."""
+    if not intrinsics.distorted:
+        return None
+    return (f"--backend map does not model lens distortion yet (this camera: {intrinsics.model}); use the "
+            "default backend vo, which undistorts its tracks")
+
+
 class MapTracking:
     """Monocular SLAM over a stream of frames: tracking against a map of keyframes and landmarks."""
 
     def __init__(self, intrinsics: CameraIntrinsics, config: EngineConfig, scale: ScaleProvider) -> None:
+        if (problem := unsupported_camera(intrinsics)) is not None:
+            raise ConfigError(problem)
         self.config = config
         self._cfg = config.map
         self._K = intrinsics.K
