@@ -19,6 +19,7 @@ from rich.markup import escape
 
 from app.checks import (
     EXIT_NOTHING_TRACKED,
+    backend_problem,
     camera_height_problem,
     input_warnings,
     nothing_tracked,
@@ -90,6 +91,16 @@ BACKEND_HELP = ("vo = frame-to-keyframe odometry; map = keyframes and landmarks,
                 "bundle adjustment, relocalisation [default: the config's backend, vo unless --config says otherwise]")
 CAMERA_HEIGHT_HELP = ("metres from the camera to the road, for --scale height [default: the source's own: KITTI "
                       "1.65 m, the synthetic street's]")
+
+
+CALIB_HELP = ("camera calibration file, lens included: ROS camera_info YAML, Kalibr camchain or EuRoC sensor.yaml, "
+              "OpenCV YAML/XML, KITTI calib.txt (for image folders, videos and logs: overrides a log's CameraInfo)")
+GT_HELP = ("ground-truth camera poses, KITTI (row i = frame i) or TUM; TUM rows are matched to a log's or "
+           "dataset's frames by timestamp")
+TOPIC_HELP = "the image topic of a ROS bag / MCAP log [default: its only image topic]"
+GT_TOPIC_HELP = ("ground truth from a topic of the log (PoseStamped, Odometry, TransformStamped), as camera "
+                 "poses (via /tf_static when it is of another frame)")
+GT_TOLERANCE_HELP = "how far (ms) a ground-truth stamp may be from its frame's when matched by time"
 
 
 class BadFrame(StrEnum):
@@ -182,9 +193,13 @@ def run(
     jpeg_quality: Annotated[int, typer.Option(min=1, max=100, help="JPEG quality of the recorded frames")] = 75,
     trajectory_out: Annotated[Path | None, typer.Option(help="write one pose per input frame here")] = None,
     trajectory_format: Annotated[TrajectoryFormat, typer.Option(help="kitti or tum")] = TrajectoryFormat.kitti,
-    intrinsics: Annotated[str | None, typer.Option(help="fx,fy,cx,cy for image folders and videos")] = None,
-    calib: Annotated[Path | None, typer.Option(help="KITTI-style calib file (P0 line) instead")] = None,
-    gt: Annotated[Path | None, typer.Option(help="ground-truth poses (KITTI or TUM) for folders/videos")] = None,
+    intrinsics: Annotated[str | None, typer.Option(help="fx,fy,cx,cy (a pinhole) for image folders, videos and logs")]
+    = None,
+    calib: Annotated[Path | None, typer.Option(help=CALIB_HELP)] = None,
+    gt: Annotated[Path | None, typer.Option(help=GT_HELP)] = None,
+    topic: Annotated[str | None, typer.Option(help=TOPIC_HELP)] = None,
+    gt_topic: Annotated[str | None, typer.Option(help=GT_TOPIC_HELP)] = None,
+    gt_tolerance: Annotated[float, typer.Option(min=0.0, help=GT_TOLERANCE_HELP)] = DEFAULT_TOLERANCE_MS,
     inject: Annotated[str | None, typer.Option(help="fault injection, e.g. dark@120,blur@200:210 (kinds: dark, "
                                                "overexposed, blur, frozen, drop, brightness, noise)")] = None,
     on_bad_frame: Annotated[BadFrame, typer.Option(help="an unreadable image: fail (stop, naming the file) or "
@@ -196,7 +211,8 @@ def run(
     frame_range = FrameRange.parse(frames)
     config = load_config(config_file) if config_file is not None else EngineConfig()
     src = open_source(source, sequence=sequence, frames=frame_range, intrinsics=intrinsics, calib=calib,
-                      ground_truth=gt, on_bad_frame=on_bad_frame.value, inject=inject)
+                      ground_truth=gt, on_bad_frame=on_bad_frame.value, inject=inject, topic=topic, gt_topic=gt_topic,
+                      gt_tolerance_s=gt_tolerance / 1000.0)
     if scale is not None:
         config = config.with_scale(scale.value)
     elif config_file is None and src.ground_truth is None:
@@ -206,6 +222,7 @@ def run(
         config = config.with_backend(backend.value)
 
     _refuse(output_problem(output, detail == Detail.OFF))
+    _refuse(backend_problem(src, config))
     for warning in input_warnings(src, config):
         warn(warning)
 
@@ -334,10 +351,12 @@ def eval_command(
                                                 "recordings and plots")] = None,
     detail: Annotated[Detail, typer.Option(help="detail of the recordings written to --report")] = Detail.FULL,
     trajectory: Annotated[Path | None, typer.Option(help="evaluate this trajectory file instead of running")] = None,
-    gt: Annotated[Path | None, typer.Option(help="ground truth for --trajectory (or an image folder)")] = None,
-    intrinsics: Annotated[str | None, typer.Option(help="fx,fy,cx,cy of an image folder or video SOURCE")] = None,
-    calib: Annotated[Path | None, typer.Option(help="KITTI-style calib file (P0 line) of an image folder or video "
-                                               "SOURCE, instead of --intrinsics")] = None,
+    gt: Annotated[Path | None, typer.Option(help="ground truth for --trajectory, or of a SOURCE: " + GT_HELP)] = None,
+    intrinsics: Annotated[str | None, typer.Option(help="fx,fy,cx,cy of an image folder, video or log SOURCE")]
+    = None,
+    calib: Annotated[Path | None, typer.Option(help=CALIB_HELP)] = None,
+    topic: Annotated[str | None, typer.Option(help=TOPIC_HELP)] = None,
+    gt_topic: Annotated[str | None, typer.Option(help=GT_TOPIC_HELP)] = None,
     gt_times: Annotated[Path | None, typer.Option(help="timestamps of a KITTI --gt (the sequence's times.txt, "
                                                   "line i = pose row i): TUM rows are then matched by time")]
     = None,
@@ -345,7 +364,8 @@ def eval_command(
                                              "times, else row by row if the files have the same length; "
                                              "timestamps; rows = row i is frame i, whatever the lengths")]
     = MatchMode.auto,
-    time_tolerance: Annotated[float, typer.Option(min=0.0, help="timestamp matching tolerance (ms)")]
+    time_tolerance: Annotated[float, typer.Option("--time-tolerance", "--gt-tolerance", min=0.0,
+                                                  help=GT_TOLERANCE_HELP + " (--trajectory rows and SOURCE frames)")]
     = DEFAULT_TOLERANCE_MS,
     trajectory_format: Annotated[TrajectoryFormat | None, typer.Option("--format", help="kitti or tum "
                                                                        "[default: from the columns]")] = None,
@@ -372,8 +392,9 @@ def eval_command(
                           "--camera-height": camera_height}
         for option in (name for name, value in engine_options.items() if value is not None):
             fail(f"{option} applies to runs of the engine: it does not apply to --trajectory files")
-        if intrinsics is not None or calib is not None:
-            fail("--intrinsics and --calib describe the camera of a SOURCE: they do not apply to --trajectory files")
+        if intrinsics is not None or calib is not None or topic is not None or gt_topic is not None:
+            fail("--intrinsics, --calib, --topic and --gt-topic describe a SOURCE: they do not apply to --trajectory "
+                 "files")
         fmt = trajectory_format.value if trajectory_format is not None else None
         with _report_writes(report):
             evaluation = evaluate_trajectory_file(trajectory, gt, fmt, report,  # type: ignore[arg-type]
@@ -390,8 +411,9 @@ def eval_command(
         if sequences is not None:
             if source is None:
                 fail("--sequences needs SOURCE, the KITTI dataset root")
-            if intrinsics is not None or calib is not None:
-                fail("--intrinsics and --calib are for image folders and videos: KITTI sequences have calib.txt")
+            if intrinsics is not None or calib is not None or topic is not None or gt_topic is not None:
+                fail("--intrinsics, --calib, --topic and --gt-topic do not apply to KITTI --sequences (they have "
+                     "calib.txt and poses)")
             sources: list[FrameSource] = [
                 open_source(source, sequence=s.strip(), frames=frame_range, ground_truth=gt,
                             on_bad_frame=on_bad_frame.value, inject=inject)
@@ -399,9 +421,11 @@ def eval_command(
             ]
         else:
             sources = [open_source(source, frames=frame_range, intrinsics=intrinsics, calib=calib, ground_truth=gt,
-                                   on_bad_frame=on_bad_frame.value, inject=inject)]
+                                   on_bad_frame=on_bad_frame.value, inject=inject, topic=topic, gt_topic=gt_topic,
+                                   gt_tolerance_s=time_tolerance / 1000.0)]
         for src in sources:
             config = _with_camera_height(config, camera_height, src)
+            _refuse(backend_problem(src, config))
         for warning in dict.fromkeys(w for src in sources for w in input_warnings(src, config)):
             warn(warning)
         with _report_writes(report):

@@ -37,7 +37,8 @@ from vslam_core.geometry import invert_pose
 from vslam_core.lens import distort_pixels, undistortion_maps
 from vslam_core.pipeline import RunResult
 from vslam_core.results import FrameResult, FrameStatus, HealthStatus, TrackFate
-from vslam_core.sources.base import Frame, FrameSource, describe_indices
+from vslam_core.sources.base import Frame, FrameSource, describe_indices, source_properties
+from vslam_core.sources.calibration import describe_calibration
 
 #: --scale none: the position error and the estimate after Sim(3) alignment (logged when the run ends).
 ALIGNED_ERROR = "/metrics/error/position_m"
@@ -90,7 +91,8 @@ class Recorder:
                            undistorted=undistorted)
         self._rec.save(path, default_blueprint=layout)
         self._rec.send_recording_name(properties.get("name", source.name))
-        self._properties = {**properties, "detail": str(detail)}
+        self._properties = {**properties, **describe_calibration(source.intrinsics), **source_properties(source),
+                            "detail": str(detail)}
         self._rec.send_property("run", rr.AnyValues(**self._properties))  # type: ignore[arg-type]
         self._rec.send_property("config", rr.AnyValues(**flatten(config.to_dict())))
         self._intrinsics = source.intrinsics

@@ -1,4 +1,4 @@
-"""A folder of images (any camera), with intrinsics given or from a KITTI-style calib file.
+"""A folder of images (any camera), with intrinsics given or from a calibration file.
 
 Images are the folder's ``.png .jpg .jpeg .bmp .tif .tiff`` files sorted by name; colour images are
 converted to grey. Intrinsics: an ``--intrinsics fx,fy,cx,cy`` string (`parse_intrinsics`, the image size
@@ -19,6 +19,7 @@ import numpy as np
 
 from vslam_core.errors import SourceError
 from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange
+from vslam_core.sources.calibration_files import read_calibration
 from vslam_core.sources.kitti import (
     BadFramePolicy,
     GroundTruthFormat,
@@ -26,7 +27,6 @@ from vslam_core.sources.kitti import (
     list_images,
     read_frame,
     read_ground_truth,
-    read_p0_intrinsics,
     read_times,
     select,
     select_ground_truth,
@@ -98,7 +98,8 @@ class ImageFolderSource:
     """Frames from a folder of images.
 
     intrinsics: `CameraIntrinsics` or `PartialIntrinsics` (e.g. from `parse_intrinsics`); the size is
-    taken from the first selected image. calib: a KITTI-style calib file (``P0:`` line) instead. With
+    taken from the first selected image. calib: a calibration file instead (any `read_calibration` reads, lens
+    included: ROS camera_info, Kalibr, OpenCV, KITTI calib.txt). With
     neither, a ``calib.txt`` in the folder or its parent is used if there is one; giving both is an error.
     ground_truth: optional KITTI or TUM poses file (``gt_format`` "auto" guesses from the columns), one
     row per image in file order (extra rows ignored, fewer is an error), re-based to the first selected
@@ -129,7 +130,7 @@ class ImageFolderSource:
                 raise SourceError(
                     f"{self.folder}: no camera intrinsics: give --intrinsics fx,fy,cx,cy or a calib file"
                 )
-            intrinsics = PartialIntrinsics(*read_p0_intrinsics(calib_file))
+            intrinsics = read_calibration(calib_file)
         self._intrinsics = complete_intrinsics(intrinsics, self._size[0], self._size[1], self.folder)
 
         times_file = _beside(self.folder, "times.txt")

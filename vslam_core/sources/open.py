@@ -3,17 +3,24 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 
 from vslam_core.errors import SourceError
-from vslam_core.sources.base import FrameRange, FrameSource
+from vslam_core.sources.base import CameraIntrinsics, FrameRange, FrameSource
+from vslam_core.sources.calibration_files import read_calibration
+from vslam_core.sources.euroc import EurocSource, is_euroc
 from vslam_core.sources.faults import FaultInjector, parse_faults
-from vslam_core.sources.folder import ImageFolderSource, PartialIntrinsics, parse_intrinsics
-from vslam_core.sources.kitti import BadFramePolicy, GroundTruthFormat, KittiSource, read_p0_intrinsics
+from vslam_core.sources.folder import ImageFolderSource, parse_intrinsics
+from vslam_core.sources.kitti import BadFramePolicy, GroundTruthFormat, KittiSource
+from vslam_core.sources.rosbag import RosbagSource
+from vslam_core.sources.stamps import DEFAULT_GT_TOLERANCE_S
 from vslam_core.sources.synthetic import SyntheticStreet
+from vslam_core.sources.tum_mono import TumMonoSource, is_tum_mono
 from vslam_core.sources.video import VideoSource
 
 VIDEO_SUFFIXES = {".mp4", ".avi", ".mkv", ".mov", ".webm", ".m4v", ".mpg", ".mpeg"}
+LOG_SUFFIXES = {".bag", ".mcap", ".db3"}
 SYNTHETIC = "synthetic"
 
 
@@ -28,54 +35,78 @@ def open_source(
     gt_format: GroundTruthFormat = "auto",
     on_bad_frame: BadFramePolicy = "fail",
     inject: str | None = None,
+    topic: str | None = None,
+    gt_topic: str | None = None,
+    gt_tolerance_s: float = DEFAULT_GT_TOLERANCE_S,
 ) -> FrameSource:
-    """None or "synthetic": the embedded synthetic street. A video file: `VideoSource`. A folder with
-    ``sequences/`` or ``image_0/``: KITTI. Any other folder: `ImageFolderSource`. `inject` wraps the source
-    in a `FaultInjector` (e.g. ``"dark@120,blur@200:210"``)."""
-    source = _open(spec, sequence, frames, intrinsics, calib, ground_truth, gt_format, on_bad_frame)
+    """None or "synthetic": the embedded synthetic street. A ROS 1 ``.bag``, a ROS 2 bag folder or a bare
+    ``.mcap``/``.db3``: `RosbagSource`. A video file: `VideoSource`. A folder with ``sequences/`` or
+    ``image_0/``: KITTI; with ``mav0/``: EuRoC; with ``camera.txt``, ``times.txt`` and ``images/``: TUM
+    monoVO. Any other folder: `ImageFolderSource`. `inject` wraps the source in a `FaultInjector` (e.g.
+    ``"dark@120,blur@200:210"``)."""
+    request = _Request(spec, sequence, frames, intrinsics, calib, ground_truth, gt_format, on_bad_frame, topic,
+                       gt_topic, gt_tolerance_s)
+    source = _open(request)
     return FaultInjector(source, parse_faults(inject)) if inject else source
 
 
-def _open(
-    spec: str | None,
-    sequence: str | None,
-    frames: FrameRange | None,
-    intrinsics: str | None,
-    calib: Path | None,
-    ground_truth: Path | None,
-    gt_format: GroundTruthFormat,
-    on_bad_frame: BadFramePolicy,
-) -> FrameSource:
-    given = {"--sequence": sequence, "--intrinsics": intrinsics, "--calib": calib, "--gt": ground_truth}
-    if spec is None or spec == SYNTHETIC:
-        _refuse(given, ("--sequence", "--intrinsics", "--calib", "--gt"),
-                "the synthetic street has its own camera and exact ground truth, and no sequences")
-        return SyntheticStreet(frames=frames)
-    path = Path(spec)
+@dataclass(frozen=True)
+class _Request:
+    spec: str | None
+    sequence: str | None
+    frames: FrameRange | None
+    intrinsics: str | None
+    calib: Path | None
+    ground_truth: Path | None
+    gt_format: GroundTruthFormat
+    on_bad_frame: BadFramePolicy
+    topic: str | None
+    gt_topic: str | None
+    gt_tolerance_s: float
+
+    def given(self) -> dict[str, object]:
+        return {"--sequence": self.sequence, "--intrinsics": self.intrinsics, "--calib": self.calib,
+                "--gt": self.ground_truth, "--topic": self.topic, "--gt-topic": self.gt_topic}
+
+
+def _open(r: _Request) -> FrameSource:
+    given = r.given()
+    if r.spec is None or r.spec == SYNTHETIC:
+        _refuse(given, tuple(given), "the synthetic street has its own camera and exact ground truth, and no "
+                "sequences or topics")
+        return SyntheticStreet(frames=r.frames)
+    path = Path(r.spec)
     if not path.exists():
         raise SourceError(f"{path}: no such file or folder")
+    if path.suffix.lower() in LOG_SUFFIXES or (path / "metadata.yaml").is_file():
+        _refuse(given, ("--sequence",), f"{path} is a ROS log, not a KITTI dataset root")
+        return RosbagSource(path, topic=r.topic, frames=r.frames, calibration=_calibration(r),
+                            ground_truth=r.ground_truth, gt_topic=r.gt_topic, gt_tolerance_s=r.gt_tolerance_s,
+                            on_bad_frame=r.on_bad_frame)
+    _refuse(given, ("--topic", "--gt-topic"), f"{path} is not a ROS log (.bag, .mcap, .db3 or a ROS 2 bag folder)")
     if path.is_file():
         if path.suffix.lower() not in VIDEO_SUFFIXES:
-            raise SourceError(f"{path}: not a video ({', '.join(sorted(VIDEO_SUFFIXES))}) nor a folder")
+            raise SourceError(f"{path}: not a video ({', '.join(sorted(VIDEO_SUFFIXES))}), a ROS log "
+                              f"({', '.join(sorted(LOG_SUFFIXES))}) nor a folder")
         _refuse(given, ("--sequence",), f"{path} is a video, not a KITTI dataset root")
-        if intrinsics is None and calib is None:
-            raise SourceError(f"{path}: a video needs --intrinsics fx,fy,cx,cy")
-        return VideoSource(path, _intrinsics(intrinsics, calib), frames=frames, ground_truth=ground_truth,
-                           gt_format=gt_format)
+        camera = _calibration(r)
+        if camera is None:
+            raise SourceError(f"{path}: a video needs its camera: --calib FILE or --intrinsics fx,fy,cx,cy")
+        return VideoSource(path, camera, frames=r.frames, ground_truth=r.ground_truth, gt_format=r.gt_format)
     if (path / "sequences").is_dir() or (path / "image_0").is_dir():
-        _refuse(given, ("--intrinsics", "--calib", "--gt"),
-                "a KITTI sequence has its own calib.txt and poses/NN.txt")
-        return KittiSource(path, sequence=sequence, frames=frames, on_bad_frame=on_bad_frame)
-    _refuse(given, ("--sequence",), f"{path} is an image folder, not a KITTI dataset root")
-    return ImageFolderSource(
-        path,
-        intrinsics=parse_intrinsics(intrinsics) if intrinsics is not None else None,
-        calib=calib,
-        ground_truth=ground_truth,
-        gt_format=gt_format,
-        frames=frames,
-        on_bad_frame=on_bad_frame,
-    )
+        _refuse(given, ("--intrinsics", "--calib", "--gt"), "a KITTI sequence has its own calib.txt and poses/NN.txt")
+        return KittiSource(path, sequence=r.sequence, frames=r.frames, on_bad_frame=r.on_bad_frame)
+    _refuse(given, ("--sequence",), f"{path} is not a KITTI dataset root")
+    if is_euroc(path):
+        _refuse(given, ("--intrinsics", "--calib"), "an EuRoC sequence has its own sensor.yaml")
+        return EurocSource(path, frames=r.frames, ground_truth=r.ground_truth, gt_tolerance_s=r.gt_tolerance_s,
+                           on_bad_frame=r.on_bad_frame)
+    if is_tum_mono(path):
+        _refuse(given, ("--intrinsics", "--calib"), "a TUM monoVO sequence has its own camera.txt")
+        return TumMonoSource(path, frames=r.frames, ground_truth=r.ground_truth, gt_tolerance_s=r.gt_tolerance_s,
+                             on_bad_frame=r.on_bad_frame)
+    return ImageFolderSource(path, intrinsics=_calibration(r), ground_truth=r.ground_truth, gt_format=r.gt_format,
+                             frames=r.frames, on_bad_frame=r.on_bad_frame)
 
 
 def _refuse(given: Mapping[str, object], options: tuple[str, ...], reason: str) -> None:
@@ -85,10 +116,12 @@ def _refuse(given: Mapping[str, object], options: tuple[str, ...], reason: str) 
             raise SourceError(f"{option} does not apply here: {reason}")
 
 
-def _intrinsics(text: str | None, calib: Path | None) -> PartialIntrinsics:
-    """Intrinsics from an "fx,fy,cx,cy" string, else from a calib file's P0 line."""
-    if text is not None:
-        return parse_intrinsics(text)
-    if calib is None:
-        raise SourceError("camera intrinsics needed: --intrinsics fx,fy,cx,cy or --calib FILE")
-    return PartialIntrinsics(*read_p0_intrinsics(calib))
+def _calibration(r: _Request) -> CameraIntrinsics | None:
+    """The camera the user gave: ``--intrinsics fx,fy,cx,cy`` (a pinhole) or ``--calib FILE`` (any supported
+    calibration file, lens included), its size 0x0 when not stated (the source fills it); None if neither."""
+    if r.intrinsics is not None and r.calib is not None:
+        raise SourceError("--intrinsics and --calib both describe the camera: give one of them")
+    if r.intrinsics is not None:
+        fx, fy, cx, cy = parse_intrinsics(r.intrinsics)
+        return CameraIntrinsics(fx, fy, cx, cy, 0, 0, origin="--intrinsics")
+    return read_calibration(r.calib) if r.calib is not None else None
