@@ -18,6 +18,7 @@ import numpy as np
 
 from vslam_core.errors import TrajectoryFormatError
 from vslam_core.sources.kitti import read_times
+from vslam_core.sources.stamps import nearest_in_time
 
 DEFAULT_TOLERANCE_MS = 10.0
 MIN_MATCHES = 3
@@ -109,13 +110,7 @@ def _by_timestamp(
     """Each estimated pose with the ground-truth pose nearest in time, if within `tolerance_ms`."""
     if len(gt_times) == 0:
         raise TrajectoryFormatError(f"{names[1]}: no timestamps to match by")
-    order = np.argsort(gt_times, kind="stable")
-    sorted_times = gt_times[order]
-    right = np.clip(np.searchsorted(sorted_times, est_times), 0, len(gt_times) - 1)
-    left = np.clip(right - 1, 0, len(gt_times) - 1)
-    take_left = np.abs(sorted_times[left] - est_times) <= np.abs(sorted_times[right] - est_times)
-    pick = order[np.where(take_left, left, right)]
-    close = np.abs(gt_times[pick] - est_times) <= tolerance_ms / 1000.0
+    pick, close = nearest_in_time(est_times, gt_times, tolerance_ms / 1000.0)
     matched = int(close.sum())
     if matched < MIN_MATCHES:
         raise TrajectoryFormatError(

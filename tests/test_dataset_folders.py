@@ -4,6 +4,7 @@ in tmp_path from real KITTI frames and poses (never written into the repository)
 from __future__ import annotations
 
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
@@ -12,13 +13,7 @@ import pytest
 
 from vslam_core.errors import SourceError
 from vslam_core.sources.base import Frame, FrameRange, FrameSource, rebase_poses
-from vslam_core.sources.euroc import (
-    EurocSource,
-    is_euroc,
-    load_yaml,
-    parse_simple_yaml,
-    read_sensor_yaml,
-)
+from vslam_core.sources.euroc import EurocSource, is_euroc, read_sensor_yaml
 from vslam_core.sources.kitti import read_p0_intrinsics, read_times
 from vslam_core.sources.tum_mono import TumMonoSource, is_tum_mono, read_camera_txt
 from vslam_core.trajectory_io import quaternion_from_rotation, read_kitti_poses, tum_line
@@ -269,17 +264,37 @@ def test_euroc_tum_ground_truth_override(tmp_path: Path, kitti_root: Path) -> No
         EurocSource(root, ground_truth=tmp_path / "none.txt")
 
 
-def test_sensor_yaml_without_pyyaml_parses_the_same(tmp_path: Path, kitti_root: Path) -> None:
-    text = "%YAML:1.0\n" + sensor_yaml(kitti_root)
+def test_sensor_yaml_with_opencv_header(tmp_path: Path, kitti_root: Path) -> None:
     path = tmp_path / "sensor.yaml"
-    path.write_text(text)
-    simple = parse_simple_yaml(text)
-    assert simple["resolution"] == [1241, 376] and simple["distortion_model"] == "radial-tangential"
-    assert simple["T_BS"]["rows"] == 4 and len(simple["T_BS"]["data"]) == 16
-    assert load_yaml(path) == simple  # PyYAML, when installed, reads the same (the %YAML line dropped)
+    path.write_text("%YAML:1.0\n" + sensor_yaml(kitti_root))
     intrinsics, t_bs = read_sensor_yaml(path)
     assert intrinsics.model == "plumb_bob" and intrinsics.origin == str(path)
+    assert (intrinsics.width, intrinsics.height) == (1241, 376)
     np.testing.assert_allclose(t_bs, T_BS, atol=1e-15)
+
+
+@pytest.mark.parametrize(
+    ("edit", "error"),
+    [
+        (lambda text: text.replace("resolution: [1241, 376]\n", ""), "no 'resolution'"),
+        (lambda text: text.replace("T_BS:", "T_XX:"), "no 'T_BS'"),
+        (lambda text: text.replace("data: [", "data: [2, "), "'T_BS' needs 16 finite numbers"),
+        (lambda text: text.replace("data: [", "data: [.nan, ").replace(", 1]", "]"), "'T_BS' needs 16 finite"),
+        (lambda text: text.replace("data: [", "data: [2, ").replace(", 1]", "]"), "T_BS is not a rigid transform"),
+        (lambda text: text.replace("camera_model: pinhole", "camera_model: omni"), "camera_model 'omni'"),
+        (lambda text: text.replace("intrinsics: [", "intrinsics: [1, "), "intrinsics needs 4 numbers"),
+        (lambda text: text + "bad: [\n", "not YAML"),
+    ],
+)
+def test_bad_sensor_yaml_is_one_line_naming_the_file(
+    tmp_path: Path, kitti_root: Path, edit: Callable[[str], str], error: str
+) -> None:
+    path = tmp_path / "sensor.yaml"
+    path.write_text(edit(sensor_yaml(kitti_root)))
+    with pytest.raises(SourceError) as failed:
+        read_sensor_yaml(path)
+    message = one_line(failed)
+    assert message.startswith(str(path)) and error in message, message
 
 
 # --------------------------------------------------------------------------------------------------

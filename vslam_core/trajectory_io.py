@@ -18,10 +18,13 @@ TrajectoryFormat = Literal["kitti", "tum"]
 _ROTATION_TOLERANCE = 1e-3
 
 
-def _rows(path: Path, columns: int, max_rows: int | None = None) -> list[tuple[int, list[float]]]:
+def _rows(
+    path: Path, columns: int, max_rows: int | None = None, skip_non_finite: bool = False
+) -> list[tuple[int, list[float]]]:
     """Numeric rows of a whitespace-separated text file, with their 1-based line numbers.
 
-    Blank lines and ``#`` comments are skipped. Each row must hold exactly ``columns`` numbers.
+    Blank lines and ``#`` comments are skipped. Each row must hold exactly ``columns`` numbers; a row holding
+    NaN or infinity is an error, or left out with ``skip_non_finite``.
     """
     try:
         text = path.read_text()
@@ -46,6 +49,8 @@ def _rows(path: Path, columns: int, max_rows: int | None = None) -> list[tuple[i
         except ValueError:
             raise TrajectoryFormatError(f"{path}:{number}: not a number in {stripped[:60]!r}") from None
         if not all(np.isfinite(values)):
+            if skip_non_finite:
+                continue
             raise TrajectoryFormatError(f"{path}:{number}: non-finite value")
         rows.append((number, values))
     if not rows:
@@ -121,10 +126,11 @@ def rotation_from_quaternion(q: np.ndarray) -> np.ndarray:
     )
 
 
-def read_tum_poses(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    """Read a TUM trajectory: timestamps (N,) seconds and (N, 4, 4) T_w_c."""
+def read_tum_poses(path: str | Path, skip_non_finite: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Read a TUM trajectory: timestamps (N,) seconds and (N, 4, 4) T_w_c. ``skip_non_finite``: rows holding NaN
+    (frames without a pose, as in TUM monoVO's groundtruthSync.txt) are left out instead of being an error."""
     path = Path(path)
-    rows = _rows(path, 8)
+    rows = _rows(path, 8, skip_non_finite=skip_non_finite)
     timestamps = np.empty(len(rows))
     poses = np.tile(np.eye(4), (len(rows), 1, 1))
     for i, (line, values) in enumerate(rows):

@@ -74,7 +74,8 @@ class Frame:
     """One input frame.
 
     index: the frame's index in its source (KITTI image number, video frame number).
-    timestamp: seconds since the start of the source, or None when the source has no clock.
+    timestamp: seconds on the source's clock, or None when the source has no clock: since the start for
+        KITTI times.txt, videos and the synthetic street; Unix time for ROS logs, EuRoC and TUM monoVO.
     image: (H, W) uint8 grey image.
     defect: why the frame's image is unusable (e.g. a corrupt file skipped with --on-bad-frame skip).
     """
@@ -166,6 +167,46 @@ class FrameSource(Protocol):
         ...
 
     def __iter__(self) -> Iterator[Frame]: ...
+
+
+class SelectedSource:
+    """The `FrameSource` properties of a source that has chosen its frames: a subclass sets ``_name``,
+    ``_intrinsics``, ``_ground_truth`` ((N, 4, 4) T_w_c of the selected frames, re-based, or None) and
+    ``_indices`` (the selected source indices) in its constructor, ``_camera_height`` when it knows it, and
+    implements ``__iter__``."""
+
+    _name: str
+    _intrinsics: CameraIntrinsics
+    _ground_truth: np.ndarray | None
+    _indices: list[int]
+    _camera_height: float | None = None
+
+    @property
+    def name(self) -> str:
+        """Short name for file names and recording titles."""
+        return self._name
+
+    @property
+    def intrinsics(self) -> CameraIntrinsics:
+        return self._intrinsics
+
+    @property
+    def ground_truth(self) -> np.ndarray | None:
+        """(N, 4, 4) T_w_c of the selected frames (first = identity), or None."""
+        return None if self._ground_truth is None else self._ground_truth.copy()
+
+    @property
+    def indices(self) -> list[int]:
+        """The source indices of the selected frames, in order."""
+        return list(self._indices)
+
+    @property
+    def camera_height(self) -> float | None:
+        """The camera's height above the road in metres, when the source knows it."""
+        return self._camera_height
+
+    def __len__(self) -> int:
+        return len(self._indices)
 
 
 def source_properties(source: FrameSource) -> dict[str, str]:

@@ -14,7 +14,8 @@ The format is detected from the content, not the extension:
   plumb_bob for 4 or 5 coefficients, rational_polynomial for 8);
 * KITTI ``calib.txt`` (the ``P0:`` line; a rectified camera, model none).
 
-Extrinsics (``T_cam_imu``, ``T_BS``) and ROS's rectification/projection matrices are not read. Every problem
+Extrinsics (``T_cam_imu``, ``T_BS``) and ROS's rectification/projection matrices are not read (`load_yaml` and
+`number_list` give them to a caller that wants them, e.g. `read_sensor_yaml`). Every problem
 is a one-line `SourceError` naming the file and the format it was read as (or the formats accepted).
 """
 
@@ -44,16 +45,7 @@ def read_calibration(path: Path) -> CameraIntrinsics:
     when the file does not state them; ``origin`` is the path as given plus the format, e.g.
     ``calib.yaml (ROS camera_info)``. Raises a one-line `SourceError` for a missing or unreadable file, an
     unknown format, missing keys or invalid values."""
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise SourceError(f"{path}: calibration file not found (--calib reads {FORMATS})") from None
-    except IsADirectoryError:
-        raise SourceError(f"{path}: is a folder, not a calibration file (--calib reads {FORMATS})") from None
-    except UnicodeDecodeError:
-        raise SourceError(f"{path}: not a calibration file, not text (--calib reads {FORMATS})") from None
-    except OSError as exc:
-        raise SourceError(f"{path}: cannot read calibration file ({exc.__class__.__name__})") from None
+    text = _read_text(path)
     if re.search(r"^\s*P0\s*:", text, re.MULTILINE):
         try:
             fx, fy, cx, cy = read_p0_intrinsics(path)
@@ -84,6 +76,29 @@ def read_calibration(path: Path) -> CameraIntrinsics:
     keys = ", ".join(map(str, list(data)[:8])) or "none"
     raise SourceError(f"{path}: not a calibration file, no camera matrix or camera model (keys: {keys}; --calib "
                       f"reads {FORMATS})")
+
+
+def load_yaml(path: Path) -> dict[str, Any]:
+    """A YAML calibration file (OpenCV's ``%YAML:1.0`` header and FileStorage YAML/XML included) as plain Python
+    values, loaded as `read_calibration` loads it: for the keys it does not read, e.g. EuRoC's ``T_BS``. A
+    one-line `SourceError` naming the file when it cannot be read or parsed, or holds no keys."""
+    data, _ = _load(path, _read_text(path))
+    if not isinstance(data, dict):
+        raise SourceError(f"{path}: not a calibration file, it holds no keys (--calib reads {FORMATS})")
+    return data
+
+
+def _read_text(path: Path) -> str:
+    try:
+        return path.read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise SourceError(f"{path}: calibration file not found (--calib reads {FORMATS})") from None
+    except IsADirectoryError:
+        raise SourceError(f"{path}: is a folder, not a calibration file (--calib reads {FORMATS})") from None
+    except UnicodeDecodeError:
+        raise SourceError(f"{path}: not a calibration file, not text (--calib reads {FORMATS})") from None
+    except OSError as exc:
+        raise SourceError(f"{path}: cannot read calibration file ({exc.__class__.__name__})") from None
 
 
 def _load(path: Path, text: str) -> tuple[Any, str]:
@@ -141,8 +156,9 @@ def _node_value(node: Any) -> Any:
     return None
 
 
-def _numbers(value: Any, what: str, origin: str) -> list[float]:
-    """The numbers of a list, a nested list, a ``{rows, cols, data}`` matrix or a space-separated string."""
+def number_list(value: Any, what: str, origin: str) -> list[float]:
+    """The numbers of a list, a nested list, a ``{rows, cols, data}`` matrix or a space-separated string (a
+    `SourceError` naming `origin` and `what` otherwise)."""
     if isinstance(value, dict):
         if "data" not in value:
             raise SourceError(f"{origin}: {what} has no 'data'")
@@ -184,7 +200,7 @@ def _read_kalibr(camera: dict[str, Any], origin: str) -> CameraIntrinsics:
                           "eucm are not)")
     if "intrinsics" not in camera:
         raise SourceError(f"{origin}: no 'intrinsics' (expected [fu, fv, pu, pv])")
-    intrinsics = _numbers(camera["intrinsics"], "intrinsics", origin)
+    intrinsics = number_list(camera["intrinsics"], "intrinsics", origin)
     if len(intrinsics) != 4:
         raise SourceError(f"{origin}: intrinsics needs 4 numbers [fu, fv, pu, pv] for a pinhole camera, got "
                           f"{len(intrinsics)}")
@@ -198,14 +214,14 @@ def _read_kalibr(camera: dict[str, Any], origin: str) -> CameraIntrinsics:
         if not isinstance(resolution, list | tuple) or len(resolution) != 2:
             raise SourceError(f"{origin}: resolution must be [width, height], got {resolution!r}")
         width, height = (_size(v, "resolution", origin) for v in resolution)
-    values = [] if coefficients is None else _numbers(coefficients, "distortion coefficients", origin)
+    values = [] if coefficients is None else number_list(coefficients, "distortion coefficients", origin)
     return make_intrinsics(intrinsics, str(distortion or "none"), values, width, height, origin)
 
 
 def _read_matrix_file(data: dict[str, Any], origin: str) -> CameraIntrinsics:
     """ROS camera_info / CameraInfo message / OpenCV FileStorage: a 3×3 camera matrix and a distortion vector."""
     matrix_key = next(k for k in MATRIX_KEYS if k in data)
-    K = _numbers(data[matrix_key], matrix_key, origin)  # noqa: N806
+    K = number_list(data[matrix_key], matrix_key, origin)  # noqa: N806
     if len(K) != 9:
         raise SourceError(f"{origin}: {matrix_key} needs 9 numbers (3x3), got {len(K)}")
     if K[6:] != [0.0, 0.0, 1.0] or abs(K[1]) > 1e-6 * abs(K[0]) or K[3] != 0.0:
@@ -213,7 +229,7 @@ def _read_matrix_file(data: dict[str, Any], origin: str) -> CameraIntrinsics:
         raise SourceError(f"{origin}: {matrix_key} is not [fx 0 cx; 0 fy cy; 0 0 1] (got {shown}; transposed or "
                           "skewed?)")
     distortion_key = next((k for k in DISTORTION_KEYS if k in data), None)
-    coefficients = [] if distortion_key is None else _numbers(data[distortion_key], distortion_key, origin)
+    coefficients = [] if distortion_key is None else number_list(data[distortion_key], distortion_key, origin)
     model = data.get("distortion_model")
     if model is None:
         inferred = OPENCV_MODELS.get(len(coefficients))

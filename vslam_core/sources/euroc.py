@@ -21,17 +21,21 @@ ground truth is matched to the frames by time (nearest pose within a tolerance, 
 from __future__ import annotations
 
 import re
-from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from vslam_core.errors import SourceError
-from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange
-from vslam_core.sources.calibration import make_intrinsics
-from vslam_core.sources.kitti import BadFramePolicy, first_image_size, read_frame, select
-from vslam_core.sources.stamps import DEFAULT_GT_TOLERANCE_S, ground_truth_at, nearest_in_time, stamp_problems
+from vslam_core.sources.base import CameraIntrinsics, FrameRange
+from vslam_core.sources.calibration_files import load_yaml, number_list, read_calibration
+from vslam_core.sources.kitti import BadFramePolicy, ImageFilesSource, first_image_size, select
+from vslam_core.sources.stamps import (
+    DEFAULT_GT_TOLERANCE_S,
+    read_tum_ground_truth,
+    selected_ground_truth,
+    stamp_problems,
+)
 
 GROUND_TRUTH_FOLDER = "state_groundtruth_estimate0"
 _CAMERA_NAME = re.compile(r"cam\d+")
@@ -154,213 +158,34 @@ def read_body_ground_truth(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(stamps, np.int64), poses
 
 
-def _scalar(text: str) -> Any:
-    """A YAML scalar as int, float or string (quotes removed)."""
-    text = text.strip()
-    if len(text) >= 2 and text[0] == text[-1] and text[0] in "'\"":
-        return text[1:-1]
-    for kind in (int, float):
-        try:
-            return kind(text)
-        except ValueError:
-            pass
-    return text
-
-
-def parse_simple_yaml(text: str) -> dict[str, Any]:
-    """The subset of YAML that sensor.yaml files use: ``key: value`` mappings nested by indentation,
-    scalars, and ``[a, b, …]`` flow lists (which may span lines); ``#`` comments; ``%YAML`` / ``---``
-    lines ignored. Used when PyYAML is not installed."""
-    logical: list[tuple[int, str]] = []
-    pending = ""
-    indent = 0
-    for raw in text.splitlines():
-        line = raw.split("#", 1)[0].rstrip()
-        if not pending and (not line.strip() or line.lstrip().startswith(("%", "---"))):
-            continue
-        if not pending:
-            indent = len(line) - len(line.lstrip())
-        pending = f"{pending} {line.strip()}" if pending else line.strip()
-        if pending.count("[") <= pending.count("]"):
-            logical.append((indent, pending))
-            pending = ""
-    if pending:
-        logical.append((indent, pending))
-    root: dict[str, Any] = {}
-    stack: list[tuple[int, dict[str, Any]]] = [(-1, root)]
-    for indent, line in logical:
-        key, colon, value = line.partition(":")
-        if not colon:
-            raise SourceError(f"cannot parse YAML line {line[:60]!r} (expected 'key: value')")
-        while stack[-1][0] >= indent:
-            stack.pop()
-        mapping = stack[-1][1]
-        value = value.strip()
-        if not value:
-            child: dict[str, Any] = {}
-            mapping[key.strip()] = child
-            stack.append((indent, child))
-        elif value.startswith("["):
-            inner = value.strip("[]").strip()
-            mapping[key.strip()] = [_scalar(v) for v in inner.split(",") if v.strip()] if inner else []
-        else:
-            mapping[key.strip()] = _scalar(value)
-    return root
-
-
-def _parse_yaml(text: str) -> Any:
-    """PyYAML's safe_load when PyYAML is installed, else `parse_simple_yaml`."""
-    try:
-        import yaml
-    except ImportError:
-        return parse_simple_yaml(text)
-    return yaml.safe_load(text)
-
-
-def load_yaml(path: Path) -> dict[str, Any]:
-    """A small YAML file as a dict: with PyYAML when it is installed, else with `parse_simple_yaml`. OpenCV's
-    ``%YAML:1.0`` first line (which PyYAML refuses) is dropped. `SourceError` naming the file on failure."""
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise SourceError(f"{path}: camera calibration not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise SourceError(f"{path}: cannot read ({exc.__class__.__name__})") from None
-    text = "\n".join("" if line.startswith("%YAML") else line for line in text.splitlines())
-    try:
-        data = _parse_yaml(text)
-    except SourceError as exc:
-        raise SourceError(f"{path}: {exc}") from None
-    except Exception as exc:  # any YAML error becomes one line naming the file
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else exc.__class__.__name__
-        raise SourceError(f"{path}: not valid YAML ({first})") from None
-    if not isinstance(data, dict):
-        raise SourceError(f"{path}: expected a YAML mapping of calibration keys")
-    return data
-
-
-def _numbers(data: dict[str, Any], key: str, count: int | None, path: Path) -> list[float]:
-    """``data[key]`` as a list of floats (``count`` of them when given); `SourceError` naming the key."""
-    value = data.get(key)
-    if isinstance(value, dict):
-        value = value.get("data")
-    if not isinstance(value, list):
-        raise SourceError(f"{path}: no '{key}' list")
-    try:
-        numbers = [float(v) for v in value]
-    except (TypeError, ValueError):
-        raise SourceError(f"{path}: '{key}' holds something that is not a number") from None
-    if count is not None and len(numbers) != count:
-        raise SourceError(f"{path}: '{key}' needs {count} numbers, found {len(numbers)}")
-    if not all(np.isfinite(numbers)):
-        raise SourceError(f"{path}: '{key}' holds a non-finite value")
-    return numbers
-
-
 def read_sensor_yaml(path: Path) -> tuple[CameraIntrinsics, np.ndarray]:
-    """An EuRoC camera's ``sensor.yaml``: (intrinsics of the ``resolution`` size, (4, 4) T_BS = the camera's
-    pose in the body frame). Only ``camera_model: pinhole`` (or none given) is accepted."""
+    """An EuRoC camera's ``sensor.yaml``: (intrinsics of the ``resolution`` size, read with `read_calibration`,
+    ``origin`` the path; (4, 4) T_BS = the camera's pose in the body frame). Only ``camera_model: pinhole`` (or
+    none given) is accepted. Every problem is a one-line `SourceError` naming the file."""
+    if not path.exists():
+        raise SourceError(f"{path}: camera calibration not found")
+    intrinsics = read_calibration(path)
+    if (intrinsics.width, intrinsics.height) == (0, 0):
+        raise SourceError(f"{path}: no 'resolution' [width, height]")
     data = load_yaml(path)
-    camera_model = str(data.get("camera_model", "pinhole")).strip().lower()
-    if camera_model != "pinhole":
-        raise SourceError(f"{path}: camera_model {camera_model!r} is not supported (only pinhole)")
-    fu, fv, cu, cv = _numbers(data, "intrinsics", 4, path)
-    width, height = _numbers(data, "resolution", 2, path)
-    if width != int(width) or height != int(height) or width <= 0 or height <= 0:
-        raise SourceError(f"{path}: 'resolution' must be two positive integers (width, height)")
-    model = str(data.get("distortion_model", "none") or "none")
-    coefficients = _numbers(data, "distortion_coefficients", None, path) if "distortion_coefficients" in data else []
-    intrinsics = make_intrinsics([fu, fv, cu, cv], model, coefficients, int(width), int(height), str(path))
-    t_bs = np.asarray(_numbers(data, "T_BS", 16, path)).reshape(4, 4)
+    if "T_BS" not in data:
+        raise SourceError(f"{path}: no 'T_BS' (the camera's pose in the body frame, 4x4)")
+    values = number_list(data["T_BS"], "T_BS", str(path))
+    if len(values) != 16 or not all(np.isfinite(values)):
+        raise SourceError(f"{path}: 'T_BS' needs 16 finite numbers (4x4, row-major), found {len(values)} numbers")
+    t_bs = np.asarray(values).reshape(4, 4)
     rotation = t_bs[:3, :3]
     if (np.abs(rotation.T @ rotation - np.eye(3)).max() > 1e-3 or np.linalg.det(rotation) < 0
             or not np.allclose(t_bs[3], [0.0, 0.0, 0.0, 1.0])):
         raise SourceError(f"{path}: T_BS is not a rigid transform (rotation + translation, last row 0 0 0 1)")
-    return intrinsics, t_bs
-
-
-def read_tum_ground_truth(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """A TUM trajectory (``timestamp tx ty tz qx qy qz qw``, spaces or commas): ((M,) stamps in seconds,
-    (M, 4, 4) poses). Rows holding NaN (frames without a pose, as in TUM monoVO's groundtruthSync.txt) are
-    left out; any other malformed row, or no pose at all, is a `SourceError` naming the file (and line)."""
-    if not path.is_file():
-        raise SourceError(f"{path}: ground-truth file not found")
-    try:
-        lines = path.read_text().splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise SourceError(f"{path}: cannot read the ground truth ({exc.__class__.__name__})") from None
-    rows: list[list[float]] = []
-    numbers: list[int] = []
-    for number, line in enumerate(lines, start=1):
-        stripped = line.strip()
-        if not stripped or stripped.startswith("#"):
-            continue
-        fields = stripped.replace(",", " ").split()
-        if len(fields) != 8:
-            raise SourceError(f"{path}:{number}: expected 8 numbers (timestamp tx ty tz qx qy qz qw), found "
-                              f"{len(fields)}")
-        try:
-            values = [float(f) for f in fields]
-        except ValueError:
-            raise SourceError(f"{path}:{number}: not a number in {stripped[:60]!r}") from None
-        if all(np.isfinite(values)):
-            rows.append(values)
-            numbers.append(number)
-    if not rows:
-        raise SourceError(f"{path}: the ground truth holds no pose")
-    table = np.asarray(rows, np.float64)
-    norms = np.linalg.norm(table[:, 4:8], axis=1)
-    if np.any(np.abs(norms - 1.0) > 1e-2):
-        bad = int(np.argmax(np.abs(norms - 1.0) > 1e-2))
-        raise SourceError(f"{path}:{numbers[bad]}: quaternion is not of unit length (|q| = {norms[bad]:.4g})")
-    poses = np.tile(np.eye(4), (len(table), 1, 1))
-    poses[:, :3, :3] = rotations_from_quaternions(table[:, [7, 4, 5, 6]])
-    poses[:, :3, 3] = table[:, 1:4]
-    return table[:, 0].copy(), poses
-
-
-def _runs(indices: np.ndarray) -> list[tuple[int, int]]:
-    """Sorted source indices as (START, END) runs of consecutive indices (END exclusive)."""
-    if len(indices) == 0:
-        return []
-    breaks = np.flatnonzero(np.diff(indices) != 1)
-    starts = np.concatenate([[indices[0]], indices[breaks + 1]])
-    ends = np.concatenate([indices[breaks], [indices[-1]]]) + 1
-    return [(int(a), int(b)) for a, b in zip(starts, ends, strict=True)]
-
-
-def require_ground_truth(
-    frame_stamps: np.ndarray, indices: list[int], gt_stamps: np.ndarray, tolerance_s: float, label: str,
-    where: object,
-) -> None:
-    """`SourceError` when a selected frame has no ground-truth pose within `tolerance_s`, saying which frames
-    (START:END runs) do have one, so the user can choose --frames inside them (a ground truth that starts
-    after the images, or covers only the start and end of a sequence, is common).
-
-    `frame_stamps` are every frame's stamps (s, frame order), `indices` the selected ones."""
-    _, close = nearest_in_time(frame_stamps, gt_stamps, tolerance_s)
-    selected = close[np.asarray(indices)]
-    if selected.all():
-        return
-    first = indices[int(np.argmin(selected))]
-    span = f"the ground truth spans {np.min(gt_stamps):.3f}–{np.max(gt_stamps):.3f} s"
-    runs = _runs(np.flatnonzero(close))
-    if not runs:
-        raise SourceError(
-            f"{where}: no frame has a ground-truth pose within {tolerance_s * 1000:g} ms in {label} ({span}, "
-            f"the frames {frame_stamps.min():.3f}–{frame_stamps.max():.3f} s): is it this sequence's ground truth?")
-    shown = ", ".join(f"{a}:{b}" for a, b in runs[:4]) + (", …" if len(runs) > 4 else "")
-    raise SourceError(
-        f"{where}: {int((~selected).sum())} of the {len(indices)} selected frames have no ground-truth pose within "
-        f"{tolerance_s * 1000:g} ms in {label} (first: frame {first} at {frame_stamps[first]:.3f} s; {span}); "
-        f"frames {shown} have one: choose --frames inside them")
+    return replace(intrinsics, origin=str(path)), t_bs
 
 
 # --------------------------------------------------------------------------------------------------
 # the source
 
 
-class EurocSource:
+class EurocSource(ImageFilesSource):
     """Frames of one camera of an EuRoC/ASL sequence.
 
     path: the sequence's root folder (holding ``mav0/``) or its ``mav0`` folder. camera: ``cam0`` (default)
@@ -369,8 +194,10 @@ class EurocSource:
     (body poses, turned into camera poses with T_BS); with neither, ``ground_truth`` is None. gt_tolerance_s:
     how far (s) the nearest ground-truth stamp may be from a frame's. on_bad_frame: an image that is missing
     or cannot be read fails the run (``"fail"``, a missing one already when the source is opened) or becomes
-    a placeholder frame with a `Frame.defect` (``"skip"``).
+    a placeholder frame with a `Frame.defect` (``"skip"``). ``indices`` are rows of ``data.csv``.
     """
+
+    _times: np.ndarray
 
     def __init__(
         self,
@@ -399,9 +226,9 @@ class EurocSource:
 
         stamps_ns, names = read_frame_list(self.folder / "data.csv")
         self._files = [self.folder / "data" / name for name in names]
-        self._stamps = stamps_ns / 1e9
+        self._times = stamps_ns / 1e9
         self._indices = select(frames, len(self._files), self.folder)
-        self.notes: list[str] = [f"{self.folder / 'data.csv'}: {note}" for note in stamp_problems(self._stamps)]
+        self.notes: list[str] = [f"{self.folder / 'data.csv'}: {note}" for note in stamp_problems(self._times)]
         self._check_missing()
         self._size = first_image_size(self._files, self._indices, on_bad_frame, self.folder)
 
@@ -442,49 +269,13 @@ class EurocSource:
             stamps_ns, body = read_body_ground_truth(gt_file)
             gt_stamps, gt_poses = stamps_ns / 1e9, body @ self.t_bs
             label = f"{GROUND_TRUTH_FOLDER} (body poses × T_BS)"
-        require_ground_truth(self._stamps, self._indices, gt_stamps, tolerance_s, label, self.folder)
-        poses = ground_truth_at(self._stamps[np.asarray(self._indices)], gt_stamps, gt_poses, tolerance_s,
-                                f"{self.folder} ({label})")
-        return poses, label
-
-    @property
-    def name(self) -> str:
-        return self._name
-
-    @property
-    def intrinsics(self) -> CameraIntrinsics:
-        return self._intrinsics
-
-    @property
-    def ground_truth(self) -> np.ndarray | None:
-        """(N, 4, 4) T_w_c of the selected frames (first = identity), or None."""
-        return None if self._ground_truth is None else self._ground_truth.copy()
-
-    @property
-    def camera_height(self) -> None:
-        return None
-
-    @property
-    def indices(self) -> list[int]:
-        """The selected source indices (rows of data.csv)."""
-        return list(self._indices)
-
-    @property
-    def files(self) -> list[Path]:
-        """Every image file named by data.csv, in frame order (source index i = files[i])."""
-        return list(self._files)
+        return selected_ground_truth(self._times, self._indices, gt_stamps, gt_poses, tolerance_s, label,
+                                     self.folder), label
 
     @property
     def stamps(self) -> np.ndarray:
         """(len(files),) timestamps in seconds of every frame, in frame order."""
-        return self._stamps.copy()
-
-    def __len__(self) -> int:
-        return len(self._indices)
-
-    def __iter__(self) -> Iterator[Frame]:
-        for index in self._indices:
-            yield read_frame(index, self._files[index], self._size, float(self._stamps[index]), self._on_bad_frame)
+        return self._times.copy()
 
     def __repr__(self) -> str:
         return f"EurocSource({str(self.mav0)!r}, camera={self.camera!r}, frames={len(self)})"

@@ -10,7 +10,6 @@ parent, else None. Optional ground truth in KITTI or TUM format (row i = image i
 from __future__ import annotations
 
 import re
-from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 from typing import NamedTuple
@@ -18,14 +17,14 @@ from typing import NamedTuple
 import numpy as np
 
 from vslam_core.errors import SourceError
-from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange
+from vslam_core.sources.base import CameraIntrinsics, FrameRange
 from vslam_core.sources.calibration_files import read_calibration
 from vslam_core.sources.kitti import (
     BadFramePolicy,
     GroundTruthFormat,
+    ImageFilesSource,
     first_image_size,
     list_images,
-    read_frame,
     read_ground_truth,
     read_times,
     select,
@@ -94,7 +93,7 @@ def _short_name(folder: Path) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "_", name) or "folder"
 
 
-class ImageFolderSource:
+class ImageFolderSource(ImageFilesSource):
     """Frames from a folder of images.
 
     intrinsics: `CameraIntrinsics` or `PartialIntrinsics` (e.g. from `parse_intrinsics`); the size is
@@ -143,41 +142,6 @@ class ImageFolderSource:
             )
         )
         self._name = _short_name(self.folder)
-
-    @property
-    def name(self) -> str:
-        return self._name
-
-    @property
-    def intrinsics(self) -> CameraIntrinsics:
-        return self._intrinsics
-
-    @property
-    def ground_truth(self) -> np.ndarray | None:
-        """(N, 4, 4) T_w_c of the selected frames (first = identity), or None."""
-        return None if self._ground_truth is None else self._ground_truth.copy()
-
-    @property
-    def camera_height(self) -> None:
-        return None
-
-    @property
-    def files(self) -> list[Path]:
-        """Every image file of the folder, sorted (source index i = files[i])."""
-        return list(self._files)
-
-    @property
-    def indices(self) -> list[int]:
-        """The selected source indices."""
-        return list(self._indices)
-
-    def __len__(self) -> int:
-        return len(self._indices)
-
-    def __iter__(self) -> Iterator[Frame]:
-        for index in self._indices:
-            stamp = None if self._times is None else self._times[index]
-            yield read_frame(index, self._files[index], self._size, stamp, self._on_bad_frame)
 
     def __repr__(self) -> str:
         return f"ImageFolderSource({str(self.folder)!r}, frames={len(self)})"

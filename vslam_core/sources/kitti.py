@@ -9,12 +9,13 @@ Layout (the official ``data_odometry_gray`` + ``data_odometry_poses``)::
 
 The readers here (`read_p0_intrinsics`, `read_times`, `read_ground_truth`, `list_images`,
 `read_grey_image`) are also used by `ImageFolderSource` and `VideoSource`; every problem is a one-line
-`SourceError` (or `TrajectoryFormatError` for a malformed poses file) naming the file.
+`SourceError` (or `TrajectoryFormatError` for a malformed poses file) naming the file. `ImageFilesSource` is
+the base of the sources whose frames are image files (KITTI, image folders, EuRoC, TUM monoVO).
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Literal
 
@@ -22,7 +23,7 @@ import cv2
 import numpy as np
 
 from vslam_core.errors import SourceError
-from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange, rebase_poses
+from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange, SelectedSource, rebase_poses
 from vslam_core.trajectory_io import detect_format, read_kitti_poses, read_tum_poses
 
 GroundTruthFormat = Literal["kitti", "tum", "auto"]
@@ -151,6 +152,28 @@ def read_frame(
         return Frame(index=index, timestamp=stamp, image=np.zeros((size[1], size[0]), np.uint8), defect=str(exc))
 
 
+class ImageFilesSource(SelectedSource):
+    """A `SelectedSource` whose frames are image files: a subclass also sets ``_files`` (every frame's file, in
+    frame order: source index i = ``_files[i]``), ``_size`` (the first selected image's width, height),
+    ``_on_bad_frame`` and ``_times`` (every frame's timestamp in seconds, or None without a clock); images are
+    decoded lazily, one per iteration step."""
+
+    _files: list[Path]
+    _size: tuple[int, int]
+    _on_bad_frame: BadFramePolicy
+    _times: Sequence[float] | np.ndarray | None = None
+
+    @property
+    def files(self) -> list[Path]:
+        """Every image file, in frame order (source index i = files[i])."""
+        return list(self._files)
+
+    def __iter__(self) -> Iterator[Frame]:
+        for index in self._indices:
+            stamp = None if self._times is None else float(self._times[index])
+            yield read_frame(index, self._files[index], self._size, stamp, self._on_bad_frame)
+
+
 def first_image_size(files: list[Path], indices: list[int], on_bad_frame: BadFramePolicy, where: object
                      ) -> tuple[int, int]:
     """(width, height) of the first selected image. With ``on_bad_frame="skip"`` unreadable images are passed
@@ -195,7 +218,7 @@ def normalise_sequence(sequence: str) -> str:
 # the source
 
 
-class KittiSource:
+class KittiSource(ImageFilesSource):
     """Frames of one KITTI odometry sequence (left grey camera ``image_0``).
 
     path: the dataset root (then ``sequence`` is required, "0" or "00" both mean ``sequences/00``) or a
@@ -203,7 +226,9 @@ class KittiSource:
     frames: the selection (default all). Intrinsics come from ``calib.txt`` (P0), the image size from
     the first selected image; timestamps from ``times.txt`` when present (else None); ground truth
     from ``poses/NN.txt`` when present (its first N rows, N = number of images), re-based to the first
-    selected frame. Images are decoded lazily, one per iteration step.
+    selected frame. Images are decoded lazily, one per iteration step. ``indices`` are image numbers;
+    ``camera_height`` is 1.65 m, the height of the KITTI recording car's cameras above the road (Geiger et al.
+    2013).
     """
 
     def __init__(
@@ -246,37 +271,8 @@ class KittiSource:
             if self.poses_file is not None
             else None
         )
-
-    @property
-    def name(self) -> str:
-        return f"kitti-{self.sequence}"
-
-    @property
-    def intrinsics(self) -> CameraIntrinsics:
-        return self._intrinsics
-
-    @property
-    def ground_truth(self) -> np.ndarray | None:
-        """(N, 4, 4) T_w_c of the selected frames (first = identity), or None without a poses file."""
-        return None if self._ground_truth is None else self._ground_truth.copy()
-
-    @property
-    def camera_height(self) -> float:
-        """The KITTI recording car's cameras are mounted about 1.65 m above the road (Geiger et al. 2013)."""
-        return KITTI_CAMERA_HEIGHT_M
-
-    @property
-    def indices(self) -> list[int]:
-        """The selected source indices (image numbers)."""
-        return list(self._indices)
-
-    def __len__(self) -> int:
-        return len(self._indices)
-
-    def __iter__(self) -> Iterator[Frame]:
-        for index in self._indices:
-            stamp = None if self._times is None else self._times[index]
-            yield read_frame(index, self._files[index], self._size, stamp, self._on_bad_frame)
+        self._name = f"kitti-{self.sequence}"
+        self._camera_height = KITTI_CAMERA_HEIGHT_M
 
     def __repr__(self) -> str:
         return f"KittiSource({str(self.folder)!r}, frames={len(self)})"

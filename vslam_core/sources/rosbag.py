@@ -1,11 +1,8 @@
 """Frames of a camera topic in a ROS log: a ROS 1 ``.bag``, a ROS 2 bag folder (sqlite3 ``.db3`` or ``.mcap``
 storage), or a bare ``.mcap`` / ``.db3`` file, read with ``rosbags.highlevel.AnyReader``.
 
-Images: ``sensor_msgs/msg/Image`` (mono8, mono16, rgb8, bgr8, rgba8, bgra8, bayer_rggb8/bggr8/gbrg8/grbg8,
-8UC1) and ``sensor_msgs/msg/CompressedImage`` (whatever ``cv2.imdecode`` reads: jpeg, png, …), all turned into
-grey uint8. mono16 is shifted right by ``b - 8`` bits, ``b`` being the bit depth (8, 10, 12, 14 or 16) that
-holds the brightest pixel of the first decoded frame; the same shift is used for every frame (brighter
-pixels later on are clipped), so the brightness does not jump from frame to frame.
+Images: ``sensor_msgs/msg/Image`` and ``sensor_msgs/msg/CompressedImage``, turned into grey uint8 by
+`ros_images.ImageDecoder` (the encodings, and how mono16 is scaled, are described there).
 
 Streaming: the bag is never held in memory. Construction reads the image topic once, parsing only the
 header (stamp, frame_id) out of each message's raw bytes (CDR or ROS 1 serialisation, no image decoding),
@@ -17,89 +14,34 @@ Calibration: the first ``sensor_msgs/msg/CameraInfo`` of the image topic's names
 ``/cam/camera_info``, then the parent namespaces), unless `calibration` overrides it. Ground truth: a TUM
 file of camera poses, or a pose topic (PoseStamped, PoseWithCovarianceStamped, Odometry, TransformStamped),
 matched to the frames by stamp; a body frame other than the camera's is moved onto the camera with
-``/tf_static``. Every problem is a one-line `SourceError`.
+``/tf_static`` (see `ros_ground_truth`). Every problem is a one-line `SourceError`.
 """
 
 from __future__ import annotations
 
 import re
 import struct
-from collections import deque
 from collections.abc import Iterator
-from contextlib import contextmanager
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 
 from vslam_core.errors import SourceError
-from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange
+from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange, SelectedSource
 from vslam_core.sources.calibration import make_intrinsics
 from vslam_core.sources.folder import complete_intrinsics
 from vslam_core.sources.kitti import BadFramePolicy, select
+from vslam_core.sources.ros_ground_truth import topic_ground_truth
+from vslam_core.sources.ros_images import IMAGE_TYPES, ImageDecoder
+from vslam_core.sources.ros_messages import bag_errors, bare, field, one_line
 from vslam_core.sources.stamps import DEFAULT_GT_TOLERANCE_S, ground_truth_at, stamp_problems
-from vslam_core.trajectory_io import read_tum_poses, rotation_from_quaternion
+from vslam_core.trajectory_io import read_tum_poses
 
-IMAGE_TYPE = "sensor_msgs/msg/Image"
-COMPRESSED_TYPE = "sensor_msgs/msg/CompressedImage"
-IMAGE_TYPES = (IMAGE_TYPE, COMPRESSED_TYPE)
 CAMERA_INFO_TYPE = "sensor_msgs/msg/CameraInfo"
-TF_TYPE = "tf2_msgs/msg/TFMessage"
-POSE_TYPES = (
-    "geometry_msgs/msg/PoseStamped",
-    "geometry_msgs/msg/PoseWithCovarianceStamped",
-    "nav_msgs/msg/Odometry",
-    "geometry_msgs/msg/TransformStamped",
-)
-
-#: Raw ``sensor_msgs/Image`` encodings we turn into grey (lower case), and how.
-_COLOUR_CODES = {
-    "rgb8": (3, cv2.COLOR_RGB2GRAY), "bgr8": (3, cv2.COLOR_BGR2GRAY),
-    "rgba8": (4, cv2.COLOR_RGBA2GRAY), "bgra8": (4, cv2.COLOR_BGRA2GRAY),
-    # ROS names the Bayer pattern from the top-left pixel, OpenCV from the second row's: cv_bridge's mapping
-    "bayer_rggb8": (1, cv2.COLOR_BayerBG2GRAY), "bayer_bggr8": (1, cv2.COLOR_BayerRG2GRAY),
-    "bayer_gbrg8": (1, cv2.COLOR_BayerGR2GRAY), "bayer_grbg8": (1, cv2.COLOR_BayerGB2GRAY),
-}
-SUPPORTED_ENCODINGS = ("mono8", "8uc1", "mono16", *_COLOUR_CODES)
 
 #: Above this many frames held back for stamp order, iteration seeks each frame instead of buffering.
 REORDER_LIMIT = 32
-
-
-def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split()).strip(" .")
-    text = text if text else exc.__class__.__name__
-    return text if len(text) <= 200 else text[:197] + "…"
-
-
-@contextmanager
-def _bag_errors(where: str, doing: str) -> Iterator[None]:
-    """Turn whatever rosbags (or the file system, sqlite, a decompressor) raises into one `SourceError` line."""
-    try:
-        yield
-    except SourceError:
-        raise
-    except Exception as exc:  # noqa: BLE001 - the boundary to a third-party reader: nothing else may escape
-        raise SourceError(f"{where}: {doing}: {_one_line(exc)}") from None
-
-
-def _bare(frame: str) -> str:
-    """A tf frame name without ROS 1's leading slash."""
-    return frame.strip().lstrip("/")
-
-
-def _field(msg: object, *names: str) -> Any:
-    """The first of `names` that `msg` has (ROS 2 ``k`` vs ROS 1 ``K``)."""
-    for name in names:
-        if hasattr(msg, name):
-            return getattr(msg, name)
-    raise AttributeError(f"message {type(msg).__name__} has none of the fields {', '.join(names)}")
-
-
-def _stamp_ns(stamp: object) -> int:
-    return int(_field(stamp, "sec", "secs")) * 1_000_000_000 + int(_field(stamp, "nanosec", "nsec", "nsecs"))
 
 
 def _format_ns(ns: int) -> str:
@@ -128,75 +70,8 @@ def parse_header(raw: bytes | memoryview, cdr: bool) -> tuple[int, str]:
     return sec * 1_000_000_000 + nsec, text.decode("utf-8", errors="replace")
 
 
-def _pose_matrix(position: object, orientation: object) -> np.ndarray:
-    pose = np.eye(4)
-    q = np.array([orientation.x, orientation.y, orientation.z, orientation.w], np.float64)  # type: ignore[attr-defined]
-    if not np.all(np.isfinite(q)) or np.linalg.norm(q) < 1e-9:
-        raise ValueError("pose with an invalid quaternion")
-    pose[:3, :3] = rotation_from_quaternion(q)
-    pose[:3, 3] = [position.x, position.y, position.z]  # type: ignore[attr-defined]
-    return pose
-
-
-def _transform_matrix(transform: object) -> np.ndarray:
-    return _pose_matrix(transform.translation, transform.rotation)  # type: ignore[attr-defined]
-
-
 def _safe_name(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "_", text).strip("_") or "log"
-
-
-@dataclass(frozen=True)
-class _Decoded:
-    image: np.ndarray
-    encoding: str
-
-
-class _Decoder:
-    """Turns image messages into grey uint8 arrays; remembers the mono16 shift chosen on the first frame."""
-
-    def __init__(self) -> None:
-        self.mono16_shift: int | None = None
-
-    def decode(self, msg: object, msgtype: str) -> _Decoded:
-        if msgtype == COMPRESSED_TYPE:
-            fmt = str(msg.format)  # type: ignore[attr-defined]
-            if "compresseddepth" in fmt.lower():
-                raise SourceError(f"compressed depth images ({fmt!r}) are not camera frames")
-            data = np.asarray(msg.data, np.uint8)  # type: ignore[attr-defined]
-            image = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE) if data.size else None
-            if image is None or image.size == 0:
-                raise SourceError(f"cannot decode the compressed image (format {fmt!r}, {data.size} bytes)")
-            return _Decoded(np.ascontiguousarray(image, np.uint8), fmt.split(";")[-1].strip() or "compressed")
-        encoding = str(msg.encoding).strip()  # type: ignore[attr-defined]
-        key = encoding.lower()
-        height, width, step = int(msg.height), int(msg.width), int(msg.step)  # type: ignore[attr-defined]
-        data = np.asarray(msg.data, np.uint8)  # type: ignore[attr-defined]
-        if key not in SUPPORTED_ENCODINGS:
-            raise SourceError(f"image encoding {encoding!r} is not supported (supported: "
-                              f"{', '.join(e for e in SUPPORTED_ENCODINGS if e != '8uc1')})")
-        if height <= 0 or width <= 0:
-            raise SourceError(f"image of {width}x{height} pixels")
-        depth = 2 if key == "mono16" else 1
-        channels = _COLOUR_CODES[key][0] if key in _COLOUR_CODES else 1
-        row = width * channels * depth
-        if step < row or data.size < step * (height - 1) + row:
-            raise SourceError(f"image data of {data.size} bytes is too short for {width}x{height} {encoding} "
-                              f"(step {step})")
-        rows = np.lib.stride_tricks.as_strided(data, (height, row), (step, 1))
-        if key in ("mono8", "8uc1"):
-            return _Decoded(np.ascontiguousarray(rows), key)
-        if key == "mono16":
-            big = bool(msg.is_bigendian)  # type: ignore[attr-defined]
-            values = np.ascontiguousarray(rows).view(">u2" if big else "<u2").astype(np.uint16)
-            if self.mono16_shift is None:
-                bits = max(8, int(values.max()).bit_length())
-                self.mono16_shift = min(16, bits + (bits % 2)) - 8
-            return _Decoded(np.minimum(values >> self.mono16_shift, 255).astype(np.uint8), key)
-        code = _COLOUR_CODES[key][1]
-        pixels = np.ascontiguousarray(rows).reshape(height, width, channels) if channels > 1 else \
-            np.ascontiguousarray(rows)
-        return _Decoded(cv2.cvtColor(pixels, code), key)
 
 
 def _open_reader(path: Path) -> Any:
@@ -221,7 +96,7 @@ def _log_format(path: Path) -> str:
     return {".bag": "ros1 bag", ".mcap": "mcap", ".db3": "sqlite3"}[path.suffix]
 
 
-class RosbagSource:
+class RosbagSource(SelectedSource):
     """Frames of one image topic of a ROS log (see the module docstring).
 
     path: a ROS 1 ``.bag``, a ROS 2 bag folder (``metadata.yaml`` + ``.db3`` or ``.mcap``), or a bare
@@ -231,6 +106,7 @@ class RosbagSource:
     world frame); gt_topic instead: a pose topic of the log. Both are matched to the frames' header stamps
     within gt_tolerance_s and re-based on the first selected frame. on_bad_frame: "fail" raises a
     `SourceError` naming an undecodable frame, "skip" yields it as a black placeholder with a `defect`.
+    ``indices`` are the selected frames' positions in stamp order (0 = the earliest-stamped image message).
     """
 
     def __init__(
@@ -253,12 +129,12 @@ class RosbagSource:
             raise SourceError(f"{self._where}: give the ground truth as a TUM file or as a topic, not both")
         self._check_path()
         self._cdr = self.path.suffix != ".bag"
-        self._decoder = _Decoder()
+        self._decoder = ImageDecoder()
 
-        with _bag_errors(self._where, "cannot open the log (corrupt, truncated or not a ROS log?)"):
+        with bag_errors(self._where, "cannot open the log (corrupt, truncated or not a ROS log?)"):
             reader = _open_reader(self.path)
         try:
-            with _bag_errors(self._where, "cannot read the log"):
+            with bag_errors(self._where, "cannot read the log"):
                 topics = {name: info.msgtype or "" for name, info in reader.topics.items()}
                 self.topic = self._pick_topic(topics, topic)
                 self._msgtype = topics[self.topic]
@@ -270,7 +146,7 @@ class RosbagSource:
             self._intrinsics = self._calibrate(reader, topics, calibration, size)
             self._ground_truth = self._load_ground_truth(reader, topics, ground_truth, gt_topic, gt_tolerance_s)
         finally:
-            with _bag_errors(self._where, "cannot close the log"):
+            with bag_errors(self._where, "cannot close the log"):
                 reader.close()
 
         self.properties.update({
@@ -281,6 +157,8 @@ class RosbagSource:
             "message_type": self._msgtype,
             "messages": str(len(self._order)),
         })
+        stem = self.path.name if self.path.is_dir() else self.path.stem
+        self._name = f"{_safe_name(stem)}-{_safe_name(self.topic)}"
         if self._decoder.mono16_shift is not None:
             self.properties["mono16"] = f">> {self._decoder.mono16_shift} bits (from the first frame's range)"
 
@@ -323,7 +201,7 @@ class RosbagSource:
         stamps: list[int] = []
         bad: dict[int, str] = {}
         frame_id: str | None = None
-        with _bag_errors(self._where, f"cannot read {self.topic}"):
+        with bag_errors(self._where, f"cannot read {self.topic}"):
             messages = reader.messages(connections=self._image_connections(reader))
             for position, (_conn, log_time, raw) in enumerate(messages):
                 log_times.append(log_time)
@@ -341,7 +219,7 @@ class RosbagSource:
                 stamps.append(stamp)
         if not stamps:
             raise SourceError(f"{self._where}: topic {self.topic} holds no messages")
-        self.frame_id = _bare(frame_id or "")
+        self.frame_id = bare(frame_id or "")
         log = np.asarray(log_times, np.int64)
         header = np.asarray(stamps, np.int64)
         zero = header == 0
@@ -401,7 +279,7 @@ class RosbagSource:
         else:
             window = reader.messages(connections=self._image_connections(reader))
             offset = 0
-        with _bag_errors(self._where, f"cannot read message {position} of {self.topic}"):
+        with bag_errors(self._where, f"cannot read message {position} of {self.topic}"):
             for at, (_conn, _log_time, raw) in enumerate(window, start=offset):
                 if at == position:
                     return bytes(raw)
@@ -414,13 +292,13 @@ class RosbagSource:
         try:
             msg = reader.deserialize(raw, self._msgtype)
         except Exception as exc:  # noqa: BLE001 - a corrupt message
-            raise SourceError(f"{what}: corrupt message ({_one_line(exc)})") from None
+            raise SourceError(f"{what}: corrupt message ({one_line(exc)})") from None
         try:
             decoded = self._decoder.decode(msg, self._msgtype)
         except SourceError as exc:
             raise SourceError(f"{what}: {exc}") from None
         except Exception as exc:  # noqa: BLE001 - a malformed message whose fields do not add up
-            raise SourceError(f"{what}: cannot decode ({_one_line(exc)})") from None
+            raise SourceError(f"{what}: cannot decode ({one_line(exc)})") from None
         if first:
             self.properties["encoding"] = decoded.encoding
         elif (decoded.image.shape[1], decoded.image.shape[0]) != self._size:
@@ -439,7 +317,7 @@ class RosbagSource:
                               f"{', '.join(self._info_candidates())}): pass --calib FILE (or --intrinsics)")
         origin = f"CameraInfo {info_topic}"
         msg = None
-        with _bag_errors(self._where, f"cannot read {info_topic}"):
+        with bag_errors(self._where, f"cannot read {info_topic}"):
             connections = [c for c in reader.connections if c.topic == info_topic]
             for conn, _log_time, raw in reader.messages(connections=connections):
                 msg = reader.deserialize(raw, conn.msgtype)
@@ -448,12 +326,12 @@ class RosbagSource:
             raise SourceError(f"{self._where}: {info_topic} holds no message: pass --calib FILE (or --intrinsics)")
         self.properties["camera_info"] = info_topic
         try:
-            with _bag_errors(self._where, f"{info_topic}: malformed CameraInfo"):
+            with bag_errors(self._where, f"{info_topic}: malformed CameraInfo"):
                 width, height = int(msg.width), int(msg.height)
                 model_name = str(msg.distortion_model)
-                K = np.asarray(_field(msg, "k", "K"), np.float64)  # noqa: N806
-                P = np.asarray(_field(msg, "p", "P"), np.float64)  # noqa: N806
-                D = np.asarray(_field(msg, "d", "D"), np.float64)  # noqa: N806
+                K = np.asarray(field(msg, "k", "K"), np.float64)  # noqa: N806
+                P = np.asarray(field(msg, "p", "P"), np.float64)  # noqa: N806
+                D = np.asarray(field(msg, "d", "D"), np.float64)  # noqa: N806
             if self._rectified_topic():
                 camera = make_intrinsics(P.reshape(3, 4)[:, :3], "none", [], size[0], size[1],
                                          f"{origin} (P, for the rectified {self.topic})")
@@ -496,126 +374,27 @@ class RosbagSource:
             return ground_truth_at(self._selected_stamps(), gt_stamps, gt_poses, tolerance_s, str(gt_path))
         if gt_topic is None:
             return None
-        name = gt_topic if gt_topic in topics or gt_topic.startswith("/") else "/" + gt_topic
-        if name not in topics:
-            raise SourceError(f"{self._where}: no ground-truth topic {gt_topic} (pose topics: "
-                              f"{', '.join(t for t, k in sorted(topics.items()) if k in POSE_TYPES) or 'none'})")
-        kind = topics[name]
-        if kind not in POSE_TYPES:
-            raise SourceError(f"{self._where}: ground-truth topic {name} is {kind}; expected one of "
-                              f"{', '.join(POSE_TYPES)} (or give --gt as TUM camera poses)")
-        stamps, poses, body = self._read_poses(reader, name, kind)
-        where = f"{self._where} {name}"
-        if body is None:
-            self.notes.append(f"{name} ({kind.split('/')[-1]}) names no body frame: its poses are taken as poses of "
-                              f"the camera ({self.frame_id or 'unnamed frame'})")
-            self.properties["ground_truth"] = f"{name} (taken as camera poses)"
-        elif body == self.frame_id:
-            self.properties["ground_truth"] = f"{name} (poses of {body}, the camera frame)"
-        else:
-            body_cam = self._static_transform(reader, topics, body, self.frame_id)
-            if body_cam is None:
-                raise SourceError(f"{where}: the ground truth is of frame {body!r}, the images of {self.frame_id!r}, "
-                                  "and /tf_static holds no fixed transform between them: give --gt as TUM camera "
-                                  "poses")
-            poses = np.einsum("nij,jk->nik", poses, body_cam)
-            self.properties["ground_truth"] = f"{name} (poses of {body} · /tf_static {body}→{self.frame_id})"
-        return ground_truth_at(self._selected_stamps(), stamps, poses, tolerance_s, where)
-
-    def _read_poses(self, reader: Any, topic: str, kind: str) -> tuple[np.ndarray, np.ndarray, str | None]:
-        stamps: list[int] = []
-        poses: list[np.ndarray] = []
-        bodies: set[str] = set()
-        with _bag_errors(self._where, f"cannot read the ground-truth topic {topic}"):
-            connections = [c for c in reader.connections if c.topic == topic]
-            for conn, _log_time, raw in reader.messages(connections=connections):
-                msg = reader.deserialize(raw, conn.msgtype)
-                stamps.append(_stamp_ns(msg.header.stamp))
-                if kind.endswith("/PoseStamped"):
-                    poses.append(_pose_matrix(msg.pose.position, msg.pose.orientation))
-                elif kind.endswith("/PoseWithCovarianceStamped"):
-                    poses.append(_pose_matrix(msg.pose.pose.position, msg.pose.pose.orientation))
-                elif kind.endswith("/Odometry"):
-                    bodies.add(_bare(msg.child_frame_id))
-                    poses.append(_pose_matrix(msg.pose.pose.position, msg.pose.pose.orientation))
-                else:
-                    bodies.add(_bare(msg.child_frame_id))
-                    poses.append(_transform_matrix(msg.transform))
-        if not poses:
-            raise SourceError(f"{self._where}: the ground-truth topic {topic} holds no message")
-        if len(bodies) > 1:
-            raise SourceError(f"{self._where}: the ground-truth topic {topic} mixes the frames "
-                              f"{', '.join(sorted(bodies))}")
-        body = bodies.pop() if bodies else None
-        return np.asarray(stamps, np.float64) / 1e9, np.asarray(poses), body
-
-    def _static_transform(self, reader: Any, topics: dict[str, str], source: str, target: str) -> np.ndarray | None:
-        """T_source_target from the fixed transforms of /tf_static (chained through other frames if need be),
-        or None when they do not connect the two frames."""
-        if topics.get("/tf_static") != TF_TYPE or not target:
-            return None
-        edges: dict[tuple[str, str], np.ndarray] = {}
-        with _bag_errors(self._where, "cannot read /tf_static"):
-            connections = [c for c in reader.connections if c.topic == "/tf_static"]
-            for conn, _log_time, raw in reader.messages(connections=connections):
-                for t in reader.deserialize(raw, conn.msgtype).transforms:
-                    parent, child = _bare(t.header.frame_id), _bare(t.child_frame_id)
-                    edges[(parent, child)] = _transform_matrix(t.transform)
-        neighbours: dict[str, list[tuple[str, np.ndarray]]] = {}
-        for (parent, child), transform in edges.items():
-            neighbours.setdefault(parent, []).append((child, transform))
-            neighbours.setdefault(child, []).append((parent, np.linalg.inv(transform)))
-        reached: dict[str, np.ndarray] = {source: np.eye(4)}
-        queue = deque([source])
-        while queue:
-            frame = queue.popleft()
-            for other, transform in neighbours.get(frame, []):
-                if other not in reached:
-                    reached[other] = reached[frame] @ transform
-                    queue.append(other)
-        return reached.get(target)
+        poses, label, notes = topic_ground_truth(reader, topics, gt_topic, self.frame_id, self._selected_stamps(),
+                                                 tolerance_s, self._where)
+        self.notes.extend(notes)
+        self.properties["ground_truth"] = label
+        return poses
 
     # ----------------------------------------------------------------------------------------------
     # the FrameSource interface
-
-    @property
-    def name(self) -> str:
-        stem = self.path.name if self.path.is_dir() else self.path.stem
-        return f"{_safe_name(stem)}-{_safe_name(self.topic)}"
-
-    @property
-    def intrinsics(self) -> CameraIntrinsics:
-        return self._intrinsics
-
-    @property
-    def ground_truth(self) -> np.ndarray | None:
-        """(N, 4, 4) T_w_c of the selected frames (first = identity), or None."""
-        return None if self._ground_truth is None else self._ground_truth.copy()
-
-    @property
-    def indices(self) -> list[int]:
-        """The selected frames' positions in stamp order (0 = the earliest-stamped image message)."""
-        return list(self._indices)
 
     @property
     def stamps(self) -> np.ndarray:
         """(N,) header stamps (Unix seconds) of the selected frames."""
         return self._selected_stamps()
 
-    @property
-    def camera_height(self) -> float | None:
-        return None
-
-    def __len__(self) -> int:
-        return len(self._indices)
-
     def __iter__(self) -> Iterator[Frame]:
-        with _bag_errors(self._where, "cannot open the log"):
+        with bag_errors(self._where, "cannot open the log"):
             reader = _open_reader(self.path)
         try:
             yield from self._frames(reader)
         finally:
-            with _bag_errors(self._where, "cannot close the log"):
+            with bag_errors(self._where, "cannot close the log"):
                 reader.close()
 
     def _reorder_depth(self) -> int:
@@ -649,7 +428,7 @@ class RosbagSource:
         messages = reader.messages(connections=self._image_connections(reader), start=int(log[start]))
         position = first_position - 1
         while due < len(wanted):
-            with _bag_errors(self._where, f"cannot read {self.topic} after message {position}"):
+            with bag_errors(self._where, f"cannot read {self.topic} after message {position}"):
                 item = next(messages, None)
             if item is None:
                 raise SourceError(f"{self._where}: {self.topic} ended at message {position}, before frame "

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
-from vslam_core.errors import SourceError
+from vslam_core.errors import SourceError, TrajectoryFormatError
 from vslam_core.sources.base import rebase_poses
+from vslam_core.trajectory_io import read_tum_poses
 
 DEFAULT_GT_TOLERANCE_S = 0.010
 
@@ -43,6 +46,66 @@ def ground_truth_at(
             f"{np.max(gt_stamps):.6f} s, {int((~close).sum())} of {len(close)} frames unmatched): choose "
             "--frames inside it or widen --gt-tolerance")
     return rebase_poses(np.asarray(gt_poses, np.float64)[pick])
+
+
+def read_tum_ground_truth(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """A TUM file of camera poses to match to frames by time: ((M,) stamps in seconds, (M, 4, 4) T_w_c), read
+    with `read_tum_poses`; rows holding NaN (frames without a pose, as in TUM monoVO's groundtruthSync.txt) are
+    left out. A missing or malformed file, or one without any pose, is a `SourceError` naming it (and the line)."""
+    if not path.is_file():
+        raise SourceError(f"{path}: ground-truth file not found")
+    try:
+        return read_tum_poses(path, skip_non_finite=True)
+    except TrajectoryFormatError as exc:
+        raise SourceError(str(exc)) from None
+
+
+def _runs(indices: np.ndarray) -> list[tuple[int, int]]:
+    """Sorted source indices as (START, END) runs of consecutive indices (END exclusive)."""
+    if len(indices) == 0:
+        return []
+    breaks = np.flatnonzero(np.diff(indices) != 1)
+    starts = np.concatenate([[indices[0]], indices[breaks + 1]])
+    ends = np.concatenate([indices[breaks], [indices[-1]]]) + 1
+    return [(int(a), int(b)) for a, b in zip(starts, ends, strict=True)]
+
+
+def require_ground_truth(
+    frame_stamps: np.ndarray, indices: list[int], gt_stamps: np.ndarray, tolerance_s: float, label: str,
+    where: object,
+) -> None:
+    """`SourceError` when a selected frame has no ground-truth pose within `tolerance_s`, saying which frames
+    (START:END runs) do have one, so the user can choose --frames inside them (a ground truth that starts
+    after the images, or covers only the start and end of a sequence, is common).
+
+    `frame_stamps` are every frame's stamps (s, frame order), `indices` the selected ones."""
+    _, close = nearest_in_time(frame_stamps, gt_stamps, tolerance_s)
+    selected = close[np.asarray(indices)]
+    if selected.all():
+        return
+    first = indices[int(np.argmin(selected))]
+    span = f"the ground truth spans {np.min(gt_stamps):.3f}–{np.max(gt_stamps):.3f} s"
+    runs = _runs(np.flatnonzero(close))
+    if not runs:
+        raise SourceError(
+            f"{where}: no frame has a ground-truth pose within {tolerance_s * 1000:g} ms in {label} ({span}, "
+            f"the frames {frame_stamps.min():.3f}–{frame_stamps.max():.3f} s): is it this sequence's ground truth?")
+    shown = ", ".join(f"{a}:{b}" for a, b in runs[:4]) + (", …" if len(runs) > 4 else "")
+    raise SourceError(
+        f"{where}: {int((~selected).sum())} of the {len(indices)} selected frames have no ground-truth pose within "
+        f"{tolerance_s * 1000:g} ms in {label} (first: frame {first} at {frame_stamps[first]:.3f} s; {span}); "
+        f"frames {shown} have one: choose --frames inside them")
+
+
+def selected_ground_truth(
+    frame_stamps: np.ndarray, indices: list[int], gt_stamps: np.ndarray, gt_poses: np.ndarray, tolerance_s: float,
+    label: str, where: object,
+) -> np.ndarray:
+    """(N, 4, 4) ground-truth camera poses of the selected frames (`indices` into every frame's `frame_stamps`),
+    each the pose nearest in time, re-based on the first; a selected frame without a pose within `tolerance_s`
+    is the `SourceError` of `require_ground_truth` (`label`: where the poses come from)."""
+    require_ground_truth(frame_stamps, indices, gt_stamps, tolerance_s, label, where)
+    return ground_truth_at(frame_stamps[np.asarray(indices)], gt_stamps, gt_poses, tolerance_s, f"{where} ({label})")
 
 
 def stamp_problems(stamps: np.ndarray) -> list[str]:

@@ -23,17 +23,20 @@ not applied.
 from __future__ import annotations
 
 import re
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
 from vslam_core.errors import SourceError
-from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange
+from vslam_core.sources.base import CameraIntrinsics, FrameRange
 from vslam_core.sources.calibration import make_intrinsics
-from vslam_core.sources.euroc import read_tum_ground_truth, require_ground_truth
-from vslam_core.sources.kitti import BadFramePolicy, first_image_size, list_images, read_frame, select
-from vslam_core.sources.stamps import DEFAULT_GT_TOLERANCE_S, ground_truth_at, stamp_problems
+from vslam_core.sources.kitti import BadFramePolicy, ImageFilesSource, first_image_size, list_images, select
+from vslam_core.sources.stamps import (
+    DEFAULT_GT_TOLERANCE_S,
+    read_tum_ground_truth,
+    selected_ground_truth,
+    stamp_problems,
+)
 
 #: DSO's camera.txt prefixes (lower case) → (our model name, how many numbers follow).
 CAMERA_PREFIXES: dict[str, tuple[str, int]] = {
@@ -143,15 +146,18 @@ def _image_id(text: str) -> str:
     return str(int(text)) if text.isdigit() else text
 
 
-class TumMonoSource:
+class TumMonoSource(ImageFilesSource):
     """Frames of a TUM monoVO sequence (or any folder in DSO's layout, see the module docstring).
 
     path: the sequence folder (or its ``images/`` folder). frames: the selection over the images sorted by
     name (default all). ground_truth: optional TUM trajectory of camera poses T_w_c matched to the frames by
     timestamp within gt_tolerance_s (rows holding NaN, like groundtruthSync.txt's, count as no pose; selected
     frames without a pose are an error naming the frames that have one); without it ``ground_truth`` is None.
-    on_bad_frame: as for image folders (``"skip"`` turns an unreadable image into a `Frame.defect`).
+    on_bad_frame: as for image folders (``"skip"`` turns an unreadable image into a `Frame.defect`). ``indices``
+    are positions among the images sorted by name.
     """
+
+    _times: np.ndarray
 
     def __init__(
         self,
@@ -190,8 +196,8 @@ class TumMonoSource:
             if stamp is None:
                 raise SourceError(f"{times_file}: no timestamp for image {file.name} (id {file.stem})")
             stamps.append(stamp)
-        self._stamps = np.asarray(stamps, np.float64)
-        self.notes: list[str] = [f"{times_file}: {note}" for note in stamp_problems(self._stamps)]
+        self._times = np.asarray(stamps, np.float64)
+        self.notes: list[str] = [f"{times_file}: {note}" for note in stamp_problems(self._times)]
         photometric = [name for name in PHOTOMETRIC_FILES if (folder / name).is_file()]
         if photometric:
             self.notes.append(f"photometric calibration ({', '.join(photometric)}) not applied: images are used as "
@@ -205,50 +211,15 @@ class TumMonoSource:
             gt_file = Path(ground_truth)
             gt_stamps, gt_poses = read_tum_ground_truth(gt_file)
             label = f"{gt_file.name} (TUM, camera poses)"
-            require_ground_truth(self._stamps, self._indices, gt_stamps, gt_tolerance_s, label, folder)
-            self._ground_truth = ground_truth_at(self._stamps[np.asarray(self._indices)], gt_stamps, gt_poses,
-                                                 gt_tolerance_s, f"{folder} ({label})")
+            self._ground_truth = selected_ground_truth(self._times, self._indices, gt_stamps, gt_poses, gt_tolerance_s,
+                                                       label, folder)
             self.properties["ground_truth"] = label
         self._name = "tum-mono-" + (re.sub(r"[^A-Za-z0-9._-]+", "_", folder.resolve().name).strip("_") or "sequence")
 
     @property
-    def name(self) -> str:
-        return self._name
-
-    @property
-    def intrinsics(self) -> CameraIntrinsics:
-        return self._intrinsics
-
-    @property
-    def ground_truth(self) -> np.ndarray | None:
-        """(N, 4, 4) T_w_c of the selected frames (first = identity), or None."""
-        return None if self._ground_truth is None else self._ground_truth.copy()
-
-    @property
-    def camera_height(self) -> None:
-        return None
-
-    @property
-    def indices(self) -> list[int]:
-        """The selected source indices (positions among the images sorted by name)."""
-        return list(self._indices)
-
-    @property
-    def files(self) -> list[Path]:
-        """Every image file, sorted by name (source index i = files[i])."""
-        return list(self._files)
-
-    @property
     def stamps(self) -> np.ndarray:
         """(len(files),) timestamps in seconds of every image, from times.txt."""
-        return self._stamps.copy()
-
-    def __len__(self) -> int:
-        return len(self._indices)
-
-    def __iter__(self) -> Iterator[Frame]:
-        for index in self._indices:
-            yield read_frame(index, self._files[index], self._size, float(self._stamps[index]), self._on_bad_frame)
+        return self._times.copy()
 
     def __repr__(self) -> str:
         return f"TumMonoSource({str(self.folder)!r}, frames={len(self)})"

@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 
 from vslam_core.errors import SourceError
-from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange
+from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange, SelectedSource
 from vslam_core.sources.folder import PartialIntrinsics, complete_intrinsics
 from vslam_core.sources.kitti import GroundTruthFormat, read_ground_truth, select, select_ground_truth
 
@@ -43,7 +43,7 @@ def _to_grey(frame: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
 
 
-class VideoSource:
+class VideoSource(SelectedSource):
     """Frames of a video file.
 
     intrinsics: `CameraIntrinsics` or `PartialIntrinsics` (e.g. ``parse_intrinsics("fx,fy,cx,cy")``);
@@ -108,34 +108,9 @@ class VideoSource:
         return None
 
     @property
-    def name(self) -> str:
-        return self._name
-
-    @property
-    def intrinsics(self) -> CameraIntrinsics:
-        return self._intrinsics
-
-    @property
-    def ground_truth(self) -> np.ndarray | None:
-        """(N, 4, 4) T_w_c of the selected frames (first = identity), or None."""
-        return None if self._ground_truth is None else self._ground_truth.copy()
-
-    @property
-    def camera_height(self) -> None:
-        return None
-
-    @property
     def frame_count(self) -> int:
         """Frames in the whole video (counted when opened)."""
         return self._count
-
-    @property
-    def indices(self) -> list[int]:
-        """The selected video frame numbers."""
-        return list(self._indices)
-
-    def __len__(self) -> int:
-        return len(self._indices)
 
     def __iter__(self) -> Iterator[Frame]:
         wanted = set(self._indices)
