@@ -119,7 +119,7 @@ def test_eval_refuses_sequences_on_the_synthetic_street() -> None:
 @pytest.mark.kitti
 def test_image_folder_refuses_a_sequence(image_folder: Path) -> None:
     result = vslam("run", image_folder, "--intrinsics", INTRINSICS, "--sequence", "00", "--detail", "off")
-    assert_one_line_error(result, "--sequence does not apply here", "is an image folder")
+    assert_one_line_error(result, "--sequence does not apply here", "is not a KITTI dataset root")
 
 
 # ------------------------------------------------------- item 7: nothing tracked, implausible inputs

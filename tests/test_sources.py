@@ -494,7 +494,7 @@ def test_image_folder_basics_and_errors(tmp_path: Path) -> None:
         ImageFolderSource(folder, intrinsics=partial_00(), calib=calib)
     bad_calib = tmp_path / "bad_calib.txt"
     bad_calib.write_text("K: 1 2 3\n")
-    with pytest.raises(SourceError, match="P0") as exc:
+    with pytest.raises(SourceError, match="K needs 9 numbers") as exc:
         ImageFolderSource(folder, calib=bad_calib)
     assert_names(exc, bad_calib)
     malformed = tmp_path / "gt.txt"

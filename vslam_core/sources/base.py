@@ -13,7 +13,7 @@ frame, see ../shared/docs/conventions.md).
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal, Protocol, runtime_checkable
 
 import numpy as np
@@ -47,7 +47,7 @@ class CameraIntrinsics:
     height: int
     model: DistortionModel = "none"
     coefficients: tuple[float, ...] = ()
-    origin: str = ""
+    origin: str = field(default="", compare=False)  # provenance, not geometry: equal cameras stay equal
 
     def __post_init__(self) -> None:
         allowed = DISTORTION_COEFFICIENTS.get(self.model)
