@@ -2,39 +2,52 @@
 
 from __future__ import annotations
 
-import errno
 import json
 import sys
 import uuid
-from collections.abc import Iterator
-from contextlib import contextmanager
-from enum import StrEnum
 from pathlib import Path
-from typing import Annotated, Any, NoReturn
+from typing import Annotated
 
 import numpy as np
 import typer
-from rich.console import Console
 from rich.markup import escape
 
 from app.checks import (
     EXIT_NOTHING_TRACKED,
     backend_problem,
-    camera_height_problem,
     input_warnings,
     nothing_tracked,
     output_problem,
 )
+from app.cli_common import (
+    BACKEND_HELP,
+    CALIB_HELP,
+    CAMERA_HEIGHT_HELP,
+    GT_HELP,
+    GT_TOLERANCE_HELP,
+    GT_TOPIC_HELP,
+    TOPIC_HELP,
+    Backend,
+    BadFrame,
+    Scale,
+    TrajectoryFormat,
+    err,
+    fail,
+    out,
+    refuse,
+    warn,
+    with_camera_height,
+)
+from app.cli_eval import eval_command
 from app.compare import compare_recordings, format_differences
 from app.crop import crop_recording, parse_crop_frames
 from app.entry import run as run_app
-from app.evaluation import REPORT_FILES, Evaluation, check_gates, evaluate_sources, evaluate_trajectory_file
 from app.inspect import format_report, inspect_recording
-from app.matching import DEFAULT_TOLERANCE_MS, MatchMode
-from app.outputs import claimed, lock_folder, write_failure
+from app.matching import DEFAULT_TOLERANCE_MS
+from app.outputs import claimed
 from app.recording import Detail, version_properties
 from app.repair import format_repair, repair_recording, repaired_path
-from app.report import json_ready, markdown_table, scored_estimate
+from app.report import json_ready, scored_estimate
 from app.runner import claim_run_outputs, describe_outputs, record_run
 from app.snapshot import DEFAULT_SIZE, parse_frame, parse_size, snapshot
 from app.web import open_recording, port_problem
@@ -55,9 +68,6 @@ app = typer.Typer(
     rich_markup_mode=None,
     context_settings={"help_option_names": ["-h", "--help"]},
 )
-err = Console(stderr=True, soft_wrap=True)
-out = Console(soft_wrap=True)
-
 
 def _print_version(value: bool) -> None:
     if value:
@@ -74,59 +84,6 @@ def _root(
     = False,
 ) -> None:
     """Monocular visual odometry with every intermediate step recorded to Rerun."""
-
-
-class Scale(StrEnum):
-    gt = "gt"
-    none = "none"
-    height = "height"
-
-
-class Backend(StrEnum):
-    vo = "vo"
-    map = "map"
-
-
-BACKEND_HELP = ("vo = frame-to-keyframe odometry; map = keyframes and landmarks, tracking against the map, windowed "
-                "bundle adjustment, relocalisation [default: the config's backend, vo unless --config says otherwise]")
-CAMERA_HEIGHT_HELP = ("metres from the camera to the road, for --scale height [default: the source's own: KITTI "
-                      "1.65 m, the synthetic street's]")
-
-
-CALIB_HELP = ("camera calibration file, lens included: ROS camera_info YAML, Kalibr camchain or EuRoC sensor.yaml, "
-              "OpenCV YAML/XML, KITTI calib.txt (for image folders, videos and logs: overrides a log's CameraInfo)")
-GT_HELP = ("ground-truth camera poses, KITTI (row i = frame i) or TUM; TUM rows are matched to a log's or "
-           "dataset's frames by timestamp")
-TOPIC_HELP = "the image topic of a ROS bag / MCAP log [default: its only image topic]"
-GT_TOPIC_HELP = ("ground truth from a topic of the log (PoseStamped, Odometry, TransformStamped), as camera "
-                 "poses (via /tf_static when it is of another frame)")
-GT_TOLERANCE_HELP = "how far (ms) a ground-truth stamp may be from its frame's when matched by time"
-
-
-class BadFrame(StrEnum):
-    fail = "fail"
-    skip = "skip"
-
-
-class TrajectoryFormat(StrEnum):
-    kitti = "kitti"
-    tum = "tum"
-
-
-def fail(message: str, code: int = 2) -> NoReturn:
-    """One line on stderr, a non-zero exit, no traceback."""
-    err.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
-    raise typer.Exit(code)
-
-
-def warn(message: str) -> None:
-    """One line on stderr; the run goes on."""
-    err.print(f"[bold yellow]warning:[/] {escape(message)}", highlight=False, soft_wrap=True)
-
-
-def _refuse(problem: str | None, code: int = 2) -> None:
-    if problem is not None:
-        fail(problem, code)
 
 
 def _recording_path(path: Path) -> Path:
@@ -217,12 +174,12 @@ def run(
         config = config.with_scale(scale.value)
     elif config_file is None and src.ground_truth is None:
         config = config.with_scale("none")
-    config = _with_camera_height(config, camera_height, src)
+    config = with_camera_height(config, camera_height, src)
     if backend is not None:
         config = config.with_backend(backend.value)
 
-    _refuse(output_problem(output, detail == Detail.OFF))
-    _refuse(backend_problem(src, config))
+    refuse(output_problem(output, detail == Detail.OFF))
+    refuse(backend_problem(src, config))
     for warning in input_warnings(src, config):
         warn(warning)
 
@@ -259,7 +216,7 @@ def run(
         fail(f"interrupted by {interrupted} after {result.frames} frames"
              + (f" (last frame {last})" if last is not None else "") + "; outputs hold the frames processed",
              interrupted.code)
-    _refuse(nothing_tracked(result), EXIT_NOTHING_TRACKED)
+    refuse(nothing_tracked(result), EXIT_NOTHING_TRACKED)
 
 
 def _existing_recording(path: Path) -> Path:
@@ -311,8 +268,8 @@ def open_command(
     = None,
 ) -> None:
     """Open a recording: the native viewer where a display exists, else the web viewer on 127.0.0.1."""
-    _refuse(port_problem(web_port, "--web-port"))
-    _refuse(port_problem(grpc_port, "--grpc-port"))
+    refuse(port_problem(web_port, "--web-port"))
+    refuse(port_problem(grpc_port, "--grpc-port"))
     open_recording(_existing_recording(recording), web=web, web_port=web_port, grpc_port=grpc_port)
 
 
@@ -334,168 +291,7 @@ def crop(
               f"{summary.output_bytes / 1e6:.1f} MB (from {summary.input_bytes / 1e6:.1f} MB)", highlight=False)
 
 
-@app.command(name="eval")
-def eval_command(
-    source: Annotated[str | None, typer.Argument(help="KITTI root (with --sequences), sequence folder, image "
-                                                 "folder with --gt, or 'synthetic'")] = None,
-    sequences: Annotated[str | None, typer.Option(help="KITTI sequences, e.g. 00,05")] = None,
-    frames: Annotated[str | None, typer.Option(help="START:END[:STEP] of every sequence (END excluded; an END past "
-                                               "the last frame is clamped to it, like a Python slice)")] = None,
-    scale: Annotated[Scale, typer.Option(help="gt: ground-truth step length; height: from the known camera "
-                                         "height (no ground truth used); none: unit steps, scored after Sim(3) "
-                                         "alignment")] = Scale.gt,
-    camera_height: Annotated[float | None, typer.Option(help=CAMERA_HEIGHT_HELP)] = None,
-    backend: Annotated[Backend | None, typer.Option(help=BACKEND_HELP)] = None,
-    config_file: Annotated[Path | None, typer.Option("--config", help="engine config (TOML)")] = None,
-    report: Annotated[Path | None, typer.Option(help="folder for metrics.csv/.parquet, report.md, trajectories, "
-                                                "recordings and plots")] = None,
-    detail: Annotated[Detail, typer.Option(help="detail of the recordings written to --report")] = Detail.FULL,
-    trajectory: Annotated[Path | None, typer.Option(help="evaluate this trajectory file instead of running")] = None,
-    gt: Annotated[Path | None, typer.Option(help="ground truth for --trajectory, or of a SOURCE: " + GT_HELP)] = None,
-    intrinsics: Annotated[str | None, typer.Option(help="fx,fy,cx,cy of an image folder, video or log SOURCE")]
-    = None,
-    calib: Annotated[Path | None, typer.Option(help=CALIB_HELP)] = None,
-    topic: Annotated[str | None, typer.Option(help=TOPIC_HELP)] = None,
-    gt_topic: Annotated[str | None, typer.Option(help=GT_TOPIC_HELP)] = None,
-    gt_times: Annotated[Path | None, typer.Option(help="timestamps of a KITTI --gt (the sequence's times.txt, "
-                                                  "line i = pose row i): TUM rows are then matched by time")]
-    = None,
-    match: Annotated[MatchMode, typer.Option(help="--trajectory rows: auto = by timestamp when both sides have "
-                                             "times, else row by row if the files have the same length; "
-                                             "timestamps; rows = row i is frame i, whatever the lengths")]
-    = MatchMode.auto,
-    time_tolerance: Annotated[float, typer.Option("--time-tolerance", "--gt-tolerance", min=0.0,
-                                                  help=GT_TOLERANCE_HELP + " (--trajectory rows and SOURCE frames)")]
-    = DEFAULT_TOLERANCE_MS,
-    trajectory_format: Annotated[TrajectoryFormat | None, typer.Option("--format", help="kitti or tum "
-                                                                       "[default: from the columns]")] = None,
-    as_json: Annotated[bool, typer.Option("--json", help="print the metrics as JSON (keys in README)")] = False,
-    max_t_err: Annotated[float | None, typer.Option(help="gate: fail if any sequence's t_err (%) is above")] = None,
-    max_r_err: Annotated[float | None, typer.Option(help="gate: fail if any r_err (°/100 m) is above")] = None,
-    max_ate: Annotated[float | None, typer.Option(help="gate: fail if any ATE Sim(3) (m) is above")] = None,
-    inject: Annotated[str | None, typer.Option(help="fault injection on every sequence (see vslam run)")] = None,
-    on_bad_frame: Annotated[BadFrame, typer.Option(help="unreadable image: fail or skip")] = BadFrame.fail,
-    force: Annotated[bool, typer.Option("--force", help="write into a --report folder that holds a report")]
-    = False,
-) -> None:
-    """Score the engine (or any trajectory file) against ground truth; gates make it a CI check."""
-    if report is not None:
-        _check_report_dir(report, force)
-    if trajectory is not None:
-        if source is not None or sequences is not None:
-            fail("give either SOURCE or --trajectory, not both")
-        if gt is None:
-            fail("--trajectory needs --gt (the ground-truth poses to compare with)")
-        if backend is not None:
-            fail("--backend chooses how the engine runs: it does not apply to --trajectory files")
-        engine_options = {"--frames": frames, "--inject": inject, "--config": config_file,
-                          "--camera-height": camera_height}
-        for option in (name for name, value in engine_options.items() if value is not None):
-            fail(f"{option} applies to runs of the engine: it does not apply to --trajectory files")
-        if intrinsics is not None or calib is not None or topic is not None or gt_topic is not None:
-            fail("--intrinsics, --calib, --topic and --gt-topic describe a SOURCE: they do not apply to --trajectory "
-                 "files")
-        fmt = trajectory_format.value if trajectory_format is not None else None
-        with _report_writes(report):
-            evaluation = evaluate_trajectory_file(trajectory, gt, fmt, report,  # type: ignore[arg-type]
-                                                  gt_times, match, time_tolerance)
-        scale_source = backend_name = "external"
-    else:
-        if gt_times is not None or match is not MatchMode.auto:
-            fail("--gt-times and --match apply to --trajectory files only")
-        config = load_config(config_file) if config_file is not None else EngineConfig()
-        config = config.with_scale(scale.value)
-        if backend is not None:
-            config = config.with_backend(backend.value)
-        frame_range = FrameRange.parse(frames)
-        if sequences is not None:
-            if source is None:
-                fail("--sequences needs SOURCE, the KITTI dataset root")
-            if intrinsics is not None or calib is not None or topic is not None or gt_topic is not None:
-                fail("--intrinsics, --calib, --topic and --gt-topic do not apply to KITTI --sequences (they have "
-                     "calib.txt and poses)")
-            sources: list[FrameSource] = [
-                open_source(source, sequence=s.strip(), frames=frame_range, ground_truth=gt,
-                            on_bad_frame=on_bad_frame.value, inject=inject)
-                for s in sequences.split(",") if s.strip()
-            ]
-        else:
-            sources = [open_source(source, frames=frame_range, intrinsics=intrinsics, calib=calib, ground_truth=gt,
-                                   on_bad_frame=on_bad_frame.value, inject=inject, topic=topic, gt_topic=gt_topic,
-                                   gt_tolerance_s=time_tolerance / 1000.0)]
-        for src in sources:
-            config = _with_camera_height(config, camera_height, src)
-            _refuse(backend_problem(src, config))
-        for warning in dict.fromkeys(w for src in sources for w in input_warnings(src, config)):
-            warn(warning)
-        with _report_writes(report):
-            evaluation = evaluate_sources(sources, config, report, err, detail if report is not None else Detail.OFF,
-                                          {"source_path": source or "synthetic", **({"inject": inject} if inject
-                                                                                    else {})})
-        scale_source, backend_name = config.scale, config.backend
-    _print_evaluation(evaluation, scale_source, backend_name, report, as_json,
-                      check_gates(evaluation.rows, max_t_err, max_r_err, max_ate))
-
-
-def _with_camera_height(config: EngineConfig, camera_height: float | None, source: FrameSource) -> EngineConfig:
-    """`--camera-height` into the config, and a check (before anything runs) that `--scale height` knows
-    the camera's height."""
-    _refuse(camera_height_problem(camera_height))
-    if camera_height is not None:
-        if config.scale != "height":
-            fail("--camera-height only applies with --scale height")
-        config = config.with_camera_height(camera_height)
-    if config.scale == "height":
-        default_camera_height(source.camera_height, config)  # raises ConfigError naming --camera-height
-    return config
-
-
-@contextmanager
-def _report_writes(report: Path | None) -> Iterator[None]:
-    """A report file that cannot be written (full disk) ends the command in one line, not a traceback."""
-    try:
-        yield
-    except OSError as exc:
-        if report is None:
-            raise
-        path = Path(exc.filename) if exc.filename else report  # a write() error names no file
-        # EIO (cv2 gives no reason): the file system tells whether it is full
-        fail(write_failure(path, None if exc.errno in (None, errno.EIO) else exc))
-
-
-def _check_report_dir(report: Path, force: bool) -> None:
-    """Refuse a folder holding a report (without --force) or one another command is writing; hold it."""
-    if report.exists() and not report.is_dir():
-        fail(f"{report}: not a folder")
-    lock_folder(report, "report folder")  # before the check: of two evals started at once, one writes
-    existing = [name for name in REPORT_FILES if (report / name).exists()]
-    if existing and not force:
-        fail(f"{report}: holds a report already ({existing[0]}; use --force to replace it)")
-
-
-def _print_evaluation(evaluation: Evaluation, scale: str, backend: str, report: Path | None, as_json: bool,
-                      failures: list[str]) -> None:
-    if as_json:
-        data: dict[str, Any] = {"scale": scale, "backend": backend, **evaluation.as_json(),
-                                "gates": {"passed": not failures, "failures": failures}}
-        print(json.dumps(data, indent=2, allow_nan=False))
-    else:
-        rows = evaluation.rows + ([evaluation.mean] if len(evaluation.rows) > 1 else [])
-        out.print(markdown_table([{k: v for k, v in r.items() if k != "alignment"} for r in rows]), highlight=False)
-        if scale == "none":
-            out.print("alignment   every number is of the Sim(3)-aligned estimate (--scale none: unit steps, no "
-                      "metric scale)", highlight=False)
-        if evaluation.matching is not None:
-            out.print(evaluation.matching.describe(), highlight=False)
-        if report is not None:
-            out.print(f"report      {report / 'report.md'}", highlight=False)
-    if evaluation.interrupted is not None:
-        fail(f"interrupted by {evaluation.interrupted}; the report covers the frames processed",
-             evaluation.interrupted.code)
-    for message in failures:
-        err.print(f"[bold red]gate failed:[/] {message}", highlight=False)
-    if failures:
-        raise typer.Exit(1)
+app.command(name="eval")(eval_command)  # app/cli_eval.py
 
 
 @app.command()
@@ -530,6 +326,7 @@ def repair(
     with claimed(target, force, "recording"):
         summary = repair_recording(recording, target)
     out.print(format_repair(summary), highlight=False)
+
 
 
 def main() -> None:

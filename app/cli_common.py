@@ -1,0 +1,84 @@
+"""What the `vslam` commands share: the consoles, option types and help texts, and one-line errors."""
+
+from __future__ import annotations
+
+from enum import StrEnum
+from typing import NoReturn
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+
+from app.checks import camera_height_problem
+from vslam_core.config import EngineConfig
+from vslam_core.scale import default_camera_height
+from vslam_core.sources.base import FrameSource
+
+err = Console(stderr=True, soft_wrap=True)
+out = Console(soft_wrap=True)
+class Scale(StrEnum):
+    gt = "gt"
+    none = "none"
+    height = "height"
+
+
+class Backend(StrEnum):
+    vo = "vo"
+    map = "map"
+
+
+BACKEND_HELP = ("vo = frame-to-keyframe odometry; map = keyframes and landmarks, tracking against the map, windowed "
+                "bundle adjustment, relocalisation [default: the config's backend, vo unless --config says otherwise]")
+CAMERA_HEIGHT_HELP = ("metres from the camera to the road, for --scale height [default: the source's own: KITTI "
+                      "1.65 m, the synthetic street's]")
+
+
+CALIB_HELP = ("camera calibration file, lens included: ROS camera_info YAML, Kalibr camchain or EuRoC sensor.yaml, "
+              "OpenCV YAML/XML, KITTI calib.txt (for image folders, videos and logs: overrides a log's CameraInfo)")
+GT_HELP = ("ground-truth camera poses, KITTI (row i = frame i) or TUM; TUM rows are matched to a log's or "
+           "dataset's frames by timestamp")
+TOPIC_HELP = "the image topic of a ROS bag / MCAP log [default: its only image topic]"
+GT_TOPIC_HELP = ("ground truth from a topic of the log (PoseStamped, Odometry, TransformStamped), as camera "
+                 "poses (via /tf_static when it is of another frame)")
+GT_TOLERANCE_HELP = "how far (ms) a ground-truth stamp may be from its frame's when matched by time"
+
+
+class BadFrame(StrEnum):
+    fail = "fail"
+    skip = "skip"
+
+
+class TrajectoryFormat(StrEnum):
+    kitti = "kitti"
+    tum = "tum"
+
+
+def fail(message: str, code: int = 2) -> NoReturn:
+    """One line on stderr, a non-zero exit, no traceback."""
+    err.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
+    raise typer.Exit(code)
+
+
+def warn(message: str) -> None:
+    """One line on stderr; the run goes on."""
+    err.print(f"[bold yellow]warning:[/] {escape(message)}", highlight=False, soft_wrap=True)
+
+
+def refuse(problem: str | None, code: int = 2) -> None:
+    if problem is not None:
+        fail(problem, code)
+
+
+def with_camera_height(config: EngineConfig, camera_height: float | None, source: FrameSource) -> EngineConfig:
+    """`--camera-height` into the config, and a check (before anything runs) that `--scale height` knows
+    the camera's height."""
+    refuse(camera_height_problem(camera_height))
+    if camera_height is not None:
+        if config.scale != "height":
+            fail("--camera-height only applies with --scale height")
+        config = config.with_camera_height(camera_height)
+    if config.scale == "height":
+        default_camera_height(source.camera_height, config)  # raises ConfigError naming --camera-height
+    return config
+
+
