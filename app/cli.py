@@ -128,8 +128,9 @@ def _summary(source: FrameSource, run: RunResult, config: EngineConfig) -> None:
 
 @app.command()
 def run(
-    source: Annotated[str | None, typer.Argument(help="KITTI root or sequence folder, image folder, video "
-                                                 "file, or 'synthetic' (the default: no download)")] = None,
+    source: Annotated[str | None, typer.Argument(help="KITTI root or sequence folder, ROS bag / MCAP "
+                                                 "log, EuRoC or TUM monoVO folder, image folder, video file, or "
+                                                 "'synthetic' (the default: no download)")] = None,
     sequence: Annotated[str | None, typer.Option("--sequence", "-s", help="KITTI sequence, e.g. 00")] = None,
     frames: Annotated[str | None, typer.Option(help="START:END[:STEP] of the source's frames (END excluded; an END "
                                                "past the last frame is clamped to it, like a Python slice)")]

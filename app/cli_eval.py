@@ -46,8 +46,9 @@ from vslam_core.sources.open import open_source
 
 
 def eval_command(
-    source: Annotated[str | None, typer.Argument(help="KITTI root (with --sequences), sequence folder, image "
-                                                 "folder with --gt, or 'synthetic'")] = None,
+    source: Annotated[str | None, typer.Argument(help="KITTI root (with --sequences), sequence folder, ROS "
+                                                 "bag / MCAP log or EuRoC folder with ground truth, image folder "
+                                                 "with --gt, or 'synthetic'")] = None,
     sequences: Annotated[str | None, typer.Option(help="KITTI sequences, e.g. 00,05")] = None,
     frames: Annotated[str | None, typer.Option(help="START:END[:STEP] of every sequence (END excluded; an END past "
                                                "the last frame is clamped to it, like a Python slice)")] = None,
