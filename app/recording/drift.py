@@ -106,7 +106,7 @@ class DriftRecording:
             self._send_series(rec, errors)
         indices = np.array([f.index for f in self.frames])
         strips = np.stack([estimate[:-1], estimate[1:]], axis=1)
-        rec.log(DRIFT_ENTITY, rr.LineStrips3D(strips, colors=drift_colours(errors.translation_pct[1:]), radii=0.2),
+        rec.log(DRIFT_ENTITY, rr.LineStrips3D(strips, colors=drift_colours(errors.translation_pct[1:]), radii=0.3),
                 rr.AnyValues(frame=indices[1:], translation_pct=np.nan_to_num(errors.translation_pct[1:]),
                              rotation_deg=errors.rotation_deg[1:]), static=True)
         linked = np.arange(0, n, LINK_EVERY)
