@@ -76,6 +76,7 @@ GROUP_TITLES = {
     "motion": "motion",
     "error": "position error (m)",
     "angle_error": "angle errors (°)",
+    "drift": "drift per frame",
     "timing_ms": "timing (ms)",
 }
 #: Metrics shown as whole numbers by `format_differences`.

@@ -13,7 +13,9 @@ import numpy as np
 
 from app.provenance import PROPERTIES, config_lines, latest_static_row, non_default, read_properties
 from app.recording import METRICS, STAGES
+from app.recording.drift import WORST as DRIFT_TOP
 from app.rrd import RecordingError, read_entity, readable
+from vslam_core.drift import worst_frames
 
 SCHEMA_VERSION = 1
 
@@ -26,6 +28,35 @@ def _scalars(path: Path, group: str, prefix: str = "") -> dict[str, np.ndarray]:
         values = [v[0] for v in table["Scalars:scalars"].to_list()] if not table.is_empty() else []
         series[name] = np.asarray(values, dtype=np.float64)
     return series
+
+
+def _series_by_frame(path: Path, entity: str) -> dict[int, float]:
+    """One series as {frame: value} (frames without a value absent)."""
+    table = read_entity(path, entity)
+    if table.is_empty():
+        return {}
+    return {int(f): float(v[0]) for f, v in zip(table["frame"].to_list(), table["Scalars:scalars"].to_list(),
+                                                strict=True) if v}
+
+
+def _drift(path: Path, health: dict[int, list[str]], prefix: str = "") -> dict[str, list[dict[str, Any]]] | None:
+    """The `DRIFT_TOP` frames contributing most to the drift (their own relative pose error against the ground
+    truth, `/metrics/drift/*`), by rotation and by translation, largest first; None without ground truth."""
+    rotation = _series_by_frame(path, f"{prefix}/metrics/drift/rotation_deg")
+    translation = _series_by_frame(path, f"{prefix}/metrics/drift/translation_m")
+    if not rotation and not translation:
+        return None
+    pct = _series_by_frame(path, f"{prefix}/metrics/drift/translation_pct")
+
+    def top(series: dict[int, float]) -> list[tuple[int, float]]:
+        frames = np.array(list(series), dtype=np.int64)
+        return worst_frames(np.array(list(series.values()), dtype=np.float64), DRIFT_TOP, frames)
+
+    return {
+        "rotation": [{"frame": f, "deg": v, "reasons": health.get(f, [])} for f, v in top(rotation)],
+        "translation": [{"frame": f, "m": v, "pct": pct.get(f, math.nan), "reasons": health.get(f, [])}
+                        for f, v in top(translation)],
+    }
 
 
 def _stats(values: np.ndarray) -> dict[str, float] | None:
@@ -122,11 +153,13 @@ def _run_report(path: Path, prefix: str = "") -> dict[str, Any]:
     frames = camera["frame"].to_list()
     health = read_entity(path, f"{prefix}/health")
     flagged = []
+    frame_reasons: dict[int, list[str]] = {}
     if not health.is_empty():
         reasons = health["reasons"].to_list() if "reasons" in health.columns else [None] * len(health)
-        flagged = flagged_ranges(
-            health["frame"].to_list(), [v[0] for v in health["status"].to_list()], [v[0] if v else "" for v in reasons]
-        )
+        codes = [v[0] if v else "" for v in reasons]
+        flagged = flagged_ranges(health["frame"].to_list(), [v[0] for v in health["status"].to_list()], codes)
+        frame_reasons = {int(f): [r for r in c.split(",") if r] for f, c in zip(health["frame"].to_list(), codes,
+                                                                                  strict=True)}
     timing = _scalars(path, "timing_ms", prefix)
     tracks, ransac = _scalars(path, "tracks", prefix), _scalars(path, "ransac", prefix)
     ratio = _scalars(path, "ratio", prefix)
@@ -152,6 +185,7 @@ def _run_report(path: Path, prefix: str = "") -> dict[str, Any]:
         "accuracy": _accuracy(path, prefix),
         "accuracy_alignment": _accuracy_alignment(path, prefix),
         "flagged": flagged,
+        "drift": _drift(path, frame_reasons, prefix),
     }
 
 
@@ -220,6 +254,27 @@ def _format_run(report: dict[str, Any]) -> list[str]:
     for item in flagged:
         span = f"{item['start']}" if item["start"] == item["end"] else f"{item['start']}..{item['end']}"
         lines.append(f"  frames {span:<12} {item['status']:<5} {', '.join(item['reasons'])}")
+    lines += _drift_lines(report.get("drift"))
+    return lines
+
+
+def _drift_lines(drift: dict[str, list[dict[str, Any]]] | None, rows: int = 5) -> list[str]:
+    """The short "where the error comes from" table: the worst frames by rotation and by translation."""
+    if drift is None:
+        return []
+    rotation, translation = drift["rotation"][:rows], drift["translation"][:rows]
+    lines = ["", "where the error comes from (each frame's own step against the ground truth; --json: top 10)",
+             "  rank  frame  rotation °  reasons        frame  translation m  % of step  reasons"]
+    for rank in range(max(len(rotation), len(translation))):
+        r = rotation[rank] if rank < len(rotation) else None
+        t = translation[rank] if rank < len(translation) else None
+        left = f"{r['frame']:>5}  {r['deg']:10.3f}  {','.join(r['reasons']) or '-':<13}" if r else " " * 32
+        right = ""
+        if t:
+            pct = t["pct"]
+            pct_text = f"{pct:9.1f}" if pct is not None and math.isfinite(pct) else "      n/a"
+            right = f"{t['frame']:>5}  {t['m']:13.3f}  {pct_text}  {','.join(t['reasons']) or '-'}"
+        lines.append(f"  {rank + 1:>4}  {left}  {right}".rstrip())
     return lines
 
 

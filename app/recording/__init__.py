@@ -17,7 +17,9 @@ Entity layout (world = camera frame of the first frame, RDF: x right, y down, z 
     /world/camera/image/road            --scale height: those road points in the image
     /world/trajectory/estimate          one line segment per frame (O(1) per frame)
     /world/trajectory/ground_truth      same, from the source's ground truth
-    /metrics/...                        per-frame scalars (tracks, RANSAC, motion, error, timing_ms)
+    /metrics/...                        per-frame scalars (tracks, RANSAC, motion, error, drift, timing_ms)
+    /world/trajectory/{drift,gt_links}  with ground truth, static at the end: the estimate coloured by each
+                                        frame's own error, estimate → truth lines (`app.recording.drift`)
     /events                             text log: initialisation, re-detections, held frames
     /health                             per frame: status ok / fail and reason codes (for `vslam inspect`)
     /report                             static Markdown written at the end: the run's metrics table
@@ -33,8 +35,8 @@ Every per-frame row is buffered and sent as columns every `FLUSH_FRAMES` frames 
 each (~25 a frame). Styles that never change are logged once, static.
 
 Modules: `recorder` (the `Recorder` and the front end's entities), `map` (the map backend's entities),
-`columns` (the column buffer), `metrics` (the series), `blueprint` (the default layout), `styles` (detail
-levels, colours, legends).
+`columns` (the column buffer), `metrics` (the series), `drift` (each frame's own error against the ground
+truth), `blueprint` (the default layout), `styles` (detail levels, colours, legends).
 """
 
 from app.recording.blueprint import blueprint

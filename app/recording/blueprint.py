@@ -16,6 +16,9 @@ CAR_ENTITY = "/world/camera/car"
 EYE_OFFSET = (0.0, -15.0, -20.0)
 #: A distorted lens at detail full: the frame undistorted to the pinhole K, in a 2-D view of its own.
 UNDISTORTED = "/world/camera/undistorted"
+#: The drift series in two plots (units that fit together).
+DRIFT_PLOTS = (("drift per frame (°, m)", ("rotation_deg", "translation_m")),
+               ("drift per frame (% of step, scale ratio)", ("translation_pct", "scale_ratio")))
 
 
 def blueprint(map_backend: bool = False, *, image: bool = True, road_scale: bool = False,
@@ -85,7 +88,12 @@ def _plots(road_scale: bool, ground_truth: bool) -> list[rrb.TimeSeriesView]:
     if ground_truth:
         plots += [("position error (m)", "error"), ("angle errors (°)", "angle_error")]
     plots.append(("timing (ms)", "timing_ms"))
-    return [rrb.TimeSeriesView(name=name, origin=f"/metrics/{group}") for name, group in plots]
+    views = [rrb.TimeSeriesView(name=name, origin=f"/metrics/{group}") for name, group in plots]
+    if ground_truth:  # each frame's own error (drift attribution): degrees and metres | % and ratio
+        views[-1:-1] = [
+            rrb.TimeSeriesView(name=name, origin="/metrics/drift", contents=[f"/metrics/drift/{s}" for s in series])
+            for name, series in DRIFT_PLOTS]
+    return views
 
 
 def _map_plots() -> list[rrb.TimeSeriesView]:

@@ -40,6 +40,12 @@ METRICS: dict[str, dict[str, tuple[str, tuple[int, int, int]]]] = {
         "heading_deg": ("heading error (°)", (255, 80, 200)),
         "translation_direction_deg": ("translation direction error (°)", (0, 200, 255)),
     },
+    "drift": {  # with ground truth: this frame's own relative pose error (app/recording/drift.py)
+        "rotation_deg": ("rotation error of this frame's step (°)", (255, 80, 200)),
+        "translation_m": ("translation error of this frame's step (m)", ESTIMATE_COLOUR),
+        "translation_pct": ("translation error (% of the step)", (255, 140, 0)),
+        "scale_ratio": ("step length estimate / truth", (0, 200, 255)),
+    },
     "timing_ms": {
         "decode": ("decode (ms)", (150, 150, 150)),
         "track": ("track (ms)", (40, 120, 255)),

@@ -16,6 +16,7 @@ from app.outputs import OutputError, write_failure
 from app.provenance import flatten
 from app.recording.blueprint import CAR_ENTITY, UNDISTORTED, blueprint
 from app.recording.columns import FLUSH_FRAMES, ColumnBuffer, Part, add_event
+from app.recording.drift import DriftRecording
 from app.recording.map import MapRecording
 from app.recording.metrics import METRICS, STAGES, frame_metrics
 from app.recording.styles import (
@@ -73,6 +74,9 @@ class Recorder:
         self._name = properties.get("name", source.name)
         self._source_name = source.name
         self._scale = config.scale
+        # each frame's own error against the ground truth (drift attribution)
+        self._drift = (DriftRecording(source.ground_truth, online=config.scale != "none")
+                       if source.ground_truth is not None else None)
         self._previous_position: np.ndarray | None = None
         self._frames = 0
         self._failed = False  # Rerun's writer stopped (full disk): reported once
@@ -146,16 +150,19 @@ class Recorder:
             if self._gt is not None and run.frames > 2:
                 row = metrics_row(self._source_name, self._gt[: run.frames], run.pose_array(), self._scale)
                 lines += ["", markdown_table([row])]
+                aligned = None
                 if self._scale == "none":
-                    self._log_aligned(run)
+                    aligned = self._log_aligned(run)
                     lines += ["", "Every number is of the estimate after Sim(3) alignment onto the ground truth "
                               "(--scale none: unit steps, no metric scale)."]
+                if self._drift is not None:
+                    lines += ["", *self._drift.finish(self._rec, self._columns, aligned)]
             self._rec.log("/report", rr.TextDocument("\n".join(lines), media_type=rr.MediaType.MARKDOWN),
                           static=True)
         finally:
             self.close()
 
-    def _log_aligned(self, run: RunResult) -> None:
+    def _log_aligned(self, run: RunResult) -> np.ndarray:
         """--scale none: the per-frame position error (not logged while running: unit steps against metres)
         and the whole estimate, both after Sim(3) alignment onto the ground truth, as `vslam eval` scores it."""
         assert self._gt is not None
@@ -168,6 +175,7 @@ class Recorder:
                                columns=rr.Scalars.columns(scalars=errors))
         self._rec.log(ALIGNED_ESTIMATE, rr.LineStrips3D([aligned[:, :3, 3]], colors=ESTIMATE_COLOUR, radii=0.12,
                                                         labels=["estimate after Sim(3) alignment"]), static=True)
+        return aligned
 
     def _restate_frames(self, run: RunResult, stopped: str) -> None:
         """Static properties are last-write-wins: re-log them with the frames actually processed."""
@@ -348,8 +356,14 @@ class Recorder:
             values.pop("position_m", None)
         for group, series in METRICS.items():
             for name in series:
-                if name in values and group != "timing_ms":
+                if name in values and group not in ("timing_ms", "drift"):  # drift: its own names
                     self._columns.add_scalar(f"/metrics/{group}/{name}", frame, values[name])
+        if self._drift is not None:  # this frame's own error against the ground truth
+            health = result.health
+            drift = self._drift.frame_values(frame, result.position, result.T_world_cam, str(health.status),
+                                             ",".join(health.reasons))
+            for name, value in drift.items():
+                self._columns.add_scalar(f"/metrics/drift/{name}", frame, value)
 
     def _log_events(self, frame: Frame, result: FrameResult) -> None:
         def event(text: str, level: str) -> None:
