@@ -46,6 +46,7 @@ from app.inspect import format_report, inspect_recording
 from app.matching import DEFAULT_TOLERANCE_MS
 from app.outputs import claimed
 from app.recording import Detail, version_properties
+from app.recording.video import ImageCodec
 from app.repair import format_repair, repair_recording, repaired_path
 from app.report import json_ready, scored_estimate
 from app.runner import claim_run_outputs, describe_outputs, record_run
@@ -149,6 +150,9 @@ def run(
                                             "hover data; summary = no image or per-point data; off = no file")]
     = Detail.FULL,
     jpeg_quality: Annotated[int, typer.Option(min=1, max=100, help="JPEG quality of the recorded frames")] = 75,
+    image_codec: Annotated[ImageCodec, typer.Option(help="recorded camera frames: jpeg images, or an av1 / h264 "
+                                                    "video stream (smaller; the native viewer needs ffmpeg on "
+                                                    "PATH for h264)")] = ImageCodec.JPEG,
     trajectory_out: Annotated[Path | None, typer.Option(help="write one pose per input frame here")] = None,
     trajectory_format: Annotated[TrajectoryFormat, typer.Option(help="kitti or tum")] = TrajectoryFormat.kitti,
     intrinsics: Annotated[str | None, typer.Option(help="fx,fy,cx,cy (a pinhole) for image folders, videos and logs")]
@@ -202,7 +206,8 @@ def run(
         **version_properties(),
     }
     try:
-        recorded = record_run(src, config, rrd, properties, err, detail, jpeg_quality, outputs.trajectory)
+        recorded = record_run(src, config, rrd, properties, err, detail, jpeg_quality, outputs.trajectory,
+                              image_codec)
     finally:
         outputs.release()
     result, interrupted = recorded.result, recorded.interrupted

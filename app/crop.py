@@ -15,6 +15,12 @@ How (rerun-sdk 0.41):
    with no drops concatenates blueprint + cropped recording into one file with one footer.
    (``rerun rrd merge`` would turn the activation into ``make_active: true``; ``rerun rrd split`` can cut
    by time but drops static data such as the camera's Pinhole, and changes the recording id.)
+3. A `VideoStream` entity (``--image-codec av1|h264``) decodes only from a key frame. When START falls
+   inside a GOP, the frames from START up to the next key frame (or END) are decoded from the previous key
+   frame and re-encoded as a new GOP that starts with a key frame; their samples replace the originals row
+   for row (same frames, times and row ids: `app.crop_video`). The file still holds exactly frames
+   START..END-1 (keeping the earlier samples instead would put frames before START on the timeline);
+   the price is one re-encoding of at most one GOP.
 
 Everything is written into a hidden temporary folder beside the output and renamed at the end.
 """
@@ -31,6 +37,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 from rerun.chunk import Chunk, RrdReader, StoreEntry
 
+from app.crop_video import reencoded_first_gops, swap_samples
 from app.provenance import cropped_properties
 from app.rrd import RecordingError, first_line, open_store, readable, run_rerun_cli, same_file, work_dir_beside
 
@@ -52,8 +59,10 @@ class CropSummary:
 class _FrameFilter:
     """`flat_map` callback: keeps rows with ``start <= frame < end``; remembers what it saw."""
 
-    def __init__(self, start: int, end: int, replacements: dict[str, Chunk] | None = None) -> None:
+    def __init__(self, start: int, end: int, replacements: dict[str, Chunk] | None = None,
+                 video: dict[str, dict[int, tuple[bytes, bool]]] | None = None) -> None:
         self.start = start
+        self.video = video or {}  # re-encoded video samples to swap in, by entity path and frame
         self.end = end
         self.replacements = replacements or {}  # static chunks to swap, by entity path (the run properties)
         self.replaced = set(self.replacements)
@@ -78,7 +87,8 @@ class _FrameFilter:
             return [chunk]
         self.lowest = low if self.lowest is None else min(self.lowest, low)
         self.highest = high if self.highest is None else max(self.highest, high)
-        if low >= self.start and high < self.end:  # the whole chunk is inside: pass it on unchanged
+        swaps = self.video.get(chunk.entity_path, {})
+        if low >= self.start and high < self.end and not swaps:  # the whole chunk is inside: pass it on unchanged
             self.kept.update(frames.to_pylist())
             return [chunk]
         if high < self.start or low >= self.end:
@@ -89,6 +99,8 @@ class _FrameFilter:
         if rows.num_rows == 0:
             return []
         self.kept.update(rows.column(FRAME).to_pylist())
+        if swaps and any(f in swaps for f in rows.column(FRAME).to_pylist()):
+            rows = swap_samples(rows, swaps)
         # the batch still carries the chunk id and row ids: they are kept
         return Chunk.from_record_batch(rows)
 
@@ -130,7 +142,8 @@ def crop_recording(source: Path, frames: tuple[int, int | None], output: Path) -
     work = work_dir_beside(output)
     try:
         cropped = work / "recording.rrd"
-        keep = _FrameFilter(start, end, cropped_properties(source, start, end))
+        video = reencoded_first_gops(reader, recording, start, end)
+        keep = _FrameFilter(start, end, cropped_properties(source, start, end), video)
         try:
             reader.stream(store=recording).flat_map(keep).write_rrd(
                 cropped, application_id=recording.application_id, recording_id=recording.recording_id)

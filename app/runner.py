@@ -15,6 +15,7 @@ from rich.console import Console
 from app.outputs import ClaimedFile, OutputError, claim, default_recording
 from app.progress import progress
 from app.recording import Detail, Recorder
+from app.recording.video import ImageCodec
 from app.rrd import has_footer
 from app.trajectory_out import Format, TrajectoryWriter
 from vslam_core.config import EngineConfig
@@ -137,6 +138,7 @@ def record_run(
     detail: Detail = Detail.FULL,
     jpeg_quality: int = 75,
     trajectory: TrajectoryWriter | None = None,
+    image_codec: ImageCodec = ImageCodec.JPEG,
 ) -> RecordedRun:
     """Run the engine over `source`, recording to `rrd` (None: no recording) and writing each frame's pose
     to `trajectory` as it goes. Ctrl-C, SIGTERM, bad input (a `VslamError` from the source) and a write
@@ -146,7 +148,7 @@ def record_run(
     result = RunResult([], [], [])
     interrupted: Interrupted | None = None
     failure: VslamError | None = None
-    recorder = Recorder(rrd, source, config, properties, detail, jpeg_quality) if rrd is not None else None
+    recorder = Recorder(rrd, source, config, properties, detail, jpeg_quality, image_codec) if rrd is not None else None
     with progress(console, source.name, len(source)) as step, _signals_stop_between_frames() as stop:
 
         def advance(_frame: Frame, _result: FrameResult) -> None:

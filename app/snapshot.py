@@ -12,6 +12,7 @@ from __future__ import annotations
 import copy
 import logging
 import re
+import shutil
 import time
 from pathlib import Path
 from typing import Any
@@ -93,6 +94,8 @@ def snapshot(
     adapter, or a viewer that fails or does not settle within `timeout_s`.
     """
     index = resolve_frame(rrd, frame)
+    if problem := video_decoding_problem(rrd):
+        raise ViewerError(problem)
     if not viewer.vulkan_available():
         raise ViewerError(NO_VULKAN)
     try:
@@ -115,6 +118,24 @@ def snapshot(
     log.info("snapshot of %s at frame %d: %d pictures in %.1f s", rrd, index, len(written),
              time.monotonic() - started)
     return written
+
+
+def video_decoding_problem(rrd: Path) -> str | None:
+    """Why the native viewer cannot show this recording's video frames (one line), or None. It decodes AV1
+    itself but needs an `ffmpeg` executable on PATH for H.264 (the web viewer decodes both)."""
+    from app.crop_video import video_codecs
+    from app.recording.video import ImageCodec
+    from app.rrd import RecordingError, open_store
+
+    try:
+        reader, recording, _ = open_store(rrd)
+        codecs = set(video_codecs(reader, recording).values())
+    except RecordingError:
+        return None  # resolve_frame reads the file first and reports a bad one
+    if ImageCodec.H264 in codecs and shutil.which("ffmpeg") is None:
+        return (f"{rrd}: its camera frames are H.264 video, which the native viewer decodes with ffmpeg: install "
+                "ffmpeg on PATH (e.g. apt-get install ffmpeg), or use the web viewer")
+    return None
 
 
 def _write_pictures(shots: list[tuple[str, bytes]], out_dir: Path) -> list[Path]:

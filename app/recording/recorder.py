@@ -31,6 +31,7 @@ from app.recording.styles import (
     ROAD_COLOUR,
     Detail,
 )
+from app.recording.video import ImageCodec, VideoEntity
 from app.report import markdown_table, metrics_row, scored_estimate
 from app.rrd import RecordingError, has_footer
 from vslam_core.config import EngineConfig
@@ -62,6 +63,7 @@ class Recorder:
         properties: dict[str, str],
         detail: Detail = Detail.FULL,
         jpeg_quality: int = 75,
+        image_codec: ImageCodec = ImageCodec.JPEG,
     ) -> None:
         if detail == Detail.OFF:
             raise ValueError("detail 'off' writes no recording: do not build a Recorder")
@@ -103,6 +105,11 @@ class Recorder:
         # a distorted lens at full detail: also the frame as the pinhole sees it (the 3-D view's geometry)
         self._undistort = undistortion_maps(source.intrinsics) if undistorted else None
         self._log_static(source)
+        # --image-codec av1/h264: the frames as video streams (encoded beside the engine with a second core)
+        self._videos: dict[str, VideoEntity] = {}
+        if image_codec != ImageCodec.JPEG and detail in (Detail.FULL, Detail.STANDARD):
+            entities = ["/world/camera/image"] + ([UNDISTORTED] if self._undistort is not None else [])
+            self._videos = {e: VideoEntity(self._rec, e, image_codec, self._encoder) for e in entities}
         # the map backend's entities (statics logged here; nothing at all is logged with the odometry backend)
         self._map = (MapRecording(self._rec, self._columns, source.intrinsics, detail) if config.backend == "map"
                      else None)
@@ -118,6 +125,8 @@ class Recorder:
         `OutputError` if the file could not be written (full disk): it keeps what was written."""
         try:
             self._columns.flush()
+            for video in self._videos.values():
+                video.flush(final=True)
             self._check_written()
         finally:
             if self._encoder is not None:
@@ -257,19 +266,24 @@ class Recorder:
         self._frames += 1
         if self._frames % FLUSH_FRAMES == 0:
             columns.flush()
+            for video in self._videos.values():
+                video.flush()
             self._check_written()
         elif time.monotonic() - self._checked_at > WRITE_CHECK_S:  # images are sent every ~1 MiB
             self._check_written()
 
     def _log_image_and_tracks(self, frame: Frame, result: FrameResult) -> None:
         columns = self._columns
-        jpeg: bytes | Future[bytes] = (self._encoder.submit(self._encode, frame.image) if self._encoder is not None
-                                       else self._encode(frame.image))
-        columns.add("/world/camera/image", frame, (rr.EncodedImage.columns, {"blob": jpeg, "media_type": "image/jpeg"}))
+        images = {"/world/camera/image": frame.image}
         if self._undistort is not None:
-            ideal = cv2.remap(frame.image, *self._undistort, cv2.INTER_LINEAR)
-            blob = self._encoder.submit(self._encode, ideal) if self._encoder is not None else self._encode(ideal)
-            columns.add(UNDISTORTED, frame, (rr.EncodedImage.columns, {"blob": blob, "media_type": "image/jpeg"}))
+            images[UNDISTORTED] = cv2.remap(frame.image, *self._undistort, cv2.INTER_LINEAR)
+        for entity, image in images.items():
+            if self._videos:
+                self._videos[entity].add(frame, image)
+                continue
+            jpeg: bytes | Future[bytes] = (self._encoder.submit(self._encode, image) if self._encoder is not None
+                                           else self._encode(image))
+            columns.add(entity, frame, (rr.EncodedImage.columns, {"blob": jpeg, "media_type": "image/jpeg"}))
         full = self.detail == Detail.FULL
         corners: list[Part] = [(rr.Points2D.columns, {"positions": result.new_corners})]
         if full:
