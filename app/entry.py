@@ -9,12 +9,14 @@
 
 from __future__ import annotations
 
+import os
 import sys
 from collections.abc import Callable
 from typing import Any
 
 import typer
 
+from app.outputs import stuck_writers
 from vslam_core.errors import VslamError
 
 #: Click's exception classes, found through typer's public `BadParameter` (typer ≥ 0.2x vendors Click)
@@ -54,16 +56,29 @@ def run(app: Callable[..., Any], report: Callable[[str], None]) -> None:
         code = app(standalone_mode=False)
     except VslamError as exc:
         report(one_line(exc))
-        sys.exit(2)
+        code = 2
     except UsageError as exc:
         if type(exc).__name__ == "NoArgsIsHelpError":  # `vslam` alone: the help, as Click would show it
             print(_message(exc))
-            sys.exit(0)
-        report(usage_line(exc))
-        sys.exit(2)
+            code = 0
+        else:
+            report(usage_line(exc))
+            code = 2
     except ClickException as exc:
         report(one_line(exc))
-        sys.exit(int(getattr(exc, "exit_code", 1)))
+        code = int(getattr(exc, "exit_code", 1))
     except typer.Abort:
-        sys.exit(130)
-    sys.exit(code if isinstance(code, int) else 0)
+        code = 130
+    except SystemExit as exc:  # typer.Exit in standalone_mode=False comes back as its code; sys.exit as this
+        code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+    _exit(code if isinstance(code, int) else 0)
+
+
+def _exit(code: int) -> None:
+    """Exit with `code`. A writer stuck for good (`app.outputs.hold_stuck_writer`) would make the exit
+    handlers wait forever: everything is reported and the files are closed by then, so skip them."""
+    if stuck_writers():
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    sys.exit(code)

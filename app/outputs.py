@@ -147,7 +147,7 @@ def write_failure(path: Path, exc: OSError | None = None) -> str:
     """Why writing `path` failed, in words a user can act on: a full disk (and which), the file size limit,
     or the system's message. Without `exc` (Rerun's writer thread does not say why it stopped) the cause
     is read from the file system."""
-    code = exc.errno if exc is not None else _likely_errno(path)
+    code = exc.errno if exc is not None else likely_errno(path)
     if code in (errno.ENOSPC, errno.EDQUOT):
         return f"{path}: disk full (no space left on {mount_point(path)})"
     if code == errno.EFBIG:
@@ -157,7 +157,8 @@ def write_failure(path: Path, exc: OSError | None = None) -> str:
     return f"{path}: cannot write (the Rerun file writer stopped)"
 
 
-def _likely_errno(path: Path) -> int | None:
+def likely_errno(path: Path) -> int | None:
+    """ENOSPC when `path`'s file system is (nearly) full, EFBIG when `path` is at the file size limit, else None."""
     try:
         stats = os.statvfs(path.parent if str(path.parent) else Path("."))
         if min(stats.f_bavail, stats.f_bfree) * stats.f_frsize < FULL_DISK_BYTES:
@@ -176,6 +177,21 @@ def mount_point(path: Path) -> str:
     while not os.path.ismount(current) and current != current.parent:
         current = current.parent
     return str(current)
+
+
+#: Writers stuck for good (see `hold_stuck_writer`); the process ends without waiting for them.
+_STUCK_WRITERS: list[object] = []
+
+
+def hold_stuck_writer(writer: object) -> None:
+    """Keep a writer whose thread will never answer (Rerun's, after its file sink died mid-flush) alive until
+    the process ends: dropping or disconnecting it would wait for that thread forever. `app.entry` then ends
+    the process without the exit handlers that would wait for it too."""
+    _STUCK_WRITERS.append(writer)
+
+
+def stuck_writers() -> bool:
+    return bool(_STUCK_WRITERS)
 
 
 #: Held (flock) by the command writing a report folder: `vslam eval --report`.

@@ -40,12 +40,13 @@ def _x264(preset: str, crf: str) -> VideoSettings:
 #: (label, codec, settings or JPEG quality): the settings measured. The first of each codec is the offered one.
 SETTINGS: list[tuple[str, ImageCodec, VideoSettings | int]] = [
     ("jpeg q75", ImageCodec.JPEG, 75),
-    ("av1 svt preset 10 crf 40 rtc (offered)", ImageCodec.AV1, VIDEO_SETTINGS[ImageCodec.AV1]),
+    ("av1 svt preset 10 crf 41 rtc (offered)", ImageCodec.AV1, VIDEO_SETTINGS[ImageCodec.AV1]),
+    ("av1 svt preset 10 crf 40 rtc", ImageCodec.AV1, _svt("10", "40", ":rtc=1")),
+    ("av1 svt preset 10 crf 42 rtc", ImageCodec.AV1, _svt("10", "42", ":rtc=1")),
     ("av1 svt preset 8 crf 40 rtc", ImageCodec.AV1, _svt("8", "40", ":rtc=1")),
-    ("av1 svt preset 12 crf 38 (no rtc)", ImageCodec.AV1, _svt("12", "38", "")),
-    ("h264 x264 veryfast crf 24 (offered)", ImageCodec.H264, VIDEO_SETTINGS[ImageCodec.H264]),
-    ("h264 x264 veryfast crf 26", ImageCodec.H264, _x264("veryfast", "26")),
-    ("h264 x264 faster crf 24", ImageCodec.H264, _x264("faster", "24")),
+    ("h264 x264 faster crf 25 (offered)", ImageCodec.H264, VIDEO_SETTINGS[ImageCodec.H264]),
+    ("h264 x264 veryfast crf 24", ImageCodec.H264, _x264("veryfast", "24")),
+    ("h264 x264 veryfast crf 25", ImageCodec.H264, _x264("veryfast", "25")),
 ]
 
 

@@ -5,6 +5,7 @@ Every test runs the real CLI in a subprocess and reads the files back."""
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import resource
@@ -20,10 +21,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from app import outputs
 from app.outputs import OutputError, claim, default_recording
+from app.recording import Detail
+from app.recording import recorder as recorder_module
 from app.rrd import has_footer, read_entity, readable
 from app.snapshot import snapshot
 from app.viewer import recording_frames, vulkan_available
+from vslam_core.config import EngineConfig
+from vslam_core.sources.base import FrameRange
+from vslam_core.sources.kitti import KittiSource
 from vslam_core.trajectory_io import read_kitti_poses
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -292,6 +299,55 @@ def test_file_size_limit_stops_the_run_in_one_line(kitti_root: Path, tmp_path: P
     line = one_error_line(result.stderr)
     assert line.startswith(f"error: {rrd}: file size limit reached (ulimit -f); the run stopped at frame "), line
     assert rrd.stat().st_size > 2_000_000
+
+
+def _recorder_with_flush(kitti_root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                         answers: list[bool]) -> tuple[recorder_module.Recorder, list[float]]:
+    """A recorder whose Rerun flushes time out (False) or return (True) in the order of `answers`, and whose
+    stream must not be disconnected after a timeout (that is where Rerun 0.41 waits forever)."""
+    source = KittiSource(kitti_root, sequence="00", frames=FrameRange(0, 3))
+    recorder = recorder_module.Recorder(tmp_path / "x.rrd", source, EngineConfig(), {"name": "flush"},
+                                        Detail.STANDARD)
+    asked: list[float] = []
+
+    def flush(*, timeout_sec: float) -> None:
+        asked.append(timeout_sec)
+        if not answers.pop(0):
+            time.sleep(timeout_sec)
+            raise RuntimeError("flush timed out")
+
+    monkeypatch.setattr(recorder._rec, "flush", flush)
+    monkeypatch.setattr(outputs, "_STUCK_WRITERS", [])  # this process is a test worker: leave it as found
+    return recorder, asked
+
+
+@pytest.mark.kitti
+def test_a_flush_never_answered_on_a_full_disk_stops_the_run_without_waiting(
+        kitti_root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Rerun 0.41's race (a flush queued as its file writer dies on ENOSPC is never answered) hung CI runs
+    for 10 minutes: the recorder now asks in steps, gives up at the first step on a full disk, and holds the
+    stuck stream instead of disconnecting it."""
+    recorder, asked = _recorder_with_flush(kitti_root, tmp_path, monkeypatch, [False] * 200)
+    for module in (recorder_module, outputs):
+        monkeypatch.setattr(module, "likely_errno", lambda _path: errno.ENOSPC)
+    disconnect = recorder._rec.disconnect
+    monkeypatch.setattr(recorder._rec, "disconnect", lambda: pytest.fail("disconnecting a stuck stream hangs"))
+    start = time.monotonic()
+    with pytest.raises(OutputError, match="disk full"):
+        recorder.close()
+    assert time.monotonic() - start < 10.0
+    assert asked == [recorder_module.FLUSH_STEP_S]
+    assert outputs.stuck_writers()
+    disconnect()  # the real stream is not stuck
+
+
+@pytest.mark.kitti
+def test_a_slow_disk_is_waited_for(kitti_root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    recorder, asked = _recorder_with_flush(kitti_root, tmp_path, monkeypatch, [False, False, True])
+    monkeypatch.setattr(recorder_module, "likely_errno", lambda _path: None)  # room on the disk: keep waiting
+    recorder.close()
+    assert len(asked) == 3 and not outputs.stuck_writers()
+    verify(tmp_path / "x.rrd")
 
 
 # -------------------------------------------------------------------------- 16. where a failed run's output went

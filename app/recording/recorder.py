@@ -12,7 +12,7 @@ import numpy as np
 import rerun as rr
 
 import vslam_core
-from app.outputs import OutputError, write_failure
+from app.outputs import OutputError, hold_stuck_writer, likely_errno, write_failure
 from app.provenance import flatten
 from app.recording.blueprint import CAR_ENTITY, UNDISTORTED, blueprint
 from app.recording.columns import FLUSH_FRAMES, ColumnBuffer, Part, add_event
@@ -46,8 +46,10 @@ from vslam_core.sources.calibration import describe_calibration
 ALIGNED_ERROR = "/metrics/error/position_m"
 ALIGNED_ESTIMATE = "/world/trajectory/estimate_sim3"
 
-#: How long to wait for Rerun's writer thread to catch up before calling the file unwritable.
+#: How long to wait for Rerun's writer thread to catch up before calling the file unwritable (a slow disk)…
 WRITE_TIMEOUT_S = 120.0
+#: … asking this often whether it has caught up, and giving up at once when the disk is full.
+FLUSH_STEP_S = 1.0
 #: How often (seconds) to check that Rerun's writer thread is still writing: a full disk stops the run this soon.
 WRITE_CHECK_S = 1.0
 
@@ -82,6 +84,7 @@ class Recorder:
         self._previous_position: np.ndarray | None = None
         self._frames = 0
         self._failed = False  # Rerun's writer stopped (full disk): reported once
+        self._stuck = False  # …and a flush of it never returned: the stream must not be touched again
         self._checked_at = time.monotonic()
         # send_properties=False: no wall-clock start time, so two runs of the same input compare equal
         # Fewer, larger chunks than the default (0.2 s / 2 MiB): each chunk carries its own schema, and at
@@ -124,28 +127,44 @@ class Recorder:
         """Send the buffered columns, flush and write the footer; the file is valid afterwards. Raises
         `OutputError` if the file could not be written (full disk): it keeps what was written."""
         try:
-            self._columns.flush()
-            for video in self._videos.values():
-                video.flush(final=True)
-            self._check_written()
+            if not self._failed:  # after a write error nothing more reaches the file
+                self._columns.flush()
+                for video in self._videos.values():
+                    video.flush(final=True)
+                self._check_written()
         finally:
             if self._encoder is not None:
                 self._encoder.shutdown(cancel_futures=True)
-            self._rec.disconnect()
+            if self._stuck:
+                hold_stuck_writer(self._rec)  # disconnecting (or dropping) it would wait forever
+            else:
+                self._rec.disconnect()
         if not self._failed and not has_footer(self.path):  # the footer itself did not fit
             raise OutputError(write_failure(self.path))
 
     def _check_written(self) -> None:
         """Wait until Rerun's writer thread has written what was sent. That thread only logs its write errors
-        (silenced in `app/__init__.py`) and stops; the flush then fails, and we stop the run."""
+        (silenced in `app/__init__.py`) and stops; the flush then fails, and we stop the run.
+
+        Rerun 0.41 has a race there: a flush queued just as the file sink's thread dies on ENOSPC is never
+        answered, and the stream's forwarding thread waits for it forever (seen as a hung run on a full disk).
+        So the flush is asked for in steps, a full disk ends the wait at once, and a stream whose flush timed
+        out is never disconnected or dropped (`close`)."""
         if self._failed:
             return
         self._checked_at = time.monotonic()
-        try:
-            self._rec.flush(timeout_sec=WRITE_TIMEOUT_S)
-        except RuntimeError:
-            self._failed = True
-            raise OutputError(write_failure(self.path)) from None
+        deadline = self._checked_at + WRITE_TIMEOUT_S
+        while True:
+            started = time.monotonic()
+            try:
+                self._rec.flush(timeout_sec=FLUSH_STEP_S)
+                return
+            except RuntimeError:
+                timed_out = time.monotonic() - started >= 0.9 * FLUSH_STEP_S
+                if timed_out and time.monotonic() < deadline and likely_errno(self.path) is None:
+                    continue  # a slow disk: keep waiting
+                self._failed, self._stuck = True, timed_out
+                raise OutputError(write_failure(self.path)) from None
 
     def finish(self, run: RunResult, stopped: str | None) -> None:
         """Log the run's verdict (metrics table against ground truth, when there is one) and close. `stopped`

@@ -46,9 +46,9 @@ class VideoSettings:
 
 #: The encoder settings of each video codec (chosen from benchmarks/codecs.py; see the README).
 VIDEO_SETTINGS: dict[ImageCodec, VideoSettings] = {
-    ImageCodec.AV1: VideoSettings("libsvtav1", {"preset": "10", "crf": "40",
+    ImageCodec.AV1: VideoSettings("libsvtav1", {"preset": "10", "crf": "41",
                                                 "svtav1-params": "pred-struct=1:lookahead=0:rtc=1"}),
-    ImageCodec.H264: VideoSettings("libx264", {"preset": "veryfast", "crf": "24", "tune": "zerolatency",
+    ImageCodec.H264: VideoSettings("libx264", {"preset": "faster", "crf": "25", "tune": "zerolatency",
                                                "bf": "0"}),
 }
 
