@@ -24,6 +24,7 @@ import rerun.blueprint as rrb
 
 from app.recording import METRICS
 from app.recording.blueprint import CAR_ENTITY, EYE_OFFSET
+from app.recording.drift import DRIFT_ENTITY, LINKS_ENTITY
 from app.rrd import read_entity
 
 #: Entity prefixes of the runs, in input order (``/a/world/camera``, ``/c/metrics/tracks/alive``).
@@ -129,7 +130,10 @@ def blueprint(labels: tuple[str, ...] = ("A", "B"),
     trajectories = rrb.Spatial3DView(
         name=trajectories_title(labels),
         origin=f"/{prefixes[0]}/world",  # for its view coordinates (RDF); every /<prefix>/world is the same space
-        contents=[f"/{prefix}/world/trajectory/**" for prefix in prefixes],
+        # not the drift-coloured copies of the estimates (nor their links to the truth): they would hide the
+        # runs' own hues and look like the green ground truth
+        contents=[*(f"/{prefix}/world/trajectory/**" for prefix in prefixes),
+                  *(f"- /{prefix}{entity}" for prefix in prefixes for entity in (DRIFT_ENTITY, LINKS_ENTITY))],
         eye_controls=_top_down(bounds),
         overrides=overrides,  # type: ignore[arg-type]
     )

@@ -77,7 +77,7 @@ def summary_row(report: dict[str, Any]) -> dict[str, float | None]:
     stages = [stats["mean"] for stats in (report.get("stages_ms") or {}).values() if stats]
     ms = float(sum(stages)) if stages else None
     return {
-        "frames": float(report["frames"]["count"]),
+        "frames": int(report["frames"]["count"]),
         "t_err": metrics.get("t_err"),
         "r_err": metrics.get("r_err"),
         "ate_sim3": metrics.get("ate_sim3"),
