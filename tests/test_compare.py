@@ -461,7 +461,7 @@ def test_snapshot_of_three_runs(three: tuple[Path, subprocess.CompletedProcess[s
     result = vslam("snapshot", output, "--frame", "120", "--out", tmp_path)
     assert result.returncode == 0, result.stderr
     names = {p.stem for p in tmp_path.glob("*.png")}
-    assert {"all", "a_frame", "c_world", "trajectories_base_red_tracks400_blue_later_orange_truth_green"} <= names
+    assert {"all", "base_frame", "later_world", "trajectories_base_red_tracks400_blue_later_orange_truth_green"} <= names
     for name in ("all", "trajectories_base_red_tracks400_blue_later_orange_truth_green"):
         picture = cv2.imread(str(tmp_path / f"{name}.png"))
         assert picture is not None and picture.std() > 4, f"{name}.png looks blank"
