@@ -53,7 +53,7 @@ from app.compare_blueprint import (
     run_style,
     trajectory_bounds,
 )
-from app.compare_table import MetricDifference, format_differences, metric_differences
+from app.compare_table import MetricDifference, format_differences, metric_differences, summary_markdown
 from app.inspect import inspect_recording
 from app.recording import APPLICATION_ID, METRICS
 from app.rrd import RecordingError, first_line, open_store, run_rerun_cli, same_file, work_dir_beside
@@ -159,7 +159,8 @@ def compare_recordings(*paths: Path, labels: Sequence[str] | None = None) -> Com
             parts.append(part)
             logged |= rewrite.logged
         extra = work / "properties.rrd"
-        _write(LazyChunkStream.from_iter(_comparison_properties(name, inputs, names, stores)), extra, output,
+        summary = summary_markdown(name, inputs=inputs, labels=names, reports=reports)
+        _write(LazyChunkStream.from_iter(_comparison_properties(name, inputs, names, stores, summary)), extra, output,
                output, application_id, recording_id)
 
         layout = work / "blueprint.rrd"
@@ -288,12 +289,14 @@ def _lightened(rgba: int, amount: float) -> int:
 
 
 def _comparison_properties(name: str, inputs: tuple[Path, ...], labels: tuple[str, ...],
-                           stores: list[StoreEntry]) -> list[Chunk]:
-    """The comparison's recording name and ``/__properties/compare``: per run its label, input file and
-    recording id (``label_a``, ``file_a``, ``recording_id_a``, ``label_b``, …)."""
+                           stores: list[StoreEntry], summary: str) -> list[Chunk]:
+    """The comparison's recording name, ``/__properties/compare`` (per run its label, input file and recording
+    id: ``label_a``, ``file_a``, ``recording_id_a``, ``label_b``, …) and ``/report`` (`summary`, Markdown)."""
     values: dict[str, Any] = {}
     for prefix, path, label, store in zip(run_prefixes(len(inputs)), inputs, labels, stores, strict=True):
         values.update({f"label_{prefix}": label, f"file_{prefix}": str(path.resolve()),
                        f"recording_id_{prefix}": store.recording_id})
     return [Chunk.from_columns(PROPERTIES, indexes=[], columns=rra.RecordingInfo.columns(name=[name])),
-            Chunk.from_property("compare", rr.AnyValues(**values))]
+            Chunk.from_property("compare", rr.AnyValues(**values)),
+            Chunk.from_columns("/report", indexes=[], columns=rr.TextDocument.columns(
+                text=[summary], media_type=[rr.MediaType.MARKDOWN]))]

@@ -101,6 +101,23 @@ def format_summary(result: Compared) -> list[str]:
     return _aligned([header, *table], left=(0, len(header) - 1))
 
 
+def summary_markdown(name: str, labels: tuple[str, ...], inputs: tuple[Path, ...],
+                     reports: tuple[dict[str, Any], ...]) -> str:
+    """The comparison's ``/report``: its name, each run's label, prefix, input file and recording name, and
+    the `summary_row` table (Markdown)."""
+    keys = [key for key, _, _ in SUMMARY_COLUMNS]
+    lines = [f"# {name}", "", "| run | prefix | file | recording |", "|---|---|---|---|"]
+    lines += [f"| {label} | /{prefix} | {path.resolve()} | {report['recording_name']} |"
+              for label, prefix, path, report in zip(labels, run_prefixes(len(labels)), inputs, reports, strict=True)]
+    lines += ["", "| run | " + " | ".join(title for _, title, _ in SUMMARY_COLUMNS) + " |",
+              "|---|" + "---|" * len(keys)]
+    for label, report in zip(labels, reports, strict=True):
+        row = summary_row(report)
+        lines.append(f"| {label} | " + " | ".join(_fmt(row[key], digits) for key, _, digits in SUMMARY_COLUMNS)
+                     + " |")
+    return "\n".join(lines)
+
+
 # -------------------------------------------------------------------------------------- differences
 
 

@@ -93,6 +93,7 @@ def test_every_entity_of_each_run_is_under_its_prefix(runs: tuple[Path, Path], c
 
     expected = {f"/{prefix}{e}" for prefix, run in zip("ab", runs, strict=True) for e in entities(run)
                 if not e.startswith("/__properties")}
+    expected.add("/report")  # the comparison's own: its runs and their summary table
     assert {e for e in entities(compared.output) if not e.startswith("/__properties")} == expected
 
     for prefix, run in zip("ab", runs, strict=True):
@@ -399,6 +400,10 @@ def test_three_real_runs_in_one_valid_recording(kitti_runs: list[Path],
     assert [compare[f"file_{p}"] for p in "abc"] == [[str(run.resolve())] for run in kitti_runs]
     assert read_entity(output, "/__properties/b/config", static=True)["detector.target_tracks"].to_list() == [[400]]
 
+    summary = read_entity(output, "/report", static=True)["TextDocument:text"].to_list()[0][0]
+    assert all(f"| {label} | /{p} | {run.resolve()} |" in summary
+               for label, p, run in zip(labels, "abc", kitti_runs, strict=True)), summary
+
     views = _views(output)
     assert views["trajectories: base red, tracks400 blue, later orange, truth green"]["contents"][:3] == [
         f"/{p}/world/trajectory/**" for p in "abc"]
@@ -461,8 +466,9 @@ def test_snapshot_of_three_runs(three: tuple[Path, subprocess.CompletedProcess[s
     result = vslam("snapshot", output, "--frame", "120", "--out", tmp_path)
     assert result.returncode == 0, result.stderr
     names = {p.stem for p in tmp_path.glob("*.png")}
-    assert {"all", "base_frame", "later_world", "trajectories_base_red_tracks400_blue_later_orange_truth_green"} <= names
-    for name in ("all", "trajectories_base_red_tracks400_blue_later_orange_truth_green"):
+    trajectories = "trajectories_base_red_tracks400_blue_later_orange_truth_green"
+    assert {"all", "base_frame", "later_world", trajectories} <= names  # one tab per run: every run's views
+    for name in ("all", trajectories):
         picture = cv2.imread(str(tmp_path / f"{name}.png"))
         assert picture is not None and picture.std() > 4, f"{name}.png looks blank"
 
