@@ -229,7 +229,7 @@ def _run_report(path: Path, prefix: str = "") -> dict[str, Any]:
 
 
 def format_report(report: dict[str, Any]) -> str:
-    """The human-readable form of `inspect_recording` (a comparison: both runs, one after the other)."""
+    """The human-readable form of `inspect_recording` (a comparison: every run, one after the other)."""
     head = [f"recording   {report['file']} ({report['bytes'] / 1e6:.1f} MB)", f"name        {report['recording_name']}"]
     if "runs" not in report:
         return "\n".join(head + _format_run(report))

@@ -1,7 +1,7 @@
 """What a recording says about how it was made: its run properties and engine config, read back, rewritten
 when the file changes (`crop`), and compared (`inspect`, `compare`).
 
-Run properties live in the static entity ``/__properties/run`` (``/__properties/a/run`` and ``…/b/run`` in a
+Run properties live in the static entity ``/__properties/run`` (``/__properties/a/run``, ``…/b/run``, … in a
 comparison), the flattened engine config in ``…/config``, the recording name in ``/__properties``.
 """
 
