@@ -39,7 +39,8 @@ from app.cli_common import (
     with_camera_height,
 )
 from app.cli_eval import eval_command
-from app.compare import compare_recordings, format_differences
+from app.compare import PREFIXES, check_labels, compare_recordings, default_labels, format_differences
+from app.compare_table import comparison_json
 from app.crop import crop_recording, parse_crop_frames
 from app.entry import run as run_app
 from app.inspect import format_report, inspect_recording
@@ -302,21 +303,35 @@ app.command(name="eval")(eval_command)  # app/cli_eval.py
 
 @app.command()
 def compare(
-    first: Annotated[Path, typer.Argument(metavar="A.rrd", help="the first run (e.g. before a change)")],
-    second: Annotated[Path, typer.Argument(metavar="B.rrd", help="the second run (e.g. after it)")],
+    recordings: Annotated[list[Path], typer.Argument(metavar="A.rrd B.rrd [C.rrd …]",
+                                                     help="two or more runs; the first is the baseline the "
+                                                     "others are compared with (e.g. before a change)")],
     output: Annotated[Path, typer.Option("--output", "-o", help="the side-by-side .rrd to write")],
-    labels: Annotated[str, typer.Option(help="names of the two runs in legends, LABEL_A,LABEL_B")] = "A,B",
+    labels: Annotated[str | None, typer.Option(help="names of the runs in legends and tables, one per "
+                                               "recording, comma-separated, e.g. before,after [default: A,B,C…]")]
+    = None,
     force: Annotated[bool, typer.Option("--force", help="replace an existing output")] = False,
+    as_json: Annotated[bool, typer.Option("--json", help="machine-readable output (keys documented in README)")]
+    = False,
 ) -> None:
-    """Put two runs side by side in one recording (overlaid metric plots) and print their differences."""
-    names = [label.strip() for label in labels.split(",")]
-    if len(names) != 2 or not all(names) or names[0] == names[1]:
-        fail(f"--labels {labels!r}: give two different names, e.g. before,after")
-    _existing_recording(first)
-    _existing_recording(second)
+    """Put two or more runs side by side in one recording (overlaid metric plots), print one summary row per
+    run and every difference from the first run."""
+    if len(recordings) < 2:
+        fail(f"give two or more recordings to compare, got {len(recordings)}")
+    if len(recordings) > len(PREFIXES):
+        fail(f"at most {len(PREFIXES)} recordings can be compared, got {len(recordings)}")
+    names = ([label.strip() for label in labels.split(",")] if labels is not None
+             else list(default_labels(len(recordings))))
+    if problem := check_labels(names, len(recordings)):
+        fail(f"--labels {labels!r}: {problem}")
+    for recording in recordings:
+        _existing_recording(recording)
     with claimed(_recording_path(output), force, "recording"):
-        result = compare_recordings(first, second, output, (names[0], names[1]))
-    out.print(format_differences(result), highlight=False)
+        result = compare_recordings(*recordings, output, labels=names)
+    if as_json:
+        print(json.dumps(json_ready(comparison_json(result)), indent=2, allow_nan=False))
+    else:
+        out.print(format_differences(result), highlight=False)
 
 
 @app.command()

@@ -11,9 +11,18 @@ from typing import Any
 
 import numpy as np
 
-from app.provenance import PROPERTIES, config_lines, latest_static_row, non_default, read_properties
+from app.provenance import (
+    PROPERTIES,
+    comparison_prefixes,
+    config_lines,
+    latest_static_row,
+    non_default,
+    read_properties,
+)
 from app.recording import METRICS, STAGES
 from app.recording.drift import WORST as DRIFT_TOP
+from app.report import COLUMNS
+from app.report import METRICS as REPORT_METRICS
 from app.rrd import RecordingError, read_entity, readable
 from vslam_core.drift import worst_frames
 
@@ -116,6 +125,35 @@ def _accuracy(path: Path, prefix: str = "") -> dict[str, float] | None:
     }
 
 
+def report_metrics(path: Path, prefix: str = "") -> dict[str, float | None] | None:
+    """The metric row of the recording's verdict (``/report``: the Markdown table `vslam run` logs when it
+    ends, as `vslam eval` computes it) as {``t_err``, ``r_err``, ``ate_se3``, ``ate_sim3``, …: value or None
+    for n/a}, at the table's printed precision; None when there is no such table (no ground truth, older or
+    interrupted runs)."""
+    table = read_entity(path, f"{prefix}/report", static=True)
+    if table.is_empty() or "TextDocument:text" not in table.columns:
+        return None
+    text = table["TextDocument:text"].to_list()[-1]
+    lines = [line for line in (text[0] if isinstance(text, list) else text or "").splitlines()
+             if line.startswith("|")]
+    keys = {header: key for key, (header, _) in COLUMNS.items() if key in REPORT_METRICS}
+    # the first table whose header names a metric: header row, |---| row, then the run's row
+    for i, line in enumerate(lines[:-2]):
+        headers = [cell.strip() for cell in line.strip("|").split("|")]
+        if any(h in keys for h in headers):
+            cells = [cell.strip() for cell in lines[i + 2].strip("|").split("|")]
+            return {keys[h]: _float(c) for h, c in zip(headers, cells, strict=False) if h in keys}
+    return None
+
+
+def _float(text: str) -> float | None:
+    try:
+        value = float(text)
+    except ValueError:  # "n/a"
+        return None
+    return value if math.isfinite(value) else None
+
+
 def _accuracy_alignment(path: Path, prefix: str = "") -> str:
     """``sim3`` when the recording's position errors are of the Sim(3)-aligned estimate (--scale none)."""
     aligned = read_entity(path, f"{prefix}/world/trajectory/estimate_sim3", static=True)
@@ -124,7 +162,7 @@ def _accuracy_alignment(path: Path, prefix: str = "") -> str:
 
 def inspect_recording(path: Path) -> dict[str, Any]:
     """Everything `vslam inspect --json` prints (see README: "vslam inspect --json"). A `vslam compare`
-    output gives ``comparison`` (labels, input files) and ``runs`` (``a`` and ``b``: each run's report)."""
+    output gives ``comparison`` (labels, input files) and ``runs`` (``a``, ``b``, …: each run's report)."""
     if not path.is_file():
         raise RecordingError(f"{path}: no such recording")
     comparison = read_properties(path, f"{PROPERTIES}/compare")
@@ -132,7 +170,7 @@ def inspect_recording(path: Path) -> dict[str, Any]:
         return {
             "schema": SCHEMA_VERSION, "file": str(path), "bytes": path.stat().st_size,
             "recording_name": _recording_name(path), "comparison": comparison,
-            "runs": {prefix: _run_report(path, f"/{prefix}") for prefix in ("a", "b")},
+            "runs": {prefix: _run_report(path, f"/{prefix}") for prefix in comparison_prefixes(path)},
         }
     return {"schema": SCHEMA_VERSION, "file": str(path), "bytes": path.stat().st_size,
             "recording_name": _recording_name(path), **_run_report(path)}
@@ -183,6 +221,7 @@ def _run_report(path: Path, prefix: str = "") -> dict[str, Any]:
             "chirality_margin": _stats(ransac["chirality_margin"]),
         },
         "accuracy": _accuracy(path, prefix),
+        "report_metrics": report_metrics(path, prefix),
         "accuracy_alignment": _accuracy_alignment(path, prefix),
         "flagged": flagged,
         "drift": _drift(path, frame_reasons, prefix),
@@ -190,12 +229,12 @@ def _run_report(path: Path, prefix: str = "") -> dict[str, Any]:
 
 
 def format_report(report: dict[str, Any]) -> str:
-    """The human-readable form of `inspect_recording` (a comparison: both runs, one after the other)."""
+    """The human-readable form of `inspect_recording` (a comparison: every run, one after the other)."""
     head = [f"recording   {report['file']} ({report['bytes'] / 1e6:.1f} MB)", f"name        {report['recording_name']}"]
     if "runs" not in report:
         return "\n".join(head + _format_run(report))
     compare = report["comparison"]
-    head.append("comparison  of two runs (vslam compare)")
+    head.append(f"comparison  of {len(report['runs'])} runs (vslam compare)")
     for prefix, run in report["runs"].items():
         label = compare.get(f"label_{prefix}", prefix)
         head += ["", f"── run {prefix.upper()}: {label} ({compare.get(f'file_{prefix}', '?')})", *_format_run(run)]

@@ -1,7 +1,7 @@
 """What a recording says about how it was made: its run properties and engine config, read back, rewritten
 when the file changes (`crop`), and compared (`inspect`, `compare`).
 
-Run properties live in the static entity ``/__properties/run`` (``/__properties/a/run`` and ``…/b/run`` in a
+Run properties live in the static entity ``/__properties/run`` (``/__properties/a/run``, ``…/b/run``, … in a
 comparison), the flattened engine config in ``…/config``, the recording name in ``/__properties``.
 """
 
@@ -109,12 +109,19 @@ def latest_static_row(path: Path, entity: str) -> dict[str, Any]:
     return table.row(len(table) - 1, named=True)
 
 
+def comparison_prefixes(path: Path) -> list[str]:
+    """The run prefixes of a `vslam compare` recording (``["a", "b", "c"]``, from the ``label_<prefix>`` keys of
+    ``/__properties/compare``); [] for a single run."""
+    compare = read_properties(path, f"{PROPERTIES}/compare")
+    return sorted(key.removeprefix("label_") for key in compare if key.startswith("label_"))
+
+
 def cropped_properties(path: Path, start: int, end: int) -> dict[str, Chunk]:
     """Replacement chunks (by entity path) for the run properties and recording name of `path` cut down to
     frames ``start <= frame < end``: ``frames`` and ``frame_count`` say what the cropped file holds,
-    ``cropped_from`` the frames of the original run. Both runs of a comparison are covered."""
+    ``cropped_from`` the frames of the original run. Every run of a comparison is covered."""
     replacements: dict[str, Chunk] = {}
-    for prefix in ("", "/a", "/b"):
+    for prefix in ("", *(f"/{p}" for p in comparison_prefixes(path))):
         entity = f"{PROPERTIES}{prefix}/run"
         props = read_properties(path, entity)
         if not props:

@@ -29,6 +29,7 @@ from typing import IO, Any, Literal
 import polars as pl
 from rerun.experimental import ViewerClient
 
+from app.provenance import comparison_prefixes
 from app.rrd import first_line, read_entity, readable, rerun_binary
 from vslam_core.errors import VslamError
 
@@ -60,8 +61,9 @@ def recording_frames(rrd: Path) -> tuple[int, int]:
     try:
         with warnings.catch_warnings():  # "RRD file has no footer": we report the problem ourselves
             warnings.simplefilter("ignore")
-            # a single run, or a `vslam compare` file holding runs under /a and /b
-            tables = [read_entity(rrd, path) for path in ("/world/camera", "/a/world/camera", "/b/world/camera")]
+            # a single run, or a `vslam compare` file holding runs under /a, /b, …
+            prefixes = ["", *(f"/{p}" for p in comparison_prefixes(rrd))]
+            tables = [read_entity(rrd, f"{prefix}/world/camera") for prefix in prefixes]
     except VslamError as exc:
         raise ViewerError(first_line(exc)) from None
     tables = [t for t in tables if "frame" in t.columns and t.height]

@@ -3,6 +3,7 @@ the error paths, and a headless snapshot of the comparison in the real viewer.""
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import subprocess
@@ -92,6 +93,7 @@ def test_every_entity_of_each_run_is_under_its_prefix(runs: tuple[Path, Path], c
 
     expected = {f"/{prefix}{e}" for prefix, run in zip("ab", runs, strict=True) for e in entities(run)
                 if not e.startswith("/__properties")}
+    expected.add("/report")  # the comparison's own: its runs and their summary table
     assert {e for e in entities(compared.output) if not e.startswith("/__properties")} == expected
 
     for prefix, run in zip("ab", runs, strict=True):
@@ -180,7 +182,9 @@ def test_embedded_blueprint_has_both_runs_and_overlaid_plots(compared: Compariso
         assert plot["class"] == "TimeSeries"
         assert plot["contents"] == [f"/a/metrics/{group}/**", f"/b/metrics/{group}/**"]
     trajectories = views["trajectories: A red, B blue, truth green"]
-    assert trajectories["contents"] == ["/a/world/trajectory/**", "/b/world/trajectory/**"]
+    # every trajectory but the drift-coloured copies of the estimates (they would hide the runs' hues)
+    assert trajectories["contents"] == ["/a/world/trajectory/**", "/b/world/trajectory/**",
+                                        *(f"- /{p}/world/trajectory/{e}" for p in "ab" for e in ("drift", "gt_links"))]
     assert trajectories["overrides"] == {f"/{p}/world/trajectory/{t}" for p in "ab"
                                          for t in ("estimate", "ground_truth")}
     assert views["events"]["contents"] == ["/a/events", "/b/events"]
@@ -324,3 +328,168 @@ def test_both_world_views_follow_their_car(compared: ComparisonResult) -> None:
     assert {"/a/world/camera/car", "/b/world/camera/car"} <= tracked, tracked
     for prefix in "ab":  # something drawn to follow (the camera entity alone is a transform)
         assert "Boxes3D:half_sizes" in read_entity(compared.output, f"/{prefix}/world/camera/car", static=True).columns
+
+
+# ------------------------------------------------------------------------------------------ N runs
+
+
+def vslam(*args: str | Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "app.cli", *map(str, args)], capture_output=True, text=True,
+                          cwd=ROOT, timeout=600)
+
+
+def _one_line_exit(result: subprocess.CompletedProcess[str], *fragments: str) -> str:
+    assert result.returncode == 2, result.stderr
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: ") and "Traceback" not in result.stderr, result.stderr
+    assert all(f in lines[0] for f in fragments), lines[0]
+    return lines[0]
+
+
+#: Three small real runs of KITTI 00: every third frame (long enough for KITTI's 100 m segments: t_err),
+#: B keeping half the tracks, C a later, shorter window.
+KITTI_RUNS = {
+    "base": ["--frames", "0:240:3"],
+    "tracks400": ["--frames", "0:240:3", "--config", "{half}"],
+    "later": ["--frames", "30:240:3"],
+}
+
+
+@pytest.fixture(scope="module")
+def kitti_runs(kitti_root: Path, tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
+    folder = tmp_path_factory.mktemp("kitti_runs")
+    half = folder / "half.toml"
+    half.write_text("[detector]\ntarget_tracks = 400\nredetect_below = 300\n")
+    paths = [folder / f"{name}.rrd" for name in KITTI_RUNS]
+    processes = [subprocess.Popen([sys.executable, "-m", "app.cli", "run", str(kitti_root), "--sequence", "00",
+                                   *(a.format(half=half) for a in args), "--detail", "standard", "-o", str(path)],
+                                  cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                 for path, args in zip(paths, KITTI_RUNS.values(), strict=True)]
+    for process in processes:
+        _, stderr = process.communicate(timeout=600)
+        assert process.returncode == 0, stderr
+    return paths
+
+
+@pytest.fixture(scope="module")
+def three(kitti_runs: list[Path], tmp_path_factory: pytest.TempPathFactory
+          ) -> tuple[Path, subprocess.CompletedProcess[str]]:
+    output = tmp_path_factory.mktemp("three") / "abc.rrd"
+    return output, vslam("compare", *kitti_runs, "-o", output, "--labels", ",".join(KITTI_RUNS))
+
+
+@pytest.mark.kitti
+def test_three_real_runs_in_one_valid_recording(kitti_runs: list[Path],
+                                                three: tuple[Path, subprocess.CompletedProcess[str]]) -> None:
+    output, result = three
+    assert result.returncode == 0, result.stderr
+    done = subprocess.run([*rerun_executable(), "rrd", "verify", str(output)], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    for prefix, run in zip("abc", kitti_runs, strict=True):
+        for entity in ("/world/camera", "/world/trajectory/estimate", "/metrics/tracks/alive"):
+            assert read_entity(output, f"/{prefix}{entity}").equals(read_entity(run, entity)), (prefix, entity)
+    assert read_entity(output, "/c/world/camera")["frame"].to_list() == list(range(30, 240, 3))
+    labels = list(KITTI_RUNS)
+    for index, (prefix, label) in enumerate(zip("abc", labels, strict=True)):
+        style = read_entity(output, f"/{prefix}/metrics/tracks/alive", static=True)
+        assert style["SeriesLines:names"].to_list() == [[f"{label}: tracks alive"]]
+        assert style["SeriesLines:widths"].to_list() == [[[2.5, 1.75, 1.0][index]]]  # graded, first widest
+    compare = read_entity(output, "/__properties/compare", static=True).row(0, named=True)
+    assert [compare[f"label_{p}"] for p in "abc"] == [[label] for label in labels]
+    assert [compare[f"file_{p}"] for p in "abc"] == [[str(run.resolve())] for run in kitti_runs]
+    assert read_entity(output, "/__properties/b/config", static=True)["detector.target_tracks"].to_list() == [[400]]
+
+    summary = read_entity(output, "/report", static=True)["TextDocument:text"].to_list()[0][0]
+    assert all(f"| {label} | /{p} | {run.resolve()} |" in summary
+               for label, p, run in zip(labels, "abc", kitti_runs, strict=True)), summary
+
+    views = _views(output)
+    assert views["trajectories: base red, tracks400 blue, later orange, truth green"]["contents"][:3] == [
+        f"/{p}/world/trajectory/**" for p in "abc"]
+    assert views["events"]["contents"] == ["/a/events", "/b/events", "/c/events"]
+    assert views[plot_title("tracks")]["contents"] == [f"/{p}/metrics/tracks/**" for p in "abc"]
+    assert {f"{label}: frame" for label in labels} <= set(views)  # one tab per run
+
+    report = json.loads(vslam("inspect", output, "--json").stdout)  # inspect reads all three back
+    assert list(report["runs"]) == ["a", "b", "c"] and report["runs"]["c"]["frames"]["count"] == 70
+
+
+@pytest.mark.kitti
+def test_three_run_summary_rows_are_the_inspect_values(kitti_runs: list[Path],
+                                                       three: tuple[Path, subprocess.CompletedProcess[str]]) -> None:
+    _, result = three
+    lines = result.stdout.splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("run "))
+    assert lines[start].split()[:3] == ["run", "frames", "t_err"]
+    rows = [line.split() for line in lines[start + 1:start + 4]]
+    assert [row[0] for row in rows] == list(KITTI_RUNS) and not lines[start + 4].strip()
+    for row, run in zip(rows, kitti_runs, strict=True):
+        inspected = json.loads(vslam("inspect", run, "--json").stdout)
+        t_err = inspected["report_metrics"]["t_err"]
+        assert t_err is not None and row[1:3] == [str(inspected["frames"]["count"]), f"{t_err:.2f}"], row
+    # the metric table: every run's value and each further run against the first
+    header = next(line for line in lines if line.startswith("metric"))
+    assert header.split() == ["metric", "base", "tracks400", "later", "tracks400", "−", "base", "%", "later", "−",
+                              "base", "%"]
+    counts = next(line for line in lines if line.startswith("frames.count")).split()
+    assert counts[1:] == ["80", "80", "70", "+0", "+0.0%", "-10", "-12.5%"]
+    assert "tracks400 vs base:" in lines and "later vs base:" in lines
+    assert any("detector.target_tracks: 800 → 400" in line for line in lines)
+
+
+@pytest.mark.kitti
+def test_three_runs_as_json_and_bad_labels(kitti_runs: list[Path], tmp_path: Path) -> None:
+    output = tmp_path / "abc.rrd"
+    result = vslam("compare", *kitti_runs, "-o", output, "--json")
+    assert result.returncode == 0, result.stderr
+    data = json.loads(result.stdout)
+    assert [run["label"] for run in data["runs"]] == ["A", "B", "C"] and data["baseline"] == "A"
+    assert [run["prefix"] for run in data["runs"]] == ["a", "b", "c"]
+    assert [run["frames"] for run in data["runs"]] == [80, 80, 70]
+    assert set(data["differences"]) == {"B", "C"}
+    assert data["differences"]["C"]["frames.count"] == {"baseline": 80, "value": 70, "difference": -10,
+                                                        "percent": -12.5}
+    _one_line_exit(vslam("compare", *kitti_runs, "-o", tmp_path / "x.rrd", "--labels", "one,two"),
+                   "3 labels are needed", "got 2")
+    _one_line_exit(vslam("compare", kitti_runs[0], "-o", tmp_path / "x.rrd"), "two or more recordings")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["abc.rrd"]
+
+
+@pytest.mark.kitti
+def test_snapshot_of_three_runs(three: tuple[Path, subprocess.CompletedProcess[str]], tmp_path: Path) -> None:
+    if not viewer.vulkan_available():
+        if "CI" in os.environ:
+            pytest.fail(f"{NO_VULKAN} (CI is set: the viewer tests must not be skipped)")
+        pytest.skip(NO_VULKAN)
+    output, _ = three
+    result = vslam("snapshot", output, "--frame", "120", "--out", tmp_path)
+    assert result.returncode == 0, result.stderr
+    names = {p.stem for p in tmp_path.glob("*.png")}
+    trajectories = "trajectories_base_red_tracks400_blue_later_orange_truth_green"
+    assert {"all", "base_frame", "later_world", trajectories} <= names  # one tab per run: every run's views
+    for name in ("all", trajectories):
+        picture = cv2.imread(str(tmp_path / f"{name}.png"))
+        assert picture is not None and picture.std() > 4, f"{name}.png looks blank"
+
+
+def test_inputs_without_timing_or_tracks_give_blank_cells(runs: tuple[Path, Path], tmp_path: Path) -> None:
+    """A recording of an external trajectory (camera poses and the estimate only) compares without error."""
+    bare = tmp_path / "trajectory.rrd"
+    with rr.RecordingStream("vslam", recording_id="bare", send_properties=False) as rec:
+        rec.save(bare)
+        rec.log("/world", rr.ViewCoordinates.RDF, static=True)
+        for frame in FRAMES:
+            rec.set_time("frame", sequence=frame)
+            rec.log("/world/camera", rr.Transform3D(translation=[0.0, 0.0, float(frame)]))
+        rec.log("/world/trajectory/estimate", rr.LineStrips3D([[[0.0, 0.0, float(f)] for f in FRAMES]]), static=True)
+    result = compare_recordings(runs[0], bare, runs[1], tmp_path / "out.rrd")
+    assert result.labels == ("A", "B", "C")
+    assert read_entity(result.output, "/b/world/camera")["frame"].to_list() == FRAMES
+    lines = format_differences(result).splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("run "))
+    assert lines[start + 2].split()[:8] == ["B", "20", "–", "–", "–", "–", "–", "–"]
+    tracks = next(line for line in lines if line.startswith("series.tracks_alive.mean")).split()
+    assert tracks[2] == "–" and tracks[4] == "–"  # B's value and B − A blank, C's present
+    _one_line_error(lambda: compare_recordings(runs[0], bare, runs[1], tmp_path / "x.rrd", labels=("A", "B")),
+                    "3 labels are needed")
