@@ -159,8 +159,8 @@ def write_report(report_dir: Path, evaluation: Evaluation, config: EngineConfig)
         "apart), translation RMSE and mean rotation. Paper RMS: the seed paper's x–z position RMS, "
         + ("after that alignment." if aligned else "no alignment."),
     ]
-    if evaluation.by_length:
-        lengths = sorted({length for v in evaluation.by_length.values() for length in v})
+    lengths = sorted({length for v in evaluation.by_length.values() for length in v})
+    if lengths:  # none on paths under 100 m
         lines += [
             "",
             "## KITTI error per segment length",
