@@ -119,6 +119,9 @@ def test_snapshot_crop_and_compare_work_on_it(external: dict[str, Path]) -> None
     assert result.returncode == 0, result.stderr
     frame = cv2.imread(str(shots / "frame.png"), cv2.IMREAD_GRAYSCALE)
     assert frame is not None and frame.std() > 20  # a picture, not a blank view
+    views = {p.stem for p in shots.glob("*.png")}
+    assert {"frame", "world", "position_error_m", "report"} <= views
+    assert not views & {"tracks", "inliers", "health", "timing_ms"}  # no engine, no empty engine plots
     cropped = folder / "crop.rrd"
     result = vslam("crop", rrd, "--frames", "40:80", "-o", cropped)
     assert result.returncode == 0, result.stderr
