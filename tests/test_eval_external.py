@@ -12,8 +12,11 @@ import cv2
 import numpy as np
 import pytest
 
+from app.matching import MatchMode, match_images
 from app.plots import ESTIMATES_BGR, GROUND_TRUTH_BGR, top_view
 from app.rrd import read_entity
+from app.trajectory_images import stamps_from_names
+from vslam_core.errors import TrajectoryFormatError
 from vslam_core.sources.kitti import read_times
 from vslam_core.trajectory_io import read_kitti_poses, write_kitti_poses, write_tum_poses
 
@@ -256,3 +259,21 @@ def test_one_plot_of_several_estimates_has_a_colour_each() -> None:
     picture = top_view(line(0.0), [("a", line(0.5)), ("b", line(-0.5)), ("c", line(1.0))], "three")
     for colour in (*ESTIMATES_BGR[:3], GROUND_TRUTH_BGR):
         assert (np.abs(picture.astype(int) - colour).sum(axis=2) < 10).sum() > 100, colour
+
+
+def test_nanosecond_file_names_are_stamps_and_frame_numbers_are_not() -> None:
+    stamps = stamps_from_names([Path("1403636579763555584.png"), Path("1403636579813555456.png")])
+    assert stamps is not None and stamps == pytest.approx([1403636579.7635556, 1403636579.8135555], abs=1e-6)
+    assert stamps_from_names([Path("000000.png"), Path("000001.png")]) is None
+
+
+def test_images_pair_by_time_or_row_and_refuse_rows_without_one() -> None:
+    names = (Path("est.tum"), Path("images"))
+    picks, how = match_images((0, 1, 2), 3, np.array([0.0, 0.2, 0.4]), np.arange(6) * 0.1, 6, names)
+    assert picks.tolist() == [0, 2, 4] and "by timestamp" in how
+    picks, how = match_images((0, 1, 2), 3, np.array([0.0, 0.2, 0.4]), np.arange(6) * 0.1, 6, names, MatchMode.rows)
+    assert picks.tolist() == [0, 1, 2] and "row by row" in how
+    with pytest.raises(TrajectoryFormatError, match="1 of 3 rows of est.tum have no image within 10 ms"):
+        match_images((0, 1, 2), 3, np.array([0.0, 0.2, 0.9]), np.arange(6) * 0.1, 6, names)
+    with pytest.raises(TrajectoryFormatError, match="2 images for the 3 rows"):
+        match_images((0, 1), 3, None, None, 2, names)
