@@ -146,7 +146,8 @@ def write_report(report_dir: Path, evaluation: Evaluation, config: EngineConfig)
     lines = [
         "# vslam evaluation",
         "",
-        f"vslam {vslam_core.__version__}, {datetime.now():%Y-%m-%d %H:%M}, scale source `{config.scale}`, "
+        f"vslam {vslam_core.__version__}, {datetime.now():%Y-%m-%d %H:%M}, scale source "
+        f"`{'external' if evaluation.matchings else config.scale}`, "
         f"backend `{evaluation.mean.get('backend', config.backend)}`.",
         "",
         *_provenance_lines(evaluation, aligned),
