@@ -48,6 +48,9 @@ def open_images(path: Path, intrinsics: str | None = None, calib: Path | None = 
     """The images of `path` (see the module docstring); `SourceError` in one line for anything else."""
     if not path.is_dir():
         raise SourceError(f"--images {path}: not a folder (give an image folder or a KITTI sequence folder)")
+    if (path / "sequences").is_dir():
+        raise SourceError(f"--images {path}: a KITTI dataset root; give a sequence folder, e.g. "
+                          f"{path / 'sequences' / '00'}")
     if intrinsics is None and calib is None and _plain_folder_without_camera(path):
         source: ImageFilesSource = ImageFolderSource(path, intrinsics=_NO_CAMERA)
         camera = None
