@@ -3,10 +3,7 @@ the app by `app.cli`)."""
 
 from __future__ import annotations
 
-import errno
 import json
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -35,9 +32,10 @@ from app.cli_common import (
     warn,
     with_camera_height,
 )
-from app.evaluation import REPORT_FILES, Evaluation, check_gates, evaluate_sources, evaluate_trajectory_file
+from app.cli_external import evaluate_external, report_writes
+from app.evaluation import REPORT_FILES, Evaluation, check_gates, evaluate_sources
 from app.matching import DEFAULT_TOLERANCE_MS, MatchMode
-from app.outputs import lock_folder, write_failure
+from app.outputs import lock_folder
 from app.recording import Detail
 from app.report import markdown_table
 from vslam_core.config import EngineConfig, load_config
@@ -61,7 +59,11 @@ def eval_command(
     report: Annotated[Path | None, typer.Option(help="folder for metrics.csv/.parquet, report.md, trajectories, "
                                                 "recordings and plots")] = None,
     detail: Annotated[Detail, typer.Option(help="detail of the recordings written to --report")] = Detail.FULL,
-    trajectory: Annotated[Path | None, typer.Option(help="evaluate this trajectory file instead of running")] = None,
+    trajectory: Annotated[list[Path] | None, typer.Option(help="evaluate this trajectory file instead of running "
+                                                          "(repeat for several, all against --gt)")] = None,
+    images: Annotated[Path | None, typer.Option(help="the camera frames of --trajectory files, for their "
+                                                "recordings: an image folder or a KITTI sequence folder (row i is "
+                                                "image i, or matched by timestamp like the ground truth)")] = None,
     gt: Annotated[Path | None, typer.Option(help="ground truth for --trajectory, or of a SOURCE: " + GT_HELP)] = None,
     intrinsics: Annotated[str | None, typer.Option(help="fx,fy,cx,cy of an image folder, video or log SOURCE")]
     = None,
@@ -92,7 +94,9 @@ def eval_command(
     """Score the engine (or any trajectory file) against ground truth; gates make it a CI check."""
     if report is not None:
         _check_report_dir(report, force)
-    if trajectory is not None:
+    if images is not None and not trajectory:
+        fail("--images shows the camera frames of --trajectory files: a SOURCE has its own")
+    if trajectory:
         if source is not None or sequences is not None:
             fail("give either SOURCE or --trajectory, not both")
         if gt is None:
@@ -103,13 +107,13 @@ def eval_command(
                           "--camera-height": camera_height}
         for option in (name for name, value in engine_options.items() if value is not None):
             fail(f"{option} applies to runs of the engine: it does not apply to --trajectory files")
-        if intrinsics is not None or calib is not None or topic is not None or gt_topic is not None:
+        if topic is not None or gt_topic is not None or (images is None and (intrinsics or calib)):
             fail("--intrinsics, --calib, --topic and --gt-topic describe a SOURCE: they do not apply to --trajectory "
-                 "files")
+                 "files (--intrinsics and --calib do to their --images)")
         fmt = trajectory_format.value if trajectory_format is not None else None
-        with _report_writes(report):
-            evaluation = evaluate_trajectory_file(trajectory, gt, fmt, report,  # type: ignore[arg-type]
-                                                  gt_times, match, time_tolerance)
+        assert gt is not None
+        evaluation = evaluate_external(trajectory, gt, fmt, report, detail,  # type: ignore[arg-type]
+                                       images, intrinsics, calib, gt_times, match, time_tolerance)
         scale_source = backend_name = "external"
     else:
         if gt_times is not None or match is not MatchMode.auto:
@@ -139,26 +143,13 @@ def eval_command(
             refuse(backend_problem(src, config))
         for warning in dict.fromkeys(w for src in sources for w in input_warnings(src, config)):
             warn(warning)
-        with _report_writes(report):
+        with report_writes(report):
             evaluation = evaluate_sources(sources, config, report, err, detail if report is not None else Detail.OFF,
                                           {"source_path": source or "synthetic", **({"inject": inject} if inject
                                                                                     else {})})
         scale_source, backend_name = config.scale, config.backend
     _print_evaluation(evaluation, scale_source, backend_name, report, as_json,
                       check_gates(evaluation.rows, max_t_err, max_r_err, max_ate))
-
-
-@contextmanager
-def _report_writes(report: Path | None) -> Iterator[None]:
-    """A report file that cannot be written (full disk) ends the command in one line, not a traceback."""
-    try:
-        yield
-    except OSError as exc:
-        if report is None:
-            raise
-        path = Path(exc.filename) if exc.filename else report  # a write() error names no file
-        # EIO (cv2 gives no reason): the file system tells whether it is full
-        fail(write_failure(path, None if exc.errno in (None, errno.EIO) else exc))
 
 
 def _check_report_dir(report: Path, force: bool) -> None:
@@ -185,6 +176,9 @@ def _print_evaluation(evaluation: Evaluation, scale: str, backend: str, report: 
                       "metric scale)", highlight=False)
         if evaluation.matching is not None:
             out.print(evaluation.matching.describe(), highlight=False)
+        elif len(evaluation.matchings) > 1:
+            for name, matching in evaluation.matchings.items():
+                out.print(f"{name}: {matching.describe()}", highlight=False)
         if report is not None:
             out.print(f"report      {report / 'report.md'}", highlight=False)
     if evaluation.interrupted is not None:

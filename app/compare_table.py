@@ -141,7 +141,8 @@ def metric_differences(report_a: dict[str, Any], report_b: dict[str, Any]) -> di
 
 
 def _number(value: Any) -> float | None:
-    return None if value is None else float(value)
+    """A metric as a float; None where a run has none (absent, or NaN: e.g. no direction error without keyframes)."""
+    return None if value is None or not math.isfinite(float(value)) else float(value)
 
 
 def format_differences(result: Compared) -> str:

@@ -23,7 +23,8 @@ from app.recording import Detail, version_properties
 from app.report import COLUMNS, json_ready, markdown_table, mean_row, metrics_row, scored_estimate
 from app.runner import Interrupted, record_run
 from vslam_core.config import EngineConfig
-from vslam_core.errors import SourceError
+from vslam_core.errors import SourceError, TrajectoryFormatError
+from vslam_core.geometry import invert_pose
 from vslam_core.metrics import kitti_errors_by_length
 from vslam_core.sources.base import FrameSource, describe_indices, rebase_poses
 from vslam_core.trajectory_io import (
@@ -35,6 +36,8 @@ from vslam_core.trajectory_io import (
 )
 
 REPORT_FILES = ("metrics.csv", "metrics.parquet", "report.md")
+#: The top view of several --trajectory files.
+MULTI_PLOT = "trajectories_top.png"
 
 
 @dataclass
@@ -43,12 +46,15 @@ class Evaluation:
     mean: dict[str, Any]
     by_length: dict[str, dict[float, tuple[float, float, int]]] = field(default_factory=dict)
     interrupted: Interrupted | None = None
-    matching: Matching | None = None  # --trajectory files: how their rows were paired with the ground truth
+    matching: Matching | None = None  # one --trajectory file: how its rows were paired with the ground truth
+    matchings: dict[str, Matching] = field(default_factory=dict)  # every --trajectory file's, by name
     inject: str | None = None  # faults injected into every sequence (--inject)
     notes: list[str] = field(default_factory=list)  # which sequence was interrupted, after how many frames
 
     def as_json(self) -> dict[str, Any]:
         extra = {"matching": self.matching.as_json()} if self.matching is not None else {}
+        if len(self.matchings) > 1:
+            extra = {"matchings": {name: m.as_json() for name, m in self.matchings.items()}}
         return json_ready({"sequences": self.rows, "mean": self.mean, **extra})
 
 
@@ -140,7 +146,8 @@ def write_report(report_dir: Path, evaluation: Evaluation, config: EngineConfig)
     lines = [
         "# vslam evaluation",
         "",
-        f"vslam {vslam_core.__version__}, {datetime.now():%Y-%m-%d %H:%M}, scale source `{config.scale}`, "
+        f"vslam {vslam_core.__version__}, {datetime.now():%Y-%m-%d %H:%M}, scale source "
+        f"`{'external' if evaluation.matchings else config.scale}`, "
         f"backend `{evaluation.mean.get('backend', config.backend)}`.",
         "",
         *_provenance_lines(evaluation, aligned),
@@ -153,8 +160,8 @@ def write_report(report_dir: Path, evaluation: Evaluation, config: EngineConfig)
         "apart), translation RMSE and mean rotation. Paper RMS: the seed paper's x–z position RMS, "
         + ("after that alignment." if aligned else "no alignment."),
     ]
-    if evaluation.by_length:
-        lengths = sorted({length for v in evaluation.by_length.values() for length in v})
+    lengths = sorted({length for v in evaluation.by_length.values() for length in v})
+    if lengths:  # none on paths under 100 m
         lines += [
             "",
             "## KITTI error per segment length",
@@ -174,7 +181,7 @@ def write_report(report_dir: Path, evaluation: Evaluation, config: EngineConfig)
         f"![{r['sequence']}]({r['sequence']}_top.png)"
         for r in evaluation.rows
         if (report_dir / f"{r['sequence']}_top.png").exists()
-    ]
+    ] + ([f"![trajectories]({MULTI_PLOT})"] if len(evaluation.matchings) > 1 else [])
     if plots:
         lines += ["", "## Trajectories (top view)", "", *plots]
     (report_dir / "report.md").write_text("\n".join(lines) + "\n")
@@ -188,7 +195,10 @@ def _provenance_lines(evaluation: Evaluation, aligned: bool) -> list[str]:
                      "onto the ground truth before scoring and plotting.")
     if evaluation.matching is not None:
         lines.append(f"Rows {evaluation.matching.describe()}.")
-    if evaluation.matching is None:
+    elif evaluation.matchings:
+        lines.append("Rows " + "; ".join(f"of {name} {m.describe()}" for name, m in evaluation.matchings.items())
+                     + ".")
+    if not evaluation.matchings:
         lines.append(f"Faults injected into every sequence: `{evaluation.inject}` (`--inject`)." if evaluation.inject
                      else "No faults injected.")
     if evaluation.notes:
@@ -204,33 +214,81 @@ def load_trajectory(path: Path, fmt: TrajectoryFormat | None) -> tuple[np.ndarra
     return None, read_kitti_poses(path)
 
 
-def evaluate_trajectory_file(
-    estimate: Path,
+@dataclass(frozen=True)
+class ScoredTrajectory:
+    """One trajectory file matched to the ground truth and scored. estimate, ground_truth: (N, 4, 4) T_w_c,
+    re-based to the first matched row; anchor: (4, 4) that row's ground-truth pose as the file has it (places
+    estimates of different windows in one plot); times: (R,) seconds of every row of the file, or None."""
+
+    path: Path
+    estimate: np.ndarray
+    ground_truth: np.ndarray
+    anchor: np.ndarray
+    times: np.ndarray | None
+    total_rows: int
+    matching: Matching
+    row: dict[str, Any]
+
+    @property
+    def name(self) -> str:
+        return self.path.stem
+
+
+def evaluate_trajectory_files(
+    estimates: list[Path],
     ground_truth: Path,
     fmt: TrajectoryFormat | None,
-    report_dir: Path | None,
     gt_times: Path | None = None,
     match: MatchMode = MatchMode.auto,
     tolerance_ms: float = DEFAULT_TOLERANCE_MS,
-) -> Evaluation:
-    """Score any system's trajectory file against ground truth, both re-based to their first pose; rows are
+) -> tuple[Evaluation, list[ScoredTrajectory]]:
+    """Score any systems' trajectory files against one ground truth, each re-based to its first pose; rows are
     matched by timestamp when both sides have times (`gt_times`: a KITTI ``times.txt`` for a KITTI ground
-    truth), else row by row (see `app.matching`)."""
-    est_times, est = load_trajectory(estimate, fmt)
-    own_gt_times, gt = load_trajectory(ground_truth, fmt)
-    times = gt_times_for(gt_times, own_gt_times, len(gt), ground_truth)
-    est, gt, matching = match_poses(est_times, est, times, gt, (estimate, ground_truth), match, tolerance_ms)
-    est, gt = rebase_poses(est), rebase_poses(gt)
-    row = metrics_row(estimate.stem, gt, est, "external", "external")
-    row["matching"] = matching.describe()
-    evaluation = Evaluation([row], mean_row([row]), {estimate.stem: kitti_errors_by_length(gt, est)},
-                            matching=matching)
-    if report_dir is not None:
-        write_top_view(
-            report_dir / f"{estimate.stem}_top.png", gt, est, f"{estimate.name}  ({len(est)} poses)", _subtitle(row)
-        )
-        write_report(report_dir, evaluation, EngineConfig(scale="gt"))
-    return evaluation
+    truth), else row by row (see `app.matching`). One metrics row per file, named after it (names must
+    differ: `TrajectoryFormatError`). Nothing is written: see `write_trajectory_report`."""
+    names: dict[str, Path] = {}
+    for path in estimates:
+        if path.stem in names:
+            raise TrajectoryFormatError(f"--trajectory {names[path.stem]} and {path}: both are named "
+                                        f"{path.stem!r} (rows and recordings are named after the file): rename one")
+        names[path.stem] = path
+    own_gt_times, gt_all = load_trajectory(ground_truth, fmt)
+    times = gt_times_for(gt_times, own_gt_times, len(gt_all), ground_truth)
+    scored = []
+    for path in estimates:
+        est_times, est = load_trajectory(path, fmt)
+        matched, gt, matching = match_poses(est_times, est, times, gt_all, (path, ground_truth), match, tolerance_ms)
+        row = metrics_row(path.stem, rebase_poses(gt), rebase_poses(matched), "external", "external")
+        row["matching"] = matching.describe()
+        scored.append(ScoredTrajectory(path, rebase_poses(matched), rebase_poses(gt), gt[0].copy(), est_times,
+                                       len(est), matching, row))
+    rows = [s.row for s in scored]
+    evaluation = Evaluation(rows, mean_row(rows), {s.name: kitti_errors_by_length(s.ground_truth, s.estimate)
+                                                   for s in scored},
+                            matching=scored[0].matching if len(scored) == 1 else None,
+                            matchings={s.name: s.matching for s in scored})
+    return evaluation, scored
+
+
+def write_trajectory_report(report_dir: Path, evaluation: Evaluation, scored: list[ScoredTrajectory]) -> None:
+    """The tables and the top view of scored trajectory files: ``<name>_top.png`` for one file, one
+    ``trajectories_top.png`` with every estimate for several (each placed at its first row's ground truth)."""
+    if len(scored) == 1:
+        only = scored[0]
+        write_top_view(report_dir / f"{only.name}_top.png", only.ground_truth, only.estimate,
+                       f"{only.path.name}  ({len(only.estimate)} poses)", _subtitle(only.row))
+    else:
+        origin = invert_pose(scored[0].anchor)
+        placed = [(origin @ s.anchor) @ poses for s in scored for poses in (s.ground_truth, s.estimate)]
+        write_top_view(report_dir / MULTI_PLOT, placed[0::2], [(s.name, e) for s, e in zip(scored, placed[1::2],
+                                                                                          strict=True)],
+                       f"{len(scored)} trajectories vs ground truth", "  ".join(
+                           f"{s.name}: t_err {_number(s.row['t_err'], '{:.2f}')} %" for s in scored))
+    write_report(report_dir, evaluation, EngineConfig(scale="gt"))
+
+
+def _number(value: float, fmt: str) -> str:
+    return "n/a" if math.isnan(value) else fmt.format(value)
 
 
 def check_gates(

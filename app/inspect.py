@@ -263,27 +263,28 @@ def _format_run(report: dict[str, Any]) -> list[str]:
         changed = non_default(report["config"])
         lines.append("config      " + ("; ".join(config_lines(changed, arrow=False)) + " (differ from the defaults)"
                                        if changed else "the defaults"))
-    lines += ["", "stage          mean ms   median    p95     max"]
-    for stage, stats in report["stages_ms"].items():
-        if stats is not None:
-            lines.append(
-                f"{stage:<12} {stats['mean']:9.2f} {stats['median']:8.2f} {stats['p95']:7.2f} {stats['max']:7.2f}"
-            )
-    lines += ["", "series               mean      min      max"]
-    for name, stats in report["series"].items():
-        if stats is not None:
-            lines.append(f"{name:<16} {stats['mean']:9.2f} {stats['min']:8.2f} {stats['max']:8.2f}")
+    stages = {stage: stats for stage, stats in report["stages_ms"].items() if stats is not None}
+    if stages:  # another system's trajectory (`vslam eval --trajectory`) has no stages or engine series
+        lines += ["", "stage          mean ms   median    p95     max"]
+    for stage, stats in stages.items():
+        lines.append(f"{stage:<12} {stats['mean']:9.2f} {stats['median']:8.2f} {stats['p95']:7.2f} {stats['max']:7.2f}")
+    series = {name: stats for name, stats in report["series"].items() if stats is not None}
+    if series:
+        lines += ["", "series               mean      min      max"]
+    for name, stats in series.items():
+        lines.append(f"{name:<16} {stats['mean']:9.2f} {stats['min']:8.2f} {stats['max']:8.2f}")
     accuracy = report["accuracy"]
     lines.append("")
     if accuracy is None:
         lines.append("accuracy    no ground truth in this recording")
     else:
+        direction = accuracy["mean_translation_direction_error_deg"]  # NaN without keyframes (external)
         lines.append(
             f"accuracy    position error final {accuracy['final_position_error_m']:.2f} m, mean "
             f"{accuracy['mean_position_error_m']:.2f} m, max {accuracy['max_position_error_m']:.2f} m; "
             f"paper RMS (x–z) {accuracy['paper_rms_m']:.2f} m; heading error final "
-            f"{accuracy['final_heading_error_deg']:.2f}°; mean direction error "
-            f"{accuracy['mean_translation_direction_error_deg']:.2f}°"
+            f"{accuracy['final_heading_error_deg']:.2f}°"
+            + (f"; mean direction error {direction:.2f}°" if math.isfinite(direction) else "")
         )
         if report.get("accuracy_alignment") == "sim3":
             lines.append("            (position errors and paper RMS after Sim(3) alignment: --scale none has unit "

@@ -9,7 +9,7 @@ gap with the wrong frame.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
 from typing import Any
@@ -40,6 +40,8 @@ class Matching:
     estimate_rows: int
     gt_rows: int
     tolerance_ms: float | None = None
+    #: the estimate's row numbers that were kept, in order (the recording's `frame` timeline)
+    rows: tuple[int, ...] = field(default=(), compare=False, repr=False)
 
     def describe(self) -> str:
         """``matched by timestamp: 290 of 300 rows, tolerance 10 ms`` / ``matched row by row: 300 rows``."""
@@ -100,7 +102,7 @@ def match_poses(
             f"{names[0]} has {len(est)} poses and {names[1]} {len(gt)}, and no timestamps on both sides to match "
             f"them by: {how}, or --match rows if row i of both files is the same frame")
     n = min(len(est), len(gt))
-    return est[:n], gt[:n], Matching("rows", n, len(est), len(gt))
+    return est[:n], gt[:n], Matching("rows", n, len(est), len(gt), rows=tuple(range(n)))
 
 
 def _by_timestamp(
@@ -116,4 +118,45 @@ def _by_timestamp(
         raise TrajectoryFormatError(
             f"{names[0]}: only {matched} of {len(est)} timestamps match {names[1]} within {tolerance_ms:g} ms "
             f"(need {MIN_MATCHES}; is it the right sequence?)")
-    return est[close], gt[pick[close]], Matching("timestamp", matched, len(est), len(gt), tolerance_ms)
+    return est[close], gt[pick[close]], Matching("timestamp", matched, len(est), len(gt), tolerance_ms,
+                                                 tuple(int(i) for i in np.flatnonzero(close)))
+
+
+def match_images(
+    rows: tuple[int, ...],
+    total_rows: int,
+    est_times: np.ndarray | None,
+    image_times: np.ndarray | None,
+    image_count: int,
+    names: tuple[Path, Path],
+    mode: MatchMode = MatchMode.auto,
+    tolerance_ms: float = DEFAULT_TOLERANCE_MS,
+) -> tuple[np.ndarray, str]:
+    """The image of each kept estimate row (`rows`: row numbers of the file `names[0]`, of `total_rows` rows,
+    whose (total_rows,) `est_times` are None without times) among the `image_count` images of `names[1]`, and
+    how they were paired. The same rule as the ground truth: by timestamp when both sides have times (every
+    kept row needs an image within `tolerance_ms`), else row i is image i (the folder needs an image for every
+    row of the file). Raises `TrajectoryFormatError` in one line."""
+    estimate, images = names
+    by_time = est_times is not None and image_times is not None and mode is not MatchMode.rows
+    if mode is MatchMode.timestamps and not by_time:
+        missing = estimate if est_times is None else images
+        raise TrajectoryFormatError(f"--match timestamps: {missing} has no timestamps to match the images by")
+    kept = np.asarray(rows, np.int64)
+    if by_time:
+        assert est_times is not None and image_times is not None
+        pick, close = nearest_in_time(est_times[kept], image_times, tolerance_ms / 1000.0)
+        if not close.all():
+            first = int(kept[np.argmin(close)])
+            raise TrajectoryFormatError(
+                f"--images {images}: {int((~close).sum())} of {len(kept)} rows of {estimate} have no image within "
+                f"{tolerance_ms:g} ms (first: row {first} at {est_times[first]:.6f} s; the images span "
+                f"{np.min(image_times):.6f}–{np.max(image_times):.6f} s)")
+        return pick, f"images matched by timestamp: {len(kept)} rows, tolerance {tolerance_ms:g} ms"
+    total = total_rows
+    if image_count < total:
+        raise TrajectoryFormatError(
+            f"--images {images}: {image_count} images for the {total} rows of {estimate} (row i is image i"
+            + ("" if est_times is not None else "; a TUM trajectory is matched to timed images by timestamp")
+            + ")")
+    return kept, f"images row by row: row i is image i ({len(kept)} rows)"

@@ -144,8 +144,11 @@ def run_differences(report_a: dict[str, Any], report_b: dict[str, Any]) -> list[
     """What differs in how two runs were made (two `inspect_recording` reports): run properties (source,
     frames, scale, backend, detail, inject, …) and every engine config key, as ``key: a → b`` lines."""
     run = differences(report_a["properties"], report_b["properties"], list(RUN_KEYS))
-    config = differences(report_a["config"], report_b["config"])
     lines = [f"run         {line}" for line in config_lines(run)]
+    without = [side for side, report in zip("AB", (report_a, report_b), strict=True) if not report["config"]]
+    if without:  # another system's trajectory (`vslam eval --trajectory`): no engine config to compare
+        return lines + [f"config      {' and '.join(without)} not run by the engine (no config to compare)"]
+    config = differences(report_a["config"], report_b["config"])
     lines += [f"config      {line}" for line in config_lines(config)]
     if not config:
         lines.append("config      the same in both runs")

@@ -64,7 +64,7 @@ def mean_row(rows: list[dict[str, Any]]) -> dict[str, Any]:
         **({"backend": rows[0]["backend"]} if rows and "backend" in rows[0] else {}),
         "alignment": rows[0]["alignment"] if rows else "",
     }
-    for key in METRICS + ("fps",):
+    for key in METRICS + (("fps",) if any("fps" in r for r in rows) else ()):  # trajectory files have no fps
         values = [r[key] for r in rows if key in r and r[key] is not None and not math.isnan(r[key])]
         mean[key] = float(np.mean(values)) if values else math.nan
     mean["frames"] = int(sum(r["frames"] for r in rows))

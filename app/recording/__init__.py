@@ -36,7 +36,8 @@ each (~25 a frame). Styles that never change are logged once, static.
 
 Modules: `recorder` (the `Recorder` and the front end's entities), `map` (the map backend's entities),
 `columns` (the column buffer), `metrics` (the series), `drift` (each frame's own error against the ground
-truth), `blueprint` (the default layout), `styles` (detail levels, colours, legends).
+truth), `blueprint` (the default layout), `styles` (detail levels, colours, legends), `external` (another
+system's trajectory file as a recording of the same entities, for `vslam eval --trajectory --report`).
 """
 
 from app.recording.blueprint import blueprint

@@ -22,19 +22,22 @@ DRIFT_PLOTS = (("drift per frame (°, m)", ("rotation_deg", "translation_m")),
 
 
 def blueprint(map_backend: bool = False, *, image: bool = True, road_scale: bool = False,
-              ground_truth: bool = True, undistorted: bool = False) -> rrb.Blueprint:
+              ground_truth: bool = True, undistorted: bool = False, engine: bool = True,
+              frustum: bool = True) -> rrb.Blueprint:
     """Frame with overlays and 3-D world following the car | metric plots; below, events | report; on `frame`.
 
     Views that would stay empty are left out: the frame without `image` (detail `summary`), "scale from the
     road" without `road_scale` (`--scale height`), the error plots without `ground_truth`. `map_backend`: also
     the map (retired keyframes and landmarks keep their whole past) and the plots of the tracking mode and
-    bundle adjustment. `undistorted` (a distorted lens): the undistorted frame beside the raw one."""
-    left: list[rrb.Spatial2DView | rrb.Spatial3DView | rrb.Horizontal] = [world_view(map_backend)]
+    bundle adjustment. `undistorted` (a distorted lens): the undistorted frame beside the raw one. Without
+    `engine` (another system's trajectory, `app.recording.external`) only the error plots: there are no tracks,
+    inliers, health or timings; without `frustum` (no camera known) the frame stays out of the 3-D view."""
+    left: list[rrb.Spatial2DView | rrb.Spatial3DView | rrb.Horizontal] = [world_view(map_backend, frustum)]
     if image:
         frame = rrb.Spatial2DView(name="frame", origin="/world/camera/image")
         left.insert(0, rrb.Horizontal(frame, rrb.Spatial2DView(name="undistorted", origin=UNDISTORTED))
                     if undistorted else frame)
-    plots = _plots(road_scale, ground_truth) + (_map_plots() if map_backend else [])
+    plots = _plots(road_scale, ground_truth, engine) + (_map_plots() if map_backend else [])
     return rrb.Blueprint(
         rrb.Vertical(
             rrb.Horizontal(rrb.Vertical(*left, row_shares=[1, 2][-len(left):]), rrb.Grid(*plots, grid_columns=2),
@@ -49,9 +52,9 @@ def blueprint(map_backend: bool = False, *, image: bool = True, road_scale: bool
     )
 
 
-def world_view(map_backend: bool) -> rrb.Spatial3DView:
+def world_view(map_backend: bool, frustum: bool = True) -> rrb.Spatial3DView:
     """The 3-D world: trajectories with their whole past, the rest at the current frame; the eye follows the
-    car (`CAR_ENTITY`) from `EYE_OFFSET`, at any frame."""
+    car (`CAR_ENTITY`) from `EYE_OFFSET`, at any frame. Without `frustum` the frame (no pinhole) is left out."""
     whole_past = rr.VisibleTimeRange(
         "frame", start=rr.TimeRangeBoundary.infinite(), end=rr.TimeRangeBoundary.cursor_relative()
     )
@@ -60,7 +63,8 @@ def world_view(map_backend: bool) -> rrb.Spatial3DView:
     return rrb.Spatial3DView(
         name="world",
         origin="/world",
-        contents=["+ /world/**", f"- {UNDISTORTED}/**"],  # the raw frame (with its overlays) is on the frustum
+        # the raw frame (with its overlays) is on the frustum
+        contents=["+ /world/**", f"- {UNDISTORTED}/**", *([] if frustum else ["- /world/camera/image/**"])],
         eye_controls=rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, eye_up=[0.0, -1.0, 0.0],
                                        position=list(EYE_OFFSET), look_target=[0.0, 0.0, 0.0],
                                        tracking_entity=CAR_ENTITY),
@@ -80,17 +84,19 @@ def events_view() -> rrb.TextLogView:
     )
 
 
-def _plots(road_scale: bool, ground_truth: bool) -> list[rrb.TimeSeriesView]:
+def _plots(road_scale: bool, ground_truth: bool, engine: bool = True) -> list[rrb.TimeSeriesView]:
     plots = [("tracks", "tracks"), ("inliers", "ransac"), ("inlier ratio", "ratio"), ("health", "health"),
-             ("motion", "motion")]
+             ("motion", "motion")] if engine else []
     if road_scale:
         plots.append(("scale from the road", "road"))
     if ground_truth:
         plots += [("position error (m)", "error"), ("angle errors (°)", "angle_error")]
-    plots.append(("timing (ms)", "timing_ms"))
+    if engine:
+        plots.append(("timing (ms)", "timing_ms"))
     views = [rrb.TimeSeriesView(name=name, origin=f"/metrics/{group}") for name, group in plots]
     if ground_truth:  # each frame's own error (drift attribution): degrees and metres | % and ratio
-        views[-1:-1] = [
+        at = len(views) - 1 if engine else len(views)  # before the timing plot
+        views[at:at] = [
             rrb.TimeSeriesView(name=name, origin="/metrics/drift", contents=[f"/metrics/drift/{s}" for s in series])
             for name, series in DRIFT_PLOTS]
     return views

@@ -168,6 +168,11 @@ class ImageFilesSource(SelectedSource):
         """Every image file, in frame order (source index i = files[i])."""
         return list(self._files)
 
+    @property
+    def file_times(self) -> np.ndarray | None:
+        """(len(files),) timestamps in seconds of every frame, in frame order; None without a clock."""
+        return None if self._times is None else np.asarray(self._times, np.float64).copy()
+
     def __iter__(self) -> Iterator[Frame]:
         for index in self._indices:
             stamp = None if self._times is None else float(self._times[index])
