@@ -84,7 +84,7 @@ def test_recording_verifies_and_inspect_ranks_the_planted_kink(external: dict[st
     drift = report["drift"]
     assert drift["rotation"][0]["frame"] == KINK_FRAME
     assert drift["rotation"][0]["deg"] == pytest.approx(KINK_DEG, abs=0.01)
-    assert drift["rotation"][1]["deg"] < 0.01  # nothing else turned (up to the file's rounding)
+    assert all(entry["deg"] < 0.01 for entry in drift["rotation"][1:])  # nothing else turned (file rounding)
     assert all(entry["reasons"] == [] for entry in drift["rotation"] + drift["translation"])  # none invented
     assert report["flagged"] == [] and report["config"] == {}
     assert report["accuracy"]["final_position_error_m"] > 1.0  # the kink swings the rest of the path

@@ -100,8 +100,13 @@ def frame_errors(gt: np.ndarray, est: np.ndarray) -> FrameErrors:
     return FrameErrors(rotation, translation, pct, ratio)
 
 
+#: Per-frame errors below this (degrees, metres, %) are rounding, not error (arccos alone leaves ~1e-6°).
+NEGLIGIBLE = 1e-5
+
+
 def worst_frames(errors: np.ndarray, k: int = 10, frames: np.ndarray | None = None) -> list[tuple[int, float]]:
-    """The `k` largest per-frame errors as (frame, value), largest first; NaN values are never ranked.
+    """The `k` largest per-frame errors as (frame, value), largest first; NaN values are never ranked, nor
+    errors below `NEGLIGIBLE` (a step equal to the truth but for rounding: it contributes nothing).
 
     errors: (N,) e.g. `FrameErrors.rotation_deg`; frames: (N,) the frame index of each entry (default 0..N-1,
     e.g. the source frame indices of a run). Ties keep the earlier frame first.
@@ -114,6 +119,6 @@ def worst_frames(errors: np.ndarray, k: int = 10, frames: np.ndarray | None = No
         raise GeometryError(f"worst_frames: {len(index)} frame indices for {len(values)} errors")
     if k < 1:
         return []
-    finite = np.flatnonzero(np.isfinite(values))
+    finite = np.flatnonzero(np.isfinite(values) & (values >= NEGLIGIBLE))
     order = finite[np.argsort(-values[finite], kind="stable")][:k]
     return [(int(index[i]), float(values[i])) for i in order]
