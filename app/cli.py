@@ -26,6 +26,7 @@ from app.cli_common import (
     GT_HELP,
     GT_TOLERANCE_HELP,
     GT_TOPIC_HELP,
+    IMAGE_CODEC_HELP,
     TOPIC_HELP,
     Backend,
     BadFrame,
@@ -151,9 +152,7 @@ def run(
                                             "hover data; summary = no image or per-point data; off = no file")]
     = Detail.FULL,
     jpeg_quality: Annotated[int, typer.Option(min=1, max=100, help="JPEG quality of the recorded frames")] = 75,
-    image_codec: Annotated[ImageCodec, typer.Option(help="recorded camera frames: jpeg images, or an av1 / h264 "
-                                                    "video stream (smaller; the native viewer needs ffmpeg on "
-                                                    "PATH for h264)")] = ImageCodec.JPEG,
+    image_codec: Annotated[ImageCodec, typer.Option(help=IMAGE_CODEC_HELP)] = ImageCodec.JPEG,
     trajectory_out: Annotated[Path | None, typer.Option(help="write one pose per input frame here")] = None,
     trajectory_format: Annotated[TrajectoryFormat, typer.Option(help="kitti or tum")] = TrajectoryFormat.kitti,
     intrinsics: Annotated[str | None, typer.Option(help="fx,fy,cx,cy (a pinhole) for image folders, videos and logs")]

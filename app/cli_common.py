@@ -82,3 +82,5 @@ def with_camera_height(config: EngineConfig, camera_height: float | None, source
     return config
 
 
+IMAGE_CODEC_HELP = ("recorded camera frames: jpeg images, or an av1 / h264 video stream (half the size; the native "
+                    "viewer needs ffmpeg on PATH for h264)")

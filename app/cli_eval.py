@@ -20,6 +20,7 @@ from app.cli_common import (
     GT_HELP,
     GT_TOLERANCE_HELP,
     GT_TOPIC_HELP,
+    IMAGE_CODEC_HELP,
     TOPIC_HELP,
     Backend,
     BadFrame,
@@ -37,6 +38,7 @@ from app.evaluation import REPORT_FILES, Evaluation, check_gates, evaluate_sourc
 from app.matching import DEFAULT_TOLERANCE_MS, MatchMode
 from app.outputs import lock_folder
 from app.recording import Detail
+from app.recording.video import ImageCodec
 from app.report import markdown_table
 from vslam_core.config import EngineConfig, load_config
 from vslam_core.sources.base import FrameRange, FrameSource
@@ -59,6 +61,7 @@ def eval_command(
     report: Annotated[Path | None, typer.Option(help="folder for metrics.csv/.parquet, report.md, trajectories, "
                                                 "recordings and plots")] = None,
     detail: Annotated[Detail, typer.Option(help="detail of the recordings written to --report")] = Detail.FULL,
+    image_codec: Annotated[ImageCodec, typer.Option(help=IMAGE_CODEC_HELP)] = ImageCodec.JPEG,
     trajectory: Annotated[list[Path] | None, typer.Option(help="evaluate this trajectory file instead of running "
                                                           "(repeat for several, all against --gt)")] = None,
     images: Annotated[Path | None, typer.Option(help="the camera frames of --trajectory files, for their "
@@ -146,7 +149,7 @@ def eval_command(
         with report_writes(report):
             evaluation = evaluate_sources(sources, config, report, err, detail if report is not None else Detail.OFF,
                                           {"source_path": source or "synthetic", **({"inject": inject} if inject
-                                                                                    else {})})
+                                                                                    else {})}, image_codec)
         scale_source, backend_name = config.scale, config.backend
     _print_evaluation(evaluation, scale_source, backend_name, report, as_json,
                       check_gates(evaluation.rows, max_t_err, max_r_err, max_ate))

@@ -20,6 +20,7 @@ import vslam_core
 from app.matching import DEFAULT_TOLERANCE_MS, Matching, MatchMode, gt_times_for, match_poses
 from app.plots import write_top_view
 from app.recording import Detail, version_properties
+from app.recording.video import ImageCodec
 from app.report import COLUMNS, json_ready, markdown_table, mean_row, metrics_row, scored_estimate
 from app.runner import Interrupted, record_run
 from vslam_core.config import EngineConfig
@@ -65,6 +66,7 @@ def evaluate_sources(
     console: Console,
     detail: Detail = Detail.FULL,
     properties: dict[str, str] | None = None,
+    image_codec: ImageCodec = ImageCodec.JPEG,
 ) -> Evaluation:
     """Run each source (each must have ground truth) and evaluate it; with `report_dir`, write its
     recording, trajectory and plot there, then the tables."""
@@ -87,7 +89,7 @@ def evaluate_sources(
             **version_properties(),
             **(properties or {}),
         }
-        run = record_run(source, config, rrd, props, console, detail)
+        run = record_run(source, config, rrd, props, console, detail, image_codec=image_codec)
         if run.failure is not None:
             raise run.failure
         if run.result.frames >= 3:

@@ -119,3 +119,14 @@ def test_h264_snapshot_without_ffmpeg_names_what_to_install(tmp_path: Path, monk
     with pytest.raises(ViewerError, match="ffmpeg") as caught:
         snapshot(h264, 5, tmp_path / "out")
     assert "\n" not in str(caught.value)
+
+
+def test_eval_report_recordings_take_the_codec(tmp_path: Path) -> None:
+    report = tmp_path / "report"
+    done = subprocess.run([sys.executable, "-m", "app.cli", "eval", "synthetic", "--frames", "0:25", "--image-codec",
+                           "h264", "--report", str(report)], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    (recording,) = report.glob("*.rrd")
+    frames, blobs, keys = samples(recording)
+    assert frames == list(range(25)) and keys == [i % GOP_FRAMES == 0 for i in range(25)]
+    assert blobs[0].startswith(b"\0\0\0\1")  # Annex B: H.264, not AV1's OBUs
