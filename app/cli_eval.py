@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import errno
 import json
+import os
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -108,7 +109,8 @@ def eval_command(
     if manifest is not None or merge:
         _eval_batch(locals())
         return
-    if any((workers, ray_address, shard, resume, fail_fast)):
+    from_env = ray_address is not None and ray_address == os.environ.get("RAY_ADDRESS")  # not asked for here
+    if any((workers, ray_address and not from_env, shard, resume, fail_fast)):
         fail("--workers, --ray-address, --shard, --resume and --fail-fast apply to --manifest batches")
     if report is not None:
         _check_report_dir(report, force)
