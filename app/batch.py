@@ -34,7 +34,8 @@ from vslam_core.scale import default_camera_height
 from vslam_core.sources.base import FrameRange
 from vslam_core.sources.open import open_source
 
-#: peak resident memory of one log's worker (KITTI 1241x376, --detail full, measured ~0.5 GB), with headroom
+#: memory budget of one worker: a 200-frame KITTI log at --detail full peaks at ~0.3 GB resident (measured),
+#: long sequences grow with their trajectory and map; 1 GiB leaves headroom
 LOG_MEMORY_BYTES = 1 << 30
 
 

@@ -47,6 +47,7 @@ from vslam_core.sources.open import open_source
 
 
 def eval_command(
+    ctx: typer.Context,
     source: Annotated[str | None, typer.Argument(help="KITTI root (with --sequences), sequence folder, ROS "
                                                  "bag / MCAP log or EuRoC folder with ground truth, image folder "
                                                  "with --gt, or 'synthetic'")] = None,
@@ -107,8 +108,10 @@ def eval_command(
 ) -> None:
     """Score the engine (or any trajectory file) against ground truth; gates make it a CI check."""
     if manifest is not None or merge:
-        _eval_batch(locals())
+        _eval_batch({**locals(), "extra": list(ctx.args)})
         return
+    if ctx.args:
+        fail(f"unexpected argument {ctx.args[0]!r} (only --merge takes several folders)")
     from_env = ray_address is not None and ray_address == os.environ.get("RAY_ADDRESS")  # not asked for here
     if any((workers, ray_address and not from_env, shard, resume, fail_fast)):
         fail("--workers, --ray-address, --shard, --resume and --fail-fast apply to --manifest batches")
@@ -186,10 +189,10 @@ def _eval_batch(options: dict[str, Any]) -> None:
     if o["merge"]:
         if o["manifest"] is not None:
             fail("give either --manifest or --merge, not both")
-        extra = [Path(o["source"])] if o["source"] is not None else []
+        extra = [Path(a) for a in ([o["source"]] if o["source"] is not None else []) + o["extra"]]
         eval_merge([*o["merge"], *extra], report, o["force"], gates)
         return
-    if o["source"] is not None:
+    if o["source"] is not None or o["extra"]:
         fail("--manifest names the sources: give no SOURCE")
     config = load_config(o["config_file"]) if o["config_file"] is not None else EngineConfig()
     config = config.with_scale(o["scale"].value)

@@ -64,13 +64,12 @@ def read_manifest(path: Path) -> list[LogSpec]:
     if not rows:
         raise ManifestError(f"{path}: no logs in the manifest")
     specs: list[LogSpec] = []
-    seen: dict[str, int] = {}
+    seen: dict[str, str] = {}
     for index, (label, row) in enumerate(rows):
         spec = _spec(path, label, index, row)
         if spec.name in seen:
-            raise ManifestError(f"{path.name} {label} (name {spec.name!r}): duplicate name (also in row "
-                                f"{seen[spec.name]})")
-        seen[spec.name] = int(label.split()[-1])
+            raise ManifestError(f"{path.name} {label} (name {spec.name!r}): duplicate name (also {seen[spec.name]})")
+        seen[spec.name] = label
         specs.append(spec)
     return specs
 
