@@ -169,11 +169,13 @@ def ray_executor(address: str, num_cpus: int) -> Executor:
 def _run(jobs: list[LogJob], executor: Executor, report: Path, fail_fast: bool) -> tuple[list[LogResult], bool]:
     """Run the jobs, keeping each finished log's result file and printing its line; (results, interrupted)."""
     results: list[LogResult] = []
+    interrupted: list[str] = []  # a log stopped by Ctrl-C / SIGTERM (its worker noted the signal)
     start = time.monotonic()
     with _bar(len(jobs)) as advance:
 
         def on_result(_index: int, result: LogResult) -> None:
             if result.status == "interrupted":
+                interrupted.append(result.name)
                 return
             write_log_result(report, result)
             results.append(result)
@@ -188,7 +190,7 @@ def _run(jobs: list[LogJob], executor: Executor, report: Path, fail_fast: bool) 
             executor(jobs, on_result, fail_fast) if jobs else None
         except KeyboardInterrupt:
             return results, True
-    return results, len(results) < len(jobs) and not fail_fast
+    return results, bool(interrupted)
 
 
 def progress_line(result: LogResult, done: int, total: int, left: float) -> str:
