@@ -90,20 +90,20 @@ def eval_command(
     on_bad_frame: Annotated[BadFrame, typer.Option(help="unreadable image: fail or skip")] = BadFrame.fail,
     force: Annotated[bool, typer.Option("--force", help="write into a --report folder that holds a report")]
     = False,
-    manifest: Annotated[Path | None, typer.Option(help="many logs, one a row: CSV (or TOML [[log]]) with name, "
+    manifest: Annotated[Path | None, typer.Option(metavar="LOGS.csv", help="many logs, one a row: CSV (or TOML [[log]]) with name, "
                                                   "source and columns named like the vslam run options (README)")]
     = None,
-    workers: Annotated[int | None, typer.Option(min=1, help="--manifest: local worker processes [default: the "
+    workers: Annotated[int | None, typer.Option(min=1, metavar="N", help="--manifest: local worker processes [default: the "
                                                 "cores, capped by memory]")] = None,
-    ray_address: Annotated[str | None, typer.Option(envvar="RAY_ADDRESS", help="--manifest: run each log as a "
+    ray_address: Annotated[str | None, typer.Option(envvar="RAY_ADDRESS", metavar="HOST:PORT", help="--manifest: run each log as a "
                                                     "task on this Ray cluster (HOST:PORT; needs vslam[cluster])")]
     = None,
-    shard: Annotated[str | None, typer.Option(help="--manifest: run only slice K of N (K/N, 1-based: rows i "
+    shard: Annotated[str | None, typer.Option(metavar="K/N", help="--manifest: run only slice K of N (K/N, 1-based: rows i "
                                               "with i % N == K-1)")] = None,
     resume: Annotated[bool, typer.Option("--resume", help="--manifest: skip logs already in --report")] = False,
     fail_fast: Annotated[bool, typer.Option("--fail-fast", help="--manifest: stop at the first failed log")]
     = False,
-    merge: Annotated[list[Path] | None, typer.Option(help="merge these shard reports (DIR DIR …) into --report")]
+    merge: Annotated[list[Path] | None, typer.Option(metavar="DIR", help="merge these shard reports (DIR DIR …) into --report")]
     = None,
 ) -> None:
     """Score the engine (or any trajectory file) against ground truth; gates make it a CI check."""
