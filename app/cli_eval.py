@@ -45,6 +45,13 @@ from vslam_core.config import EngineConfig, load_config
 from vslam_core.sources.base import FrameRange, FrameSource
 from vslam_core.sources.open import open_source
 
+MANIFEST_HELP = ("many logs, one a row: CSV (or TOML [[log]]) with name, source and columns named like the vslam "
+                 "run options (README)")
+WORKERS_HELP = "--manifest: local worker processes [default: the cores, capped by memory]"
+RAY_HELP = "--manifest: run each log as a task on this Ray cluster (needs vslam[cluster])"
+SHARD_HELP = "--manifest: run only slice K of N (1-based: manifest rows i with i % N == K-1)"
+MERGE_HELP = "merge these shard reports (--merge DIR DIR …) into --report"
+
 
 def eval_command(
     ctx: typer.Context,
@@ -90,21 +97,15 @@ def eval_command(
     on_bad_frame: Annotated[BadFrame, typer.Option(help="unreadable image: fail or skip")] = BadFrame.fail,
     force: Annotated[bool, typer.Option("--force", help="write into a --report folder that holds a report")]
     = False,
-    manifest: Annotated[Path | None, typer.Option(metavar="LOGS.csv", help="many logs, one a row: CSV (or TOML [[log]]) with name, "
-                                                  "source and columns named like the vslam run options (README)")]
+    manifest: Annotated[Path | None, typer.Option(metavar="LOGS.csv", help=MANIFEST_HELP)] = None,
+    workers: Annotated[int | None, typer.Option(min=1, metavar="N", help=WORKERS_HELP)] = None,
+    ray_address: Annotated[str | None, typer.Option(envvar="RAY_ADDRESS", metavar="HOST:PORT", help=RAY_HELP)]
     = None,
-    workers: Annotated[int | None, typer.Option(min=1, metavar="N", help="--manifest: local worker processes [default: the "
-                                                "cores, capped by memory]")] = None,
-    ray_address: Annotated[str | None, typer.Option(envvar="RAY_ADDRESS", metavar="HOST:PORT", help="--manifest: run each log as a "
-                                                    "task on this Ray cluster (HOST:PORT; needs vslam[cluster])")]
-    = None,
-    shard: Annotated[str | None, typer.Option(metavar="K/N", help="--manifest: run only slice K of N (K/N, 1-based: rows i "
-                                              "with i % N == K-1)")] = None,
+    shard: Annotated[str | None, typer.Option(metavar="K/N", help=SHARD_HELP)] = None,
     resume: Annotated[bool, typer.Option("--resume", help="--manifest: skip logs already in --report")] = False,
     fail_fast: Annotated[bool, typer.Option("--fail-fast", help="--manifest: stop at the first failed log")]
     = False,
-    merge: Annotated[list[Path] | None, typer.Option(metavar="DIR", help="merge these shard reports (DIR DIR …) into --report")]
-    = None,
+    merge: Annotated[list[Path] | None, typer.Option(metavar="DIR", help=MERGE_HELP)] = None,
 ) -> None:
     """Score the engine (or any trajectory file) against ground truth; gates make it a CI check."""
     if manifest is not None or merge:
