@@ -193,6 +193,9 @@ def test_merge_refuses_different_configs(tmp_path: Path) -> None:
     result = vslam("eval", "--merge", first, second, "--report", tmp_path / "merged")
     assert_clean_error(result, "different configs", str(first), str(second))
     assert_clean_error(vslam("eval", "--merge", first, first, "--report", tmp_path / "m2"), "in two reports")
+    (tmp_path / "not-a-report").mkdir()
+    assert_clean_error(vslam("eval", "--merge", first, tmp_path / "not-a-report", "--report", tmp_path / "m3"),
+                       "no batch.json")
 
 
 def test_shard_rule() -> None:
