@@ -82,6 +82,8 @@ def eval_manifest(manifest: Path, report: Path | None, config: EngineConfig, det
         fail("give either --workers or --ray-address, not both")
     specs = read_manifest(manifest)
     selected = shard(specs, *parse_shard(options.shard)) if options.shard else specs
+    if not selected:
+        warn(f"--shard {options.shard}: no log of the manifest's {len(specs)} falls in this slice")
     executor = _executor(options, config)  # before any work: a missing Ray is a one-line error
     done = _prepare_report(report, config, options)
     done = {name: result for name, result in done.items() if name in {s.name for s in selected}}
