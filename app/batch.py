@@ -9,7 +9,10 @@ not depend on the executor.
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
 import io
+import json
 import math
 import multiprocessing
 import os
@@ -61,22 +64,30 @@ class LogResult:
     by_length: dict[float, tuple[float, float, int]] = field(default_factory=dict)
     elapsed_s: float = 0.0
     warnings: list[str] = field(default_factory=list)
+    spec_hash: str = ""  # of the manifest row it ran: --resume reruns a log whose row changed
 
     def as_json(self) -> dict[str, Any]:
         return {"index": self.index, "name": self.name, "status": self.status, "error": self.error,
                 "row": self.row, "by_length": [[k, *v] for k, v in self.by_length.items()],
-                "elapsed_s": self.elapsed_s, "warnings": self.warnings}
+                "elapsed_s": self.elapsed_s, "warnings": self.warnings, "spec_hash": self.spec_hash}
 
     @classmethod
     def from_json(cls, data: dict[str, Any]) -> LogResult:
         lengths = {float(k): (float(t), float(r), int(n)) for k, t, r, n in data.get("by_length", [])}
         return cls(int(data["index"]), str(data["name"]), str(data["status"]), str(data.get("error", "")),
-                   data.get("row"), lengths, float(data.get("elapsed_s", 0.0)), list(data.get("warnings", [])))
+                   data.get("row"), lengths, float(data.get("elapsed_s", 0.0)), list(data.get("warnings", [])),
+                   str(data.get("spec_hash", "")))
 
 
 OnResult = Callable[[int, LogResult], None]
 #: an executor: (jobs, on_result, fail_fast) -> None
 Executor = Callable[[list[LogJob], OnResult, bool], None]
+
+
+def spec_hash(spec: LogSpec) -> str:
+    """A short hash of a manifest row (its position aside): what the log's result was computed from."""
+    values = {k: str(v) for k, v in dataclasses.asdict(spec).items() if k != "index"}
+    return hashlib.sha256(json.dumps(values, sort_keys=True).encode()).hexdigest()[:16]
 
 
 def log_config(job: LogJob) -> EngineConfig:
@@ -99,7 +110,8 @@ def run_log(job: LogJob) -> LogResult:
 
     def result(status: str, error: str = "", **values: Any) -> LogResult:
         one_line = " ".join(error.split())
-        return LogResult(spec.index, spec.name, status, one_line, elapsed_s=time.monotonic() - start, **values)
+        return LogResult(spec.index, spec.name, status, one_line, elapsed_s=time.monotonic() - start,
+                         spec_hash=spec_hash(spec), **values)
 
     try:
         config = log_config(job)
@@ -194,7 +206,7 @@ def _outcome(future: Future[LogResult], job: LogJob) -> LogResult:
         return future.result()
     except BrokenProcessPool:
         return LogResult(job.spec.index, job.spec.name, "failed", "crash: its worker process died (out of "
-                         "memory? a crash in native code?)")
+                         "memory? a crash in native code?)", spec_hash=spec_hash(job.spec))
 
 
 def _drain(pending: dict[Future[LogResult], int], jobs: list[LogJob], on_result: OnResult) -> None:

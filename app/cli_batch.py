@@ -6,6 +6,7 @@ Exit codes: 0 all logs ok and every gate passed; 1 a log failed or a gate failed
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import math
 import time
@@ -28,6 +29,7 @@ from app.batch import (
     local_executor,
     run_log,
     run_serial,
+    spec_hash,
 )
 from app.batch_report import (
     BATCH_FILE,
@@ -45,7 +47,7 @@ from app.batch_report import (
 )
 from app.cli_common import err, fail, out, warn
 from app.evaluation import REPORT_FILES, check_gates
-from app.manifest import parse_shard, read_manifest, shard
+from app.manifest import LogSpec, parse_shard, read_manifest, shard
 from app.outputs import lock_folder
 from app.progress import eta
 from app.recording import Detail
@@ -85,8 +87,7 @@ def eval_manifest(manifest: Path, report: Path | None, config: EngineConfig, det
     if not selected:
         warn(f"--shard {options.shard}: no log of the manifest's {len(specs)} falls in this slice")
     executor = _executor(options, config)  # before any work: a missing Ray is a one-line error
-    done = _prepare_report(report, config, options)
-    done = {name: result for name, result in done.items() if name in {s.name for s in selected}}
+    done = _still_valid(_prepare_report(report, config, options), selected)
     write_batch_info(report, batch_info(config, manifest.resolve(), options.shard, [s.name for s in selected]))
     jobs = [LogJob(spec, config, report, detail) for spec in selected if spec.name not in done]
     if done:
@@ -142,6 +143,17 @@ def _prepare_report(report: Path, config: EngineConfig, options: BatchOptions) -
         raise BatchError(f"--resume {report}: its logs ran with another config (hash {info['config_hash']}, now "
                          f"{config_hash(config)})")
     return {name: r for name, r in read_log_results(report).items() if r.status in ("ok", "failed")}
+
+
+def _still_valid(done: dict[str, LogResult], selected: list[LogSpec]) -> dict[str, LogResult]:
+    """The finished logs --resume keeps: those still in the manifest (slice) with the same row, re-placed at
+    the row's current position."""
+    kept = {}
+    for spec in selected:
+        result = done.get(spec.name)
+        if result is not None and result.spec_hash == spec_hash(spec):
+            kept[spec.name] = dataclasses.replace(result, index=spec.index)
+    return kept
 
 
 def _executor(options: BatchOptions, config: EngineConfig) -> Executor:

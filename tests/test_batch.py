@@ -119,17 +119,23 @@ def test_workers_and_merged_shards_give_identical_rows(
 
 
 @pytest.mark.kitti
-def test_resume_runs_only_the_missing_log(serial: tuple[Path, subprocess.CompletedProcess[str]],
-                                          manifest: Path) -> None:
+def test_resume_runs_only_missing_and_changed_logs(serial: tuple[Path, subprocess.CompletedProcess[str]],
+                                                   manifest: Path) -> None:
     report = manifest.parent / "resumed"
     shutil.copytree(serial[0], report)
     (report / "logs" / "kitti-05-a.json").unlink()
-    result = vslam("eval", "--manifest", manifest, "--report", report, "--resume", "--workers", "1", "--detail",
+    changed = manifest.parent / "changed.csv"  # kitti-00-b's row now selects other frames
+    changed.write_text(manifest.read_text().replace(",00,40:80,", ",00,40:79,"))
+    result = vslam("eval", "--manifest", changed, "--report", report, "--resume", "--workers", "1", "--detail",
                    "off")
     assert result.returncode == 1, result.stderr  # the broken log's failed row is kept
     lines = [line for line in result.stderr.splitlines() if line.startswith("[")]
-    assert len(lines) == 1 and lines[0].startswith("[1/1] kitti-05-a  ok")
-    assert metric_rows(report) == metric_rows(serial[0])
+    assert [line.split("  ")[0] for line in lines] == ["[1/2] kitti-00-b", "[2/2] kitti-05-a"], result.stderr
+    table = pl.read_csv(report / "metrics.csv")
+    assert table.filter(pl.col("sequence") == "kitti-00-b")["frames"][0] == 39
+    unchanged = pl.col("sequence").is_in(["kitti-00-b", "mean"]).not_()
+    expected = pl.read_csv(serial[0] / "metrics.csv").filter(unchanged).drop(WALL_CLOCK).write_csv()
+    assert table.filter(unchanged).drop(WALL_CLOCK).write_csv() == expected
 
 
 @pytest.mark.kitti
