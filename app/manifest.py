@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from app.checks import camera_height_problem
 from vslam_core.errors import VslamError
 from vslam_core.sources.base import FrameRange
 from vslam_core.sources.folder import parse_intrinsics
@@ -171,6 +172,9 @@ def _spec(path: Path, label: str, index: int, row: dict[str, str]) -> LogSpec:
             camera_height = float(values["camera_height"])
         except ValueError:
             raise bad(f"camera_height {values['camera_height']!r} is not a number (metres)") from None
+        problem = camera_height_problem(camera_height)
+        if problem is not None:
+            raise bad(problem.replace("--camera-height", "camera_height"))
     if "config" in paths:
         from vslam_core.config import load_config
 
