@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import importlib
 import math
+import os
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -81,7 +82,9 @@ def eval_manifest(manifest: Path, report: Path | None, config: EngineConfig, det
     if report is None:
         fail("--manifest needs --report DIR (the folder for the batch's report and each log's files)")
     if options.workers is not None and options.ray_address is not None:
-        fail("give either --workers or --ray-address, not both")
+        if options.ray_address != os.environ.get("RAY_ADDRESS"):
+            fail("give either --workers or --ray-address, not both")
+        options = dataclasses.replace(options, ray_address=None)  # --workers wins over RAY_ADDRESS
     specs = read_manifest(manifest)
     selected = shard(specs, *parse_shard(options.shard)) if options.shard else specs
     if not selected:
