@@ -9,6 +9,7 @@ not depend on the executor.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import io
@@ -181,6 +182,7 @@ def local_executor(workers: int) -> Executor:
         with ProcessPoolExecutor(max_workers=max(1, min(workers, len(jobs))), mp_context=context,
                                  initializer=_ignore_sigint) as pool:
             pending: dict[Future[LogResult], int] = {pool.submit(run_log, job): i for i, job in enumerate(jobs)}
+            previous = signal.signal(signal.SIGTERM, _terminate_as_interrupt)
             try:
                 while pending:
                     done, _ = wait(pending, return_when=FIRST_COMPLETED)
@@ -194,10 +196,27 @@ def local_executor(workers: int) -> Executor:
                         _drain(pending, jobs, on_result)
                         return
             except KeyboardInterrupt:
+                _stop_workers(pool)
                 _drain(pending, jobs, on_result)
                 raise
+            finally:
+                signal.signal(signal.SIGTERM, previous)
 
     return execute
+
+
+def _terminate_as_interrupt(_signum: int, _frame: object) -> None:
+    """SIGTERM (a cancelled CI job) stops a batch of workers as Ctrl-C does."""
+    raise KeyboardInterrupt
+
+
+def _stop_workers(pool: ProcessPoolExecutor) -> None:
+    """Ask each worker's run to stop between frames (SIGINT, which a run notes; Ctrl-C in a terminal has sent
+    it already, a SIGTERM to this process has not). The pool keeps its processes in a private attribute."""
+    for process in list(getattr(pool, "_processes", {}).values()):
+        if process.pid is not None and process.is_alive():
+            with contextlib.suppress(OSError):
+                os.kill(process.pid, signal.SIGINT)
 
 
 def _outcome(future: Future[LogResult], job: LogJob) -> LogResult:
