@@ -88,6 +88,12 @@ def read_log_results(report: Path) -> dict[str, LogResult]:
     return results
 
 
+def forget_log_results(report: Path, names: set[str]) -> None:
+    """Delete the result files of these logs (rows --resume does not keep)."""
+    for name in names:
+        (report / LOGS / f"{name}.json").unlink(missing_ok=True)
+
+
 def clear_log_results(report: Path) -> None:
     """Forget the finished logs of an earlier batch (a fresh run with --force)."""
     for path in (report / LOGS).glob("*.json"):

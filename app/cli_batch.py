@@ -38,6 +38,7 @@ from app.batch_report import (
     batch_info,
     clear_log_results,
     config_hash,
+    forget_log_results,
     merge_reports,
     read_batch_info,
     read_log_results,
@@ -90,7 +91,9 @@ def eval_manifest(manifest: Path, report: Path | None, config: EngineConfig, det
     if not selected:
         warn(f"--shard {options.shard}: no log of the manifest's {len(specs)} falls in this slice")
     executor = _executor(options, config)  # before any work: a missing Ray is a one-line error
-    done = _still_valid(_prepare_report(report, config, options), selected)
+    earlier = _prepare_report(report, config, options)
+    done = _still_valid(earlier, selected)
+    forget_log_results(report, set(earlier) - set(done))  # stale rows would reappear in a --merge
     write_batch_info(report, batch_info(config, manifest.resolve(), options.shard, [s.name for s in selected]))
     jobs = [LogJob(spec, config, report, detail) for spec in selected if spec.name not in done]
     if done:
@@ -204,7 +207,8 @@ def _run(jobs: list[LogJob], executor: Executor, report: Path, fail_fast: bool) 
             advance()
 
         try:
-            executor(jobs, on_result, fail_fast) if jobs else None
+            if jobs:
+                executor(jobs, on_result, fail_fast)
         except KeyboardInterrupt:
             return results, True
     return results, bool(interrupted)
