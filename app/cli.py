@@ -297,7 +297,8 @@ def crop(
               f"{summary.output_bytes / 1e6:.1f} MB (from {summary.input_bytes / 1e6:.1f} MB)", highlight=False)
 
 
-app.command(name="eval")(eval_command)  # app/cli_eval.py
+# extra arguments: the folders after `--merge DIR` (`--merge A B C`); refused by every other form of eval
+app.command(name="eval", context_settings={"allow_extra_args": True})(eval_command)  # app/cli_eval.py
 
 
 @app.command()

@@ -4,6 +4,7 @@ the app by `app.cli`)."""
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -44,8 +45,16 @@ from vslam_core.config import EngineConfig, load_config
 from vslam_core.sources.base import FrameRange, FrameSource
 from vslam_core.sources.open import open_source
 
+MANIFEST_HELP = ("many logs, one a row: CSV (or TOML [[log]]) with name, source and columns named like the vslam "
+                 "run options (README)")
+WORKERS_HELP = "--manifest: local worker processes [default: the cores, capped by memory]"
+RAY_HELP = "--manifest: run each log as a task on this Ray cluster (needs vslam[cluster])"
+SHARD_HELP = "--manifest: run only slice K of N (1-based: manifest rows i with i % N == K-1)"
+MERGE_HELP = "merge these shard reports (--merge DIR DIR …) into --report"
+
 
 def eval_command(
+    ctx: typer.Context,
     source: Annotated[str | None, typer.Argument(help="KITTI root (with --sequences), sequence folder, ROS "
                                                  "bag / MCAP log or EuRoC folder with ground truth, image folder "
                                                  "with --gt, or 'synthetic'")] = None,
@@ -93,8 +102,25 @@ def eval_command(
     on_bad_frame: Annotated[BadFrame, typer.Option(help="unreadable image: fail or skip")] = BadFrame.fail,
     force: Annotated[bool, typer.Option("--force", help="write into a --report folder that holds a report")]
     = False,
+    manifest: Annotated[Path | None, typer.Option(metavar="LOGS.csv", help=MANIFEST_HELP)] = None,
+    workers: Annotated[int | None, typer.Option(min=1, metavar="N", help=WORKERS_HELP)] = None,
+    ray_address: Annotated[str | None, typer.Option(envvar="RAY_ADDRESS", metavar="HOST:PORT", help=RAY_HELP)]
+    = None,
+    shard: Annotated[str | None, typer.Option(metavar="K/N", help=SHARD_HELP)] = None,
+    resume: Annotated[bool, typer.Option("--resume", help="--manifest: skip logs already in --report")] = False,
+    fail_fast: Annotated[bool, typer.Option("--fail-fast", help="--manifest: stop at the first failed log")]
+    = False,
+    merge: Annotated[list[Path] | None, typer.Option(metavar="DIR", help=MERGE_HELP)] = None,
 ) -> None:
     """Score the engine (or any trajectory file) against ground truth; gates make it a CI check."""
+    if manifest is not None or merge:
+        _eval_batch({**locals(), "extra": list(ctx.args)})
+        return
+    if ctx.args:
+        fail(f"unexpected argument {ctx.args[0]!r} (only --merge takes several folders)")
+    from_env = ray_address is not None and ray_address == os.environ.get("RAY_ADDRESS")  # not asked for here
+    if any((workers, ray_address and not from_env, shard, resume, fail_fast)):
+        fail("--workers, --ray-address, --shard, --resume and --fail-fast apply to --manifest batches")
     if report is not None:
         _check_report_dir(report, force)
     if images is not None and not trajectory:
@@ -153,6 +179,36 @@ def eval_command(
         scale_source, backend_name = config.scale, config.backend
     _print_evaluation(evaluation, scale_source, backend_name, report, as_json,
                       check_gates(evaluation.rows, max_t_err, max_r_err, max_ate))
+
+
+def _eval_batch(options: dict[str, Any]) -> None:
+    """`--manifest` and `--merge` (app/cli_batch.py); the options of single runs are refused there."""
+    from app.cli_batch import BatchOptions, Gates, eval_manifest, eval_merge
+
+    o = options
+    per_log = {"--sequences": o["sequences"], "--frames": o["frames"], "--camera-height": o["camera_height"],
+               "--trajectory": o["trajectory"], "--gt": o["gt"], "--intrinsics": o["intrinsics"], "--calib": o["calib"],
+               "--topic": o["topic"], "--gt-topic": o["gt_topic"], "--gt-times": o["gt_times"], "--inject": o["inject"],
+               "--format": o["trajectory_format"], "--json": o["as_json"] or None}
+    for option in (name for name, value in per_log.items() if value is not None):
+        fail(f"{option} does not apply to --manifest or --merge (give it per log, as a manifest column)")
+    gates = Gates(o["max_t_err"], o["max_r_err"], o["max_ate"])
+    report = o["report"]
+    if o["merge"]:
+        if o["manifest"] is not None:
+            fail("give either --manifest or --merge, not both")
+        extra = [Path(a) for a in ([o["source"]] if o["source"] is not None else []) + o["extra"]]
+        eval_merge([*o["merge"], *extra], report, o["force"], gates)
+        return
+    if o["source"] is not None or o["extra"]:
+        fail("--manifest names the sources: give no SOURCE")
+    config = load_config(o["config_file"]) if o["config_file"] is not None else EngineConfig()
+    config = config.with_scale(o["scale"].value)
+    if o["backend"] is not None:
+        config = config.with_backend(o["backend"].value)
+    batch = BatchOptions(o["workers"], o["ray_address"], o["shard"], o["resume"], o["fail_fast"], o["force"])
+    with report_writes(report):
+        eval_manifest(o["manifest"], report, config, o["detail"], batch, gates)
 
 
 def _check_report_dir(report: Path, force: bool) -> None:

@@ -67,17 +67,23 @@ def evaluate_sources(
     detail: Detail = Detail.FULL,
     properties: dict[str, str] | None = None,
     image_codec: ImageCodec = ImageCodec.JPEG,
+    *,
+    names: list[str] | None = None,
+    write_tables: bool = True,
 ) -> Evaluation:
     """Run each source (each must have ground truth) and evaluate it; with `report_dir`, write its
-    recording, trajectory and plot there, then the tables."""
+    recording, trajectory and plot there, then the tables (unless not `write_tables`: a batch writes one
+    report over all its logs). `names` (one per source) replace the sources' names in rows and file names,
+    so two windows of one sequence do not collide."""
     rows, by_length = [], {}
     interrupted = None
     notes: list[str] = []  # how the runs ended early, for report.md
     for position, source in enumerate(sources):
+        name = names[position] if names is not None else source.name
         gt = source.ground_truth
         if gt is None:
             raise SourceError(f"{source.name}: no ground truth, nothing to evaluate against")
-        rrd = report_dir / f"{source.name}.rrd" if report_dir is not None and detail != Detail.OFF else None
+        rrd = report_dir / f"{name}.rrd" if report_dir is not None and detail != Detail.OFF else None
         selected = describe_indices(source.indices)
         props = {
             "name": f"vslam eval {source.name} frames {selected} scale {config.scale}",
@@ -93,10 +99,10 @@ def evaluate_sources(
         if run.failure is not None:
             raise run.failure
         if run.result.frames >= 3:
-            row, lengths = _score(source.name, gt, run.result.pose_array(), config, report_dir)
+            row, lengths = _score(name, gt, run.result.pose_array(), config, report_dir)
             row["fps"] = run.result.frames / run.result.seconds if run.result.seconds else math.nan
             rows.append(row)
-            by_length[source.name] = lengths
+            by_length[name] = lengths
         if run.interrupted is not None:
             interrupted = run.interrupted
             notes.append(f"{source.name}: interrupted by {interrupted} after {run.result.frames} of {len(source)} "
@@ -107,7 +113,7 @@ def evaluate_sources(
             break
     evaluation = Evaluation(rows, mean_row(rows), by_length, interrupted, inject=(properties or {}).get("inject"),
                             notes=notes)
-    if report_dir is not None and (rows or notes):
+    if report_dir is not None and write_tables and (rows or notes):
         write_report(report_dir, evaluation, config)
     return evaluation
 

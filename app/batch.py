@@ -1,0 +1,263 @@
+"""Many logs of a manifest: one job per log, run by interchangeable executors (serial, local processes, Ray).
+
+`run_log` is the unit of work: top level and picklable, it runs one log into the report folder (recording,
+trajectory, plot) and returns its `LogResult`, never raising for a bad log. An executor takes the jobs, calls
+``on_result(index, result)`` as each finishes (in completion order) and, with ``fail_fast``, stops submitting
+and cancels what is pending after the first failed result. The engine is deterministic, so a log's metrics do
+not depend on the executor.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import hashlib
+import io
+import json
+import math
+import multiprocessing
+import os
+import signal
+import time
+from collections.abc import Callable
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from rich.console import Console
+
+from app.checks import backend_problem, camera_height_problem, input_warnings
+from app.evaluation import evaluate_sources
+from app.manifest import LogSpec
+from app.recording import Detail
+from vslam_core.config import EngineConfig, load_config
+from vslam_core.errors import ConfigError, VslamError
+from vslam_core.scale import default_camera_height
+from vslam_core.sources.base import FrameRange
+from vslam_core.sources.open import open_source
+
+#: memory budget of one worker: a 200-frame KITTI log at --detail full peaks at ~0.3 GB resident (measured),
+#: long sequences grow with their trajectory and map; 1 GiB leaves headroom
+LOG_MEMORY_BYTES = 1 << 30
+
+
+@dataclass(frozen=True)
+class LogJob:
+    """Everything a worker needs to run one log (picklable: plain data only)."""
+
+    spec: LogSpec
+    config: EngineConfig  # the batch's config (--config, --scale, --backend); the log's own columns win
+    report_dir: Path
+    detail: Detail = Detail.FULL
+
+
+@dataclass
+class LogResult:
+    """How one log ended: ``ok`` with its metrics row, ``failed`` with a one-line error, or ``interrupted``."""
+
+    index: int  # the log's position in the manifest
+    name: str
+    status: str
+    error: str = ""
+    row: dict[str, Any] | None = None
+    by_length: dict[float, tuple[float, float, int]] = field(default_factory=dict)
+    elapsed_s: float = 0.0
+    warnings: list[str] = field(default_factory=list)
+    spec_hash: str = ""  # of the manifest row it ran: --resume reruns a log whose row changed
+
+    def as_json(self) -> dict[str, Any]:
+        return {"index": self.index, "name": self.name, "status": self.status, "error": self.error,
+                "row": self.row, "by_length": [[k, *v] for k, v in self.by_length.items()],
+                "elapsed_s": self.elapsed_s, "warnings": self.warnings, "spec_hash": self.spec_hash}
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any]) -> LogResult:
+        lengths = {float(k): (float(t), float(r), int(n)) for k, t, r, n in data.get("by_length", [])}
+        return cls(int(data["index"]), str(data["name"]), str(data["status"]), str(data.get("error", "")),
+                   data.get("row"), lengths, float(data.get("elapsed_s", 0.0)), list(data.get("warnings", [])),
+                   str(data.get("spec_hash", "")))
+
+
+OnResult = Callable[[int, LogResult], None]
+#: an executor: (jobs, on_result, fail_fast) -> None
+Executor = Callable[[list[LogJob], OnResult, bool], None]
+
+
+def spec_hash(spec: LogSpec) -> str:
+    """A short hash of a manifest row (its position aside): what the log's result was computed from."""
+    values = {k: str(v) for k, v in dataclasses.asdict(spec).items() if k != "index"}
+    return hashlib.sha256(json.dumps(values, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def log_config(job: LogJob) -> EngineConfig:
+    """The engine config of one log: its own config file (else the batch's), then its scale and backend."""
+    spec = job.spec
+    config = load_config(spec.config) if spec.config is not None else job.config
+    if spec.config is not None:  # the batch's --scale/--backend still apply unless the row says otherwise
+        config = config.with_scale(job.config.scale).with_backend(job.config.backend)
+    if spec.scale is not None:
+        config = config.with_scale(spec.scale)  # type: ignore[arg-type]
+    if spec.backend is not None:
+        config = config.with_backend(spec.backend)  # type: ignore[arg-type]
+    return config
+
+
+def run_log(job: LogJob) -> LogResult:
+    """Run one log into the report folder and score it. Never raises for a bad log (unreadable, bad
+    calibration, a crash of the engine): that is a ``failed`` result with a one-line error."""
+    spec, start = job.spec, time.monotonic()
+
+    def result(status: str, error: str = "", **values: Any) -> LogResult:
+        one_line = " ".join(error.split())
+        return LogResult(spec.index, spec.name, status, one_line, elapsed_s=time.monotonic() - start,
+                         spec_hash=spec_hash(spec), **values)
+
+    try:
+        config = log_config(job)
+        source = open_source(spec.source, sequence=spec.sequence, frames=FrameRange.parse(spec.frames),
+                             intrinsics=spec.intrinsics, calib=spec.calib, ground_truth=spec.gt, topic=spec.topic,
+                             gt_topic=spec.gt_topic)
+        config = _with_camera_height(config, spec.camera_height, source)
+        problem = backend_problem(source, config)
+        if problem is not None:
+            raise ConfigError(problem)
+        warnings = input_warnings(source, config)
+        quiet = Console(file=io.StringIO())  # per-frame progress would interleave: the batch prints per log
+        evaluation = evaluate_sources([source], config, job.report_dir, quiet, job.detail,
+                                      {"source_path": spec.source, "batch_log": spec.name}, names=[spec.name],
+                                      write_tables=False)
+    except VslamError as exc:
+        return result("failed", str(exc))
+    except Exception as exc:  # a crash inside the engine or a reader: this log fails, the batch goes on
+        return result("failed", f"crash: {type(exc).__name__}: {exc}")
+    if evaluation.interrupted is not None:
+        return result("interrupted", f"interrupted by {evaluation.interrupted}")
+    if not evaluation.rows:
+        return result("failed", "fewer than 3 frames: nothing to score")
+    return result("ok", row=evaluation.rows[0], by_length=evaluation.by_length.get(spec.name, {}),
+                  warnings=warnings)
+
+
+def _with_camera_height(config: EngineConfig, metres: float | None, source: Any) -> EngineConfig:
+    """The row's camera_height into the config (as `vslam run --camera-height` does), checked."""
+    problem = camera_height_problem(metres)
+    if problem is not None:
+        raise ConfigError(problem.replace("--camera-height", "camera_height"))
+    if metres is not None:
+        if config.scale != "height":
+            raise ConfigError("camera_height only applies with scale height")
+        config = config.with_camera_height(metres)
+    if config.scale == "height":
+        default_camera_height(source.camera_height, config)
+    return config
+
+
+def stops(result: LogResult, fail_fast: bool) -> bool:
+    """Whether a batch stops after this result: an interrupted log, or any failure with fail-fast."""
+    return result.status == "interrupted" or (fail_fast and result.status == "failed")
+
+
+def run_serial(jobs: list[LogJob], on_result: OnResult, fail_fast: bool) -> None:
+    """One log after another in this process."""
+    for index, job in enumerate(jobs):
+        result = run_log(job)
+        on_result(index, result)
+        if stops(result, fail_fast):
+            return
+
+
+def _ignore_sigint() -> None:
+    """Workers: Ctrl-C goes to the whole process group; a run notes it between frames (its own handler),
+    an idle worker ignores it, and the parent stops the batch."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def local_executor(workers: int) -> Executor:
+    """`workers` local processes (spawned: fork would copy Rerun's and OpenCV's threads in a broken state)."""
+
+    def execute(jobs: list[LogJob], on_result: OnResult, fail_fast: bool) -> None:
+        context = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(max_workers=max(1, min(workers, len(jobs))), mp_context=context,
+                                 initializer=_ignore_sigint) as pool:
+            pending: dict[Future[LogResult], int] = {pool.submit(run_log, job): i for i, job in enumerate(jobs)}
+            previous = signal.signal(signal.SIGTERM, _terminate_as_interrupt)
+            try:
+                while pending:
+                    done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                    stop = False
+                    for future in sorted(done, key=lambda f: pending[f]):
+                        index = pending.pop(future)
+                        result = _outcome(future, jobs[index])
+                        on_result(index, result)
+                        stop = stop or stops(result, fail_fast)
+                    if stop:
+                        _drain(pending, jobs, on_result)
+                        return
+            except KeyboardInterrupt:
+                _stop_workers(pool)
+                _drain(pending, jobs, on_result)
+                raise
+            finally:
+                signal.signal(signal.SIGTERM, previous)
+
+    return execute
+
+
+def _terminate_as_interrupt(_signum: int, _frame: object) -> None:
+    """SIGTERM (a cancelled CI job) stops a batch of workers as Ctrl-C does."""
+    raise KeyboardInterrupt
+
+
+def _stop_workers(pool: ProcessPoolExecutor) -> None:
+    """Ask each worker's run to stop between frames (SIGINT, which a run notes; Ctrl-C in a terminal has sent
+    it already, a SIGTERM to this process has not). The pool keeps its processes in a private attribute."""
+    for process in list(getattr(pool, "_processes", {}).values()):
+        if process.pid is not None and process.is_alive():
+            with contextlib.suppress(OSError):
+                os.kill(process.pid, signal.SIGINT)
+
+
+def _outcome(future: Future[LogResult], job: LogJob) -> LogResult:
+    """A future's result; a worker that died (out of memory, a segfault) fails its log."""
+    try:
+        return future.result()
+    except BrokenProcessPool:
+        return LogResult(job.spec.index, job.spec.name, "failed", "crash: its worker process died (out of "
+                         "memory? a crash in native code?)", spec_hash=spec_hash(job.spec))
+
+
+def _drain(pending: dict[Future[LogResult], int], jobs: list[LogJob], on_result: OnResult) -> None:
+    """Cancel the logs not started; wait for the running ones and keep their results."""
+    for future in pending:
+        future.cancel()
+    for future, index in pending.items():
+        if not future.cancelled():
+            result = _outcome(future, jobs[index])
+            if result.status != "interrupted":
+                on_result(index, result)
+
+
+def default_workers() -> int:
+    """The machine's cores, capped by the memory available for `LOG_MEMORY_BYTES` per log; at least 1."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    available = _available_memory()
+    by_memory = cores if available is None else available // LOG_MEMORY_BYTES
+    return max(1, min(cores, by_memory))
+
+
+def _available_memory() -> int | None:
+    """MemAvailable of /proc/meminfo in bytes (None where there is none)."""
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
+def eta_seconds(elapsed: float, done: int, total: int) -> float:
+    """Time left at the batch's pace so far (NaN before the first log)."""
+    return elapsed / done * (total - done) if done else math.nan
