@@ -136,7 +136,7 @@ def _lock(report: Path, force: bool) -> None:
 
 
 def _prepare_report(report: Path, config: EngineConfig, options: BatchOptions) -> dict[str, LogResult]:
-    """Lock the folder; with --resume, the logs it already holds (same config only), else a fresh start."""
+    """Lock the folder; with --resume, the logs it already finished ok (same config only), else a fresh start."""
     if not options.resume:
         _lock(report, options.force)
         clear_log_results(report)
@@ -148,7 +148,8 @@ def _prepare_report(report: Path, config: EngineConfig, options: BatchOptions) -
     if info["config_hash"] != config_hash(config):
         raise BatchError(f"--resume {report}: its logs ran with another config (hash {info['config_hash']}, now "
                          f"{config_hash(config)})")
-    return {name: r for name, r in read_log_results(report).items() if r.status in ("ok", "failed")}
+    # a failed log runs again: its cause may be gone (a file fixed, a worker lost); an engine failure recurs
+    return {name: r for name, r in read_log_results(report).items() if r.status == "ok"}
 
 
 def _still_valid(done: dict[str, LogResult], selected: list[LogSpec]) -> dict[str, LogResult]:

@@ -119,7 +119,7 @@ def test_workers_and_merged_shards_give_identical_rows(
 
 
 @pytest.mark.kitti
-def test_resume_runs_only_missing_and_changed_logs(serial: tuple[Path, subprocess.CompletedProcess[str]],
+def test_resume_runs_only_missing_changed_and_failed_logs(serial: tuple[Path, subprocess.CompletedProcess[str]],
                                                    manifest: Path) -> None:
     report = manifest.parent / "resumed"
     shutil.copytree(serial[0], report)
@@ -128,9 +128,9 @@ def test_resume_runs_only_missing_and_changed_logs(serial: tuple[Path, subproces
     changed.write_text(manifest.read_text().replace(",00,40:80,", ",00,40:79,"))
     result = vslam("eval", "--manifest", changed, "--report", report, "--resume", "--workers", "1", "--detail",
                    "off")
-    assert result.returncode == 1, result.stderr  # the broken log's failed row is kept
+    assert result.returncode == 1, result.stderr  # the broken log, run again, fails again
     lines = [line for line in result.stderr.splitlines() if line.startswith("[")]
-    assert [line.split("  ")[0] for line in lines] == ["[1/2] kitti-00-b", "[2/2] kitti-05-a"], result.stderr
+    assert [line.split("  ")[0] for line in lines] == ["[1/3] kitti-00-b", "[2/3] broken", "[3/3] kitti-05-a"]
     table = pl.read_csv(report / "metrics.csv")
     assert table.filter(pl.col("sequence") == "kitti-00-b")["frames"][0] == 39
     unchanged = pl.col("sequence").is_in(["kitti-00-b", "mean"]).not_()
