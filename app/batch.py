@@ -32,6 +32,7 @@ from app.checks import backend_problem, camera_height_problem, input_warnings
 from app.evaluation import evaluate_sources
 from app.manifest import LogSpec
 from app.recording import Detail
+from app.recording.video import ImageCodec
 from vslam_core.config import EngineConfig, load_config
 from vslam_core.errors import ConfigError, VslamError
 from vslam_core.scale import default_camera_height
@@ -51,6 +52,7 @@ class LogJob:
     config: EngineConfig  # the batch's config (--config, --scale, --backend); the log's own columns win
     report_dir: Path
     detail: Detail = Detail.FULL
+    image_codec: ImageCodec = ImageCodec.JPEG
 
 
 @dataclass
@@ -126,7 +128,8 @@ def run_log(job: LogJob) -> LogResult:
         warnings = input_warnings(source, config)
         quiet = Console(file=io.StringIO())  # per-frame progress would interleave: the batch prints per log
         evaluation = evaluate_sources([source], config, job.report_dir, quiet, job.detail,
-                                      {"source_path": spec.source, "batch_log": spec.name}, names=[spec.name],
+                                      {"source_path": spec.source, "batch_log": spec.name}, job.image_codec,
+                                      names=[spec.name],
                                       write_tables=False)
     except VslamError as exc:
         return result("failed", str(exc))

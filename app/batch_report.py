@@ -112,16 +112,23 @@ def report_rows(results: list[LogResult]) -> list[dict[str, Any]]:
     return rows
 
 
-def write_batch_report(report: Path, results: list[LogResult], config: EngineConfig, gate_failures: list[str],
-                       notes: list[str]) -> None:
-    """metrics.csv/.parquet and report.md over `results` (sorted into manifest order here), then the batch's
-    own section: which logs failed and why, which gates failed, what was not run."""
+def batch_table(results: list[LogResult]) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """The rows of `results` in manifest order (`report_rows`) and their mean over the ok logs."""
     results = sorted(results, key=lambda r: r.index)
     rows = report_rows(results)
     ok_rows = [row for row, result in zip(rows, results, strict=True) if result.status == "ok"]
     mean = mean_row(ok_rows) if ok_rows else {"sequence": "mean"}
     mean = {**{k: None for k in rows[0]}, **mean, "status": "", "error": "",
             "elapsed_s": sum(r.elapsed_s for r in results)} if rows else mean
+    return rows, mean
+
+
+def write_batch_report(report: Path, results: list[LogResult], config: EngineConfig, gate_failures: list[str],
+                       notes: list[str]) -> None:
+    """metrics.csv/.parquet and report.md over `results` (sorted into manifest order here), then the batch's
+    own section: which logs failed and why, which gates failed, what was not run."""
+    results = sorted(results, key=lambda r: r.index)
+    rows, mean = batch_table(results)
     by_length = {r.name: r.by_length for r in results if r.status == "ok" and r.by_length}
     write_report(report, Evaluation(rows, mean, by_length), config)
     failed = [r for r in results if r.status != "ok"]

@@ -36,13 +36,13 @@ from app.batch_report import (
     BATCH_FILE,
     BatchError,
     batch_info,
+    batch_table,
     clear_log_results,
     config_hash,
     forget_log_results,
     merge_reports,
     read_batch_info,
     read_log_results,
-    report_rows,
     write_batch_info,
     write_batch_report,
     write_log_result,
@@ -53,6 +53,7 @@ from app.manifest import LogSpec, parse_shard, read_manifest, shard
 from app.outputs import lock_folder
 from app.progress import eta
 from app.recording import Detail
+from app.recording.video import ImageCodec
 from app.report import markdown_table
 from vslam_core.config import EngineConfig
 from vslam_core.errors import VslamError
@@ -78,7 +79,7 @@ class BatchOptions:
 
 
 def eval_manifest(manifest: Path, report: Path | None, config: EngineConfig, detail: Detail, options: BatchOptions,
-                  gates: Gates) -> None:
+                  gates: Gates, image_codec: ImageCodec = ImageCodec.JPEG) -> None:
     """Run every log of the manifest (or of its shard) into `report`, then write one report over them."""
     if report is None:
         fail("--manifest needs --report DIR (the folder for the batch's report and each log's files)")
@@ -95,7 +96,7 @@ def eval_manifest(manifest: Path, report: Path | None, config: EngineConfig, det
     done = _still_valid(earlier, selected)
     forget_log_results(report, set(earlier) - set(done))  # stale rows would reappear in a --merge
     write_batch_info(report, batch_info(config, manifest.resolve(), options.shard, [s.name for s in selected]))
-    jobs = [LogJob(spec, config, report, detail) for spec in selected if spec.name not in done]
+    jobs = [LogJob(spec, config, report, detail, image_codec) for spec in selected if spec.name not in done]
     if done:
         err.print(f"resume: {len(done)} of {len(selected)} logs already in {report}, running {len(jobs)}",
                   highlight=False)
@@ -248,8 +249,9 @@ def _finish(report: Path, results: list[LogResult], config: EngineConfig, gates:
         notes = [*notes, "**Interrupted**: the report covers the logs finished."]
     if results:
         write_batch_report(report, results, config, failures, notes)
+        rows, mean = batch_table(results)
         shown = [{k: v for k, v in row.items() if k not in ("alignment", "error", "elapsed_s")}
-                 for row in report_rows(results)]
+                 for row in rows + ([mean] if len(rows) > 1 else [])]
         out.print(markdown_table(shown), highlight=False)
         out.print(f"report      {report / 'report.md'}", highlight=False)
     failed = [r for r in results if r.status != "ok"]

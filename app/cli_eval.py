@@ -208,7 +208,7 @@ def _eval_batch(options: dict[str, Any]) -> None:
         config = config.with_backend(o["backend"].value)
     batch = BatchOptions(o["workers"], o["ray_address"], o["shard"], o["resume"], o["fail_fast"], o["force"])
     with report_writes(report):
-        eval_manifest(o["manifest"], report, config, o["detail"], batch, gates)
+        eval_manifest(o["manifest"], report, config, o["detail"], batch, gates, o["image_codec"])
 
 
 def _check_report_dir(report: Path, force: bool) -> None:

@@ -159,7 +159,8 @@ def write_report(report_dir: Path, evaluation: Evaluation, config: EngineConfig)
         f"backend `{evaluation.mean.get('backend', config.backend)}`.",
         "",
         *_provenance_lines(evaluation, aligned),
-        markdown_table([{k: r.get(k) for k in COLUMNS if k not in ("scale", "backend", "alignment")} for r in rows]),
+        markdown_table([{k: r.get(k) for k in COLUMNS if k not in ("scale", "backend", "alignment")
+                        and (k in r or k != "status")} for r in rows]),
         "",
         ("Every number is of the Sim(3)-aligned estimate. " if aligned else "")
         + "t_err, r_err: KITTI devkit segment errors (100–800 m, every 10th frame), "

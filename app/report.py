@@ -12,6 +12,7 @@ from vslam_core.metrics import evaluate, rpe_by_distance, scale_errors, sim3_ali
 # key -> (column header, format); the keys are also the JSON keys of `vslam eval --json`.
 COLUMNS: dict[str, tuple[str, str]] = {
     "sequence": ("sequence", "{}"),
+    "status": ("status", "{}"),  # batches (`vslam eval --manifest`): ok or failed
     "frames": ("frames", "{:d}"),
     "length_m": ("length m", "{:.1f}"),
     "scale": ("scale", "{}"),
