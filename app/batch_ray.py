@@ -31,6 +31,9 @@ CONNECT_TIMEOUT_S = 5.0
 #: deterministic out-of-memory three times (Ray's default).
 MAX_RETRIES = 1
 
+#: Characters kept of a task's error message (a report row, not a log file).
+MAX_MESSAGE = 300
+
 
 def split_address(address: str) -> tuple[str, int]:
     """``HOST:PORT`` (IPv6 as ``[::1]:6379``) to its host and port; a `VslamError` when malformed."""
@@ -92,8 +95,13 @@ def error_line(error: BaseException) -> str:
     """One line for a task that raised or whose worker died: the task's own exception when there is one."""
     cause = getattr(error, "cause", None)  # RayTaskError wraps the task's exception
     shown = cause if isinstance(cause, BaseException) else error
-    first = str(shown).strip().splitlines()
-    return f"{type(shown).__name__}: {first[0]}" if first else type(shown).__name__
+    text = str(shown).strip()
+    if "failed to import on the worker" in text:  # Ray's message goes on to list the worker's whole sys.path
+        return "a Ray worker cannot import vslam: install the same vslam version in the workers' environment"
+    first = text.splitlines()[0] if text else ""
+    if len(first) > MAX_MESSAGE:
+        first = first[: MAX_MESSAGE - 1] + "…"
+    return f"{type(shown).__name__}: {first}" if first else type(shown).__name__
 
 
 def run_on_ray(

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import pytest
 import ray_cluster as cluster
 
-from app.batch_ray import run_on_ray
+from app.batch_ray import MAX_MESSAGE, error_line, run_on_ray
 from vslam_core.errors import VslamError
 
 pytestmark = pytest.mark.ray
@@ -106,3 +106,19 @@ def test_importing_the_module_does_not_import_ray() -> None:
     code = "import sys, app.batch_ray; assert 'ray' not in sys.modules"
     subprocess.run([sys.executable, "-c", code], check=True, cwd=cluster.ROOT,
                    env=dict(os.environ, PYTHONPATH=str(cluster.ROOT)))
+
+
+class FakeTaskError(Exception):
+    """Like ray.exceptions.RayTaskError: the task's own exception in ``cause``."""
+
+    def __init__(self, cause: BaseException) -> None:
+        super().__init__("ray::square() (pid=1)\n" + str(cause))
+        self.cause = cause
+
+
+def test_error_line_is_one_short_line() -> None:
+    assert error_line(FakeTaskError(KeyError("x"))) == "KeyError: 'x'"
+    assert error_line(FakeTaskError(MemoryError())) == "MemoryError"
+    assert len(error_line(FakeTaskError(ValueError("y" * 1000)))) <= len("ValueError: ") + MAX_MESSAGE
+    missing = RuntimeError("The remote function failed to import on the worker. This may be … sys.path [...]:")
+    assert "cannot import vslam" in error_line(FakeTaskError(missing))
