@@ -119,7 +119,8 @@ def run_on_ray(
     Each task reserves ``num_cpus`` CPUs (the engine's ``threads``). ``on_result(index, result)`` is called in
     the driver as each task finishes (completion order); a task that raises or whose worker dies (crash, OOM
     kill) is reported as ``on_error(job, one_line_message)``, never raised. With ``fail_fast``, the first result
-    for which ``failed`` holds cancels every outstanding task and their results are not reported. Ctrl-C
+    for which ``failed`` holds cancels every outstanding task (queued ones never start, running ones get Ray's
+    KeyboardInterrupt) and their results are not reported. Ctrl-C
     cancels the outstanding tasks and re-raises; the driver always disconnects (``ray.shutdown``).
     """
     if not jobs:
@@ -141,8 +142,8 @@ def run_on_ray(
                     _cancel(ray, pending, force=False)
                     pending = {}
                     return
-    except KeyboardInterrupt:
-        _cancel(ray, pending, force=True)  # kill running tasks too: the user wants the cluster back
+    except BaseException:  # Ctrl-C (or on_result failing): kill running tasks too, the cluster is shared
+        _cancel(ray, pending, force=True)
         raise
     finally:
         ray.shutdown()
