@@ -77,7 +77,8 @@ def connect(address: str) -> None:
     check_reachable(address)  # before importing ray (~1 s): an unreachable head answers at once
     import ray
 
-    # A port that accepts connections but is no Ray head: one connect attempt (~40 s) instead of twenty.
+    # A port that accepts connections but is no Ray head: one connect attempt (~2-40 s) instead of twenty. Ray's
+    # C++ client still prints one warning line then (RAY_BACKEND_LOG_LEVEL does not reach it in 2.60).
     with _env(RAY_gcs_server_port_wait_time_s="1"):
         try:
             ray.init(
