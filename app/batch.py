@@ -222,13 +222,17 @@ def _stop_workers(pool: ProcessPoolExecutor) -> None:
                 os.kill(process.pid, signal.SIGINT)
 
 
+def failed_log(job: LogJob, error: str) -> LogResult:
+    """The result of a log whose worker gave no result (it died, or the task could not run)."""
+    return LogResult(job.spec.index, job.spec.name, "failed", " ".join(error.split()), spec_hash=spec_hash(job.spec))
+
+
 def _outcome(future: Future[LogResult], job: LogJob) -> LogResult:
     """A future's result; a worker that died (out of memory, a segfault) fails its log."""
     try:
         return future.result()
     except BrokenProcessPool:
-        return LogResult(job.spec.index, job.spec.name, "failed", "crash: its worker process died (out of "
-                         "memory? a crash in native code?)", spec_hash=spec_hash(job.spec))
+        return failed_log(job, "crash: its worker process died (out of memory? a crash in native code?)")
 
 
 def _drain(pending: dict[Future[LogResult], int], jobs: list[LogJob], on_result: OnResult) -> None:

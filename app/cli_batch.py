@@ -25,8 +25,10 @@ from app.batch import (
     Executor,
     LogJob,
     LogResult,
+    OnResult,
     default_workers,
     eta_seconds,
+    failed_log,
     local_executor,
     run_log,
     run_serial,
@@ -177,13 +179,11 @@ def ray_executor(address: str, num_cpus: int) -> Executor:
         importlib.import_module("ray")
     except ImportError:
         raise VslamError(RAY_EXTRA) from None
-    try:
-        module: Any = importlib.import_module("app.batch_ray")
-    except ImportError:
-        raise VslamError("--ray-address: this vslam has no Ray backend yet (app/batch_ray.py)") from None
+    from app.batch_ray import run_on_ray
 
-    def execute(jobs: list[LogJob], on_result: Any, fail_fast: bool) -> None:
-        module.run_on_ray(run_log, jobs, address, num_cpus, on_result, fail_fast)
+    def execute(jobs: list[LogJob], on_result: OnResult, fail_fast: bool) -> None:
+        run_on_ray(run_log, jobs, address, num_cpus, on_result, lambda result: result.status == "failed", fail_fast,
+                   lambda job, error: failed_log(job, f"Ray task failed: {error}"))
 
     return execute
 

@@ -6,6 +6,7 @@ import os
 from pathlib import Path
 
 import pytest
+from ray_cluster import ray_cluster  # noqa: F401  (the fixture: a real one-node Ray head, see ray_cluster.py)
 
 #: The real KITTI sample: the ``shared`` folder beside the repository checkout (never inside the repo).
 KITTI_ROOT = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti"

@@ -119,6 +119,23 @@ def test_workers_and_merged_shards_give_identical_rows(
 
 
 @pytest.mark.kitti
+@pytest.mark.ray
+def test_a_ray_cluster_gives_identical_rows(manifest: Path, serial: tuple[Path, subprocess.CompletedProcess[str]],
+                                            ray_cluster: str) -> None:
+    """Each log a Ray task on a real cluster (started on 127.0.0.1 by the fixture): the same rows as serially,
+    the broken log failed alone, exit 1."""
+    report = manifest.parent / "ray"
+    result = vslam("eval", "--manifest", manifest, "--report", report, "--detail", "summary",
+                   env={"RAY_ADDRESS": ray_cluster})
+    assert result.returncode == 1, result.stderr
+    assert metric_rows(report) == metric_rows(serial[0])
+    table = pl.read_csv(report / "metrics.csv")
+    assert table.filter(pl.col("status") == "failed")["sequence"].to_list() == ["broken"]
+    assert len([line for line in result.stderr.splitlines() if line.startswith("[")]) == 5
+    assert (report / "kitti-05-b.rrd").exists() and "Traceback" not in result.stderr
+
+
+@pytest.mark.kitti
 def test_resume_runs_only_missing_changed_and_failed_logs(serial: tuple[Path, subprocess.CompletedProcess[str]],
                                                    manifest: Path) -> None:
     report = manifest.parent / "resumed"
