@@ -1,22 +1,18 @@
-"""Many logs: serial vs two local workers vs a 2-CPU Ray cluster, and what a Ray task costs per log.
+"""Many logs: `vslam eval --manifest` serially, on two local workers and on a 2-CPU Ray cluster, and what a Ray
+task costs per log.
 
-    python -m benchmarks.batch ../shared/data/kitti [--out DIR]            # measurable today
-    python -m benchmarks.batch ../shared/data/kitti --manifest-runner      # after the `batch` branch is merged
+    python -m benchmarks.batch ../shared/data/kitti [--out DIR]
 
 The logs: KITTI 00 and 05, windows 0:150, 50:200, 100:250, 150:300 of each (the sample holds 300 frames per
-sequence) = 8 logs of 150 frames, every path absolute, each scored with `--detail standard` recordings.
+sequence) = 8 logs of 150 frames, every path absolute, each scored with `--detail standard` recordings. Each
+mode is the real command into a fresh report folder, with the default config (`threads = 2`: a Ray task then
+reserves 2 CPUs) and with `threads = 1` (two logs at a time on two cores):
 
-Today (no manifest runner on this branch) each log is its own `vslam eval SRC --sequences S --frames F --report
-DIR/<name>` process: one after the other (serial), two at a time (a stand-in for `--workers 2`), and as Ray tasks
-(one CPU each) on a local 2-CPU cluster this script starts and stops. With ``--manifest-runner`` it times the real
-commands instead, each into a fresh report folder:
-
-    vslam eval --manifest M.csv --report R1 --workers 1 --detail standard
-    vslam eval --manifest M.csv --report R2 --workers 2 --detail standard
-    vslam eval --manifest M.csv --report R3 --ray-address 127.0.0.1:PORT --detail standard
+    vslam eval --manifest M.csv --report R --workers 1 | --workers 2 | --ray-address 127.0.0.1:PORT
 
 The Ray overheads printed: the round trip of a trivial task on a warm worker, and a task on a fresh worker that
-imports vslam (what the first log on each worker pays), with the import's own share.
+imports vslam (what the first log on each worker pays), with the import's own share. The Ray head is a private
+one-node cluster this script starts and stops (`tests/ray_cluster.py`).
 """
 
 from __future__ import annotations
@@ -28,7 +24,6 @@ import subprocess
 import sys
 import tempfile
 import time
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -38,7 +33,7 @@ import ray_cluster  # noqa: E402
 
 SEQUENCES = ("00", "05")
 WINDOWS = ("0:150", "50:200", "100:250", "150:300")
-#: The manifest's columns. Adapt to app/manifest.py's header when the `batch` branch lands (not on this branch).
+#: The manifest's columns (app/manifest.py).
 MANIFEST_COLUMNS = ("name", "source", "sequence", "frames")
 
 
@@ -62,15 +57,6 @@ def vslam(*args: str) -> list[str]:
     return [sys.executable, "-c", "from app.cli import main; main()", *args]
 
 
-def eval_one(row: dict[str, str], report: str) -> float:
-    """Score one log in its own process; its wall seconds. Top level: Ray tasks run it too."""
-    started = time.perf_counter()
-    command = vslam("eval", row["source"], "--sequences", row["sequence"], "--frames", row["frames"],
-                    "--report", str(Path(report) / row["name"]), "--detail", "standard")
-    subprocess.run(command, check=True, cwd=ROOT, stdout=subprocess.DEVNULL)
-    return time.perf_counter() - started
-
-
 def timed(label: str, run: object) -> tuple[str, float]:
     """(label, wall seconds) of ``run()``."""
     started = time.perf_counter()
@@ -78,44 +64,22 @@ def timed(label: str, run: object) -> tuple[str, float]:
     return label, time.perf_counter() - started
 
 
-def per_log_modes(rows: list[dict[str, str]], out: Path, address: str) -> list[tuple[str, float]]:
-    """Serial, two local processes at a time, and Ray tasks (1 CPU each): one process per log."""
-    from app.batch_ray import run_on_ray
-
-    def serial() -> None:
-        for row in rows:
-            eval_one(row, str(out / "serial"))
-
-    def two_local() -> None:
-        with ThreadPoolExecutor(2) as pool:
-            list(pool.map(lambda row: eval_one(row, str(out / "local2")), rows))
-
-    def on_ray() -> None:
-        jobs = [(row, str(out / "ray")) for row in rows]
-        run_on_ray(_eval_job, jobs, address, num_cpus=1, on_result=lambda i, r: None, failed=lambda r: r < 0,
-                   fail_fast=False, on_error=_job_error)
-
-    return [timed("serial (per-log processes)", serial), timed("2 local processes", two_local),
-            timed("Ray, 2-CPU local cluster", on_ray)]
-
-
-def _eval_job(job: tuple[dict[str, str], str]) -> float:
-    return eval_one(*job)
-
-
-def _job_error(job: tuple[dict[str, str], str], message: str) -> float:
-    print(f"{job[0]['name']}: {message}", file=sys.stderr)
-    return -1.0
-
-
 def manifest_modes(rows: list[dict[str, str]], out: Path, address: str) -> list[tuple[str, float]]:
-    """The real `vslam eval --manifest` commands (needs the `batch` branch's manifest runner)."""
+    """The real `vslam eval --manifest` commands, each into a fresh report folder."""
     manifest = write_manifest(rows, out / "logs.csv")
-    base = ("eval", "--manifest", str(manifest), "--detail", "standard", "--report")
-    modes = [("--workers 1", (str(out / "r1"), "--workers", "1")), ("--workers 2", (str(out / "r2"), "--workers", "2")),
-             ("--ray-address (2 CPUs)", (str(out / "r3"), "--ray-address", address))]
-    return [timed(label, lambda extra=extra: subprocess.run(vslam(*base, *extra), check=True, cwd=ROOT))
-            for label, extra in modes]
+    one_thread = out / "threads1.toml"
+    one_thread.write_text("threads = 1\n")
+    modes = [("--workers 1 (threads 2)", ("--workers", "1")), ("--workers 2 (threads 2)", ("--workers", "2")),
+             ("--ray-address, 2-CPU cluster (threads 2: one task at a time)", ("--ray-address", address)),
+             ("--workers 2, threads 1", ("--workers", "2", "--config", str(one_thread))),
+             ("--ray-address, 2-CPU cluster, threads 1", ("--ray-address", address, "--config", str(one_thread)))]
+    results = []
+    for number, (label, extra) in enumerate(modes):
+        command = vslam("eval", "--manifest", str(manifest), "--detail", "standard", "--report",
+                        str(out / f"r{number}"), *extra)
+        results.append(timed(label, lambda command=command: subprocess.run(command, check=True, cwd=ROOT,
+                                                                           stdout=subprocess.DEVNULL)))
+    return results
 
 
 def noop(value: int) -> int:
@@ -169,7 +133,6 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("kitti", type=Path, help="KITTI root (sequences/00, 05 and poses/)")
     parser.add_argument("--out", type=Path, help="folder for the reports (default: a temporary one)")
-    parser.add_argument("--manifest-runner", action="store_true", help="time `vslam eval --manifest` (after merge)")
     args = parser.parse_args()
     rows = logs(args.kitti)
     out = args.out or Path(tempfile.mkdtemp(prefix="vslam-batch-"))
@@ -179,8 +142,7 @@ def main() -> None:
         print(f"Ray head (2 CPUs) ready in {ray_cluster.last_start_seconds:.1f} s at {address}")
         for name, value in ray_overheads(address).items():
             print(f"{name}: {value:.1f}")
-        modes = manifest_modes if args.manifest_runner else per_log_modes
-        print(table(modes(rows, out, address), len(rows)))
+        print(table(manifest_modes(rows, out, address), len(rows)))
         print(f"{len(rows)} logs of 150 frames, --detail standard, reports under {out}")
     finally:
         ray_cluster.stop_cluster(process, temp_dir)
