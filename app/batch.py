@@ -184,11 +184,28 @@ def local_executor(workers: int) -> Executor:
         context = multiprocessing.get_context("spawn")
         with ProcessPoolExecutor(max_workers=max(1, min(workers, len(jobs))), mp_context=context,
                                  initializer=_ignore_sigint) as pool:
-            pending: dict[Future[LogResult], int] = {pool.submit(run_log, job): i for i, job in enumerate(jobs)}
-            previous = signal.signal(signal.SIGTERM, _terminate_as_interrupt)
+            # one log per worker in flight, the next submitted as one finishes: a stop (Ctrl-C, SIGTERM,
+            # fail-fast) then waits for those only (the pool would start every log already handed to it)
+            waiting = iter(enumerate(jobs))
+            pending: dict[Future[LogResult], int] = {}
+
+            def submit_next() -> None:
+                for index, job in waiting:
+                    pending[pool.submit(run_log, job)] = index
+                    return
+
+            for _ in range(workers):
+                submit_next()
+            # Ctrl-C / SIGTERM are noted and acted on between waits: an exception raised by a signal handler
+            # inside the pool's own code can leave it waiting forever
+            signals: list[int] = []
+            previous = {signum: signal.signal(signum, lambda signum, _frame: signals.append(signum))
+                        for signum in (signal.SIGINT, signal.SIGTERM)}
             try:
                 while pending:
-                    done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                    if signals:
+                        raise Terminated if signals[0] == signal.SIGTERM else KeyboardInterrupt
+                    done, _ = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
                     stop = False
                     for future in sorted(done, key=lambda f: pending[f]):
                         index = pending.pop(future)
@@ -198,19 +215,26 @@ def local_executor(workers: int) -> Executor:
                     if stop:
                         _drain(pending, jobs, on_result)
                         return
+                    for _ in done:
+                        submit_next()
             except KeyboardInterrupt:
                 _stop_workers(pool)
                 _drain(pending, jobs, on_result)
                 raise
             finally:
-                signal.signal(signal.SIGTERM, previous)
+                for signum, handler in previous.items():
+                    signal.signal(signum, handler)
 
     return execute
 
 
-def _terminate_as_interrupt(_signum: int, _frame: object) -> None:
-    """SIGTERM (a cancelled CI job) stops a batch of workers as Ctrl-C does."""
-    raise KeyboardInterrupt
+class Terminated(KeyboardInterrupt):
+    """SIGTERM to the batch's process: handled as Ctrl-C, reported as SIGTERM (exit 143)."""
+
+
+def terminate_as_interrupt(_signum: int, _frame: object) -> None:
+    """SIGTERM (a cancelled CI job) stops a batch as Ctrl-C does (a run in this process notes it itself)."""
+    raise Terminated
 
 
 def _stop_workers(pool: ProcessPoolExecutor) -> None:

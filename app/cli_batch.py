@@ -1,7 +1,8 @@
 """`vslam eval --manifest LOGS.csv` and `vslam eval --merge DIR… --report OUT`: many logs, one report.
 
 Exit codes: 0 all logs ok and every gate passed; 1 a log failed or a gate failed (report.md says which);
-2 bad input (manifest, options, report folder), before any log runs; 130 interrupted (finished logs kept).
+2 bad input (manifest, options, report folder), before any log runs; 130 Ctrl-C, 143 SIGTERM (finished logs
+kept).
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ import dataclasses
 import importlib
 import math
 import os
+import signal
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -26,6 +28,7 @@ from app.batch import (
     LogJob,
     LogResult,
     OnResult,
+    Terminated,
     default_workers,
     eta_seconds,
     failed_log,
@@ -33,6 +36,7 @@ from app.batch import (
     run_log,
     run_serial,
     spec_hash,
+    terminate_as_interrupt,
 )
 from app.batch_report import (
     BATCH_FILE,
@@ -125,7 +129,7 @@ def eval_merge(folders: list[Path], report: Path | None, force: bool, gates: Gat
     clear_log_results(report)
     results, config, info = merge_reports(folders, report)
     write_batch_info(report, info)
-    _finish(report, results, config, gates, [f"Merged from {', '.join(map(str, folders))}."], False)
+    _finish(report, results, config, gates, [f"Merged from {', '.join(map(str, folders))}."], None)
 
 
 def _lock(report: Path, force: bool) -> None:
@@ -188,16 +192,18 @@ def ray_executor(address: str, num_cpus: int) -> Executor:
     return execute
 
 
-def _run(jobs: list[LogJob], executor: Executor, report: Path, fail_fast: bool) -> tuple[list[LogResult], bool]:
-    """Run the jobs, keeping each finished log's result file and printing its line; (results, interrupted)."""
+def _run(jobs: list[LogJob], executor: Executor, report: Path, fail_fast: bool
+         ) -> tuple[list[LogResult], str | None]:
+    """Run the jobs, keeping each finished log's result file and printing its line; (results, the signal that
+    interrupted the batch: "SIGINT", "SIGTERM" or None)."""
     results: list[LogResult] = []
-    interrupted: list[str] = []  # a log stopped by Ctrl-C / SIGTERM (its worker noted the signal)
+    interrupted: list[str] = []  # the signal that stopped a log (its run noted it: "interrupted by SIGTERM")
     start = time.monotonic()
     with _bar(len(jobs)) as advance:
 
         def on_result(_index: int, result: LogResult) -> None:
             if result.status == "interrupted":
-                interrupted.append(result.name)
+                interrupted.append(result.error.split()[-1] if result.error else "SIGINT")
                 return
             write_log_result(report, result)
             results.append(result)
@@ -208,12 +214,15 @@ def _run(jobs: list[LogJob], executor: Executor, report: Path, fail_fast: bool) 
                       soft_wrap=True)
             advance()
 
+        previous = signal.signal(signal.SIGTERM, terminate_as_interrupt)
         try:
             if jobs:
                 executor(jobs, on_result, fail_fast)
-        except KeyboardInterrupt:
-            return results, True
-    return results, bool(interrupted)
+        except KeyboardInterrupt as exc:
+            return results, "SIGTERM" if isinstance(exc, Terminated) else "SIGINT"
+        finally:
+            signal.signal(signal.SIGTERM, previous)
+    return results, interrupted[0] if interrupted else None
 
 
 def progress_line(result: LogResult, done: int, total: int, left: float) -> str:
@@ -240,8 +249,9 @@ def _bar(total: int) -> Iterator[Any]:
 
 
 def _finish(report: Path, results: list[LogResult], config: EngineConfig, gates: Gates, notes: list[str],
-            interrupted: bool) -> None:
-    """Write the report, print its table, and exit: 130 interrupted, 1 a failed log or gate, else 0."""
+            interrupted: str | None) -> None:
+    """Write the report, print its table, and exit: 128 + the signal when interrupted (130 Ctrl-C, 143
+    SIGTERM), 1 a failed log or gate, else 0."""
     results = sorted(results, key=lambda r: r.index)
     ok = [r.row for r in results if r.status == "ok" and r.row is not None]
     failures = check_gates(ok, gates.max_t_err, gates.max_r_err, gates.max_ate)
@@ -256,7 +266,8 @@ def _finish(report: Path, results: list[LogResult], config: EngineConfig, gates:
         out.print(f"report      {report / 'report.md'}", highlight=False)
     failed = [r for r in results if r.status != "ok"]
     if interrupted:
-        fail(f"interrupted; the report covers the {len(results)} logs finished", 130)
+        fail(f"interrupted by {interrupted}; the report covers the {len(results)} logs finished",
+             128 + signal.Signals[interrupted].value)
     for result in failed:
         err.print(f"[bold red]log failed:[/] {escape(result.name)}: {escape(result.error)}", highlight=False)
     for message in failures:

@@ -107,7 +107,8 @@ def eval_command(
     ray_address: Annotated[str | None, typer.Option(envvar="RAY_ADDRESS", metavar="HOST:PORT", help=RAY_HELP)]
     = None,
     shard: Annotated[str | None, typer.Option(metavar="K/N", help=SHARD_HELP)] = None,
-    resume: Annotated[bool, typer.Option("--resume", help="--manifest: skip logs already in --report")] = False,
+    resume: Annotated[bool, typer.Option("--resume", help="--manifest: skip the logs that finished ok in --report "
+                                         "(failed ones run again)")] = False,
     fail_fast: Annotated[bool, typer.Option("--fail-fast", help="--manifest: stop at the first failed log")]
     = False,
     merge: Annotated[list[Path] | None, typer.Option(metavar="DIR", help=MERGE_HELP)] = None,

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -153,6 +154,34 @@ def test_resume_runs_only_missing_changed_and_failed_logs(serial: tuple[Path, su
     unchanged = pl.col("sequence").is_in(["kitti-00-b", "mean"]).not_()
     expected = pl.read_csv(serial[0] / "metrics.csv").filter(unchanged).drop(WALL_CLOCK).write_csv()
     assert table.filter(unchanged).drop(WALL_CLOCK).write_csv() == expected
+
+
+@pytest.mark.kitti
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_sigterm_keeps_the_finished_logs_and_exits_143(manifest: Path, workers: str) -> None:
+    """A cancelled CI job: SIGTERM after the first log stops the batch (serially: the run notes the signal
+    between frames; with workers: the parent stops them); the finished rows are written."""
+    report = manifest.parent / f"terminated{workers}"
+    environment = {**os.environ, "PYTHONPATH": str(ROOT)}
+    environment.pop("RAY_ADDRESS", None)
+    process = subprocess.Popen([sys.executable, "-m", "app.cli", "eval", "--manifest", str(manifest), "--report",
+                                str(report), "--workers", workers, "--detail", "off"], cwd=ROOT, env=environment,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert process.stderr is not None
+    lines = [process.stderr.readline()]
+    while not lines[-1].startswith("[1/5]"):  # the first finished log
+        assert lines[-1], "".join(lines)
+        lines.append(process.stderr.readline())
+    process.send_signal(signal.SIGTERM)
+    _, rest = process.communicate(timeout=120)
+    assert process.returncode == 143, "".join(lines) + rest
+    error = [line for line in rest.splitlines() if line.startswith("error:")]
+    assert len(error) == 1 and error[0].startswith("error: interrupted by SIGTERM; the report covers the "), rest
+    assert "Traceback" not in rest
+    table = pl.read_csv(report / "metrics.csv")
+    finished = table.filter(pl.col("sequence") != "mean")
+    assert 1 <= len(finished) < 5 and set(finished["status"]) <= {"ok", "failed"}
+    assert "**Interrupted**" in (report / "report.md").read_text()
 
 
 @pytest.mark.kitti
