@@ -28,14 +28,13 @@ from typing import Any
 
 from rich.console import Console
 
-from app.checks import backend_problem, camera_height_problem, input_warnings
+from app.checks import backend_problem, input_warnings, with_camera_height
 from app.evaluation import evaluate_sources
 from app.manifest import LogSpec
 from app.recording import Detail
 from app.recording.video import ImageCodec
 from vslam_core.config import EngineConfig, load_config
 from vslam_core.errors import ConfigError, VslamError
-from vslam_core.scale import default_camera_height
 from vslam_core.sources.base import FrameRange
 from vslam_core.sources.open import open_source
 
@@ -121,7 +120,7 @@ def run_log(job: LogJob) -> LogResult:
         source = open_source(spec.source, sequence=spec.sequence, frames=FrameRange.parse(spec.frames),
                              intrinsics=spec.intrinsics, calib=spec.calib, ground_truth=spec.gt, topic=spec.topic,
                              gt_topic=spec.gt_topic)
-        config = _with_camera_height(config, spec.camera_height, source)
+        config = with_camera_height(config, spec.camera_height, source, "camera_height", "scale height")
         problem = backend_problem(source, config)
         if problem is not None:
             raise ConfigError(problem)
@@ -141,20 +140,6 @@ def run_log(job: LogJob) -> LogResult:
         return result("failed", "fewer than 3 frames: nothing to score")
     return result("ok", row=evaluation.rows[0], by_length=evaluation.by_length.get(spec.name, {}),
                   warnings=warnings)
-
-
-def _with_camera_height(config: EngineConfig, metres: float | None, source: Any) -> EngineConfig:
-    """The row's camera_height into the config (as `vslam run --camera-height` does), checked."""
-    problem = camera_height_problem(metres)
-    if problem is not None:
-        raise ConfigError(problem.replace("--camera-height", "camera_height"))
-    if metres is not None:
-        if config.scale != "height":
-            raise ConfigError("camera_height only applies with scale height")
-        config = config.with_camera_height(metres)
-    if config.scale == "height":
-        default_camera_height(source.camera_height, config)
-    return config
 
 
 def stops(result: LogResult, fail_fast: bool) -> bool:

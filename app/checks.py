@@ -30,6 +30,23 @@ def camera_height_problem(metres: float | None) -> str | None:
     return None if problem is None else f"--camera-height {metres:g}: {problem.partition(' is ')[2]}"
 
 
+def with_camera_height(config: EngineConfig, metres: float | None, source: FrameSource,
+                       option: str = "--camera-height", scale_option: str = "--scale height") -> EngineConfig:
+    """`--camera-height` (a manifest's `camera_height` column: `option`, `scale_option`) into the config, checked
+    before anything runs: its range, that it goes with scale height, and that scale height knows the camera's
+    height. `ConfigError` in one line."""
+    problem = camera_height_problem(metres)
+    if problem is not None:
+        raise ConfigError(problem.replace("--camera-height", option))
+    if metres is not None:
+        if config.scale != "height":
+            raise ConfigError(f"{option} only applies with {scale_option}")
+        config = config.with_camera_height(metres)
+    if config.scale == "height":
+        default_camera_height(source.camera_height, config)  # raises ConfigError naming --camera-height
+    return config
+
+
 def output_problem(output: Path | None, detail_off: bool) -> str | None:
     """`-o FILE` with `--detail off` would be dropped without a word."""
     if output is not None and detail_off:

@@ -18,6 +18,7 @@ from app.checks import (
     input_warnings,
     nothing_tracked,
     output_problem,
+    with_camera_height,
 )
 from app.cli_common import (
     BACKEND_HELP,
@@ -37,7 +38,6 @@ from app.cli_common import (
     out,
     refuse,
     warn,
-    with_camera_height,
 )
 from app.cli_eval import eval_command
 from app.compare import PREFIXES, check_labels, compare_recordings, default_labels, format_differences

@@ -9,11 +9,6 @@ import typer
 from rich.console import Console
 from rich.markup import escape
 
-from app.checks import camera_height_problem
-from vslam_core.config import EngineConfig
-from vslam_core.scale import default_camera_height
-from vslam_core.sources.base import FrameSource
-
 err = Console(stderr=True, soft_wrap=True)
 out = Console(soft_wrap=True)
 class Scale(StrEnum):
@@ -67,19 +62,6 @@ def warn(message: str) -> None:
 def refuse(problem: str | None, code: int = 2) -> None:
     if problem is not None:
         fail(problem, code)
-
-
-def with_camera_height(config: EngineConfig, camera_height: float | None, source: FrameSource) -> EngineConfig:
-    """`--camera-height` into the config, and a check (before anything runs) that `--scale height` knows
-    the camera's height."""
-    refuse(camera_height_problem(camera_height))
-    if camera_height is not None:
-        if config.scale != "height":
-            fail("--camera-height only applies with --scale height")
-        config = config.with_camera_height(camera_height)
-    if config.scale == "height":
-        default_camera_height(source.camera_height, config)  # raises ConfigError naming --camera-height
-    return config
 
 
 IMAGE_CODEC_HELP = ("recorded camera frames: jpeg images, or an av1 / h264 video stream (half the size; the native "

@@ -13,6 +13,7 @@ import typer
 from app.checks import (
     backend_problem,
     input_warnings,
+    with_camera_height,
 )
 from app.cli_common import (
     BACKEND_HELP,
@@ -32,7 +33,6 @@ from app.cli_common import (
     out,
     refuse,
     warn,
-    with_camera_height,
 )
 from app.cli_external import evaluate_external, report_writes
 from app.evaluation import REPORT_FILES, Evaluation, check_gates, evaluate_sources
