@@ -26,6 +26,7 @@ from app.recording.blueprint import CAR_ENTITY, blueprint
 from app.recording.columns import FLUSH_FRAMES, ColumnBuffer
 from app.recording.drift import DriftRecording
 from app.recording.metrics import METRICS
+from app.recording.recorder import StreamStopped, close_stream, flush_or_stop
 from app.recording.styles import APPLICATION_ID, CAR_COLOUR, ESTIMATE_COLOUR, GROUND_TRUTH_COLOUR, Detail
 from app.rrd import RecordingError, has_footer
 from app.trajectory_images import TrajectoryImages
@@ -75,6 +76,7 @@ def record_external(path: Path, run: ExternalRun, properties: dict[str, str], de
     rec = rr.RecordingStream(APPLICATION_ID, recording_id=properties.get("recording_id"), send_properties=False,
                              batcher_config=batcher)
     rec.set_log_time_enabled(False)  # reproducible files: no wall-clock column
+    stuck = False
     try:
         rec.save(path, default_blueprint=blueprint(image=shown is not None, engine=False,
                                                    frustum=camera is not None))
@@ -94,11 +96,14 @@ def record_external(path: Path, run: ExternalRun, properties: dict[str, str], de
         columns.flush()
         rec.log("/report", rr.TextDocument("\n".join([run.report, "", *lines]), media_type=rr.MediaType.MARKDOWN),
                 static=True)
-        rec.flush(timeout_sec=120.0)
+        flush_or_stop(rec, path)
+    except StreamStopped as exc:
+        stuck = exc.stuck
+        raise
     except RuntimeError:
         raise OutputError(write_failure(path)) from None
     finally:
-        rec.disconnect()
+        close_stream(rec, stuck)
     if not has_footer(path):
         raise OutputError(write_failure(path))
 

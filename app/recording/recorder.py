@@ -54,6 +54,44 @@ FLUSH_STEP_S = 1.0
 WRITE_CHECK_S = 1.0
 
 
+class StreamStopped(OutputError):
+    """Rerun's writer stopped (full disk); `stuck`: a flush of it never returned (see `flush_or_stop`)."""
+
+    def __init__(self, message: str, stuck: bool) -> None:
+        super().__init__(message)
+        self.stuck = stuck
+
+
+def flush_or_stop(rec: rr.RecordingStream, path: Path) -> None:
+    """Wait until Rerun's writer thread has written what was sent to `path`. That thread only logs its write
+    errors (silenced in `app/__init__.py`) and stops; the flush then fails: `StreamStopped`.
+
+    Rerun 0.41 has a race there: a flush queued just as the file sink's thread dies on ENOSPC is never
+    answered, and the stream's forwarding thread waits for it forever (seen as a hung run on a full disk).
+    So the flush is asked for in steps, a full disk ends the wait at once, and a stream whose flush timed
+    out is `stuck`: `close_stream` must not disconnect it."""
+    deadline = time.monotonic() + WRITE_TIMEOUT_S
+    while True:
+        started = time.monotonic()
+        try:
+            rec.flush(timeout_sec=FLUSH_STEP_S)
+            return
+        except RuntimeError:
+            timed_out = time.monotonic() - started >= 0.9 * FLUSH_STEP_S
+            if timed_out and time.monotonic() < deadline and likely_errno(path) is None:
+                continue  # a slow disk: keep waiting
+            raise StreamStopped(write_failure(path), stuck=timed_out) from None
+
+
+def close_stream(rec: rr.RecordingStream, stuck: bool) -> None:
+    """Disconnect `rec` (writing the footer), or hold it if `stuck`: disconnecting or dropping it would wait
+    forever."""
+    if stuck:
+        hold_stuck_writer(rec)
+    else:
+        rec.disconnect()
+
+
 class Recorder:
     """Writes one run to a `.rrd` file. Always `close()` it (or use `with`): that writes the footer."""
 
@@ -135,36 +173,20 @@ class Recorder:
         finally:
             if self._encoder is not None:
                 self._encoder.shutdown(cancel_futures=True)
-            if self._stuck:
-                hold_stuck_writer(self._rec)  # disconnecting (or dropping) it would wait forever
-            else:
-                self._rec.disconnect()
+            close_stream(self._rec, self._stuck)
         if not self._failed and not has_footer(self.path):  # the footer itself did not fit
             raise OutputError(write_failure(self.path))
 
     def _check_written(self) -> None:
-        """Wait until Rerun's writer thread has written what was sent. That thread only logs its write errors
-        (silenced in `app/__init__.py`) and stops; the flush then fails, and we stop the run.
-
-        Rerun 0.41 has a race there: a flush queued just as the file sink's thread dies on ENOSPC is never
-        answered, and the stream's forwarding thread waits for it forever (seen as a hung run on a full disk).
-        So the flush is asked for in steps, a full disk ends the wait at once, and a stream whose flush timed
-        out is never disconnected or dropped (`close`)."""
+        """Wait until Rerun's writer thread has written what was sent (`flush_or_stop`); stop the run if not."""
         if self._failed:
             return
         self._checked_at = time.monotonic()
-        deadline = self._checked_at + WRITE_TIMEOUT_S
-        while True:
-            started = time.monotonic()
-            try:
-                self._rec.flush(timeout_sec=FLUSH_STEP_S)
-                return
-            except RuntimeError:
-                timed_out = time.monotonic() - started >= 0.9 * FLUSH_STEP_S
-                if timed_out and time.monotonic() < deadline and likely_errno(self.path) is None:
-                    continue  # a slow disk: keep waiting
-                self._failed, self._stuck = True, timed_out
-                raise OutputError(write_failure(self.path)) from None
+        try:
+            flush_or_stop(self._rec, self.path)
+        except StreamStopped as exc:
+            self._failed, self._stuck = True, exc.stuck
+            raise
 
     def finish(self, run: RunResult, stopped: str | None) -> None:
         """Log the run's verdict (metrics table against ground truth, when there is one) and close. `stopped`
