@@ -19,7 +19,7 @@ import multiprocessing
 import os
 import signal
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
@@ -156,10 +156,16 @@ def run_serial(jobs: list[LogJob], on_result: OnResult, fail_fast: bool) -> None
             return
 
 
-def _ignore_sigint() -> None:
-    """Workers: Ctrl-C goes to the whole process group; a run notes it between frames (its own handler),
-    an idle worker ignores it, and the parent stops the batch."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+@contextlib.contextmanager
+def _workers_ignore_sigint() -> Iterator[None]:
+    """Start workers with SIGINT ignored (an ignored signal stays ignored across exec, and Python then keeps
+    it so): Ctrl-C goes to the whole process group, and a worker still importing would die of it with a
+    traceback. A run notes SIGINT between frames with its own handler; an idle worker ignores it."""
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def local_executor(workers: int) -> Executor:
@@ -167,8 +173,7 @@ def local_executor(workers: int) -> Executor:
 
     def execute(jobs: list[LogJob], on_result: OnResult, fail_fast: bool) -> None:
         context = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=max(1, min(workers, len(jobs))), mp_context=context,
-                                 initializer=_ignore_sigint) as pool:
+        with ProcessPoolExecutor(max_workers=max(1, min(workers, len(jobs))), mp_context=context) as pool:
             # one log per worker in flight, the next submitted as one finishes: a stop (Ctrl-C, SIGTERM,
             # fail-fast) then waits for those only (the pool would start every log already handed to it)
             waiting = iter(enumerate(jobs))
@@ -179,8 +184,9 @@ def local_executor(workers: int) -> Executor:
                     pending[pool.submit(run_log, job)] = index
                     return
 
-            for _ in range(workers):
-                submit_next()
+            with _workers_ignore_sigint():  # a spawn pool starts all its processes at the first submit
+                for _ in range(workers):
+                    submit_next()
             # Ctrl-C / SIGTERM are noted and acted on between waits: an exception raised by a signal handler
             # inside the pool's own code can leave it waiting forever
             signals: list[int] = []
@@ -203,8 +209,7 @@ def local_executor(workers: int) -> Executor:
                     for _ in done:
                         submit_next()
             except KeyboardInterrupt:
-                _stop_workers(pool)
-                _drain(pending, jobs, on_result)
+                _drain(pending, jobs, on_result, nudge=lambda: _stop_workers(pool))
                 raise
             finally:
                 for signum, handler in previous.items():
@@ -244,10 +249,17 @@ def _outcome(future: Future[LogResult], job: LogJob) -> LogResult:
         return failed_log(job, "crash: its worker process died (out of memory? a crash in native code?)")
 
 
-def _drain(pending: dict[Future[LogResult], int], jobs: list[LogJob], on_result: OnResult) -> None:
-    """Cancel the logs not started; wait for the running ones and keep their results."""
+def _drain(pending: dict[Future[LogResult], int], jobs: list[LogJob], on_result: OnResult,
+           nudge: Callable[[], None] | None = None) -> None:
+    """Cancel the logs not started; wait for the running ones and keep their results. `nudge` (asking the
+    workers to stop) is repeated while they run: a worker's run notes SIGINT only once its handler is in."""
     for future in pending:
         future.cancel()
+    running = [future for future in pending if not future.cancelled()]
+    while nudge is not None and running:
+        nudge()
+        _, still = wait(running, timeout=0.5)
+        running = list(still)
     for future, index in pending.items():
         if not future.cancelled():
             result = _outcome(future, jobs[index])

@@ -248,6 +248,19 @@ def _bar(total: int) -> Iterator[Any]:
         yield lambda: bar.advance(task)
 
 
+@contextmanager
+def _signals_deferred() -> Iterator[list[int]]:
+    """SIGINT and SIGTERM noted, not acted on, inside the block (the signals that arrived, in order)."""
+    noted: list[int] = []
+    previous = {signum: signal.signal(signum, lambda signum, _frame: noted.append(signum))
+                for signum in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield noted
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
 def _finish(report: Path, results: list[LogResult], config: EngineConfig, gates: Gates, notes: list[str],
             interrupted: str | None) -> None:
     """Write the report, print its table, and exit: 128 + the signal when interrupted (130 Ctrl-C, 143
@@ -257,13 +270,15 @@ def _finish(report: Path, results: list[LogResult], config: EngineConfig, gates:
     failures = check_gates(ok, gates.max_t_err, gates.max_r_err, gates.max_ate)
     if interrupted:
         notes = [*notes, "**Interrupted**: the report covers the logs finished."]
-    if results:
-        write_batch_report(report, results, config, failures, notes)
-        rows, mean = batch_table(results)
-        shown = [{k: v for k, v in row.items() if k not in ("alignment", "error", "elapsed_s")}
-                 for row in rows + ([mean] if len(rows) > 1 else [])]
-        out.print(markdown_table(shown), highlight=False)
-        out.print(f"report      {report / 'report.md'}", highlight=False)
+    with _signals_deferred() as late:  # a stop while the report is written: written first, then exit
+        if results:
+            write_batch_report(report, results, config, failures, notes)
+            rows, mean = batch_table(results)
+            shown = [{k: v for k, v in row.items() if k not in ("alignment", "error", "elapsed_s")}
+                     for row in rows + ([mean] if len(rows) > 1 else [])]
+            out.print(markdown_table(shown), highlight=False)
+            out.print(f"report      {report / 'report.md'}", highlight=False)
+    interrupted = interrupted or (signal.Signals(late[0]).name if late else None)
     failed = [r for r in results if r.status != "ok"]
     if interrupted:
         fail(f"interrupted by {interrupted}; the report covers the {len(results)} logs finished",
