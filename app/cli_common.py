@@ -2,12 +2,18 @@
 
 from __future__ import annotations
 
+import errno
+from collections.abc import Iterator
+from contextlib import contextmanager
 from enum import StrEnum
+from pathlib import Path
 from typing import NoReturn
 
 import typer
 from rich.console import Console
 from rich.markup import escape
+
+from app.outputs import write_failure
 
 err = Console(stderr=True, soft_wrap=True)
 out = Console(soft_wrap=True)
@@ -66,3 +72,16 @@ def refuse(problem: str | None, code: int = 2) -> None:
 
 IMAGE_CODEC_HELP = ("recorded camera frames: jpeg images, or an av1 / h264 video stream (half the size; the native "
                     "viewer needs ffmpeg on PATH for h264)")
+
+
+@contextmanager
+def report_writes(report: Path | None) -> Iterator[None]:
+    """A report file that cannot be written (full disk) ends the command in one line, not a traceback."""
+    try:
+        yield
+    except OSError as exc:
+        if report is None:
+            raise
+        path = Path(exc.filename) if exc.filename else report  # a write() error names no file
+        # EIO (cv2 gives no reason): the file system tells whether it is full
+        fail(write_failure(path, None if exc.errno in (None, errno.EIO) else exc))

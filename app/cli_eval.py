@@ -32,9 +32,10 @@ from app.cli_common import (
     fail,
     out,
     refuse,
+    report_writes,
     warn,
 )
-from app.cli_external import evaluate_external, report_writes
+from app.cli_external import evaluate_external
 from app.evaluation import REPORT_FILES, Evaluation, check_gates, evaluate_sources
 from app.matching import DEFAULT_TOLERANCE_MS, MatchMode
 from app.outputs import lock_folder

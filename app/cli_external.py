@@ -3,20 +3,16 @@ as a recording `DIR/<name>.rrd` (with its camera frames from ``--images``)."""
 
 from __future__ import annotations
 
-import errno
 import hashlib
 import json
 import uuid
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
-from app.cli_common import fail
+from app.cli_common import fail, report_writes
 from app.evaluation import Evaluation, ScoredTrajectory, evaluate_trajectory_files, write_trajectory_report
 from app.matching import MatchMode, match_images
-from app.outputs import write_failure
 from app.recording import Detail, version_properties
 from app.recording.external import ExternalRun, RunFrames, record_external
 from app.report import markdown_table
@@ -102,14 +98,3 @@ def _digest(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
-@contextmanager
-def report_writes(report: Path | None) -> Iterator[None]:
-    """A report file that cannot be written (full disk) ends the command in one line, not a traceback."""
-    try:
-        yield
-    except OSError as exc:
-        if report is None:
-            raise
-        path = Path(exc.filename) if exc.filename else report  # a write() error names no file
-        # EIO (cv2 gives no reason): the file system tells whether it is full
-        fail(write_failure(path, None if exc.errno in (None, errno.EIO) else exc))

@@ -236,14 +236,19 @@ def layout_order(tree: dict[str, Any]) -> list[str]:
     return order
 
 
+#: Two screenshots this far apart (seconds) that are identical, with nothing loading, are the settled picture.
+SETTLE_S = 0.1
+
+
 def _settled(client: ViewerClient, view_id: str | None, rrd: Path, deadline: float) -> bytes:
-    """Screenshot the view (the whole window for None) until two shots 0.2 s apart are identical and nothing
-    is loading: the viewer loads chunks lazily, decodes images and eases the 3-D eye in the background."""
-    previous: bytes | None = None
+    """Screenshot the view (the whole window for None) until two shots `SETTLE_S` apart are identical and
+    nothing is loading: the viewer loads chunks lazily, decodes images and eases the 3-D eye in the
+    background (it repaints while it does, so a changing picture is never taken twice)."""
+    previous = client.take_screenshot(view_id)
     while True:
         if time.monotonic() > deadline:
             raise ViewerError(f"{rrd}: the viewer's pictures did not settle before the time-out")
-        time.sleep(0.2)
+        time.sleep(SETTLE_S)
         shot = client.take_screenshot(view_id)
         if shot == previous and not client.get_state().loading:
             return shot

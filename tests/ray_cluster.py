@@ -106,7 +106,7 @@ def stop_cluster(process: subprocess.Popen[bytes], temp_dir: Path) -> None:
     if process.poll() is None:
         os.killpg(process.pid, signal.SIGTERM)  # `ray start --block` stops its daemons on SIGTERM
         try:
-            process.wait(timeout=5)  # it often takes ~20 s: the sweep below finishes the job
+            process.wait(timeout=1)  # it often takes ~20 s: the sweep below finishes the job
         except subprocess.TimeoutExpired:
             os.killpg(process.pid, signal.SIGKILL)
             process.wait()

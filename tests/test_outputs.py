@@ -25,6 +25,7 @@ from app import outputs
 from app.outputs import OutputError, claim, default_recording
 from app.recording import Detail
 from app.recording import recorder as recorder_module
+from app.recording import stream as stream_module
 from app.rrd import has_footer, read_entity, readable
 from app.snapshot import snapshot
 from app.viewer import recording_frames, vulkan_available
@@ -328,7 +329,7 @@ def test_a_flush_never_answered_on_a_full_disk_stops_the_run_without_waiting(
     for 10 minutes: the recorder now asks in steps, gives up at the first step on a full disk, and holds the
     stuck stream instead of disconnecting it."""
     recorder, asked = _recorder_with_flush(kitti_root, tmp_path, monkeypatch, [False] * 200)
-    for module in (recorder_module, outputs):
+    for module in (stream_module, outputs):
         monkeypatch.setattr(module, "likely_errno", lambda _path: errno.ENOSPC)
     disconnect = recorder._rec.disconnect
     monkeypatch.setattr(recorder._rec, "disconnect", lambda: pytest.fail("disconnecting a stuck stream hangs"))
@@ -336,7 +337,7 @@ def test_a_flush_never_answered_on_a_full_disk_stops_the_run_without_waiting(
     with pytest.raises(OutputError, match="disk full"):
         recorder.close()
     assert time.monotonic() - start < 10.0
-    assert asked == [recorder_module.FLUSH_STEP_S]
+    assert asked == [stream_module.FLUSH_STEP_S]
     assert outputs.stuck_writers()
     disconnect()  # the real stream is not stuck
 
@@ -344,7 +345,7 @@ def test_a_flush_never_answered_on_a_full_disk_stops_the_run_without_waiting(
 @pytest.mark.kitti
 def test_a_slow_disk_is_waited_for(kitti_root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     recorder, asked = _recorder_with_flush(kitti_root, tmp_path, monkeypatch, [False, False, True])
-    monkeypatch.setattr(recorder_module, "likely_errno", lambda _path: None)  # room on the disk: keep waiting
+    monkeypatch.setattr(stream_module, "likely_errno", lambda _path: None)  # room on the disk: keep waiting
     recorder.close()
     assert len(asked) == 3 and not outputs.stuck_writers()
     verify(tmp_path / "x.rrd")

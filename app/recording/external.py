@@ -22,16 +22,16 @@ import numpy as np
 import rerun as rr
 
 from app.outputs import OutputError, write_failure
-from app.recording.blueprint import CAR_ENTITY, blueprint
+from app.recording.blueprint import blueprint
 from app.recording.columns import FLUSH_FRAMES, ColumnBuffer
 from app.recording.drift import DriftRecording
 from app.recording.metrics import METRICS
-from app.recording.recorder import StreamStopped, close_stream, flush_or_stop
-from app.recording.styles import APPLICATION_ID, CAR_COLOUR, ESTIMATE_COLOUR, GROUND_TRUTH_COLOUR, Detail
+from app.recording.stream import StreamStopped, close_stream, flush_or_stop, log_world, open_stream
+from app.recording.styles import Detail
 from app.rrd import RecordingError, has_footer
 from app.trajectory_images import TrajectoryImages
 from vslam_core.geometry import rotation_angle
-from vslam_core.sources.base import CameraIntrinsics, Frame
+from vslam_core.sources.base import Frame
 
 #: The health an external trajectory's frames have in the drift events: none is known.
 NO_HEALTH = "not reported (external trajectory)"
@@ -72,17 +72,13 @@ def record_external(path: Path, run: ExternalRun, properties: dict[str, str], de
         raise ValueError("detail 'off' writes no recording")
     shown = frames if detail in (Detail.FULL, Detail.STANDARD) else None
     camera = shown.images.intrinsics if shown is not None else None
-    batcher = rr.ChunkBatcherConfig(flush_tick=1.0, flush_num_bytes=8 * 2**20)  # as the Recorder
-    rec = rr.RecordingStream(APPLICATION_ID, recording_id=properties.get("recording_id"), send_properties=False,
-                             batcher_config=batcher)
-    rec.set_log_time_enabled(False)  # reproducible files: no wall-clock column
+    layout = blueprint(image=shown is not None, engine=False, frustum=camera is not None)
+    rec = open_stream(path, properties.get("recording_id"), layout, properties.get("name", run.name))
     stuck = False
     try:
-        rec.save(path, default_blueprint=blueprint(image=shown is not None, engine=False,
-                                                   frustum=camera is not None))
-        rec.send_recording_name(properties.get("name", run.name))
         rec.send_property("run", rr.AnyValues(**{**properties, "detail": str(detail)}))  # type: ignore[arg-type]
-        _log_static(rec, camera)
+        log_world(rec, camera)
+        _log_series_styles(rec)
         columns = ColumnBuffer(rec)
         drift = DriftRecording(run.ground_truth, online=True)
         for i in range(len(run.estimate)):
@@ -145,18 +141,8 @@ def _log_image(columns: ColumnBuffer, frames: RunFrames, frame: Frame, index: in
                 (rr.AnyValues.columns, {"image_index": index, "image_file": frames.images.files[index].name}))
 
 
-def _log_static(rec: rr.RecordingStream, camera: CameraIntrinsics | None) -> None:
-    """World axes, the pinhole (when the camera is known), the car the 3-D view follows, the styles."""
-    rec.log("/world", rr.ViewCoordinates.RDF, static=True)
-    if camera is not None:
-        rec.log("/world/camera/image", rr.Pinhole(image_from_camera=camera.K, resolution=[camera.width, camera.height],
-                                                  camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=1.0),
-                static=True)
-    rec.log(CAR_ENTITY, rr.Boxes3D(centers=[[0.0, 0.75, -1.5]], half_sizes=[[0.8, 0.9, 2.0]], colors=[CAR_COLOUR]),
-            static=True)  # as the Recorder's: metres, camera frame
-    rec.log("/world/trajectory/estimate", rr.LineStrips3D.from_fields(colors=ESTIMATE_COLOUR, radii=0.12), static=True)
-    rec.log("/world/trajectory/ground_truth", rr.LineStrips3D.from_fields(colors=GROUND_TRUTH_COLOUR, radii=0.06),
-            static=True)
+def _log_series_styles(rec: rr.RecordingStream) -> None:
+    """The Recorder's series styles, for the series such a recording has."""
     for group in GROUPS:
         for name, (legend, colour) in METRICS[group].items():
             if group != "angle_error" or name == "heading_deg":  # no keyframes: no translation direction

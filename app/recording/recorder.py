@@ -12,21 +12,19 @@ import numpy as np
 import rerun as rr
 
 import vslam_core
-from app.outputs import OutputError, hold_stuck_writer, likely_errno, write_failure
+from app.outputs import OutputError, write_failure
 from app.provenance import flatten
-from app.recording.blueprint import CAR_ENTITY, UNDISTORTED, blueprint
+from app.recording.blueprint import UNDISTORTED, blueprint
 from app.recording.columns import FLUSH_FRAMES, ColumnBuffer, Part, add_event
 from app.recording.drift import DriftRecording
 from app.recording.map import MapRecording
 from app.recording.metrics import METRICS, STAGES, frame_metrics
+from app.recording.stream import StreamStopped, close_stream, flush_or_stop, log_world, open_stream, pinhole
 from app.recording.styles import (
-    APPLICATION_ID,
     AXIS_COLOURS,
     CANDIDATE_COLOURS,
-    CAR_COLOUR,
     ESTIMATE_COLOUR,
     FATE_STYLE,
-    GROUND_TRUTH_COLOUR,
     NEW_CORNER_COLOUR,
     ROAD_COLOUR,
     Detail,
@@ -46,50 +44,8 @@ from vslam_core.sources.calibration import describe_calibration
 ALIGNED_ERROR = "/metrics/error/position_m"
 ALIGNED_ESTIMATE = "/world/trajectory/estimate_sim3"
 
-#: How long to wait for Rerun's writer thread to catch up before calling the file unwritable (a slow disk)…
-WRITE_TIMEOUT_S = 120.0
-#: … asking this often whether it has caught up, and giving up at once when the disk is full.
-FLUSH_STEP_S = 1.0
 #: How often (seconds) to check that Rerun's writer thread is still writing: a full disk stops the run this soon.
 WRITE_CHECK_S = 1.0
-
-
-class StreamStopped(OutputError):
-    """Rerun's writer stopped (full disk); `stuck`: a flush of it never returned (see `flush_or_stop`)."""
-
-    def __init__(self, message: str, stuck: bool) -> None:
-        super().__init__(message)
-        self.stuck = stuck
-
-
-def flush_or_stop(rec: rr.RecordingStream, path: Path) -> None:
-    """Wait until Rerun's writer thread has written what was sent to `path`. That thread only logs its write
-    errors (silenced in `app/__init__.py`) and stops; the flush then fails: `StreamStopped`.
-
-    Rerun 0.41 has a race there: a flush queued just as the file sink's thread dies on ENOSPC is never
-    answered, and the stream's forwarding thread waits for it forever (seen as a hung run on a full disk).
-    So the flush is asked for in steps, a full disk ends the wait at once, and a stream whose flush timed
-    out is `stuck`: `close_stream` must not disconnect it."""
-    deadline = time.monotonic() + WRITE_TIMEOUT_S
-    while True:
-        started = time.monotonic()
-        try:
-            rec.flush(timeout_sec=FLUSH_STEP_S)
-            return
-        except RuntimeError:
-            timed_out = time.monotonic() - started >= 0.9 * FLUSH_STEP_S
-            if timed_out and time.monotonic() < deadline and likely_errno(path) is None:
-                continue  # a slow disk: keep waiting
-            raise StreamStopped(write_failure(path), stuck=timed_out) from None
-
-
-def close_stream(rec: rr.RecordingStream, stuck: bool) -> None:
-    """Disconnect `rec` (writing the footer), or hold it if `stuck`: disconnecting or dropping it would wait
-    forever."""
-    if stuck:
-        hold_stuck_writer(rec)
-    else:
-        rec.disconnect()
 
 
 class Recorder:
@@ -124,20 +80,12 @@ class Recorder:
         self._failed = False  # Rerun's writer stopped (full disk): reported once
         self._stuck = False  # …and a flush of it never returned: the stream must not be touched again
         self._checked_at = time.monotonic()
-        # send_properties=False: no wall-clock start time, so two runs of the same input compare equal
-        # Fewer, larger chunks than the default (0.2 s / 2 MiB): each chunk carries its own schema, and at
-        # ~3 frames a chunk the schemas alone were ~16 KB per frame.
-        batcher = rr.ChunkBatcherConfig(flush_tick=1.0, flush_num_bytes=8 * 2**20)
-        self._rec = rr.RecordingStream(APPLICATION_ID, recording_id=properties.get("recording_id"),
-                                       send_properties=False, batcher_config=batcher)
-        self._rec.set_log_time_enabled(False)  # reproducible files: no wall-clock column
-        self._columns = ColumnBuffer(self._rec)
         undistorted = source.intrinsics.distorted and detail == Detail.FULL
         layout = blueprint(map_backend=config.backend == "map", image=detail in (Detail.FULL, Detail.STANDARD),
                            road_scale=config.scale == "height", ground_truth=source.ground_truth is not None,
                            undistorted=undistorted)
-        self._rec.save(path, default_blueprint=layout)
-        self._rec.send_recording_name(properties.get("name", source.name))
+        self._rec = open_stream(path, properties.get("recording_id"), layout, properties.get("name", source.name))
+        self._columns = ColumnBuffer(self._rec)
         self._properties = {**properties, **describe_calibration(source.intrinsics), **source_properties(source),
                             "detail": str(detail)}
         self._rec.send_property("run", rr.AnyValues(**self._properties))  # type: ignore[arg-type]
@@ -240,16 +188,9 @@ class Recorder:
         """Pinhole, legend, and every style that does not change from frame to frame (logged once)."""
         rec = self._rec
         intr = source.intrinsics
-        rec.log("/world", rr.ViewCoordinates.RDF, static=True)
-        rec.log(
-            "/world/camera/image",
-            rr.Pinhole(image_from_camera=intr.K, resolution=[intr.width, intr.height],
-                       camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=1.0),
-            static=True,
-        )
+        log_world(rec, intr)
         if self._undistort is not None:
-            rec.log(UNDISTORTED, rr.Pinhole(image_from_camera=intr.K, resolution=[intr.width, intr.height],
-                                            camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=1.0), static=True)
+            rec.log(UNDISTORTED, pinhole(intr), static=True)
         rec.log(
             "/world/camera/image/flow",
             rr.AnnotationContext([(int(f), label, colour) for f, (label, colour) in FATE_STYLE.items()]),
@@ -258,20 +199,12 @@ class Recorder:
         )
         rec.log("/world/camera/image/corners", rr.Points2D.from_fields(radii=2.0, colors=NEW_CORNER_COLOUR),
                 static=True)
-        # the car around the camera (metres, camera frame: 1.6 m wide, roof to road under a camera 1.65 m up,
-        # 0.5 m of bonnet ahead of it): the 3-D view follows it
-        rec.log(CAR_ENTITY, rr.Boxes3D(centers=[[0.0, 0.75, -1.5]], half_sizes=[[0.8, 0.9, 2.0]], colors=[CAR_COLOUR]),
-                static=True)
         rec.log("/world/points", rr.Points3D.from_fields(radii=0.05, colors=(200, 200, 200)), static=True)
         rec.log("/world/road/points", rr.Points3D.from_fields(radii=0.07, colors=ROAD_COLOUR), static=True)
         rec.log("/world/road/plane", rr.LineStrips3D.from_fields(radii=0.03, colors=ROAD_COLOUR), static=True)
         rec.log("/world/camera/image/road", rr.Points2D.from_fields(radii=3.0, colors=ROAD_COLOUR), static=True)
         rec.log("/world/candidates", rr.Points3D.from_fields(colors=CANDIDATE_COLOURS),
                 rr.Arrows3D.from_fields(colors=AXIS_COLOURS * len(CANDIDATE_COLOURS), radii=0.02), static=True)
-        rec.log("/world/trajectory/estimate", rr.LineStrips3D.from_fields(colors=ESTIMATE_COLOUR, radii=0.12),
-                static=True)
-        rec.log("/world/trajectory/ground_truth",
-                rr.LineStrips3D.from_fields(colors=GROUND_TRUTH_COLOUR, radii=0.06), static=True)
         for group, series in METRICS.items():
             for name, (legend, colour) in series.items():
                 rec.log(f"/metrics/{group}/{name}", rr.SeriesLines(names=legend, colors=colour), static=True)
