@@ -6,20 +6,11 @@ import json
 import sys
 import uuid
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
-import numpy as np
 import typer
 from rich.markup import escape
 
-from app.checks import (
-    EXIT_NOTHING_TRACKED,
-    backend_problem,
-    input_warnings,
-    nothing_tracked,
-    output_problem,
-    with_camera_height,
-)
 from app.cli_common import (
     BACKEND_HELP,
     CALIB_HELP,
@@ -40,26 +31,17 @@ from app.cli_common import (
     warn,
 )
 from app.cli_eval import eval_command
-from app.compare import PREFIXES, check_labels, compare_recordings, default_labels, format_differences
-from app.compare_table import comparison_json
-from app.crop import crop_recording, parse_crop_frames
 from app.entry import run as run_app
-from app.inspect import format_report, inspect_recording
 from app.matching import DEFAULT_TOLERANCE_MS
-from app.outputs import claimed
-from app.recording import Detail, version_properties
-from app.recording.video import ImageCodec
-from app.repair import format_repair, repair_recording, repaired_path
-from app.report import json_ready, scored_estimate
-from app.runner import claim_run_outputs, describe_outputs, record_run
-from app.snapshot import DEFAULT_SIZE, parse_frame, parse_size, snapshot
-from app.web import open_recording, port_problem
-from vslam_core.config import EngineConfig, load_config
-from vslam_core.metrics import kitti_errors, paper_rms_error, scale_errors
-from vslam_core.pipeline import RunResult
-from vslam_core.scale import default_camera_height
-from vslam_core.sources.base import FrameRange, FrameSource, describe_indices
-from vslam_core.sources.open import open_source
+from app.recording.styles import Detail, ImageCodec
+
+if TYPE_CHECKING:
+    from vslam_core.config import EngineConfig
+    from vslam_core.pipeline import RunResult
+    from vslam_core.sources.base import FrameRange, FrameSource
+
+# Each command imports what it needs when it runs: `vslam --help`, a usage error or a bad path answers
+# without loading the engine, the recorder, polars and the viewer client (~0.4 s a start, ~300 in the tests).
 
 app = typer.Typer(
     name="vslam",
@@ -74,6 +56,8 @@ app = typer.Typer(
 
 def _print_version(value: bool) -> None:
     if value:
+        from app.recording import version_properties
+
         versions = version_properties()
         print(f"vslam {versions['vslam_version']} (OpenCV {versions['opencv_version']}, Rerun "
               f"{versions['rerun_version']}, Python {sys.version.split()[0]})")
@@ -102,6 +86,12 @@ def _recording_id(source: FrameSource, frames: FrameRange, config: EngineConfig)
 
 
 def _summary(source: FrameSource, run: RunResult, config: EngineConfig) -> None:
+    import numpy as np
+
+    from app.report import scored_estimate
+    from vslam_core.metrics import kitti_errors, paper_rms_error, scale_errors
+    from vslam_core.scale import default_camera_height
+
     fps = run.frames / run.seconds if run.seconds > 0 else float("nan")
     lines = [
         f"frames      {run.frames} ({run.held} held the previous pose)",
@@ -170,6 +160,20 @@ def run(
                                         "is writing)")] = False,
 ) -> None:
     """Run the odometry on a source and write a Rerun recording (and optionally the trajectory)."""
+    from app.checks import (
+        EXIT_NOTHING_TRACKED,
+        backend_problem,
+        input_warnings,
+        nothing_tracked,
+        output_problem,
+        with_camera_height,
+    )
+    from app.recording import version_properties
+    from app.runner import claim_run_outputs, describe_outputs, record_run
+    from vslam_core.config import EngineConfig, load_config
+    from vslam_core.sources.base import FrameRange, describe_indices
+    from vslam_core.sources.open import open_source
+
     frame_range = FrameRange.parse(frames)
     config = load_config(config_file) if config_file is not None else EngineConfig()
     src = open_source(source, sequence=sequence, frames=frame_range, intrinsics=intrinsics, calib=calib,
@@ -240,6 +244,9 @@ def inspect(
     = False,
 ) -> None:
     """Summarise a recording without a viewer: properties, frames, stage timings, accuracy, flagged frames."""
+    from app.inspect import format_report, inspect_recording
+    from app.report import json_ready
+
     report = inspect_recording(_existing_recording(recording))
     if as_json:
         print(json.dumps(json_ready(report), indent=2, allow_nan=False))
@@ -253,9 +260,11 @@ def snapshot_command(
     frame: Annotated[str, typer.Option(help="frame to show: the source's frame index, or 'last'")],
     out_dir: Annotated[Path, typer.Option("--out", help="folder for one PNG per view")],
     size: Annotated[str, typer.Option(help="viewer window WIDTHxHEIGHT: each view's PNG is about this large")]
-    = f"{DEFAULT_SIZE[0]}x{DEFAULT_SIZE[1]}",
+    = "1280x720",  # app.snapshot.DEFAULT_SIZE (a test keeps the two equal)
 ) -> None:
     """Render every view of the recording's blueprint at one frame to PNG, with the real viewer, headless."""
+    from app.snapshot import parse_frame, parse_size, snapshot
+
     window = parse_size(size)
     paths = snapshot(_existing_recording(recording), parse_frame(frame), out_dir, window_size=window)
     for path in paths:
@@ -274,6 +283,8 @@ def open_command(
     = None,
 ) -> None:
     """Open a recording: the native viewer where a display exists, else the web viewer on 127.0.0.1."""
+    from app.web import open_recording, port_problem
+
     refuse(port_problem(web_port, "--web-port"))
     refuse(port_problem(grpc_port, "--grpc-port"))
     open_recording(_existing_recording(recording), web=web, web_port=web_port, grpc_port=grpc_port)
@@ -289,6 +300,9 @@ def crop(
     force: Annotated[bool, typer.Option("--force", help="replace an existing output")] = False,
 ) -> None:
     """Cut a recording down to the frames that matter (static data and blueprint kept)."""
+    from app.crop import crop_recording, parse_crop_frames
+    from app.outputs import claimed
+
     selection = parse_crop_frames(frames)
     _existing_recording(recording)
     with claimed(_recording_path(output), force, "recording"):
@@ -316,6 +330,11 @@ def compare(
 ) -> None:
     """Put two or more runs side by side in one recording (overlaid metric plots), print one summary row per
     run and every difference from the first run."""
+    from app.compare import PREFIXES, check_labels, compare_recordings, default_labels, format_differences
+    from app.compare_table import comparison_json
+    from app.outputs import claimed
+    from app.report import json_ready
+
     if len(recordings) < 2:
         fail(f"give two or more recordings to compare, got {len(recordings)}")
     if len(recordings) > len(PREFIXES):
@@ -343,6 +362,9 @@ def repair(
 ) -> None:
     """Finalise a recording cut short (no footer: the run was killed, crashed or ran out of disk) into a
     complete copy holding every frame it recorded."""
+    from app.outputs import claimed
+    from app.repair import format_repair, repair_recording, repaired_path
+
     target = _recording_path(output or repaired_path(_existing_recording(recording)))
     with claimed(target, force, "recording"):
         summary = repair_recording(recording, target)

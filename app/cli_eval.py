@@ -6,15 +6,10 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from app.checks import (
-    backend_problem,
-    input_warnings,
-    with_camera_height,
-)
 from app.cli_common import (
     BACKEND_HELP,
     CALIB_HELP,
@@ -35,16 +30,12 @@ from app.cli_common import (
     report_writes,
     warn,
 )
-from app.cli_external import evaluate_external
-from app.evaluation import REPORT_FILES, Evaluation, check_gates, evaluate_sources
 from app.matching import DEFAULT_TOLERANCE_MS, MatchMode
-from app.outputs import lock_folder
-from app.recording import Detail
-from app.recording.video import ImageCodec
-from app.report import markdown_table
-from vslam_core.config import EngineConfig, load_config
-from vslam_core.sources.base import FrameRange, FrameSource
-from vslam_core.sources.open import open_source
+from app.recording.styles import Detail, ImageCodec
+
+if TYPE_CHECKING:
+    from app.evaluation import Evaluation
+    from vslam_core.sources.base import FrameSource
 
 MANIFEST_HELP = ("many logs, one a row: CSV (or TOML [[log]]) with name, source and columns named like the vslam "
                  "run options (README)")
@@ -115,6 +106,7 @@ def eval_command(
     merge: Annotated[list[Path] | None, typer.Option(metavar="DIR", help=MERGE_HELP)] = None,
 ) -> None:
     """Score the engine (or any trajectory file) against ground truth; gates make it a CI check."""
+    from app.evaluation import check_gates  # here, not at the top: see app.cli
     if manifest is not None or merge:
         _eval_batch({**locals(), "extra": list(ctx.args)})
         return
@@ -141,6 +133,8 @@ def eval_command(
         if topic is not None or gt_topic is not None or (images is None and (intrinsics or calib)):
             fail("--intrinsics, --calib, --topic and --gt-topic describe a SOURCE: they do not apply to --trajectory "
                  "files (--intrinsics and --calib do to their --images)")
+        from app.cli_external import evaluate_external
+
         fmt = trajectory_format.value if trajectory_format is not None else None
         assert gt is not None
         evaluation = evaluate_external(trajectory, gt, fmt, report, detail,  # type: ignore[arg-type]
@@ -149,6 +143,12 @@ def eval_command(
     else:
         if gt_times is not None or match is not MatchMode.auto:
             fail("--gt-times and --match apply to --trajectory files only")
+        from app.checks import backend_problem, input_warnings, with_camera_height
+        from app.evaluation import evaluate_sources
+        from vslam_core.config import EngineConfig, load_config
+        from vslam_core.sources.base import FrameRange
+        from vslam_core.sources.open import open_source
+
         config = load_config(config_file) if config_file is not None else EngineConfig()
         config = config.with_scale(scale.value)
         if backend is not None:
@@ -186,6 +186,7 @@ def eval_command(
 def _eval_batch(options: dict[str, Any]) -> None:
     """`--manifest` and `--merge` (app/cli_batch.py); the options of single runs are refused there."""
     from app.cli_batch import BatchOptions, Gates, eval_manifest, eval_merge
+    from vslam_core.config import EngineConfig, load_config
 
     o = options
     per_log = {"--sequences": o["sequences"], "--frames": o["frames"], "--camera-height": o["camera_height"],
@@ -215,6 +216,9 @@ def _eval_batch(options: dict[str, Any]) -> None:
 
 def _check_report_dir(report: Path, force: bool) -> None:
     """Refuse a folder holding a report (without --force) or one another command is writing; hold it."""
+    from app.evaluation import REPORT_FILES
+    from app.outputs import lock_folder
+
     if report.exists() and not report.is_dir():
         fail(f"{report}: not a folder")
     lock_folder(report, "report folder")  # before the check: of two evals started at once, one writes
@@ -225,6 +229,8 @@ def _check_report_dir(report: Path, force: bool) -> None:
 
 def _print_evaluation(evaluation: Evaluation, scale: str, backend: str, report: Path | None, as_json: bool,
                       failures: list[str]) -> None:
+    from app.report import markdown_table
+
     if as_json:
         data: dict[str, Any] = {"scale": scale, "backend": backend, **evaluation.as_json(),
                                 "gates": {"passed": not failures, "failures": failures}}

@@ -17,7 +17,6 @@ from typing import Any
 import numpy as np
 
 from vslam_core.errors import TrajectoryFormatError
-from vslam_core.sources.kitti import read_times
 from vslam_core.sources.stamps import nearest_in_time
 
 DEFAULT_TOLERANCE_MS = 10.0
@@ -72,6 +71,8 @@ def gt_times_for(path: Path | None, gt_times: np.ndarray | None, gt_rows: int, g
     if len(lines) > gt_rows:
         raise TrajectoryFormatError(f"--gt-times {path}: {len(lines)} timestamps but {gt_name} has only "
                                     f"{gt_rows} poses (line i of times.txt is pose row i)")
+    from vslam_core.sources.kitti import read_times  # here: the KITTI reader loads OpenCV (the CLI imports this)
+
     return np.asarray(read_times(path, len(lines)), dtype=np.float64)
 
 

@@ -40,21 +40,43 @@ truth), `blueprint` (the default layout), `styles` (detail levels, colours, lege
 system's trajectory file as a recording of the same entities, for `vslam eval --trajectory --report`).
 """
 
-from app.recording.blueprint import blueprint
-from app.recording.columns import FLUSH_BYTES, FLUSH_FRAMES, ColumnBuffer
-from app.recording.map import MapRecording
-from app.recording.metrics import (
-    HEALTH_LEVELS,
-    MAP_METRICS,
-    MAP_STAGES,
-    METRICS,
-    MODE_LEVELS,
-    STAGES,
-    frame_metrics,
-    map_frame_metrics,
-)
-from app.recording.recorder import Recorder, road_outline, version_properties
-from app.recording.styles import APPLICATION_ID, FATE_STYLE, Detail
+from importlib import import_module
+from typing import TYPE_CHECKING, Any
+
+#: Where each name lives: imported on first use (PEP 562), so `from app.recording import Detail` in the CLI
+#: does not load the recorder, its video encoder and the map entities.
+_HOMES = {
+    "blueprint": "blueprint",
+    "FLUSH_BYTES": "columns", "FLUSH_FRAMES": "columns", "ColumnBuffer": "columns",
+    "MapRecording": "map",
+    "HEALTH_LEVELS": "metrics", "MAP_METRICS": "metrics", "MAP_STAGES": "metrics", "METRICS": "metrics",
+    "MODE_LEVELS": "metrics", "STAGES": "metrics", "frame_metrics": "metrics", "map_frame_metrics": "metrics",
+    "Recorder": "recorder", "road_outline": "recorder", "version_properties": "recorder",
+    "APPLICATION_ID": "styles", "FATE_STYLE": "styles", "Detail": "styles",
+}
+
+if TYPE_CHECKING:
+    from app.recording.blueprint import blueprint
+    from app.recording.columns import FLUSH_BYTES, FLUSH_FRAMES, ColumnBuffer
+    from app.recording.map import MapRecording
+    from app.recording.metrics import (
+        HEALTH_LEVELS,
+        MAP_METRICS,
+        MAP_STAGES,
+        METRICS,
+        MODE_LEVELS,
+        STAGES,
+        frame_metrics,
+        map_frame_metrics,
+    )
+    from app.recording.recorder import Recorder, road_outline, version_properties
+    from app.recording.styles import APPLICATION_ID, FATE_STYLE, Detail
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _HOMES:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(import_module(f"{__name__}.{_HOMES[name]}"), name)
 
 __all__ = [
     "APPLICATION_ID",

@@ -16,6 +16,14 @@ class Detail(StrEnum):
     OFF = "off"
 
 
+class ImageCodec(StrEnum):
+    """How the camera frames are recorded: JPEG images, or an AV1 / H.264 video stream (`app.recording.video`)."""
+
+    JPEG = "jpeg"
+    AV1 = "av1"
+    H264 = "h264"
+
+
 # Legend of the flow arrows: one annotation context, so the viewer explains the colours.
 FATE_STYLE: dict[TrackFate, tuple[str, tuple[int, int, int]]] = {
     TrackFate.LOST: ("lost (KLT failed / left image)", (120, 120, 120)),

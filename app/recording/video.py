@@ -14,13 +14,13 @@ from __future__ import annotations
 import os
 from concurrent.futures import Executor, Future
 from dataclasses import dataclass, field
-from enum import StrEnum
 from fractions import Fraction
 from typing import Any
 
 import numpy as np
 import rerun as rr
 
+from app.recording.styles import ImageCodec
 from app.rrd import RecordingError
 from vslam_core.sources.base import Frame
 
@@ -28,12 +28,6 @@ from vslam_core.sources.base import Frame
 GOP_FRAMES = 20
 #: Buffered samples are sent once they hold this much (and on `flush`).
 FLUSH_BYTES = 2**20
-
-
-class ImageCodec(StrEnum):
-    JPEG = "jpeg"
-    AV1 = "av1"
-    H264 = "h264"
 
 
 @dataclass(frozen=True)

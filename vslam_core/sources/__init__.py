@@ -1,13 +1,25 @@
 """Data sources: KITTI sequences, image folders, video files and a synthetic street.
 
 Every source implements `FrameSource` (see base.py): name, intrinsics, ground_truth, len, iteration of
-`Frame`s decoded lazily.
+`Frame`s decoded lazily. The names below are imported on first use (PEP 562): importing one source module
+(e.g. `vslam_core.sources.stamps`) does not load OpenCV and every other reader.
 """
 
-from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange, FrameSource, rebase_poses
-from vslam_core.sources.folder import ImageFolderSource, PartialIntrinsics, parse_intrinsics
-from vslam_core.sources.kitti import KittiSource
-from vslam_core.sources.video import VideoSource
+from importlib import import_module
+from typing import TYPE_CHECKING, Any
+
+_HOMES = {
+    "CameraIntrinsics": "base", "Frame": "base", "FrameRange": "base", "FrameSource": "base", "rebase_poses": "base",
+    "ImageFolderSource": "folder", "PartialIntrinsics": "folder", "parse_intrinsics": "folder",
+    "KittiSource": "kitti", "VideoSource": "video", "SyntheticStreet": "synthetic",
+}
+
+if TYPE_CHECKING:
+    from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange, FrameSource, rebase_poses
+    from vslam_core.sources.folder import ImageFolderSource, PartialIntrinsics, parse_intrinsics
+    from vslam_core.sources.kitti import KittiSource
+    from vslam_core.sources.synthetic import SyntheticStreet
+    from vslam_core.sources.video import VideoSource
 
 __all__ = [
     "CameraIntrinsics",
@@ -23,4 +35,8 @@ __all__ = [
     "rebase_poses",
 ]
 
-from vslam_core.sources.synthetic import SyntheticStreet  # noqa: E402 - written separately, kept last
+
+def __getattr__(name: str) -> Any:
+    if name not in _HOMES:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(import_module(f"{__name__}.{_HOMES[name]}"), name)
