@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from app.inspect import format_report, inspect_recording
-from app.recording.drift import DRIFT_ENTITY, LINKS_ENTITY, drift_colours
+from app.recording.drift import DRIFT_ENTITY, DRIFT_LIFT_M, LINKS_ENTITY, drift_colours
 from app.rrd import read_entity
 from vslam_core.drift import frame_errors, worst_frames
 from vslam_core.metrics import position_errors, sim3_aligned
@@ -142,6 +142,8 @@ def test_recording_holds_drift_series_trajectory_links_and_events(kitti_run: tup
     strips = read_entity(rrd, DRIFT_ENTITY, static=True)
     assert len(strips["LineStrips3D:strips"].to_list()[-1]) == 39  # a segment per frame after the first
     assert len(strips["LineStrips3D:colors"].to_list()[-1]) == 39
+    lift = [row for row in strips["Transform3D:translation"].to_list() if row is not None][-1]
+    assert list(lift[0]) == pytest.approx([0.0, -DRIFT_LIFT_M, 0.0])  # above the estimate: no z-fighting
     links = read_entity(rrd, LINKS_ENTITY, static=True)
     assert len(links["LineStrips3D:strips"].to_list()[-1]) == 4  # frames 10, 20, 30, 40
     events = [t[0] for t in read_entity(rrd, "/events")["TextLog:text"].to_list() if "drift:" in t[0]]

@@ -9,7 +9,8 @@ When the run ends (`DriftRecording.finish`):
 
     /world/trajectory/drift      static: the estimate, one segment per frame coloured by that frame's
                                  translation error in % of its step (`DRIFT_SCALE_PCT`: green 0 %, yellow,
-                                 red at 5 % and more; grey where the car stood still); frame, % and ° on hover
+                                 red at 5 % and more; grey where the car stood still); frame, % and ° on hover;
+                                 drawn `DRIFT_LIFT_M` above the estimate line (a static Transform3D)
     /world/trajectory/gt_links   static: a line from the estimated to the ground-truth position every
                                  `LINK_EVERY` frames (as evo's Rerun bridge draws them)
     /events                      the `WORST` worst frames by rotation and by translation, with their health
@@ -38,6 +39,9 @@ STILL_COLOUR = (150, 150, 150)
 LINK_COLOUR = (120, 200, 255)
 #: A correspondence line every this many frames.
 LINK_EVERY = 10
+#: `DRIFT_ENTITY` is drawn this far above the estimate (metres, −y of the world's RDF): the viewer draws lines
+#: as flat ribbons, and two at one depth flicker into each other (z-fighting).
+DRIFT_LIFT_M = 0.3
 #: How many worst frames become events (per ranking) and `vslam inspect` lists.
 WORST = 10
 
@@ -106,6 +110,7 @@ class DriftRecording:
             self._send_series(rec, errors)
         indices = np.array([f.index for f in self.frames])
         strips = np.stack([estimate[:-1], estimate[1:]], axis=1)
+        rec.log(DRIFT_ENTITY, rr.Transform3D(translation=[0.0, -DRIFT_LIFT_M, 0.0]), static=True)
         rec.log(DRIFT_ENTITY, rr.LineStrips3D(strips, colors=drift_colours(errors.translation_pct[1:]), radii=0.3),
                 rr.AnyValues(frame=indices[1:], translation_pct=np.nan_to_num(errors.translation_pct[1:]),
                              rotation_deg=errors.rotation_deg[1:]), static=True)
