@@ -9,25 +9,21 @@ not depend on the executor.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import hashlib
 import io
 import json
 import math
-import multiprocessing
 import os
-import signal
 import time
-from collections.abc import Callable, Iterator
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
-from concurrent.futures.process import BrokenProcessPool
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from rich.console import Console
 
+from app.batch_pool import CRASH, Terminated, run_on_pool
 from app.checks import backend_problem, input_warnings, with_camera_height
 from app.evaluation import evaluate_sources
 from app.manifest import LogSpec
@@ -156,70 +152,14 @@ def run_serial(jobs: list[LogJob], on_result: OnResult, fail_fast: bool) -> None
             return
 
 
-@contextlib.contextmanager
-def _workers_ignore_sigint() -> Iterator[None]:
-    """Start workers with SIGINT ignored (an ignored signal stays ignored across exec, and Python then keeps
-    it so): Ctrl-C goes to the whole process group, and a worker still importing would die of it with a
-    traceback. A run notes SIGINT between frames with its own handler; an idle worker ignores it."""
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
-
-
 def local_executor(workers: int) -> Executor:
-    """`workers` local processes (spawned: fork would copy Rerun's and OpenCV's threads in a broken state)."""
+    """`workers` local processes (`app.batch_pool`)."""
 
     def execute(jobs: list[LogJob], on_result: OnResult, fail_fast: bool) -> None:
-        context = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=max(1, min(workers, len(jobs))), mp_context=context) as pool:
-            # one log per worker in flight, the next submitted as one finishes: a stop (Ctrl-C, SIGTERM,
-            # fail-fast) then waits for those only (the pool would start every log already handed to it)
-            waiting = iter(enumerate(jobs))
-            pending: dict[Future[LogResult], int] = {}
-
-            def submit_next() -> None:
-                for index, job in waiting:
-                    pending[pool.submit(run_log, job)] = index
-                    return
-
-            with _workers_ignore_sigint():  # a spawn pool starts all its processes at the first submit
-                for _ in range(workers):
-                    submit_next()
-            # Ctrl-C / SIGTERM are noted and acted on between waits: an exception raised by a signal handler
-            # inside the pool's own code can leave it waiting forever
-            signals: list[int] = []
-            previous = {signum: signal.signal(signum, lambda signum, _frame: signals.append(signum))
-                        for signum in (signal.SIGINT, signal.SIGTERM)}
-            try:
-                while pending:
-                    if signals:
-                        raise Terminated if signals[0] == signal.SIGTERM else KeyboardInterrupt
-                    done, _ = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
-                    stop = False
-                    for future in sorted(done, key=lambda f: pending[f]):
-                        index = pending.pop(future)
-                        result = _outcome(future, jobs[index])
-                        on_result(index, result)
-                        stop = stop or stops(result, fail_fast)
-                    if stop:
-                        _drain(pending, jobs, on_result)
-                        return
-                    for _ in done:
-                        submit_next()
-            except KeyboardInterrupt:
-                _drain(pending, jobs, on_result, nudge=lambda: _stop_workers(pool))
-                raise
-            finally:
-                for signum, handler in previous.items():
-                    signal.signal(signum, handler)
+        run_on_pool(run_log, jobs, workers, on_result, lambda result: stops(result, fail_fast),
+                    lambda job: failed_log(job, CRASH))
 
     return execute
-
-
-class Terminated(KeyboardInterrupt):
-    """SIGTERM to the batch's process: handled as Ctrl-C, reported as SIGTERM (exit 143)."""
 
 
 def terminate_as_interrupt(_signum: int, _frame: object) -> None:
@@ -227,44 +167,9 @@ def terminate_as_interrupt(_signum: int, _frame: object) -> None:
     raise Terminated
 
 
-def _stop_workers(pool: ProcessPoolExecutor) -> None:
-    """Ask each worker's run to stop between frames (SIGINT, which a run notes; Ctrl-C in a terminal has sent
-    it already, a SIGTERM to this process has not). The pool keeps its processes in a private attribute."""
-    for process in list(getattr(pool, "_processes", {}).values()):
-        if process.pid is not None and process.is_alive():
-            with contextlib.suppress(OSError):
-                os.kill(process.pid, signal.SIGINT)
-
-
 def failed_log(job: LogJob, error: str) -> LogResult:
     """The result of a log whose worker gave no result (it died, or the task could not run)."""
     return LogResult(job.spec.index, job.spec.name, "failed", " ".join(error.split()), spec_hash=spec_hash(job.spec))
-
-
-def _outcome(future: Future[LogResult], job: LogJob) -> LogResult:
-    """A future's result; a worker that died (out of memory, a segfault) fails its log."""
-    try:
-        return future.result()
-    except BrokenProcessPool:
-        return failed_log(job, "crash: its worker process died (out of memory? a crash in native code?)")
-
-
-def _drain(pending: dict[Future[LogResult], int], jobs: list[LogJob], on_result: OnResult,
-           nudge: Callable[[], None] | None = None) -> None:
-    """Cancel the logs not started; wait for the running ones and keep their results. `nudge` (asking the
-    workers to stop) is repeated while they run: a worker's run notes SIGINT only once its handler is in."""
-    for future in pending:
-        future.cancel()
-    running = [future for future in pending if not future.cancelled()]
-    while nudge is not None and running:
-        nudge()
-        _, still = wait(running, timeout=0.5)
-        running = list(still)
-    for future, index in pending.items():
-        if not future.cancelled():
-            result = _outcome(future, jobs[index])
-            if result.status != "interrupted":
-                on_result(index, result)
 
 
 def default_workers() -> int:
