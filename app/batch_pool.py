@@ -72,7 +72,7 @@ def _run_pool(task: Callable[[Job], Result], jobs: list[Job], waiting: deque[int
         with _workers_ignore_sigint():  # a spawn pool starts its processes at the first submits
             for _ in range(workers):
                 submit_next()
-        with _signals_noted() as signals:
+        with signals_noted() as signals:
             try:
                 while pending:
                     if signals:
@@ -139,7 +139,7 @@ def _workers_ignore_sigint() -> Iterator[None]:
 
 
 @contextlib.contextmanager
-def _signals_noted() -> Iterator[list[int]]:
+def signals_noted() -> Iterator[list[int]]:
     """SIGINT and SIGTERM noted (in order of arrival) instead of acted on, inside the block."""
     noted: list[int] = []
     previous = {signum: signal.signal(signum, lambda signum, _frame: noted.append(signum))

@@ -38,6 +38,7 @@ from app.batch import (
     spec_hash,
     terminate_as_interrupt,
 )
+from app.batch_pool import signals_noted
 from app.batch_report import (
     BATCH_FILE,
     BatchError,
@@ -248,19 +249,6 @@ def _bar(total: int) -> Iterator[Any]:
         yield lambda: bar.advance(task)
 
 
-@contextmanager
-def _signals_deferred() -> Iterator[list[int]]:
-    """SIGINT and SIGTERM noted, not acted on, inside the block (the signals that arrived, in order)."""
-    noted: list[int] = []
-    previous = {signum: signal.signal(signum, lambda signum, _frame: noted.append(signum))
-                for signum in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        yield noted
-    finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
-
-
 def _finish(report: Path, results: list[LogResult], config: EngineConfig, gates: Gates, notes: list[str],
             interrupted: str | None) -> None:
     """Write the report, print its table, and exit: 128 + the signal when interrupted (130 Ctrl-C, 143
@@ -270,7 +258,7 @@ def _finish(report: Path, results: list[LogResult], config: EngineConfig, gates:
     failures = check_gates(ok, gates.max_t_err, gates.max_r_err, gates.max_ate)
     if interrupted:
         notes = [*notes, "**Interrupted**: the report covers the logs finished."]
-    with _signals_deferred() as late:  # a stop while the report is written: written first, then exit
+    with signals_noted() as late:  # a stop while the report is written: written first, then exit
         if results:
             write_batch_report(report, results, config, failures, notes)
             rows, mean = batch_table(results)
