@@ -13,6 +13,7 @@ from pathlib import Path
 
 import polars as pl
 import pytest
+from cli_helpers import vslam, vslam_here
 
 from app.batch_report import config_hash
 from app.manifest import LogSpec, shard
@@ -22,14 +23,6 @@ from vslam_core.trajectory_io import read_kitti_poses, write_kitti_poses
 ROOT = Path(__file__).resolve().parents[1]
 NAMES = ["kitti-00-a", "kitti-00-b", "broken", "kitti-05-a", "kitti-05-b"]
 WALL_CLOCK = ["fps", "elapsed_s"]
-
-
-def vslam(*args: str | Path, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
-    """The CLI of this checkout (not an installed `vslam`), without a RAY_ADDRESS of the environment."""
-    environment = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
-    environment["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), environment.get("PYTHONPATH")]))
-    return subprocess.run([sys.executable, "-m", "app.cli", *map(str, args)], capture_output=True, text=True,
-                          cwd=ROOT, timeout=600, env={**environment, **(env or {})})
 
 
 def broken_log(kitti_root: Path, folder: Path) -> None:
@@ -214,7 +207,7 @@ def assert_clean_error(result: subprocess.CompletedProcess[str], *fragments: str
 def test_manifest_errors_name_the_row(tmp_path: Path, body: str, fragments: tuple[str, ...]) -> None:
     manifest = tmp_path / "logs.csv"
     manifest.write_text(body)
-    result = vslam("eval", "--manifest", manifest, "--report", tmp_path / "report")
+    result = vslam_here("eval", "--manifest", manifest, "--report", tmp_path / "report")
     assert_clean_error(result, *fragments)
     assert not (tmp_path / "report" / "batch.json").exists()  # nothing started
 
@@ -222,7 +215,7 @@ def test_manifest_errors_name_the_row(tmp_path: Path, body: str, fragments: tupl
 def test_bad_shard_and_missing_ray_are_one_line_errors(tmp_path: Path) -> None:
     manifest = tmp_path / "logs.toml"
     manifest.write_text('[[log]]\nname = "a"\nsource = "synthetic"\nframes = "0:10"\n')
-    assert_clean_error(vslam("eval", "--manifest", manifest, "--report", tmp_path / "r", "--shard", "3/2"),
+    assert_clean_error(vslam_here("eval", "--manifest", manifest, "--report", tmp_path / "r", "--shard", "3/2"),
                        "--shard '3/2'")
     no_ray = tmp_path / "no_ray" / "ray"
     no_ray.mkdir(parents=True)

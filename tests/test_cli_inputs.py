@@ -6,19 +6,14 @@ from __future__ import annotations
 
 import re
 import subprocess
-import sys
 from pathlib import Path
 
 import cv2
 import pytest
+from cli_helpers import vslam, vslam_here
 
 ROOT = Path(__file__).resolve().parents[1]
 INTRINSICS = "718.856,718.856,607.1928,185.2157"
-
-
-def vslam(*args: str | Path, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "app.cli", *map(str, args)], capture_output=True, text=True,
-                          cwd=cwd or ROOT, timeout=600)
 
 
 def error_lines(result: subprocess.CompletedProcess[str]) -> list[str]:
@@ -58,14 +53,14 @@ def image_folder(kitti_root: Path, tmp_path: Path) -> Path:
 def test_out_of_range_config_is_refused_before_the_run(tmp_path: Path, toml: str, fragment: str) -> None:
     config = tmp_path / "bad.toml"
     config.write_text(toml)
-    result = vslam("run", "--config", config, "--frames", "0:5", "--detail", "off")
+    result = vslam_here("run", "--config", config, "--frames", "0:5", "--detail", "off")
     assert_one_line_error(result, str(config), fragment)
     assert result.stdout == ""
 
 
 @pytest.mark.parametrize("metres", ["0.001", "-1", "200"])
 def test_camera_height_option_is_range_checked(metres: str) -> None:
-    result = vslam("run", "--scale", "height", "--camera-height", metres, "--detail", "off")
+    result = vslam_here("run", "--scale", "height", "--camera-height", metres, "--detail", "off")
     assert_one_line_error(result, f"--camera-height {float(metres):g}", "out of range 0 or [0.1, 100]")
 
 
@@ -74,12 +69,12 @@ def test_camera_height_option_is_range_checked(metres: str) -> None:
 
 @pytest.mark.parametrize("port", ["80000", "-1", "65536", "0"])
 def test_port_outside_1_to_65535_is_one_line(tmp_path: Path, port: str) -> None:
-    result = vslam("open", tmp_path / "any.rrd", "--web", "--port", port)  # checked before the file
+    result = vslam_here("open", tmp_path / "any.rrd", "--web", "--port", port)  # checked before the file
     assert_one_line_error(result, f"--web-port {port}: give a TCP port in 1..65535 (or leave it out for a free one)")
 
 
 def test_port_that_is_not_a_number_is_one_line(tmp_path: Path) -> None:
-    result = vslam("open", tmp_path / "any.rrd", "--web", "--port", "http")
+    result = vslam_here("open", tmp_path / "any.rrd", "--web", "--port", "http")
     assert_one_line_error(result, "'--port'", "open --help")
 
 
@@ -99,7 +94,7 @@ def test_port_that_is_not_a_number_is_one_line(tmp_path: Path) -> None:
     ],
 )
 def test_options_that_would_be_ignored_are_refused(args: list[str], fragment: str, tmp_path: Path) -> None:
-    result = vslam("run", *args, cwd=tmp_path)
+    result = vslam_here("run", *args, cwd=tmp_path)
     assert_one_line_error(result, fragment)
     assert not (tmp_path / "x.rrd").exists()
 
@@ -107,18 +102,18 @@ def test_options_that_would_be_ignored_are_refused(args: list[str], fragment: st
 @pytest.mark.kitti
 @pytest.mark.parametrize("option", [["--intrinsics", INTRINSICS], ["--calib", "calib.txt"], ["--gt", "p.txt"]])
 def test_kitti_source_refuses_intrinsics_calib_and_gt(kitti_root: Path, option: list[str]) -> None:
-    result = vslam("run", kitti_root, "--sequence", "00", "--frames", "0:5", "--detail", "off", *option)
+    result = vslam_here("run", kitti_root, "--sequence", "00", "--frames", "0:5", "--detail", "off", *option)
     assert_one_line_error(result, f"{option[0]} does not apply here: a KITTI sequence has its own calib.txt")
 
 
 def test_eval_refuses_sequences_on_the_synthetic_street() -> None:
-    result = vslam("eval", "synthetic", "--sequences", "00", "--frames", "0:5")
+    result = vslam_here("eval", "synthetic", "--sequences", "00", "--frames", "0:5")
     assert_one_line_error(result, "does not apply here: the synthetic street")
 
 
 @pytest.mark.kitti
 def test_image_folder_refuses_a_sequence(image_folder: Path) -> None:
-    result = vslam("run", image_folder, "--intrinsics", INTRINSICS, "--sequence", "00", "--detail", "off")
+    result = vslam_here("run", image_folder, "--intrinsics", INTRINSICS, "--sequence", "00", "--detail", "off")
     assert_one_line_error(result, "--sequence does not apply here", "is not a KITTI dataset root")
 
 
@@ -167,30 +162,30 @@ def test_camera_height_over_10_m_warns(kitti_root: Path) -> None:
 
 
 def test_version() -> None:
-    result = vslam("--version")
+    result = vslam_here("--version")
     assert result.returncode == 0 and result.stderr == ""
     assert re.fullmatch(r"vslam \d+\.\d+\.\d+\S* \(OpenCV \S+, Rerun \S+, Python \S+\)\n", result.stdout)
 
 
 @pytest.mark.parametrize("command", [[], ["run"], ["eval"], ["open"], ["inspect"]])
 def test_dash_h_is_help_with_defaults_and_no_bool_hint(command: list[str]) -> None:
-    short, long = vslam(*command, "-h"), vslam(*command, "--help")
+    short, long = vslam_here(*command, "-h"), vslam_here(*command, "--help")
     assert short.returncode == long.returncode == 0 and short.stdout == long.stdout
     assert short.stdout.startswith("Usage: ")  # no blank first line, no box
     assert "<bool>" not in short.stdout and "╭" not in short.stdout
 
 
 def test_help_shows_the_defaults_rich_used_to_eat() -> None:
-    run_help = " ".join(vslam("run", "--help").stdout.split())
+    run_help = " ".join(vslam_here("run", "--help").stdout.split())
     assert "[default: gt when the source has ground truth]" in run_help  # --scale
     assert "[default: the source's own: KITTI 1.65 m, the synthetic street's]" in run_help  # --camera-height
     assert "[default: recordings/<source>_<frames>_<time>-<run id>.rrd]" in run_help  # --output
     assert "[default: full]" in run_help and "[default: 75; 1<=x<=100]" in run_help
-    assert "[default: from the columns]" in " ".join(vslam("eval", "--help").stdout.split())  # eval --format
+    assert "[default: from the columns]" in " ".join(vslam_here("eval", "--help").stdout.split())  # eval --format
 
 
 def test_unknown_option_is_one_line() -> None:
-    assert_one_line_error(vslam("run", "--frame", "0:5"), "No such option: --frame", "run --help")
+    assert_one_line_error(vslam_here("run", "--frame", "0:5"), "No such option: --frame", "run --help")
 
 
 # ---------------------------------------------------------------------- item 13: CI logs, noise
@@ -257,5 +252,5 @@ def test_truncated_video_is_one_line_without_ffmpeg_noise(kitti_root: Path, tmp_
 def test_eval_of_a_trajectory_file_refuses_engine_options(tmp_path: Path, option: list[str]) -> None:
     poses = tmp_path / "poses.txt"
     poses.write_text("1 0 0 0 0 1 0 0 0 0 1 0\n" * 3)
-    result = vslam("eval", "--trajectory", poses, "--gt", poses, *option)
+    result = vslam_here("eval", "--trajectory", poses, "--gt", poses, *option)
     assert_one_line_error(result, f"{option[0]} applies to runs of the engine: it does not apply to --trajectory")

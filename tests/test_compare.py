@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 import pytest
 import rerun as rr
+from cli_helpers import vslam, vslam_here
 from rerun.chunk import RrdReader
 
 from app import viewer
@@ -333,11 +334,6 @@ def test_both_world_views_follow_their_car(compared: ComparisonResult) -> None:
 # ------------------------------------------------------------------------------------------ N runs
 
 
-def vslam(*args: str | Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "app.cli", *map(str, args)], capture_output=True, text=True,
-                          cwd=ROOT, timeout=600)
-
-
 def _one_line_exit(result: subprocess.CompletedProcess[str], *fragments: str) -> str:
     assert result.returncode == 2, result.stderr
     lines = [line for line in result.stderr.splitlines() if line.strip()]
@@ -450,9 +446,9 @@ def test_three_runs_as_json_and_bad_labels(kitti_runs: list[Path], tmp_path: Pat
     assert set(data["differences"]) == {"B", "C"}
     assert data["differences"]["C"]["frames.count"] == {"baseline": 80, "value": 70, "difference": -10,
                                                         "percent": -12.5}
-    _one_line_exit(vslam("compare", *kitti_runs, "-o", tmp_path / "x.rrd", "--labels", "one,two"),
+    _one_line_exit(vslam_here("compare", *kitti_runs, "-o", tmp_path / "x.rrd", "--labels", "one,two"),
                    "3 labels are needed", "got 2")
-    _one_line_exit(vslam("compare", kitti_runs[0], "-o", tmp_path / "x.rrd"), "two or more recordings")
+    _one_line_exit(vslam_here("compare", kitti_runs[0], "-o", tmp_path / "x.rrd"), "two or more recordings")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["abc.rrd"]
 
 

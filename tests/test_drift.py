@@ -4,12 +4,11 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_helpers import vslam
 
 from app.inspect import format_report, inspect_recording
 from app.recording.drift import DRIFT_ENTITY, DRIFT_LIFT_M, LINKS_ENTITY, drift_colours
@@ -23,11 +22,6 @@ ROOT = Path(__file__).resolve().parents[1]
 KITTI_K = "718.856,718.856,607.1928,185.2157"
 KINK_FRAME, KINK_DEG = 40, 2.0
 BURST, BURST_FACTOR = range(70, 75), 1.3
-
-
-def vslam(*args: str | Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "app.cli", *map(str, args)], capture_output=True, text=True,
-                          cwd=ROOT, timeout=600)
 
 
 def rotation_y(deg: float) -> np.ndarray:

@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
 import polars as pl
 import pytest
+from cli_helpers import vslam
 
 from app.rrd import read_entity
 from vslam_core.metrics import evaluate
@@ -19,11 +18,6 @@ from vslam_core.trajectory_io import read_kitti_poses, write_tum_poses
 
 ROOT = Path(__file__).resolve().parents[1]
 JSON_KEYS = {"t_err", "r_err", "ate_se3", "ate_sim3", "rpe_trans", "rpe_rot", "paper_rms", "frames"}
-
-
-def vslam(*args: str | Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "app.cli", *map(str, args)], capture_output=True, text=True,
-                          cwd=ROOT, timeout=600)
 
 
 @pytest.fixture(scope="module")

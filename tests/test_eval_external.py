@@ -5,12 +5,12 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
+from cli_helpers import vslam
 
 from app.matching import MatchMode, match_images
 from app.plots import ESTIMATES_BGR, GROUND_TRUTH_BGR, top_view
@@ -23,11 +23,6 @@ from vslam_core.trajectory_io import read_kitti_poses, write_kitti_poses, write_
 ROOT = Path(__file__).resolve().parents[1]
 FRAMES = 120
 KINK_FRAME, KINK_DEG = 60, 2.0
-
-
-def vslam(*args: str | Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "app.cli", *map(str, args)], capture_output=True, text=True,
-                          cwd=ROOT, timeout=600)
 
 
 def rerun_cli(*args: str | Path) -> subprocess.CompletedProcess[str]:

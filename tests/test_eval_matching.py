@@ -4,22 +4,16 @@ asked (`--match rows`), and the output says which (issue 12, item 8)."""
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import polars as pl
 import pytest
+from cli_helpers import vslam, vslam_here
 
 from vslam_core.trajectory_io import read_kitti_poses, write_kitti_poses, write_tum_poses
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def vslam(*args: str | Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "app.cli", *map(str, args)], capture_output=True, text=True,
-                          cwd=ROOT, timeout=600)
 
 
 @pytest.fixture()
@@ -57,7 +51,7 @@ def test_dropped_frames_are_matched_by_timestamp_with_gt_times(dropped: tuple[Pa
 @pytest.mark.kitti
 def test_different_lengths_without_times_are_refused_unless_rows_asked(dropped: tuple[Path, Path, Path]) -> None:
     estimate, gt, _ = dropped
-    refused = vslam("eval", "--trajectory", estimate, "--gt", gt)
+    refused = vslam_here("eval", "--trajectory", estimate, "--gt", gt)
     assert refused.returncode == 2 and "Traceback" not in refused.stderr
     assert len(refused.stderr.strip().splitlines()) == 1
     assert "290 poses" in refused.stderr and "--gt-times" in refused.stderr and "--match rows" in refused.stderr
@@ -74,11 +68,11 @@ def test_same_length_kitti_files_match_row_by_row_and_say_so(tmp_path: Path) -> 
     result = vslam("eval", "--trajectory", tmp_path / "a.txt", "--gt", tmp_path / "a.txt")
     assert result.returncode == 0, result.stderr
     assert "matched row by row: 20 rows" in result.stdout
-    timestamps = vslam("eval", "--trajectory", tmp_path / "a.txt", "--gt", tmp_path / "a.txt", "--match",
+    timestamps = vslam_here("eval", "--trajectory", tmp_path / "a.txt", "--gt", tmp_path / "a.txt", "--match",
                        "timestamps")
     assert timestamps.returncode == 2 and "has no timestamps" in timestamps.stderr
 
 
 def test_gt_times_only_for_trajectory_files() -> None:
-    result = vslam("eval", "synthetic", "--frames", "0:5", "--gt-times", "times.txt")
+    result = vslam_here("eval", "synthetic", "--frames", "0:5", "--gt-times", "times.txt")
     assert result.returncode == 2 and "--trajectory files only" in result.stderr

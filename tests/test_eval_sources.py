@@ -3,22 +3,16 @@
 from __future__ import annotations
 
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import polars as pl
 import pytest
+from cli_helpers import vslam
 
 from vslam_core.trajectory_io import read_kitti_poses, write_kitti_poses
 
 ROOT = Path(__file__).resolve().parents[1]
 KITTI_00 = "718.856 718.856 607.1928 185.2157"
-
-
-def vslam(*args: str | Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "app.cli", *map(str, args)], capture_output=True, text=True,
-                          cwd=ROOT, timeout=600)
 
 
 @pytest.fixture()

@@ -7,20 +7,15 @@ from __future__ import annotations
 import json
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from cli_helpers import vslam, vslam_here
 
 from app.provenance import read_properties
 from vslam_core.trajectory_io import read_kitti_poses
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def vslam(*args: str | Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "app.cli", *map(str, args)], capture_output=True, text=True,
-                          cwd=ROOT, timeout=600)
 
 
 def one_line_error(result: subprocess.CompletedProcess[str], *fragments: str) -> str:
@@ -46,9 +41,9 @@ def test_end_past_the_last_frame_is_clamped_for_run(recording: Path) -> None:
 
 
 def test_a_range_that_selects_nothing_is_a_one_line_error(tmp_path: Path) -> None:
-    one_line_error(vslam("run", "--frames", "300:400", "-o", tmp_path / "x.rrd"), "selects no frame",
+    one_line_error(vslam_here("run", "--frames", "300:400", "-o", tmp_path / "x.rrd"), "selects no frame",
                    "300 frames")
-    one_line_error(vslam("run", "--frames", "20:10", "-o", tmp_path / "x.rrd"), "selects no frame")
+    one_line_error(vslam_here("run", "--frames", "20:10", "-o", tmp_path / "x.rrd"), "selects no frame")
     assert not (tmp_path / "x.rrd").exists()
 
 
@@ -59,10 +54,10 @@ def test_crop_clamps_the_same_way_and_its_errors_name_what_it_accepts(recording:
     open_end = vslam("crop", recording, "--frames", "298:", "-o", tmp_path / "b.rrd")
     assert open_end.returncode == 0 and "frames 298..299 (2 frames)" in open_end.stdout
     for bad in ("5", "1:5:2", "a:b"):
-        message = one_line_error(vslam("crop", recording, "--frames", bad, "-o", tmp_path / "c.rrd"), "START:END",
+        message = one_line_error(vslam_here("crop", recording, "--frames", bad, "-o", tmp_path / "c.rrd"), "START:END",
                                  "no STEP")
         assert "[:STEP]" not in message
-    one_line_error(vslam("crop", recording, "--frames", "400:500", "-o", tmp_path / "c.rrd"), "select no frame")
+    one_line_error(vslam_here("crop", recording, "--frames", "400:500", "-o", tmp_path / "c.rrd"), "select no frame")
 
 
 def test_inspect_reads_compare_outputs(recording: Path, tmp_path: Path) -> None:

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_helpers import vslam
 
 from app import outputs
 from app.outputs import OutputError, claim, default_recording
@@ -39,12 +40,6 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def command(*args: str | Path) -> list[str]:
     return [sys.executable, "-m", "app.cli", *map(str, args)]
-
-
-def vslam(*args: str | Path, cwd: Path | None = None, **kwargs: object) -> subprocess.CompletedProcess[str]:
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    return subprocess.run(command(*args), capture_output=True, text=True, cwd=cwd or ROOT, timeout=600, env=env,
-                          **kwargs)  # type: ignore[call-overload, no-any-return]
 
 
 def one_error_line(stderr: str) -> str:

@@ -12,17 +12,13 @@ import time
 from pathlib import Path
 
 import pytest
+from cli_helpers import vslam
 
 from app.provenance import read_properties
 from app.rrd import read_entity
 from vslam_core.trajectory_io import read_kitti_poses
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def vslam(*args: str | Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "app.cli", *map(str, args)], capture_output=True, text=True,
-                          cwd=ROOT, timeout=600)
 
 
 @pytest.fixture(scope="module")

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 from pathlib import Path
 
+import cli_helpers
 import numpy as np
 import pytest
 import rerun as rr
@@ -139,8 +139,7 @@ def test_detail_levels_drop_what_they_promise(kitti_root: Path, tmp_path: Path,
 
 
 def vslam(*args: str | Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "app.cli", *map(str, args)], capture_output=True, text=True,
-                          cwd=ROOT, timeout=600, env={**__import__("os").environ, "RERUN_STRICT": "1"})
+    return cli_helpers.vslam(*args, env={"RERUN_STRICT": "1"})
 
 
 @pytest.mark.kitti

@@ -4,12 +4,11 @@ and none of it with the odometry backend."""
 
 from __future__ import annotations
 
-import os
 import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
+import cli_helpers
 import numpy as np
 import pytest
 import rerun as rr
@@ -263,8 +262,7 @@ def test_blueprint_shows_the_map_plots_and_keeps_the_retired_map(full: tuple[Pat
 
 
 def vslam(*args: str | Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "app.cli", *map(str, args)], capture_output=True, text=True,
-                          cwd=ROOT, timeout=600, env={**os.environ, "RERUN_STRICT": "1"})
+    return cli_helpers.vslam(*args, env={"RERUN_STRICT": "1"})
 
 
 @pytest.mark.kitti

@@ -3,12 +3,11 @@ runs on the synthetic street and real KITTI that never see the ground truth."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_helpers import vslam
 
 from app.rrd import read_entity
 from vslam_core.config import EngineConfig, HeightScaleConfig
@@ -160,11 +159,6 @@ def test_kitti_trajectory_is_the_same_without_a_poses_file(kitti_root: Path, tmp
     a = run_odometry(with_gt, config).pose_array()
     b = run_odometry(without_gt, config).pose_array()
     assert np.array_equal(a, b)
-
-
-def vslam(*args: str | Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "app.cli", *map(str, args)], capture_output=True, text=True,
-                          cwd=ROOT, timeout=600)
 
 
 def test_cli_records_the_road_plane_and_reports_the_scale_source(kitti_root: Path, tmp_path: Path) -> None:

@@ -5,12 +5,11 @@ from __future__ import annotations
 
 import json
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_helpers import vslam
 
 from app import evaluation
 from app.rrd import read_entity
@@ -20,11 +19,6 @@ from vslam_core.sources.base import rebase_poses
 from vslam_core.trajectory_io import read_kitti_poses
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def vslam(*args: str | Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "app.cli", *map(str, args)], capture_output=True, text=True,
-                          cwd=ROOT, timeout=600)
 
 
 @pytest.fixture(scope="module")
