@@ -1,0 +1,117 @@
+"""Synthetic street: the road centreline and the camera path along it (map frame M: x east, y north, z up)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+ROAD_HALF_WIDTH = 3.5  # metres, as all lengths here
+SIDEWALK_HALF_WIDTH = 5.0
+_LANE_OFFSET = -1.6  # camera's lateral offset from the centreline (+ = left): the right lane
+START_S = 20.0  # arc length of the first camera position (buildings exist behind it)
+CENTRELINE_STEP = 0.25
+
+
+@dataclass(frozen=True)
+class Centreline:
+    """Road centreline sampled every `CENTRELINE_STEP` metres of arc length (map frame, z = 0).
+
+    s: (M,) arc length; xy: (M, 2) positions; heading: (M,) radians counter-clockwise from map x;
+    curvature: (M,) 1/m, positive = turning left.
+    """
+
+    s: np.ndarray
+    xy: np.ndarray
+    heading: np.ndarray
+    curvature: np.ndarray
+
+    def frame_at(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(n,) arc lengths -> positions (n, 2), headings (n,), left unit normals (n, 2)."""
+        xy = np.stack([np.interp(s, self.s, self.xy[:, 0]), np.interp(s, self.s, self.xy[:, 1])], axis=1)
+        heading = np.interp(s, self.s, self.heading)
+        normal = np.stack([-np.sin(heading), np.cos(heading)], axis=1)
+        return xy, heading, normal
+
+    def curvature_at(self, s: float) -> float:
+        """Curvature (1/m) at arc length s."""
+        return float(np.interp(s, self.s, self.curvature))
+
+
+def make_centreline(length: float, rng: np.random.Generator) -> Centreline:
+    """A smooth road of the given length: straights and 60..90 degree curves, alternating left/right.
+
+    Curvature ramps in and out smoothly (sin^2), so the heading is smooth; the tightest radius is ~28 m.
+    """
+    plan = [
+        (35.0, 0.0),
+        (60.0, 90.0),
+        (45.0, 0.0),
+        (70.0, -90.0),
+        (35.0, 0.0),
+        (50.0, 60.0),
+        (40.0, 0.0),
+        (60.0, -75.0),
+    ]  # (segment length m, heading change deg)
+    s = np.arange(0.0, length + CENTRELINE_STEP, CENTRELINE_STEP)
+    curvature = np.zeros_like(s)
+    start, k = 0.0, 0
+    while start < length:
+        seg_len, angle = plan[k % len(plan)]
+        seg_len *= rng.uniform(0.9, 1.1)
+        if angle != 0.0:
+            total = math.radians(angle) * rng.uniform(0.85, 1.05)
+            t = (s - start) / seg_len
+            inside = (t >= 0.0) & (t < 1.0)
+            ramp = 0.25  # sin^2 ramps over the first and last quarter, constant in between
+            shape = np.sin(0.5 * np.pi * np.minimum(np.minimum(t, 1.0 - t) / ramp, 1.0)) ** 2
+            curvature[inside] = total / (seg_len * (1.0 - ramp)) * shape[inside]
+        start += seg_len
+        k += 1
+    heading = np.concatenate([[0.0], np.cumsum(0.5 * (curvature[1:] + curvature[:-1]) * CENTRELINE_STEP)])
+    direction = np.stack([np.cos(heading), np.sin(heading)], axis=1)
+    steps = 0.5 * (direction[1:] + direction[:-1]) * CENTRELINE_STEP
+    xy = np.concatenate([np.zeros((1, 2)), np.cumsum(steps, axis=0)])
+    return Centreline(s=s, xy=xy, heading=heading, curvature=curvature)
+
+
+def _rotation_x(angle: float) -> np.ndarray:
+    """(3, 3) rotation about x by `angle` radians."""
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def _rotation_z(angle: float) -> np.ndarray:
+    """(3, 3) rotation about z by `angle` radians."""
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def camera_path(line: Centreline, n_frames: int, camera_height: float, rng: np.random.Generator) -> np.ndarray:
+    """Camera poses T_m_c (n_frames, 4, 4) in the map frame.
+
+    The camera follows the right lane at `camera_height` above the road (z = 0), looking along the road
+    tangent, with speed 0.83..1.17 m/frame (measured along its own lane) and pitch/roll oscillations.
+    """
+    phase = rng.uniform(0.0, 2.0 * np.pi, 5)
+    i = np.arange(n_frames, dtype=np.float64)
+    speed = 1.0 + 0.12 * np.sin(2 * np.pi * i / 83 + phase[0]) + 0.05 * np.sin(2 * np.pi * i / 19 + phase[1])
+    pitch = np.radians(0.6) * np.sin(2 * np.pi * i / 41 + phase[2]) + np.radians(0.2) * np.sin(
+        2 * np.pi * i / 11 + phase[3]
+    )
+    roll = np.radians(0.6) * np.sin(2 * np.pi * i / 29 + phase[4])
+    arc = np.empty(n_frames)
+    arc[0] = START_S
+    for k in range(1, n_frames):  # lane arc length = (1 - offset * curvature) * centreline arc length
+        arc[k] = arc[k - 1] + speed[k - 1] / (1.0 - _LANE_OFFSET * line.curvature_at(arc[k - 1]))
+    xy, heading, normal = line.frame_at(arc)
+    position = xy + _LANE_OFFSET * normal
+    poses = np.tile(np.eye(4), (n_frames, 1, 1))
+    for k in range(n_frames):
+        c, s = math.cos(heading[k]), math.sin(heading[k])
+        # Columns: camera x (right), y (down), z (forward) in map coordinates.
+        base = np.array([[s, 0.0, c], [-c, 0.0, s], [0.0, -1.0, 0.0]])
+        poses[k, :3, :3] = base @ _rotation_x(pitch[k]) @ _rotation_z(roll[k])
+        poses[k, :3, 3] = (position[k, 0], position[k, 1], camera_height)
+    return poses

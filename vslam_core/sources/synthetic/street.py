@@ -1,0 +1,261 @@
+"""Synthetic street: a deterministic procedural renderer, the project's embedded default data source.
+
+Nothing is downloaded: the scene is generated from a seed and rendered on demand.
+
+Scene, in an internal *map* frame M (x east, y north, z up, metres; never exposed):
+
+- the ground plane z = 0: asphalt road with lane markings, kerbs, sidewalks and repair patches along
+  a smooth centreline with left and right curves, plus a fine speckle (a tile repeating every 15 m);
+- building façades on both sides of the road at varying setbacks (5..12 m from the centreline), in
+  blocks of 10..25 m with gaps; each building is a chain of planar textured rectangles following the
+  road plus two side walls;
+- street furniture on the sidewalks every 6..14 m (signs on poles, poster boards, kiosks) and parked
+  cars and vans along the left kerb: features at mid range seen head-on, which keep the two-view
+  geometry well conditioned (far façades alone give little parallax, the near road moves too fast);
+- a panorama at infinity (hills with trees, sky) seen above and between the buildings.
+
+The camera (OpenCV/KITTI axes: x right, y down, z forward) drives in the right lane, ``camera_height``
+above the road, at 0.83..1.17 m per frame, with small pitch and roll oscillations (< 1 degree).
+
+Rendering is exact per-pixel ray casting with a z-buffer: for a plane, the pixel -> surface mapping
+is a homography whose third row is the inverse depth 1/z, affine in the pixel coordinates. Each
+rectangle is tested only inside the bounding box of its near-clipped projection. Textures are
+sampled bilinearly from mip-map pyramids with anisotropic filtering (two taps along each pixel's
+footprint, each blended between mip levels), so there is no aliasing and the road stays sharp.
+Ground truth is the exact poses used for rendering.
+
+The package follows those steps: `road` (centreline, camera path), `textures` (procedural images, atlas,
+mip-maps), `scene` (rectangles and the ground layout), `raster` (ray-casting helpers) and this module, the
+source that renders a frame from them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import cv2
+import numpy as np
+
+from vslam_core.errors import SourceError
+from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange, rebase_poses
+from vslam_core.sources.synthetic.raster import (
+    NEAR,
+    pixel_boxes,
+    remap_points,
+    sample_aniso,
+    surface_coords,
+    surface_homography,
+)
+from vslam_core.sources.synthetic.road import START_S, camera_path, make_centreline
+from vslam_core.sources.synthetic.scene import COARSE_RES, build_street, ground_layout
+from vslam_core.sources.synthetic.textures import FINE_TILE, PANO_ELEV_MAX, ground_fine_tile, mip_pyramid, panorama
+
+_INTRINSICS = CameraIntrinsics(fx=718.856, fy=718.856, cx=607.1928, cy=185.2157, width=1241, height=376)
+_FRAME_DT = 0.1  # seconds between frames
+_LOOK_AHEAD = 130.0  # scene generated beyond the last camera position
+_FAR = 100.0  # metres; rectangles whose nearest point is farther are culled
+_GROUND_FAR = 300.0  # metres; farther ground shows the panorama (hills) instead
+_FINE_RES = 0.015  # ground speckle tile
+_SPECKLE_CONTRAST = 0.45  # ground speckle amplitude, about +-55 grey levels
+_MIP_LEVELS = 7
+_MAX_FRAMES = 2000  # textures must stay under cv2.remap's 32767-texel limit (and memory reasonable)
+
+
+class SyntheticStreet:
+    """Procedurally generated street, rendered deterministically from `seed` (a `FrameSource`).
+
+    n_frames: number of source frames (the path length is about n_frames metres).
+    frames: selection among them (`FrameRange.indices(n_frames)`, SourceError when out of range).
+    camera_height: metres between the camera centre and the road plane.
+    """
+
+    def __init__(
+        self, n_frames: int = 300, frames: FrameRange | None = None, seed: int = 0, camera_height: float = 1.65
+    ) -> None:
+        if not 1 <= n_frames <= _MAX_FRAMES:
+            raise SourceError(f"synthetic street: n_frames must be in 1..{_MAX_FRAMES}, got {n_frames}")
+        self.n_frames = n_frames
+        self.seed = seed
+        self.camera_height = float(camera_height)
+        self._indices = (frames or FrameRange()).indices(n_frames)
+        # Independent streams: the road, path and buildings of a shorter run are a prefix of a longer one's.
+        rngs = [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(11)]
+        intr = _INTRINSICS
+        self._k = intr.K
+        self._line = make_centreline(START_S + 1.25 * n_frames + _LOOK_AHEAD, rngs[0])
+        self._poses_map = camera_path(self._line, n_frames, self.camera_height, rngs[1])
+        self._quads, atlas = build_street(self._line, rngs[2:8])
+        self._atlas = mip_pyramid(atlas, _MIP_LEVELS)
+        layout = ground_layout(self._line, rngs[8])
+        self._ground_origin = layout.origin
+        self._ground = mip_pyramid(layout.image, _MIP_LEVELS)
+        tile = mip_pyramid(ground_fine_tile(rngs[9]), 9)
+        self._fine = [cv2.copyMakeBorder(t, 2, 2, 2, 2, cv2.BORDER_WRAP) for t in tile]
+        pano = panorama(rngs[10], intr.fx)
+        self._pano = cv2.copyMakeBorder(pano, 0, 0, 2, 2, cv2.BORDER_WRAP)
+        self._pano_width = pano.shape[1]
+        v, u = np.mgrid[0 : intr.height, 0 : intr.width]
+        self._u = u.ravel().astype(np.float32)  # (H*W,) pixel column of each flat index
+        self._v = v.ravel().astype(np.float32)
+        self._ground_truth = rebase_poses(self._poses_map[self._indices])
+
+    @property
+    def name(self) -> str:
+        return "synthetic-street"
+
+    @property
+    def intrinsics(self) -> CameraIntrinsics:
+        return _INTRINSICS
+
+    @property
+    def ground_truth(self) -> np.ndarray:
+        """(N, 4, 4) float64 T_w_c of the selected frames, world = camera of the first selected frame."""
+        return self._ground_truth.copy()
+
+    @property
+    def ground_plane(self) -> np.ndarray:
+        """(4,) float64 (n_x, n_y, n_z, d): the road plane n . X + d = 0 in world coordinates.
+
+        n is the unit normal pointing up (towards the cameras); d = `camera_height`, the first selected
+        camera's distance to the road. n = (0, -1, 0) when that camera has no pitch or roll.
+        """
+        r_m_c0 = self._poses_map[self._indices[0], :3, :3] if self._indices else np.eye(3)
+        return np.append(r_m_c0[2, :], self.camera_height)  # R_c0_m . z_map = third row of R_m_c0
+
+    @property
+    def indices(self) -> list[int]:
+        """Source indices of the selected frames."""
+        return list(self._indices)
+
+    def __len__(self) -> int:
+        return len(self._indices)
+
+    def __iter__(self) -> Iterator[Frame]:
+        for index in self._indices:
+            yield Frame(index=index, timestamp=index * _FRAME_DT, image=self.render(index))
+
+    def render(self, index: int) -> np.ndarray:
+        """(H, W) uint8 grey image of source frame `index` (0 <= index < n_frames)."""
+        if not 0 <= index < self.n_frames:
+            raise IndexError(f"frame {index} out of range 0..{self.n_frames - 1}")
+        intr = _INTRINSICS
+        pose = self._poses_map[index]
+        r_cm = pose[:3, :3].T
+        position = pose[:3, 3]
+        t_cm = -r_cm @ position
+        ids, ground_g, facade_g = self._visibility(r_cm, t_cm, position)
+        out = np.empty(intr.height * intr.width, np.float32)
+        flat_ids = ids.ravel()
+        self._shade_ground(out, np.flatnonzero(flat_ids == 0), ground_g, position)
+        self._shade_sky(out, np.flatnonzero(flat_ids < 0), r_cm)
+        self._shade_facades(out, flat_ids, facade_g)
+        image = cv2.GaussianBlur(out.reshape(intr.height, intr.width), (0, 0), 0.5)  # soften silhouettes
+        return np.clip(image + 0.5, 0, 255).astype(np.uint8)
+
+    # -- rendering steps --------------------------------------------------------------------------
+
+    def _visibility(
+        self, r_cm: np.ndarray, t_cm: np.ndarray, position: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Z-buffer pass for the camera with map -> camera transform (r_cm, t_cm) at map `position` (3,).
+
+        Returns the id of the surface seen per pixel (H, W) int32 (-1 sky, 0 ground, q + 1 rectangle q);
+        the ground homography (3, 3): pixel -> map (x, y) relative to the camera position, third row =
+        inverse depth; and per id the homography pixel -> atlas texel coordinates, (9, Q + 1) float32
+        row-major (zero for rectangles not drawn).
+        """
+        intr = _INTRINSICS
+        w, h = intr.width, intr.height
+        u = np.arange(w, dtype=np.float32)[None, :]
+        v = np.arange(h, dtype=np.float32)[:, None]
+        ground_g = surface_homography(
+            self._k,
+            r_cm,
+            t_cm,
+            np.array([position[0], position[1], 0.0]),
+            np.array([1.0, 0.0, 0.0]),
+            np.array([0.0, 1.0, 0.0]),
+        )
+        assert ground_g is not None  # the camera is above the ground
+        inv_z = ((ground_g[2, 0] * u + ground_g[2, 2]) + ground_g[2, 1] * v).astype(np.float32)
+        ground = inv_z > 1.0 / _GROUND_FAR
+        zbuf = np.where(ground, inv_z, np.float32(0.0)).astype(np.float32)
+        ids = np.where(ground, 0, -1).astype(np.int32)
+
+        quads = self._quads
+        corners_c = (quads.corners - position) @ r_cm.T  # (Q, 4, 3) camera coordinates
+        distance = np.maximum(np.linalg.norm(quads.centre - position, axis=1) - quads.radius, NEAR)
+        candidates = np.flatnonzero((distance < _FAR) & (corners_c[:, :, 2].max(axis=1) > NEAR))
+        # Pixel -> (a, b, 1/z) homographies of all candidates (see `surface_homography`), then -> atlas.
+        m = np.stack(
+            [quads.axis_a[candidates] @ r_cm.T, quads.axis_b[candidates] @ r_cm.T, corners_c[candidates, 0]], axis=2
+        )
+        h_all = self._k @ m
+        solvable = np.abs(np.linalg.det(h_all)) > 1e-12
+        candidates, h_all = candidates[solvable], h_all[solvable]
+        g_all = np.linalg.inv(h_all)  # (n, 3, 3)
+        facade_g = np.zeros((9, len(quads.size) + 1), np.float32)
+        facade_g[:, candidates + 1] = (quads.to_atlas[candidates] @ g_all).reshape(-1, 9).T
+        boxes = pixel_boxes(corners_c[candidates], self._k, w, h)
+        for q, g, (u0, v0, u1, v1) in zip(candidates, g_all.astype(np.float32), boxes, strict=True):
+            if u0 >= u1 or v0 >= v1:
+                continue
+            uu, vv = u[:, u0:u1], v[v0:v1]
+            c = g[2, 0] * uu + (g[2, 1] * vv + g[2, 2])
+            na = g[0, 0] * uu + (g[0, 1] * vv + g[0, 2])
+            nb = g[1, 0] * uu + (g[1, 1] * vv + g[1, 2])
+            zview, iview = zbuf[v0:v1, u0:u1], ids[v0:v1, u0:u1]
+            # Inside test a in [0, length], b in [0, height] (times c > 0), widened by 1 mm so that rounding
+            # never leaves a crack between adjacent rectangles.
+            hit = c > zview
+            hit &= na >= np.float32(-1e-3) * c
+            hit &= na <= np.float32(quads.size[q, 0] + 1e-3) * c
+            hit &= nb >= np.float32(-1e-3) * c
+            hit &= nb <= np.float32(quads.size[q, 1] + 1e-3) * c
+            np.copyto(zview, c, where=hit)
+            np.copyto(iview, q + 1, where=hit)
+        return ids, ground_g, facade_g
+
+    def _shade_ground(self, out: np.ndarray, idx: np.ndarray, g: np.ndarray, position: np.ndarray) -> None:
+        """Write the ground's grey values into out (H*W,) at flat pixel indices idx (layout + speckle)."""
+        fp = surface_coords(g.astype(np.float32).reshape(9, 1), self._u[idx], self._v[idx])
+        res = COARSE_RES
+        layout = sample_aniso(
+            self._ground,
+            fp,
+            1.0 / res,
+            ((position[0] - self._ground_origin[0]) / res - 0.5, (position[1] - self._ground_origin[1]) / res - 0.5),
+        )
+        fres = _FINE_RES
+        fine = sample_aniso(
+            self._fine,
+            fp,
+            1.0 / fres,
+            ((position[0] / fres) % FINE_TILE, (position[1] / fres) % FINE_TILE),
+            wrap=FINE_TILE,
+        )
+        out[idx] = layout + _SPECKLE_CONTRAST * (fine - 128.0)
+
+    def _shade_sky(self, out: np.ndarray, idx: np.ndarray, r_cm: np.ndarray) -> None:
+        """Write the panorama at infinity into out (H*W,) at flat pixel indices idx."""
+        intr = _INTRINSICS
+        xr = (self._u[idx] - intr.cx) / intr.fx
+        yr = (self._v[idx] - intr.cy) / intr.fy
+        r = r_cm.T.astype(np.float32)  # camera -> map rotation
+        dx = r[0, 0] * xr + r[0, 1] * yr + r[0, 2]
+        dy = r[1, 0] * xr + r[1, 1] * yr + r[1, 2]
+        dz = r[2, 0] * xr + r[2, 1] * yr + r[2, 2]
+        az = np.mod(np.arctan2(dy, dx), 2 * np.pi)
+        el = np.arctan2(dz, np.hypot(dx, dy))
+        px = az * (self._pano_width / (2 * np.pi)) + 1.5  # +2 pad, -0.5 texel centre
+        py = (PANO_ELEV_MAX - el) * intr.fx - 0.5
+        out[idx] = remap_points(self._pano, px.astype(np.float32), py.astype(np.float32))
+
+    def _shade_facades(self, out: np.ndarray, flat_ids: np.ndarray, facade_g: np.ndarray) -> None:
+        """Write the rectangles' textures into out (H*W,) where flat_ids (H*W,) > 0 (see `_visibility`)."""
+        idx = np.flatnonzero(flat_ids > 0)
+        if idx.size == 0:
+            return
+        ids = flat_ids[idx]
+        fp = surface_coords(facade_g[:, ids], self._u[idx], self._v[idx])
+        out[idx] = sample_aniso(self._atlas, fp, 1.0, (-0.5, -0.5)) * self._quads.shade.astype(np.float32)[ids - 1]
