@@ -1,7 +1,9 @@
 """The manifest of `vslam eval --manifest`: one drive log per row (CSV with a header, or TOML ``[[log]]``
 tables), checked completely before any log runs.
 
-Columns are named like the `vslam run` options; relative paths are relative to the manifest's folder.
+Columns are named like the `vslam run` options; relative paths are relative to the manifest's folder, and
+`~` and environment variables (`$KITTI_ROOT`, `${KITTI_ROOT}`) in paths are expanded, so that one manifest
+serves machines that keep the data in different places.
 Every problem is one `ManifestError` line naming the row, e.g.
 ``LOGS.csv row 4 (name 'kitti-05-b'): frames '10:x' is not START:END[:STEP]``. A log whose files exist
 but are broken inside (a corrupt image, a truncated bag) passes: it fails at run time, as a failed row.
@@ -10,6 +12,7 @@ but are broken inside (a corrupt image, a truncated bag) passes: it fails at run
 from __future__ import annotations
 
 import csv
+import os
 import re
 import tomllib
 from dataclasses import dataclass
@@ -31,6 +34,8 @@ SCALES = ("gt", "none", "height")
 BACKENDS = ("vo", "map")
 #: a log's name becomes file names in the report folder
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
+#: $NAME or ${NAME} in a path
+ENV_VARIABLE = re.compile(r"\$(?:(\w+)|\{(\w+)\})")
 
 
 class ManifestError(VslamError):
@@ -141,16 +146,24 @@ def _spec(path: Path, label: str, index: int, row: dict[str, str]) -> LogSpec:
         raise bad("gt_times applies to `vslam eval --trajectory` files only; a log's frames are matched to its "
                   "ground truth by their own timestamps")
     base = path.resolve().parent
+
+    def resolve(key: str) -> Path:
+        unset = [m.group(1) or m.group(2) for m in ENV_VARIABLE.finditer(values[key])
+                 if (m.group(1) or m.group(2)) not in os.environ]
+        if unset:
+            raise bad(f"{key} {values[key]!r}: environment variable {unset[0]} is not set")
+        return base / os.path.expanduser(os.path.expandvars(values[key]))
+
     source = values["source"]
     if source != SYNTHETIC:
-        source_path = base / source
+        source_path = resolve("source")
         if not source_path.exists():
             raise bad(f"source {source!r}: no such file or folder ({source_path})")
         source = str(source_path)
     paths: dict[str, Path] = {}
     for key in PATH_COLUMNS:
         if key in values:
-            paths[key] = base / values[key]
+            paths[key] = resolve(key)
             if not paths[key].exists():
                 raise bad(f"{key} {values[key]!r}: no such file ({paths[key]})")
     try:
