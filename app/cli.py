@@ -94,7 +94,7 @@ def _summary(source: FrameSource, run: RunResult, config: EngineConfig) -> None:
 
     fps = run.frames / run.seconds if run.seconds > 0 else float("nan")
     lines = [
-        f"frames      {run.frames} ({run.held} held the previous pose)",
+        f"frames      {run.frames} ({run.held_summary})",
         f"time        {run.seconds:.1f} s, {fps:.1f} frames/s",
         f"backend     {config.backend}",
         f"scale       {config.scale}"

@@ -303,12 +303,14 @@ def _drift_lines(drift: dict[str, list[dict[str, Any]]] | None, rows: int = 5) -
     if drift is None:
         return []
     rotation, translation = drift["rotation"][:rows], drift["translation"][:rows]
+    width = max([13, *(len(",".join(r["reasons"])) for r in rotation)])  # the rotation side's reasons column
     lines = ["", "where the error comes from (each frame's own step against the ground truth; --json: top 10)",
-             "  rank  frame  rotation °  reasons        frame  translation m  % of step  reasons"]
+             f"  rank  frame  rotation °  {'reasons':<{width}}  frame  translation m  % of step  reasons"]
     for rank in range(max(len(rotation), len(translation))):
         r = rotation[rank] if rank < len(rotation) else None
         t = translation[rank] if rank < len(translation) else None
-        left = f"{r['frame']:>5}  {r['deg']:10.3f}  {','.join(r['reasons']) or '-':<13}" if r else " " * 32
+        reasons = ",".join(r["reasons"]) or "-" if r else ""
+        left = f"{r['frame']:>5}  {r['deg']:10.3f}  {reasons:<{width}}" if r else " " * (width + 19)
         right = ""
         if t:
             pct = t["pct"]

@@ -1,4 +1,5 @@
-"""Injected faults are flagged at their frames, the run goes on, and tracking recovers afterwards."""
+"""Injected faults are flagged at their frames, the run goes on, and tracking recovers afterwards; frames too
+degraded to track are dead-reckoned (coasted), also through a turn."""
 
 from __future__ import annotations
 
@@ -9,7 +10,8 @@ import pytest
 
 from vslam_core.config import EngineConfig
 from vslam_core.errors import SourceError
-from vslam_core.metrics import rpe
+from vslam_core.geometry import rotation_angle
+from vslam_core.metrics import kitti_errors, rpe
 from vslam_core.pipeline import run_odometry
 from vslam_core.results import FrameResult, HealthStatus, Reason
 from vslam_core.sources.base import FrameRange
@@ -73,12 +75,39 @@ def test_fault_is_flagged_at_its_frames_and_tracking_recovers(
     trans, rot = step_error(results, gt, *after)
     clean_trans, clean_rot = step_error(clean_results, gt, *after)
     assert trans < 2 * clean_trans + 0.01 and rot < 2 * clean_rot + 0.02  # per-frame accuracy is back
-    if status == HealthStatus.FAIL:  # unusable frames hold the pose
-        held = [r for r in results if FAULT_AT[0] <= r.index <= FAULT_AT[1]]
-        assert all(np.array_equal(r.T_world_cam, results[FAULT_AT[0] - 1].T_world_cam) for r in held)
+    if status == HealthStatus.FAIL:  # unusable frames are dead-reckoned from their degraded images
+        untracked = [r for r in results if FAULT_AT[0] <= r.index <= FAULT_AT[1]]
+        assert all(Reason.COASTED in r.health.reasons for r in untracked), [r.health for r in untracked]
+        trans, rot = step_error(results, gt, FAULT_AT[0] - 1, FAULT_AT[1] + 1)
+        assert trans < 0.15 and rot < 0.3  # metres, degrees per frame: the car kept moving (1 m a frame)
     # the motion over the gap was measured, not dropped: the end is where the clean run ends
     clean_end = clean_results[-1].T_world_cam[:3, 3]
     assert np.linalg.norm(results[-1].T_world_cam[:3, 3] - clean_end) < 0.3
+
+
+@pytest.mark.kitti
+def test_a_turn_taken_while_blind_is_not_lost(kitti_root: Path) -> None:
+    """blur@200:210 on KITTI 00 0:300: the car turns ~43° in those 11 frames and the frame after them cannot be
+    tracked from the last sharp one. Dead reckoning keeps the heading (holding the pose lost the turn: t_err
+    16.4 %, final heading error 44°)."""
+    source = open_source(str(kitti_root), sequence="00", frames=FrameRange(0, 300), inject="blur@200:210")
+    results: list[FrameResult] = []
+    run = run_odometry(source, EngineConfig(), sinks=(lambda _f, r: results.append(r),))
+    gt = source.ground_truth
+    assert gt is not None
+    coasted = [r.index for r in results if Reason.COASTED in r.health.reasons]
+    assert coasted == list(range(200, 212))  # the blurred frames and the first one after them
+    assert (run.held, run.coasted) == (12, 12) and "12 dead-reckoned" in run.held_summary
+    t_err, _ = kitti_errors(gt, run.pose_array())
+    heading = np.degrees(rotation_angle(gt[-1, :3, :3].T @ run.poses[-1][:3, :3]))
+    assert t_err < 2.0 and heading < 2.5, (t_err, heading)  # %, degrees
+
+
+@pytest.mark.kitti
+def test_no_dead_reckoning_before_the_first_usable_frame(kitti_root: Path) -> None:
+    results, _ = run(kitti_root, "dark@0:4")
+    assert all(np.array_equal(r.T_world_cam, np.eye(4)) for r in results[:6])  # frame 5 starts the trajectory
+    assert not any(Reason.COASTED in r.health.reasons for r in results[:5])
 
 
 @pytest.mark.kitti

@@ -9,7 +9,9 @@ between the keyframe and this frame → the four candidate poses and their chira
 winner → scale → T_w_cur = T_w_key · T_key_cur → re-detect FAST corners where tracks are missing.
 The keyframe is the last frame whose motion was accepted: a frame that cannot be trusted (too little
 parallax, too few inliers, …) keeps the previous pose, and the next frame is measured from the keyframe
-with a longer baseline.
+with a longer baseline. A frame too degraded to track (blurred, dark, washed out), or one whose tracks are
+lost, is dead-reckoned from its contrast-normalised image (`vslam_core.coasting`, flagged `coasted`) rather
+than held, so that a turn taken while the camera was blind is not lost.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
+from vslam_core.coasting import DeadReckoning, agrees
 from vslam_core.config import EngineConfig
 from vslam_core.features import detect_corners, fill_flow, match_features, track_points
 from vslam_core.geometry import (
@@ -85,7 +88,9 @@ class _Motion:
 class Odometry:
     """Monocular visual odometry over a stream of frames from one camera."""
 
-    def __init__(self, intrinsics: CameraIntrinsics, config: EngineConfig, scale: ScaleProvider) -> None:
+    def __init__(self, intrinsics: CameraIntrinsics, config: EngineConfig, scale: ScaleProvider,
+                 coast: bool = True) -> None:
+        """coast: dead-reckon frames tracking cannot place (off under the map backend, which coasts itself)."""
         cv2.setNumThreads(config.threads)
         self.config = config
         self.intrinsics = intrinsics
@@ -102,6 +107,8 @@ class Odometry:
         self._key_image: np.ndarray | None = None
         self._last_mean: float | None = None  # grey level of the last usable frame
         self._last_step: tuple[float, float] | None = None  # (step length, de-rotated parallax) last accepted
+        # Dead reckoning through frames tracking cannot place; it works on pinhole pixels only.
+        self._reckoning = DeadReckoning(self._K, scale, enabled=coast and not intrinsics.distorted)
 
     def process(self, frame: Frame) -> FrameResult:
         """Estimate this frame's pose from the previous ones."""
@@ -153,6 +160,16 @@ class Odometry:
                     warnings.append(Reason.RECOVERED)
                 else:
                     motion = replace(motion, reason=Reason.TOO_FEW_TRACKS)
+            # After a dead-reckoned gap the keyframe lies many frames back. A motion measured across the gap
+            # (from the few tracks that survived it, or from descriptor matches) can be far off: it must agree
+            # with dead reckoning, else tracking starts afresh here; a frame not measured is dead-reckoned and
+            # the next one is measured from the keyframe again.
+            in_gap = self._reckoning.in_gap
+            coasted = self._reckoning.reckon(image, self._position) if lost or in_gap else None
+            if coasted is not None and in_gap and motion.reason is None and motion.rotation is not None and not \
+                    agrees(self._T_w_key[:3, :3] @ motion.rotation, coasted, self._position - self._key_position):
+                motion = replace(motion, reason=Reason.GAP_MOTION_REJECTED)
+                lost = True
             if motion.reason is None and motion.rotation is not None and motion.translation is not None:
                 status = FrameStatus.OK
                 view = TwoView(self._key_position, self._position,
@@ -168,6 +185,9 @@ class Odometry:
                     points_world = (scale * motion.points_cur) @ T_w_cur[:3, :3].T + T_w_cur[:3, 3]
             else:
                 status = FrameStatus.HELD
+                T_w_cur = coasted if coasted is not None else self._held_pose()  # noqa: N806
+                if coasted is not None:
+                    warnings.append(Reason.COASTED)
 
             # Surviving tracks go on; RANSAC outliers (moving objects, bad tracks) are dropped.
             keep = fate >= TrackFate.NOT_USED
@@ -182,6 +202,7 @@ class Odometry:
         if status != FrameStatus.HELD or lost:
             if lost:
                 self._tracks = _Tracks.empty()
+            self._reckoning.in_gap = False
             self._T_w_key = T_w_cur
             self._key_position = self._position
             self._key_image = image
@@ -219,6 +240,7 @@ class Odometry:
         self._previous = image
         self._previous_position = self._position
         self._last_mean = stats.mean
+        self._reckoning.remember(image, T_w_cur, self._position)
         self._position += 1
         return result
 
@@ -331,21 +353,33 @@ class Odometry:
         return warnings
 
     def _skip(self, frame: Frame, reason: Reason) -> FrameResult:
-        """A frame whose image cannot be used: the previous pose, no tracking; the next frame is tracked
-        from the last usable image."""
+        """A frame whose image cannot be used for tracking: no tracks, the next frame is tracked from the last
+        usable image. Its pose is dead-reckoned from the degraded image if it is readable, else held."""
+        readable = reason != Reason.UNREADABLE_IMAGE
+        # dead reckoning continues a trajectory, it does not start one: not before the first usable frame
+        coasted = self._reckoning.reckon(frame.image, self._position) if readable and self._previous is not None \
+            else None
+        pose = coasted if coasted is not None else self._held_pose()
         empty2 = np.zeros((0, 2), np.float32)
         result = FrameResult(
             position=self._position, index=frame.index, timestamp=frame.timestamp,
-            T_world_cam=self._T_w_key.copy(), status=FrameStatus.HELD, reason=reason,
+            T_world_cam=pose, status=FrameStatus.HELD, reason=reason,
             keyframe_position=self._key_position, image_shape=(int(frame.image.shape[0]), int(frame.image.shape[1])),
             track_ids=np.zeros(0, np.int64), track_prev=empty2, track_cur=empty2, track_age=np.zeros(0, np.int32),
             track_fate=np.zeros(0, np.uint8), new_corner_ids=np.zeros(0, np.int64), new_corners=empty2,
             live_tracks=len(self._tracks), essential=None, candidate_poses=(), chosen_candidate=None,
             T_key_cur=None, points_world=np.zeros((0, 3)), scale=None, parallax_px=0.0,
-            health=Health.of(reason, []),
+            health=Health.of(reason, [Reason.COASTED] if coasted is not None else []),
         )
+        self._reckoning.in_gap |= coasted is not None
+        if readable:
+            self._reckoning.remember(frame.image, pose, self._position)
         self._position += 1
         return result
+
+    def _held_pose(self) -> np.ndarray:
+        """(4, 4) pose of a frame nothing places: the last dead-reckoned one in a gap, else the keyframe's."""
+        return (self._reckoning.T_world_cam if self._reckoning.in_gap else self._T_w_key).copy()
 
     def _estimate_motion(
         self, p_cur: np.ndarray, p_key: np.ndarray, timings: dict[str, float]

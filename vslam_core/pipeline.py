@@ -33,14 +33,23 @@ class RunResult:
     indices: list[int]  # source frame indices, one per processed frame
     timestamps: list[float | None]
     poses: list[np.ndarray]  # (4, 4) T_world_cam per processed frame (map backend: refined by BA once complete)
-    held: int = 0  # frames that kept the previous pose
-    tracked: int = 0  # frames whose motion was measured (status ok, or dead-reckoned by the map backend)
+    held: int = 0  # frames not tracked (status held): dead-reckoned, or keeping the previous pose
+    coasted: int = 0  # of those, the frames whose pose was dead-reckoned (vslam_core.coasting)
+    tracked: int = 0  # frames whose motion was measured (status ok) or dead-reckoned
     held_reasons: dict[str, int] = field(default_factory=dict)  # why frames were held: reason -> frames
     seconds: float = 0.0  # wall time of the whole run, decoding and sinks included
 
     @property
     def frames(self) -> int:
         return len(self.poses)
+
+    @property
+    def held_summary(self) -> str:
+        """What became of the frames not tracked, e.g. ``12 not tracked: 11 dead-reckoned, 1 held``."""
+        if not self.coasted:
+            return f"{self.held} held the previous pose"
+        return (f"{self.held} not tracked: {self.coasted} dead-reckoned, {self.held - self.coasted} held the "
+                "previous pose")
 
     def pose_array(self) -> np.ndarray:
         """(N, 4, 4) poses of the processed frames."""
@@ -125,7 +134,9 @@ def run_odometry(
             run.poses.append(frame_result.T_world_cam)
             run.held += frame_result.status == FrameStatus.HELD
             reasons = frame_result.health.reasons
-            run.tracked += frame_result.status == FrameStatus.OK or Reason.COASTED in reasons
+            coasted = Reason.COASTED in reasons
+            run.coasted += frame_result.status == FrameStatus.HELD and coasted
+            run.tracked += frame_result.status == FrameStatus.OK or coasted
             if frame_result.status == FrameStatus.HELD and reasons:
                 run.held_reasons[reasons[0]] = run.held_reasons.get(reasons[0], 0) + 1
             for sink in sinks:

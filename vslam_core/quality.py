@@ -24,14 +24,26 @@ class ImageStats:
 
 
 def image_stats(image: np.ndarray) -> ImageStats:
-    small = cv2.resize(image, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
-    laplacian = cv2.Laplacian(small, cv2.CV_32F)
+    small = _half(image)
     return ImageStats(
         mean=float(small.mean()),
         saturated=float(np.count_nonzero(small >= 250)) / small.size,
-        sharpness=float(laplacian.var()),
+        sharpness=_laplacian_variance(small),
         noise_sigma=float(np.sqrt(np.pi / 2) * _median_noise_response(image) / 6),
     )
+
+
+def sharpness(image: np.ndarray) -> float:
+    """`ImageStats.sharpness` alone: the variance of the Laplacian at half resolution."""
+    return _laplacian_variance(_half(image))
+
+
+def _half(image: np.ndarray) -> np.ndarray:
+    return cv2.resize(image, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
+
+
+def _laplacian_variance(image: np.ndarray) -> float:
+    return float(cv2.Laplacian(image, cv2.CV_32F).var())
 
 
 def _median_noise_response(image: np.ndarray) -> int:

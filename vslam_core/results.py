@@ -44,6 +44,7 @@ class Reason(StrEnum):
     NO_ESSENTIAL = "no_essential_matrix"
     TOO_FEW_INLIERS = "too_few_inliers"
     CHIRALITY = "ambiguous_chirality"
+    GAP_MOTION_REJECTED = "gap_motion_rejected"  # the motion measured across a dead-reckoned gap disagreed with it
     # warnings: the frame is used
     IMAGE_NOISY = "image_noisy"
     BRIGHTNESS_JUMP = "brightness_jump"

@@ -143,7 +143,7 @@ class Recorder:
         try:
             if stopped is not None:
                 self._restate_frames(run, stopped)
-            lines = [f"# {self._name}", "", f"{run.frames} frames, {run.held} held the previous pose"
+            lines = [f"# {self._name}", "", f"{run.frames} frames, {run.held_summary}"
                      + (f" — {stopped}" if stopped else "")]
             if self._gt is not None and run.frames > 2:
                 row = metrics_row(self._source_name, self._gt[: run.frames], run.pose_array(), self._scale)

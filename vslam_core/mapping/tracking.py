@@ -6,7 +6,7 @@ give 2-D–3-D correspondences → PnP in RANSAC, refined on the inliers (`MAP`)
 scale source's → if PnP fails its checks, the two-view pose (`TWO_VIEW`); if the tracks were lost (a gap, a
 jump), relocalisation against the landmarks of recent keyframes (`RELOCALISED`), and only if that fails a
 new map segment. A frame the health checks refuse (blurred, dark) is dead-reckoned from its degraded
-image (`COASTED`, vslam_core/mapping/coasting.py); one nothing can place keeps the last pose (`LOST`). A
+image (`COASTED`, vslam_core/coasting.py); one nothing can place keeps the last pose (`LOST`). A
 frame becomes a keyframe on parallax, landmark overlap or frame count, and is handed to local mapping; the
 pending bundle adjustment is applied at that moment (a fixed point: deterministic).
 """
@@ -19,12 +19,12 @@ from dataclasses import replace
 import cv2
 import numpy as np
 
+from vslam_core.coasting import degraded_motion
 from vslam_core.config import EngineConfig
 from vslam_core.engine import Odometry
 from vslam_core.errors import ConfigError
 from vslam_core.features import match_descriptors
 from vslam_core.geometry import interpolate_pose, invert_pose, orthonormalise, pose_matrix, rotation_angle
-from vslam_core.mapping.coasting import degraded_motion
 from vslam_core.mapping.local_mapping import DESCRIPTOR_PATCH, LocalMapping
 from vslam_core.mapping.pnp import PnPSolution, solve_pnp
 from vslam_core.results import (
@@ -66,7 +66,7 @@ class MapTracking:
         self._cfg = config.map
         self._K = intrinsics.K
         self._scale = scale
-        self._odometry = Odometry(intrinsics, config, scale)
+        self._odometry = Odometry(intrinsics, config, scale, coast=False)  # coasting is done here, with the map
         self.mapping = LocalMapping(self._K, config.map, config.scale, background=config.threads > 1)
         self._links: dict[int, int] = {}  # live track id -> landmark id
         self._segment = 0
@@ -264,7 +264,7 @@ class MapTracking:
 
     def _coast(self, image: np.ndarray, position: int) -> np.ndarray | None:
         """Dead reckoning from the previous frame: the rotation and direction the degraded images still give
-        (vslam_core/mapping/coasting.py), the step length from the scale source. None if they give none."""
+        (vslam_core/coasting.py), the step length from the scale source. None if they give none."""
         if self._previous_image is None or self._reference < 0:
             return None
         motion = degraded_motion(self._previous_image, image, self._K)
