@@ -3,11 +3,14 @@ degraded to track are dead-reckoned (coasted), also through a turn."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_helpers import vslam
 
+from app.rrd import read_entity
 from vslam_core.config import EngineConfig
 from vslam_core.errors import SourceError
 from vslam_core.geometry import rotation_angle
@@ -101,6 +104,19 @@ def test_a_turn_taken_while_blind_is_not_lost(kitti_root: Path) -> None:
     t_err, _ = kitti_errors(gt, run.pose_array())
     heading = np.degrees(rotation_angle(gt[-1, :3, :3].T @ run.poses[-1][:3, :3]))
     assert t_err < 2.0 and heading < 2.5, (t_err, heading)  # %, degrees
+
+
+@pytest.mark.kitti
+def test_dead_reckoned_frames_in_the_output_recording_and_inspect(kitti_root: Path, tmp_path: Path) -> None:
+    rrd = tmp_path / "blind.rrd"
+    result = vslam("run", kitti_root, "--sequence", "00", "--frames", "190:230", "--inject", "blur@200:210", "-o", rrd)
+    assert result.returncode == 0, result.stderr
+    assert "frames      40 (13 not tracked: 13 dead-reckoned, 0 held the previous pose)" in result.stdout
+    report = json.loads(vslam("inspect", rrd, "--json").stdout)
+    assert report["flagged"][0] == {"start": 200, "end": 210, "status": "fail", "reasons": ["image_blurred", "coasted"]}
+    assert report["drift"]["rotation"][0]["deg"] < 1.0  # each blurred frame's own error (holding: ~3.9°)
+    events = [t[0] for t in read_entity(rrd, "/events")["TextLog:text"].to_list()]
+    assert "frame 200: fail (dead-reckoned): image_blurred, coasted" in events
 
 
 @pytest.mark.kitti

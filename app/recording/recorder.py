@@ -36,7 +36,7 @@ from vslam_core.config import EngineConfig
 from vslam_core.geometry import invert_pose
 from vslam_core.lens import distort_pixels, undistortion_maps
 from vslam_core.pipeline import RunResult
-from vslam_core.results import FrameResult, FrameStatus, HealthStatus, TrackFate
+from vslam_core.results import FrameResult, FrameStatus, HealthStatus, Reason, TrackFate
 from vslam_core.sources.base import Frame, FrameSource, describe_indices, source_properties
 from vslam_core.sources.calibration import describe_calibration
 
@@ -363,7 +363,9 @@ class Recorder:
             event(f"re-detected {len(result.new_corners)} corners", "DEBUG")
         health = result.health
         if health.status != HealthStatus.OK:
-            what = "pose held" if result.status == FrameStatus.HELD else "used"
+            what = "used"
+            if result.status == FrameStatus.HELD:
+                what = "dead-reckoned" if Reason.COASTED in health.reasons else "pose held"
             event(f"{health.status} ({what}): " + ", ".join(health.reasons),
                   "ERROR" if health.status == HealthStatus.FAIL else "WARN")
 
