@@ -45,7 +45,8 @@ class RunResult:
 
     @property
     def held_summary(self) -> str:
-        """What became of the frames not tracked, e.g. ``12 not tracked: 11 dead-reckoned, 1 held``."""
+        """What became of the frames not tracked, e.g. ``12 not tracked: 11 dead-reckoned, 1 held the previous
+        pose``."""
         if not self.coasted:
             return f"{self.held} held the previous pose"
         return (f"{self.held} not tracked: {self.coasted} dead-reckoned, {self.held - self.coasted} held the "
