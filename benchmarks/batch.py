@@ -33,7 +33,7 @@ import ray_cluster  # noqa: E402
 
 SEQUENCES = ("00", "05")
 WINDOWS = ("0:150", "50:200", "100:250", "150:300")
-#: The manifest's columns (app/manifest.py).
+#: The manifest's columns (vslam/batch/manifest.py).
 MANIFEST_COLUMNS = ("name", "source", "sequence", "frames")
 
 
@@ -54,7 +54,7 @@ def write_manifest(rows: list[dict[str, str]], path: Path) -> Path:
 
 def vslam(*args: str) -> list[str]:
     """A `vslam` command line run with this interpreter (the checkout, installed or not)."""
-    return [sys.executable, "-c", "from app.cli import main; main()", *args]
+    return [sys.executable, "-c", "from vslam.cli import main; main()", *args]
 
 
 def timed(label: str, run: object) -> tuple[str, float]:
@@ -90,7 +90,7 @@ def noop(value: int) -> int:
 def import_vslam() -> float:
     """A task that imports what a log's task imports; the import's seconds."""
     started = time.perf_counter()
-    import app.cli  # noqa: F401
+    import vslam.cli  # noqa: F401
     import vslam_core.pipeline  # noqa: F401
     return time.perf_counter() - started
 

@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 import polars as pl
 
-from app.recording.video import VIDEO_SETTINGS, ImageCodec, VideoSettings, even, open_encoder, to_video_frame
+from vslam.recording.video import VIDEO_SETTINGS, ImageCodec, VideoSettings, even, open_encoder, to_video_frame
 from vslam_core.sources.base import FrameRange
 from vslam_core.sources.kitti import KittiSource
 
@@ -90,7 +90,7 @@ def frames_alone(images: list[np.ndarray], codec: ImageCodec, setting: VideoSett
 
 def _recording(args: tuple[str, str, str, str, VideoSettings | int]) -> dict[str, float]:
     """One full-detail run in a fresh process: KB per frame of the file and the run's wall-clock seconds."""
-    from app.recording import Detail, Recorder, video
+    from vslam.recording import Detail, Recorder, video
     from vslam_core.config import EngineConfig
     from vslam_core.pipeline import run_odometry
 

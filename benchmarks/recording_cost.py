@@ -19,8 +19,8 @@ from pathlib import Path
 
 import polars as pl
 
-from app.recording import Detail, Recorder
 from benchmarks.memory import status_mb
+from vslam.recording import Detail, Recorder
 from vslam_core.config import EngineConfig
 from vslam_core.pipeline import RunResult, run_odometry
 from vslam_core.results import FrameResult

@@ -40,9 +40,9 @@ from pathlib import Path
 
 import polars as pl
 
-from app.recording import Detail, Recorder
 from benchmarks.memory import status_mb
 from benchmarks.paper_baseline import run_paper_configuration
+from vslam.recording import Detail, Recorder
 from vslam_core.config import Backend, EngineConfig
 from vslam_core.metrics import kitti_errors
 from vslam_core.pipeline import run_odometry

@@ -1,9 +1,9 @@
 """Running the `vslam` CLI of this checkout from the tests.
 
-- `vslam(...)`: ``python -m app.cli …`` in its own process (its own session: a time-out kills it and
+- `vslam(...)`: ``python -m vslam.cli …`` in its own process (its own session: a time-out kills it and
   everything it started, the viewer or batch workers included). For whatever runs the engine, writes files,
   starts processes or handles signals.
-- `vslam_here(...)`: the same entry point (`app.cli.main`: Typer, the one-line errors, the exit codes) in
+- `vslam_here(...)`: the same entry point (`vslam.cli.main`: Typer, the one-line errors, the exit codes) in
   this process, for input refused before any work starts; it saves the ~0.8 s a new process spends
   importing, over ~100 such calls in the suite.
 """
@@ -19,7 +19,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-import app.cli
+import vslam.cli
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -30,7 +30,7 @@ def vslam(*args: str | Path, cwd: Path | None = None, env: dict[str, str] | None
     (RAY_ADDRESS of the caller's environment left out); capture stdout and stderr as text."""
     environment = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
     environment["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), environment.get("PYTHONPATH")]))
-    command = [sys.executable, "-m", "app.cli", *map(str, args)]
+    command = [sys.executable, "-m", "vslam.cli", *map(str, args)]
     with subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=cwd or ROOT,
                           env={**environment, **(env or {})}, start_new_session=True, **popen) as process:
         try:
@@ -53,7 +53,7 @@ def vslam_here(*args: str | Path, cwd: Path | None = None) -> subprocess.Complet
     sys.argv = argv
     try:
         with contextlib.chdir(cwd or ROOT), contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
-            app.cli.main()
+            vslam.cli.main()
     except SystemExit as exc:
         code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
     finally:

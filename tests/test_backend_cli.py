@@ -11,7 +11,7 @@ import polars as pl
 import pytest
 from cli_helpers import vslam
 
-from app.rrd import read_entity
+from vslam.rrd.read import read_entity
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -15,8 +15,8 @@ import polars as pl
 import pytest
 from cli_helpers import vslam, vslam_here
 
-from app.batch_report import config_hash
-from app.manifest import LogSpec, shard
+from vslam.batch.manifest import LogSpec, shard
+from vslam.batch.results import config_hash
 from vslam_core.config import EngineConfig
 from vslam_core.trajectory_io import read_kitti_poses, write_kitti_poses
 
@@ -157,7 +157,7 @@ def test_sigterm_keeps_the_finished_logs_and_exits_143(manifest: Path, workers: 
     report = manifest.parent / f"terminated{workers}"
     environment = {**os.environ, "PYTHONPATH": str(ROOT)}
     environment.pop("RAY_ADDRESS", None)
-    process = subprocess.Popen([sys.executable, "-m", "app.cli", "eval", "--manifest", str(manifest), "--report",
+    process = subprocess.Popen([sys.executable, "-m", "vslam.cli", "eval", "--manifest", str(manifest), "--report",
                                 str(report), "--workers", workers, "--detail", "off"], cwd=ROOT, env=environment,
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     assert process.stderr is not None

@@ -1,4 +1,4 @@
-"""`app.batch_pool.run_on_pool`: each job on spawned local workers, a worker that dies failing its job alone."""
+"""`vslam.batch.pool.run_on_pool`: each job on spawned local workers, a worker that dies failing its job alone."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import signal
 import time
 from dataclasses import dataclass
 
-from app.batch_pool import run_on_pool
+from vslam.batch.pool import run_on_pool
 
 CRASHES, FAILS = -1, -2
 

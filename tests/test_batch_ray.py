@@ -1,4 +1,4 @@
-"""`app.batch_ray.run_on_ray` against a real one-node Ray cluster (the `ray_cluster` fixture)."""
+"""`vslam.batch.on_ray.run_on_ray` against a real one-node Ray cluster (the `ray_cluster` fixture)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import pytest
 import ray_cluster as cluster
 
-from app.batch_ray import MAX_MESSAGE, error_line, run_on_ray
+from vslam.batch.on_ray import MAX_MESSAGE, error_line, run_on_ray
 from vslam_core.errors import VslamError
 
 pytestmark = pytest.mark.ray
@@ -103,7 +103,7 @@ def test_a_malformed_address_is_refused() -> None:
 
 
 def test_importing_the_module_does_not_import_ray() -> None:
-    code = "import sys, app.batch_ray; assert 'ray' not in sys.modules"
+    code = "import sys, vslam.batch.on_ray; assert 'ray' not in sys.modules"
     subprocess.run([sys.executable, "-c", code], check=True, cwd=cluster.ROOT,
                    env=dict(os.environ, PYTHONPATH=str(cluster.ROOT)))
 

@@ -49,7 +49,7 @@ def test_the_example_workflow_shards_and_merges(kitti_root: Path, tmp_path: Path
     # A `vslam` on PATH that is this checkout (the workflow installs it with pip).
     bin_folder = tmp_path / "bin"
     bin_folder.mkdir()
-    (bin_folder / "vslam").write_text(f'#!/bin/sh\nexec "{sys.executable}" -m app.cli "$@"\n')
+    (bin_folder / "vslam").write_text(f'#!/bin/sh\nexec "{sys.executable}" -m vslam.cli "$@"\n')
     (bin_folder / "vslam").chmod(0o755)
     summary = tmp_path / "summary.md"
     env = {**{k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}, **shard_job["env"],

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from cli_helpers import vslam, vslam_here
 
-from app.rrd import read_entity
+from vslam.rrd.read import read_entity
 from vslam_core.config import EngineConfig
 from vslam_core.pipeline import run_odometry
 from vslam_core.results import TrackFate
@@ -161,7 +161,7 @@ def test_interrupted_run_finalises_recording_and_trajectory(kitti_root: Path, tm
                                                             code: int) -> None:
     rrd, trajectory = tmp_path / "i.rrd", tmp_path / "i.txt"
     process = subprocess.Popen(
-        [sys.executable, "-m", "app.cli", "run", str(kitti_root), "--sequence", "00", "-o", str(rrd),
+        [sys.executable, "-m", "vslam.cli", "run", str(kitti_root), "--sequence", "00", "-o", str(rrd),
          "--trajectory-out", str(trajectory)],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )

@@ -192,7 +192,7 @@ def test_unknown_option_is_one_line() -> None:
 
 
 def test_plain_progress_every_5_percent_or_10_seconds() -> None:
-    from app.progress import PlainProgress
+    from vslam.runs.progress import PlainProgress
 
     lines: list[str] = []
     now = [0.0]

@@ -13,13 +13,13 @@ import pytest
 from PIL import Image
 from rerun.chunk import RrdReader
 
-from app import viewer
-from app.crop import crop_recording
-from app.crop_video import _decode
-from app.recording.video import GOP_FRAMES, ImageCodec
-from app.rrd import rerun_binary
-from app.snapshot import snapshot
-from app.viewer import ViewerError
+from vslam.recording.video import GOP_FRAMES, ImageCodec
+from vslam.rrd.crop import crop_recording
+from vslam.rrd.crop_video import _decode
+from vslam.rrd.read import rerun_binary
+from vslam.viewer import processes as viewer
+from vslam.viewer.processes import ViewerError
+from vslam.viewer.snapshot import snapshot
 
 ROOT = Path(__file__).resolve().parents[1]
 IMAGE = "/world/camera/image"
@@ -28,7 +28,7 @@ CROP = (25, 35)  # starts mid-GOP: key frames at 0, 20
 
 
 def _run(path: Path, codec: str) -> Path:
-    done = subprocess.run([sys.executable, "-m", "app.cli", "run", "--frames", f"0:{FRAMES}", "--image-codec", codec,
+    done = subprocess.run([sys.executable, "-m", "vslam.cli", "run", "--frames", f"0:{FRAMES}", "--image-codec", codec,
                            "-o", str(path)], cwd=ROOT, capture_output=True, text=True, timeout=300,
                           env={**os.environ, "RERUN_STRICT": "1"})
     assert done.returncode == 0, done.stderr
@@ -123,7 +123,7 @@ def test_h264_snapshot_without_ffmpeg_names_what_to_install(tmp_path: Path, monk
 
 def test_eval_report_recordings_take_the_codec(tmp_path: Path) -> None:
     report = tmp_path / "report"
-    done = subprocess.run([sys.executable, "-m", "app.cli", "eval", "synthetic", "--frames", "0:25", "--image-codec",
+    done = subprocess.run([sys.executable, "-m", "vslam.cli", "eval", "synthetic", "--frames", "0:25", "--image-codec",
                            "h264", "--report", str(report)], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     (recording,) = report.glob("*.rrd")

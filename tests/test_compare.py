@@ -18,8 +18,7 @@ import rerun as rr
 from cli_helpers import vslam, vslam_here
 from rerun.chunk import RrdReader
 
-from app import viewer
-from app.compare import (
+from vslam.compare.comparison import (
     LIGHTEN_B,
     SERIES_WIDTHS,
     ComparisonResult,
@@ -27,11 +26,13 @@ from app.compare import (
     format_differences,
     plot_title,
 )
-from app.crop import crop_recording
-from app.inspect import inspect_recording
-from app.recording import METRICS
-from app.rrd import RecordingError, read_entity
-from app.viewer import NO_VULKAN, rerun_executable, view_file_name
+from vslam.recording import METRICS
+from vslam.rrd.crop import crop_recording
+from vslam.rrd.inspect import inspect_recording
+from vslam.rrd.read import RecordingError, read_entity
+from vslam.viewer import processes as viewer
+from vslam.viewer.processes import NO_VULKAN, rerun_executable
+from vslam.viewer.snapshot import snapshot, view_file_name
 
 ROOT = Path(__file__).resolve().parents[1]
 FRAMES = list(range(20))
@@ -54,7 +55,7 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     a, b = folder / "a.rrd", folder / "b.rrd"
     commands = [["run", "--frames", "0:20", "-o", str(a)],
                 ["run", "--frames", "0:20", "--config", str(folder / "b.toml"), "-o", str(b)]]
-    processes = [subprocess.Popen([sys.executable, "-m", "app.cli", *args], cwd=ROOT, stdout=subprocess.PIPE,
+    processes = [subprocess.Popen([sys.executable, "-m", "vslam.cli", *args], cwd=ROOT, stdout=subprocess.PIPE,
                                   stderr=subprocess.PIPE, text=True) for args in commands]
     for process in processes:
         _, stderr = process.communicate(timeout=300)
@@ -276,11 +277,11 @@ def shots(compared: ComparisonResult, tmp_path_factory: pytest.TempPathFactory) 
     handler = logging.Handler()
     handler.emit = lambda record: warnings.append(record.getMessage())  # type: ignore[method-assign]
     handler.setLevel(logging.WARNING)
-    logging.getLogger("app.viewer").addHandler(handler)
+    logging.getLogger("vslam.viewer.processes").addHandler(handler)
     try:
-        paths = viewer.snapshot(compared.output, SNAPSHOT_FRAME, tmp_path_factory.mktemp("shots"))
+        paths = snapshot(compared.output, SNAPSHOT_FRAME, tmp_path_factory.mktemp("shots"))
     finally:
-        logging.getLogger("app.viewer").removeHandler(handler)
+        logging.getLogger("vslam.viewer.processes").removeHandler(handler)
     assert not warnings, warnings  # the viewer reported no problem with any view
     return {p.stem: p for p in paths}
 
@@ -357,7 +358,7 @@ def kitti_runs(kitti_root: Path, tmp_path_factory: pytest.TempPathFactory) -> li
     half = folder / "half.toml"
     half.write_text("[detector]\ntarget_tracks = 400\nredetect_below = 300\n")
     paths = [folder / f"{name}.rrd" for name in KITTI_RUNS]
-    processes = [subprocess.Popen([sys.executable, "-m", "app.cli", "run", str(kitti_root), "--sequence", "00",
+    processes = [subprocess.Popen([sys.executable, "-m", "vslam.cli", "run", str(kitti_root), "--sequence", "00",
                                    *(a.format(half=half) for a in args), "--detail", "standard", "-o", str(path)],
                                   cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
                  for path, args in zip(paths, KITTI_RUNS.values(), strict=True)]

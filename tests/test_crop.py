@@ -17,10 +17,10 @@ import rerun as rr
 from polars.testing import assert_frame_equal
 from rerun.chunk import Chunk, RrdReader
 
-from app.crop import CropSummary, crop_recording
-from app.inspect import inspect_recording
-from app.provenance import read_properties
-from app.rrd import RecordingError, read_entity, rerun_binary
+from vslam.rrd.crop import CropSummary, crop_recording
+from vslam.rrd.inspect import inspect_recording
+from vslam.rrd.provenance import read_properties
+from vslam.rrd.read import RecordingError, read_entity, rerun_binary
 
 ROOT = Path(__file__).resolve().parents[1]
 START, END = 10, 20
@@ -32,7 +32,7 @@ ENTITIES = ["/world/camera", "/world/camera/image", "/world/camera/image/flow", 
 def full(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A real 30-frame recording of the synthetic street (full detail, embedded blueprint)."""
     path = tmp_path_factory.mktemp("crop") / "full.rrd"
-    done = subprocess.run([sys.executable, "-m", "app.cli", "run", "--frames", "0:30", "-o", str(path)],
+    done = subprocess.run([sys.executable, "-m", "vslam.cli", "run", "--frames", "0:30", "-o", str(path)],
                           cwd=ROOT, capture_output=True, text=True, timeout=300,
                           env={**os.environ, "RERUN_STRICT": "1"})
     assert done.returncode == 0, done.stderr

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from cli_helpers import vslam
 
-from app.inspect import format_report, inspect_recording
-from app.recording.drift import DRIFT_ENTITY, DRIFT_LIFT_M, LINKS_ENTITY, drift_colours
-from app.rrd import read_entity
+from vslam.recording.drift import DRIFT_ENTITY, DRIFT_LIFT_M, LINKS_ENTITY, drift_colours
+from vslam.rrd.inspect import format_report, inspect_recording
+from vslam.rrd.read import read_entity
 from vslam_core.drift import frame_errors, worst_frames
 from vslam_core.metrics import position_errors, sim3_aligned
 from vslam_core.sources.base import rebase_poses

@@ -11,7 +11,7 @@ import polars as pl
 import pytest
 from cli_helpers import vslam
 
-from app.rrd import read_entity
+from vslam.rrd.read import read_entity
 from vslam_core.metrics import evaluate
 from vslam_core.sources.base import rebase_poses
 from vslam_core.trajectory_io import read_kitti_poses, write_tum_poses
@@ -135,7 +135,7 @@ def test_report_folder_another_eval_is_writing_is_refused(tmp_path: Path) -> Non
     import fcntl
     import os
 
-    from app.outputs import FOLDER_LOCK
+    from vslam.runs.outputs import FOLDER_LOCK
 
     fd = os.open(tmp_path / FOLDER_LOCK, os.O_WRONLY | os.O_CREAT)
     try:
@@ -150,7 +150,7 @@ def test_report_folder_another_eval_is_writing_is_refused(tmp_path: Path) -> Non
 
 def test_json_ready_replaces_nan_at_any_depth() -> None:
     """`inspect --json` and `eval --json` print JSON, which has no NaN (e.g. a metric on a too-short path)."""
-    from app.report import json_ready
+    from vslam.evaluation.report import json_ready
 
     data = {"a": float("nan"), "b": [1.0, float("inf"), {"c": float("nan"), "d": "x"}], "e": 2}
     assert json.loads(json.dumps(json_ready(data), allow_nan=False)) == {"a": None, "b": [1.0, None, {"c": None,

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 from cli_helpers import vslam
 
-from app.matching import MatchMode, match_images
-from app.plots import ESTIMATES_BGR, GROUND_TRUTH_BGR, top_view
-from app.rrd import read_entity
-from app.trajectory_images import stamps_from_names
+from vslam.evaluation.matching import MatchMode, match_images
+from vslam.evaluation.plots import ESTIMATES_BGR, GROUND_TRUTH_BGR, top_view
+from vslam.evaluation.trajectory_images import stamps_from_names
+from vslam.rrd.read import read_entity
 from vslam_core.errors import TrajectoryFormatError
 from vslam_core.sources.kitti import read_times
 from vslam_core.trajectory_io import read_kitti_poses, write_kitti_poses, write_tum_poses

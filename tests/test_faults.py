@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from cli_helpers import vslam
 
-from app.rrd import read_entity
+from vslam.rrd.read import read_entity
 from vslam_core.config import EngineConfig
 from vslam_core.errors import SourceError
 from vslam_core.geometry import rotation_angle

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from cli_helpers import vslam, vslam_here
 
-from app.provenance import read_properties
+from vslam.rrd.provenance import read_properties
 from vslam_core.trajectory_io import read_kitti_poses
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -14,8 +14,8 @@ import pytest
 from ros_logs import LOGS, LensLog, LogWriter, kitti_clip, make_reimager, write_lens_log
 from test_cli_inputs import assert_one_line_error, vslam
 
-from app.provenance import PROPERTIES, read_properties
-from app.rrd import read_entity
+from vslam.rrd.provenance import PROPERTIES, read_properties
+from vslam.rrd.read import read_entity
 from vslam_core.config import EngineConfig
 from vslam_core.metrics import kitti_errors
 from vslam_core.pipeline import RunResult, run_odometry

@@ -22,14 +22,14 @@ import numpy as np
 import pytest
 from cli_helpers import vslam
 
-from app import outputs
-from app.outputs import OutputError, claim, default_recording
-from app.recording import Detail
-from app.recording import recorder as recorder_module
-from app.recording import stream as stream_module
-from app.rrd import has_footer, read_entity, readable
-from app.snapshot import snapshot
-from app.viewer import recording_frames, vulkan_available
+from vslam.recording import Detail
+from vslam.recording import recorder as recorder_module
+from vslam.recording import stream as stream_module
+from vslam.rrd.read import has_footer, read_entity, readable
+from vslam.runs import outputs
+from vslam.runs.outputs import OutputError, claim, default_recording
+from vslam.viewer.processes import recording_frames, vulkan_available
+from vslam.viewer.snapshot import snapshot
 from vslam_core.config import EngineConfig
 from vslam_core.sources.base import FrameRange
 from vslam_core.sources.kitti import KittiSource
@@ -39,7 +39,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def command(*args: str | Path) -> list[str]:
-    return [sys.executable, "-m", "app.cli", *map(str, args)]
+    return [sys.executable, "-m", "vslam.cli", *map(str, args)]
 
 
 def one_error_line(stderr: str) -> str:
@@ -368,7 +368,7 @@ def test_failed_run_with_a_default_output_says_where_the_recording_is(kitti_root
 def test_trajectory_is_written_per_frame_and_refined_poses_replace_it_atomically(tmp_path: Path) -> None:
     """The map backend's refined poses differ from those written during the run: the file is rewritten
     beside and renamed into place (no temporary file left, never a mix of both)."""
-    from app.trajectory_out import TrajectoryWriter
+    from vslam.runs.trajectory_out import TrajectoryWriter
     from vslam_core.pipeline import RunResult
     from vslam_core.sources.base import Frame
 

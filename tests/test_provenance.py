@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 from cli_helpers import vslam
 
-from app.provenance import read_properties
-from app.rrd import read_entity
+from vslam.rrd.provenance import read_properties
+from vslam.rrd.read import read_entity
 from vslam_core.trajectory_io import read_kitti_poses
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -63,7 +63,7 @@ def _interrupt_once_grown(process: subprocess.Popen[str], rrd: Path) -> None:
 def test_interrupted_run_says_what_the_recording_holds(kitti_root: Path, tmp_path: Path) -> None:
     rrd, trajectory = tmp_path / "i.rrd", tmp_path / "i.txt"
     process = subprocess.Popen(
-        [sys.executable, "-m", "app.cli", "run", str(kitti_root), "--sequence", "00", "-o", str(rrd),
+        [sys.executable, "-m", "vslam.cli", "run", str(kitti_root), "--sequence", "00", "-o", str(rrd),
          "--trajectory-out", str(trajectory)],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
@@ -92,7 +92,7 @@ def test_report_md_states_injected_faults(tmp_path: Path) -> None:
 def test_report_md_states_the_interruption(kitti_root: Path, tmp_path: Path) -> None:
     report = tmp_path / "report"
     process = subprocess.Popen(
-        [sys.executable, "-m", "app.cli", "eval", str(kitti_root), "--sequences", "00,05", "--report", str(report),
+        [sys.executable, "-m", "vslam.cli", "eval", str(kitti_root), "--sequences", "00,05", "--report", str(report),
          "--detail", "full"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     rrd = report / "kitti-00.rrd"
     _interrupt_once_grown(process, rrd)

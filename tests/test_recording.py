@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 import rerun as rr
 
-from app.inspect import flagged_ranges, inspect_recording
-from app.recording import STAGES, Detail, Recorder
-from app.rrd import RecordingError, read_entity
+from vslam.recording import STAGES, Detail, Recorder
+from vslam.rrd.inspect import flagged_ranges, inspect_recording
+from vslam.rrd.read import RecordingError, read_entity
 from vslam_core.config import EngineConfig
 from vslam_core.pipeline import run_odometry
 from vslam_core.results import FrameResult, FrameStatus, TrackFate

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from cli_helpers import vslam
 
-from app.rrd import read_entity
+from vslam.rrd.read import read_entity
 from vslam_core.config import EngineConfig, HeightScaleConfig
 from vslam_core.errors import ConfigError
 from vslam_core.geometry import so3_exp

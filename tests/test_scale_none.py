@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from cli_helpers import vslam
 
-from app import evaluation
-from app.rrd import read_entity
+from vslam.evaluation import evaluate as evaluation
+from vslam.rrd.read import read_entity
 from vslam_core.config import EngineConfig
 from vslam_core.metrics import kitti_errors, paper_rms_error, sim3_aligned
 from vslam_core.sources.base import rebase_poses

@@ -20,18 +20,19 @@ import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
-from app import snapshot as snapshots
-from app import viewer, web
-from app.recording.blueprint import CAR_ENTITY
-from app.rrd import read_entity
-from app.snapshot import DEFAULT_SIZE, snapshot
-from app.viewer import NO_VULKAN, ViewerError, choose_viewer, vulkan_icd_files
-from app.web import open_recording
+from vslam.recording.blueprint import CAR_ENTITY
+from vslam.rrd.read import read_entity
+from vslam.viewer import processes as viewer
+from vslam.viewer import snapshot as snapshots
+from vslam.viewer import web
+from vslam.viewer.processes import NO_VULKAN, ViewerError, choose_viewer, vulkan_icd_files
+from vslam.viewer.snapshot import DEFAULT_SIZE, snapshot
+from vslam.viewer.web import open_recording
 from vslam_core.errors import VslamError
 
 ROOT = Path(__file__).resolve().parents[1]
 FRAME = 10
-#: The views of app.recording.blueprint() for a run with ground truth and --scale gt, in reading order.
+#: The views of vslam.recording.blueprint() for a run with ground truth and --scale gt, in reading order.
 VIEWS = ["frame", "world", "tracks", "inliers", "inlier_ratio", "health", "motion", "position_error_m",
          "angle_errors", "drift_per_frame_m", "drift_per_frame_of_step_scale_ratio", "timing_ms", "events", "report"]
 
@@ -39,7 +40,7 @@ VIEWS = ["frame", "world", "tracks", "inliers", "inlier_ratio", "health", "motio
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
     rrd = tmp_path_factory.mktemp("viewer") / "s.rrd"
-    result = subprocess.run([sys.executable, "-m", "app.cli", "run", "--frames", "0:15", "-o",
+    result = subprocess.run([sys.executable, "-m", "vslam.cli", "run", "--frames", "0:15", "-o",
                              str(rrd)], capture_output=True, text=True, cwd=ROOT, timeout=300)
     assert result.returncode == 0, result.stderr
     return rrd
@@ -55,7 +56,7 @@ def vulkan() -> None:
 
 
 class _Spy:
-    """Records every process app.viewer starts, to check that none survives."""
+    """Records every process vslam.viewer.processes starts, to check that none survives."""
 
     def __init__(self) -> None:
         self.started: list[tuple[list[str], viewer._Process]] = []
@@ -232,7 +233,7 @@ def test_viewer_failure_after_start_still_stops_it(
 
 
 def test_terminated_snapshot_stops_the_viewer_first(recording: Path, vulkan: None, tmp_path: Path) -> None:
-    code = ("import sys; from pathlib import Path; from app import snapshot, viewer\n"
+    code = ("import sys; from pathlib import Path; from vslam.viewer import snapshot, processes as viewer\n"
             "start = viewer._start\n"
             "def spy(args, env=None):\n"
             "    process = start(args, env)\n"
@@ -268,7 +269,7 @@ def test_choose_viewer() -> None:
 @pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
 def test_web_viewer_serves_on_loopback_until_stopped(recording: Path, stop: signal.Signals) -> None:
     port = viewer.free_port()
-    code = ("import signal, sys; from pathlib import Path; from app.web import open_recording; "
+    code = ("import signal, sys; from pathlib import Path; from vslam.viewer.web import open_recording; "
             "signal.signal(signal.SIGINT, signal.default_int_handler); "  # as in a terminal, even under CI
             "open_recording(Path(sys.argv[1]), web=True, web_port=int(sys.argv[2]))")
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
@@ -321,13 +322,13 @@ def test_web_viewer_port_in_use_is_a_clear_error(recording: Path) -> None:
 
 def test_snapshot_command_writes_pngs_and_errors_in_one_line(recording: Path, vulkan: None, tmp_path: Path) -> None:
     out = tmp_path / "shots"
-    result = subprocess.run([sys.executable, "-m", "app.cli", "snapshot", str(recording), "--frame", "5", "--out",
+    result = subprocess.run([sys.executable, "-m", "vslam.cli", "snapshot", str(recording), "--frame", "5", "--out",
                              str(out)], capture_output=True, text=True, cwd=ROOT, timeout=300)
     assert result.returncode == 0, result.stderr
     written = {Path(line).name for line in result.stdout.split()}
     assert {"frame.png", "world.png", "all.png"} <= written
     assert all((out / name).is_file() for name in written)
-    result = subprocess.run([sys.executable, "-m", "app.cli", "snapshot", str(recording), "--frame", "99", "--out",
+    result = subprocess.run([sys.executable, "-m", "vslam.cli", "snapshot", str(recording), "--frame", "99", "--out",
                              str(out)], capture_output=True, text=True, cwd=ROOT, timeout=300)
     assert result.returncode == 2 and "Traceback" not in result.stderr
     assert "outside the recording's frames 0..14" in result.stderr
@@ -370,7 +371,7 @@ def test_views_without_data_are_left_out_of_the_blueprint(
     args: list[str], present: set[str], absent: set[str], tmp_path: Path
 ) -> None:
     rrd = tmp_path / "r.rrd"
-    result = subprocess.run([sys.executable, "-m", "app.cli", "run", "--frames", "0:3", "-o", str(rrd), *args],
+    result = subprocess.run([sys.executable, "-m", "vslam.cli", "run", "--frames", "0:3", "-o", str(rrd), *args],
                             capture_output=True, text=True, cwd=ROOT, timeout=300)
     assert result.returncode == 0, result.stderr
     names = _view_names(_blueprint(rrd))
@@ -404,7 +405,7 @@ def test_world_view_shows_the_car_large_near_the_centre(shots: dict[str, Path]) 
 
 def test_snapshot_cli_last_frame_and_size(recording: Path, vulkan: None, tmp_path: Path) -> None:
     out = tmp_path / "last"
-    result = subprocess.run([sys.executable, "-m", "app.cli", "snapshot", str(recording), "--frame", "last",
+    result = subprocess.run([sys.executable, "-m", "vslam.cli", "snapshot", str(recording), "--frame", "last",
                              "--size", "800x500", "--out", str(out)], capture_output=True, text=True, cwd=ROOT,
                             timeout=600)
     assert result.returncode == 0, result.stderr
@@ -420,7 +421,7 @@ def test_snapshot_cli_last_frame_and_size(recording: Path, vulkan: None, tmp_pat
     for args, fragment in ((["--frame", "lastt"], "--frame 'lastt': give a frame index or 'last'"),
                            (["--frame", "3", "--size", "10x10"], "--size '10x10': the window must be"),
                            (["--frame", "3", "--size", "big"], "--size 'big': give WIDTHxHEIGHT")):
-        bad = subprocess.run([sys.executable, "-m", "app.cli", "snapshot", str(recording), "--out", str(out), *args],
+        bad = subprocess.run([sys.executable, "-m", "vslam.cli", "snapshot", str(recording), "--out", str(out), *args],
                              capture_output=True, text=True, cwd=ROOT, timeout=60)
         assert bad.returncode == 2 and fragment in bad.stderr and "Traceback" not in bad.stderr, bad.stderr
         assert len(bad.stderr.strip().splitlines()) == 1
@@ -442,7 +443,7 @@ def test_parse_size_and_frame() -> None:
      (["--web-port", "40000", "--grpc-port", "40000"], "--web-port and --grpc-port are both 40000")],
 )
 def test_open_web_bad_ports_are_one_line_errors(recording: Path, args: list[str], fragment: str) -> None:
-    result = subprocess.run([sys.executable, "-m", "app.cli", "open", str(recording), "--web", *args],
+    result = subprocess.run([sys.executable, "-m", "vslam.cli", "open", str(recording), "--web", *args],
                             capture_output=True, text=True, cwd=ROOT, timeout=60)
     assert result.returncode == 2 and fragment in result.stderr and "Traceback" not in result.stderr, result.stderr
 
@@ -461,7 +462,7 @@ def test_connections_to_counts_established_clients() -> None:
 
 def test_web_viewer_fixed_ports_browser_watch_and_frame_timeline(recording: Path, vulkan: None) -> None:
     web_port, grpc_port = viewer.free_port(), viewer.free_port()
-    code = ("import sys; from pathlib import Path; from app.web import open_recording; "
+    code = ("import sys; from pathlib import Path; from vslam.viewer.web import open_recording; "
             "open_recording(Path(sys.argv[1]), web=True, web_port=int(sys.argv[2]), grpc_port=int(sys.argv[3]), "
             "browser_wait_s=1)")
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}

@@ -1,0 +1,5 @@
+"""``python -m vslam``: the same as the `vslam` console script."""
+
+from vslam.cli import main
+
+main()

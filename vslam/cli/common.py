@@ -1,0 +1,87 @@
+"""What the `vslam` commands share: the consoles, option types and help texts, and one-line errors."""
+
+from __future__ import annotations
+
+import errno
+from collections.abc import Iterator
+from contextlib import contextmanager
+from enum import StrEnum
+from pathlib import Path
+from typing import NoReturn
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+
+from vslam.runs import write_failure
+
+err = Console(stderr=True, soft_wrap=True)
+out = Console(soft_wrap=True)
+class Scale(StrEnum):
+    gt = "gt"
+    none = "none"
+    height = "height"
+
+
+class Backend(StrEnum):
+    vo = "vo"
+    map = "map"
+
+
+BACKEND_HELP = ("vo = frame-to-keyframe odometry; map = keyframes and landmarks, tracking against the map, windowed "
+                "bundle adjustment, relocalisation [default: the config's backend, vo unless --config says otherwise]")
+CAMERA_HEIGHT_HELP = ("metres from the camera to the road, for --scale height [default: the source's own: KITTI "
+                      "1.65 m, the synthetic street's]")
+
+
+CALIB_HELP = ("camera calibration file, lens included: ROS camera_info YAML, Kalibr camchain or EuRoC sensor.yaml, "
+              "OpenCV YAML/XML, KITTI calib.txt (for image folders, videos and logs: overrides a log's CameraInfo)")
+GT_HELP = ("ground-truth camera poses, KITTI (row i = frame i) or TUM; TUM rows are matched to a log's or "
+           "dataset's frames by timestamp")
+TOPIC_HELP = "the image topic of a ROS bag / MCAP log [default: its only image topic]"
+GT_TOPIC_HELP = ("ground truth from a topic of the log (PoseStamped, Odometry, TransformStamped), as camera "
+                 "poses (via /tf_static when it is of another frame)")
+GT_TOLERANCE_HELP = "how far (ms) a ground-truth stamp may be from its frame's when matched by time"
+
+
+class BadFrame(StrEnum):
+    fail = "fail"
+    skip = "skip"
+
+
+class TrajectoryFormat(StrEnum):
+    kitti = "kitti"
+    tum = "tum"
+
+
+def fail(message: str, code: int = 2) -> NoReturn:
+    """One line on stderr, a non-zero exit, no traceback."""
+    err.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
+    raise typer.Exit(code)
+
+
+def warn(message: str) -> None:
+    """One line on stderr; the run goes on."""
+    err.print(f"[bold yellow]warning:[/] {escape(message)}", highlight=False, soft_wrap=True)
+
+
+def refuse(problem: str | None, code: int = 2) -> None:
+    if problem is not None:
+        fail(problem, code)
+
+
+IMAGE_CODEC_HELP = ("recorded camera frames: jpeg images, or an av1 / h264 video stream (half the size; the native "
+                    "viewer needs ffmpeg on PATH for h264)")
+
+
+@contextmanager
+def report_writes(report: Path | None) -> Iterator[None]:
+    """A report file that cannot be written (full disk) ends the command in one line, not a traceback."""
+    try:
+        yield
+    except OSError as exc:
+        if report is None:
+            raise
+        path = Path(exc.filename) if exc.filename else report  # a write() error names no file
+        # EIO (cv2 gives no reason): the file system tells whether it is full
+        fail(write_failure(path, None if exc.errno in (None, errno.EIO) else exc))

@@ -1,0 +1,37 @@
+"""`vslam compare`: several recordings in one (`comparison`), their tables (`table`) and layout (`blueprint`).
+
+The names other packages use are importable from here, loaded on first use (PEP 562).
+"""
+
+from importlib import import_module
+from typing import TYPE_CHECKING, Any
+
+#: Where each public name lives.
+_HOMES = {
+    "PREFIXES": "comparison",
+    "check_labels": "comparison",
+    "compare_recordings": "comparison",
+    "comparison_json": "table",
+    "default_labels": "comparison",
+    "format_differences": "comparison",
+}
+
+if TYPE_CHECKING:
+    from vslam.compare.comparison import PREFIXES, check_labels, compare_recordings, default_labels, format_differences
+    from vslam.compare.table import comparison_json
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _HOMES:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(import_module(f"{__name__}.{_HOMES[name]}"), name)
+
+
+__all__ = [
+    "PREFIXES",
+    "check_labels",
+    "compare_recordings",
+    "comparison_json",
+    "default_labels",
+    "format_differences",
+]

@@ -1,0 +1,86 @@
+"""Scoring runs against ground truth: `vslam eval` over sequences (`evaluate`), pairing estimates with ground
+truth (`matching`), metrics rows and Markdown tables (`report`), top-view plots (`plots`) and the images that go
+with another system's trajectory file (`trajectory_images`).
+
+The names other packages use are importable from here, loaded on first use (PEP 562).
+"""
+
+from importlib import import_module
+from typing import TYPE_CHECKING, Any
+
+#: Where each public name lives.
+_HOMES = {
+    "COLUMNS": "report",
+    "DEFAULT_TOLERANCE_MS": "matching",
+    "Evaluation": "evaluate",
+    "METRICS": "report",
+    "MatchMode": "matching",
+    "REPORT_FILES": "evaluate",
+    "ScoredTrajectory": "evaluate",
+    "TrajectoryImages": "trajectory_images",
+    "check_gates": "evaluate",
+    "evaluate_sources": "evaluate",
+    "evaluate_trajectory_files": "evaluate",
+    "json_ready": "report",
+    "markdown_table": "report",
+    "match_images": "matching",
+    "mean_row": "report",
+    "metrics_row": "report",
+    "open_images": "trajectory_images",
+    "scored_estimate": "report",
+    "write_report": "evaluate",
+    "write_trajectory_report": "evaluate",
+}
+
+if TYPE_CHECKING:
+    from vslam.evaluation.evaluate import (
+        REPORT_FILES,
+        Evaluation,
+        ScoredTrajectory,
+        check_gates,
+        evaluate_sources,
+        evaluate_trajectory_files,
+        write_report,
+        write_trajectory_report,
+    )
+    from vslam.evaluation.matching import DEFAULT_TOLERANCE_MS, MatchMode, match_images
+    from vslam.evaluation.report import (
+        COLUMNS,
+        METRICS,
+        json_ready,
+        markdown_table,
+        mean_row,
+        metrics_row,
+        scored_estimate,
+    )
+    from vslam.evaluation.trajectory_images import TrajectoryImages, open_images
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _HOMES:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(import_module(f"{__name__}.{_HOMES[name]}"), name)
+
+
+__all__ = [
+    "COLUMNS",
+    "DEFAULT_TOLERANCE_MS",
+    "Evaluation",
+    "METRICS",
+    "MatchMode",
+    "REPORT_FILES",
+    "ScoredTrajectory",
+    "TrajectoryImages",
+    "check_gates",
+    "evaluate_sources",
+    "evaluate_trajectory_files",
+    "json_ready",
+    "markdown_table",
+    "match_images",
+    "mean_row",
+    "metrics_row",
+    "open_images",
+    "scored_estimate",
+    "write_report",
+    "write_trajectory_report",
+]

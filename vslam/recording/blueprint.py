@@ -1,0 +1,115 @@
+"""The default layout embedded in every recording."""
+
+from __future__ import annotations
+
+import rerun as rr
+import rerun.blueprint as rrb
+
+from vslam.recording.metrics import BA_ERROR_SERIES, MAP_METRICS
+
+#: Entities of the map backend that keep their whole past in the 3-D view (logged once each, they accumulate).
+MAP_WHOLE_PAST = ("/world/map/keyframes/retired", "/world/map/landmarks/retired")
+#: The car drawn around the camera (a static wireframe box, child of `/world/camera`): the 3-D view tracks it.
+CAR_ENTITY = "/world/camera/car"
+#: Where the 3-D view's eye sits relative to the car it follows (world frame, RDF: −y is up, −z is behind):
+#: 15 m above and 20 m behind the start direction, 25 m away, looking ~37° down.
+EYE_OFFSET = (0.0, -15.0, -20.0)
+#: A distorted lens at detail full: the frame undistorted to the pinhole K, in a 2-D view of its own.
+UNDISTORTED = "/world/camera/undistorted"
+#: The drift series in two plots (units that fit together).
+DRIFT_PLOTS = (("drift per frame (°, m)", ("rotation_deg", "translation_m")),
+               ("drift per frame (% of step, scale ratio)", ("translation_pct", "scale_ratio")))
+
+
+def blueprint(map_backend: bool = False, *, image: bool = True, road_scale: bool = False,
+              ground_truth: bool = True, undistorted: bool = False, engine: bool = True,
+              frustum: bool = True) -> rrb.Blueprint:
+    """Frame with overlays and 3-D world following the car | metric plots; below, events | report; on `frame`.
+
+    Views that would stay empty are left out: the frame without `image` (detail `summary`), "scale from the
+    road" without `road_scale` (`--scale height`), the error plots without `ground_truth`. `map_backend`: also
+    the map (retired keyframes and landmarks keep their whole past) and the plots of the tracking mode and
+    bundle adjustment. `undistorted` (a distorted lens): the undistorted frame beside the raw one. Without
+    `engine` (another system's trajectory, `vslam.recording.external`) only the error plots: there are no tracks,
+    inliers, health or timings; without `frustum` (no camera known) the frame stays out of the 3-D view."""
+    left: list[rrb.Spatial2DView | rrb.Spatial3DView | rrb.Horizontal] = [world_view(map_backend, frustum)]
+    if image:
+        frame = rrb.Spatial2DView(name="frame", origin="/world/camera/image")
+        left.insert(0, rrb.Horizontal(frame, rrb.Spatial2DView(name="undistorted", origin=UNDISTORTED))
+                    if undistorted else frame)
+    plots = _plots(road_scale, ground_truth, engine) + (_map_plots() if map_backend else [])
+    return rrb.Blueprint(
+        rrb.Vertical(
+            rrb.Horizontal(rrb.Vertical(*left, row_shares=[1, 2][-len(left):]), rrb.Grid(*plots, grid_columns=2),
+                           column_shares=[3, 2]),
+            # the events across the window: their messages (up to ~100 characters) fit whole
+            rrb.Horizontal(events_view(), rrb.TextDocumentView(name="report", origin="/report"),
+                           column_shares=[4, 1]),
+            row_shares=[4, 1],
+        ),
+        rrb.TimePanel(timeline="frame", state="collapsed"),  # the recordings also hold `time`: the viewer picked it
+        collapse_panels=True,
+    )
+
+
+def world_view(map_backend: bool, frustum: bool = True) -> rrb.Spatial3DView:
+    """The 3-D world: trajectories with their whole past, the rest at the current frame; the eye follows the
+    car (`CAR_ENTITY`) from `EYE_OFFSET`, at any frame. Without `frustum` the frame (no pinhole) is left out."""
+    whole_past = rr.VisibleTimeRange(
+        "frame", start=rr.TimeRangeBoundary.infinite(), end=rr.TimeRangeBoundary.cursor_relative()
+    )
+    entities = ["/world/trajectory/estimate", "/world/trajectory/ground_truth",
+                *(MAP_WHOLE_PAST if map_backend else ())]
+    return rrb.Spatial3DView(
+        name="world",
+        origin="/world",
+        # the raw frame (with its overlays) is on the frustum
+        contents=["+ /world/**", f"- {UNDISTORTED}/**", *([] if frustum else ["- /world/camera/image/**"])],
+        eye_controls=rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, eye_up=[0.0, -1.0, 0.0],
+                                       position=list(EYE_OFFSET), look_target=[0.0, 0.0, 0.0],
+                                       tracking_entity=CAR_ENTITY),
+        overrides={entity: rrb.VisibleTimeRanges([whole_past]) for entity in entities},
+    )
+
+
+def events_view() -> rrb.TextLogView:
+    """The `/events` log: frame, level and the whole message (no entity-path column: it is always /events)."""
+    kind = rrb.encodings.TextLogColumnKind
+    return rrb.TextLogView(
+        name="events", origin="/events",
+        columns=rrb.archetypes.TextLogColumns(text_log_columns=[
+            rrb.encodings.TextLogColumn(kind.LogLevel),
+            rrb.encodings.TextLogColumn(kind.Body),
+            rrb.encodings.TextLogColumn(kind.EntityPath, visible=False)]),
+    )
+
+
+def _plots(road_scale: bool, ground_truth: bool, engine: bool = True) -> list[rrb.TimeSeriesView]:
+    plots = [("tracks", "tracks"), ("inliers", "ransac"), ("inlier ratio", "ratio"), ("health", "health"),
+             ("motion", "motion")] if engine else []
+    if road_scale:
+        plots.append(("scale from the road", "road"))
+    if ground_truth:
+        plots += [("position error (m)", "error"), ("angle errors (°)", "angle_error")]
+    if engine:
+        plots.append(("timing (ms)", "timing_ms"))
+    views = [rrb.TimeSeriesView(name=name, origin=f"/metrics/{group}") for name, group in plots]
+    if ground_truth:  # each frame's own error (drift attribution): degrees and metres | % and ratio
+        at = len(views) - 1 if engine else len(views)  # before the timing plot
+        views[at:at] = [
+            rrb.TimeSeriesView(name=name, origin="/metrics/drift", contents=[f"/metrics/drift/{s}" for s in series])
+            for name, series in DRIFT_PLOTS]
+    return views
+
+
+def _map_plots() -> list[rrb.TimeSeriesView]:
+    """Tracking mode | landmarks tracked and PnP inliers | BA reprojection errors | the rest of each BA run."""
+    work = [f"/metrics/ba/{name}" for name in MAP_METRICS["ba"] if name not in BA_ERROR_SERIES]
+    return [
+        rrb.TimeSeriesView(name="tracking mode", origin="/metrics/tracking", contents=["/metrics/tracking/mode"]),
+        rrb.TimeSeriesView(name="landmarks tracked", origin="/metrics/tracking",
+                           contents=["/metrics/tracking/pnp_inliers", "/metrics/tracking/landmarks_tracked"]),
+        rrb.TimeSeriesView(name="bundle adjustment error (px)", origin="/metrics/ba",
+                           contents=[f"/metrics/ba/{name}" for name in BA_ERROR_SERIES]),
+        rrb.TimeSeriesView(name="bundle adjustment", origin="/metrics/ba", contents=work),
+    ]

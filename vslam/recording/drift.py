@@ -1,0 +1,172 @@
+"""Drift attribution in the recording: each frame's own relative pose error against the ground truth.
+
+Per frame (`DriftRecording.frame_values`, O(1) on two 4×4 steps): ``/metrics/drift/{rotation_deg,
+translation_m, translation_pct, scale_ratio}`` (`vslam_core.drift`; frame i against frame i−1). With
+``--scale none`` the estimate has unit steps, so the series are logged when the run ends, of the estimate
+after Sim(3) alignment onto the ground truth (as every other error of such a run).
+
+When the run ends (`DriftRecording.finish`):
+
+    /world/trajectory/drift      static: the estimate, one segment per frame coloured by that frame's
+                                 translation error in % of its step (`DRIFT_SCALE_PCT`: green 0 %, yellow,
+                                 red at 5 % and more; grey where the car stood still); frame, % and ° on hover;
+                                 drawn `DRIFT_LIFT_M` above the estimate line (a static Transform3D)
+    /world/trajectory/gt_links   static: a line from the estimated to the ground-truth position every
+                                 `LINK_EVERY` frames (as evo's Rerun bridge draws them)
+    /events                      the `WORST` worst frames by rotation and by translation, with their health
+    /report                      (the lines returned) the colour scale's legend and the worst frames' table
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import rerun as rr
+
+from vslam.recording.columns import ColumnBuffer, add_event
+from vslam_core.drift import FrameErrors, frame_errors, step_errors, worst_frames
+from vslam_core.geometry import invert_pose
+from vslam_core.sources.base import Frame
+
+DRIFT_ENTITY = "/world/trajectory/drift"
+LINKS_ENTITY = "/world/trajectory/gt_links"
+#: The colour scale of `DRIFT_ENTITY`: translation error in % of the ground-truth step, this value is red.
+DRIFT_SCALE_PCT = 5.0
+#: Colour stops of the scale (fraction of `DRIFT_SCALE_PCT` → RGB), and of frames without a percentage.
+DRIFT_STOPS = ((0.0, (40, 220, 60)), (0.5, (255, 230, 0)), (1.0, (230, 30, 30)))
+STILL_COLOUR = (150, 150, 150)
+LINK_COLOUR = (120, 200, 255)
+#: A correspondence line every this many frames.
+LINK_EVERY = 10
+#: `DRIFT_ENTITY` is drawn this far above the estimate (metres, −y of the world's RDF): the viewer draws lines
+#: as flat ribbons, and two at one depth flicker into each other (z-fighting).
+DRIFT_LIFT_M = 0.3
+#: How many worst frames become events (per ranking) and `vslam inspect` lists.
+WORST = 10
+
+
+def drift_colours(pct: np.ndarray, scale: float = DRIFT_SCALE_PCT) -> np.ndarray:
+    """(N, 3) uint8 colours of per-frame errors in %: green at 0, yellow at scale/2, red from `scale` on,
+    grey for NaN (no ground-truth step)."""
+    values = np.asarray(pct, dtype=np.float64)
+    t = np.clip(np.nan_to_num(values / scale, nan=0.0), 0.0, 1.0)
+    stops = np.array([s for s, _ in DRIFT_STOPS])
+    rgb = np.array([c for _, c in DRIFT_STOPS], dtype=np.float64)
+    colours = np.stack([np.interp(t, stops, rgb[:, k]) for k in range(3)], axis=1)
+    colours[~np.isfinite(values)] = STILL_COLOUR
+    return np.round(colours).astype(np.uint8)
+
+
+@dataclass
+class DriftRecording:
+    """What the recorder keeps of each frame for the drift attribution (a few numbers per frame)."""
+
+    gt: np.ndarray  # (N, 4, 4) ground truth of the run's frames, by run position
+    online: bool  # False with --scale none: the series are logged at the end, after Sim(3) alignment
+    frames: list[Frame] = field(default_factory=list)  # index and timestamp only (image dropped)
+    positions: list[np.ndarray] = field(default_factory=list)  # estimated camera positions (3,)
+    run_positions: list[int] = field(default_factory=list)
+    health: list[tuple[str, str]] = field(default_factory=list)  # (status, "reason,reason")
+    rows: list[tuple[float, float, float, float]] = field(default_factory=list)  # online errors per frame
+    _previous: tuple[np.ndarray, int] | None = None
+
+    def frame_values(self, frame: Frame, position: int, pose: np.ndarray, status: str,
+                     reasons: str) -> dict[str, float]:
+        """Remember the frame; return its drift series (none with ``online`` False). NaN values are left out
+        (the recording's series hold none)."""
+        self.frames.append(Frame(frame.index, frame.timestamp, _NO_IMAGE))
+        self.positions.append(pose[:3, 3].copy())
+        self.run_positions.append(position)
+        self.health.append((status, reasons))
+        if not self.online:
+            return {}
+        if self._previous is None:
+            row = (0.0, 0.0, 0.0, 1.0)
+        else:
+            before, previous_position = self._previous
+            gt_step = invert_pose(self.gt[previous_position]) @ self.gt[position]
+            values = step_errors(gt_step, invert_pose(before) @ pose)
+            row = (float(values[0]), float(values[1]), float(values[2]), float(values[3]))
+        self._previous = (pose.copy(), position)
+        self.rows.append(row)
+        return {name: value for name, value in zip(SERIES, row, strict=True) if np.isfinite(value)}
+
+    def finish(self, rec: rr.RecordingStream, columns: ColumnBuffer, aligned: np.ndarray | None) -> list[str]:
+        """Log the coloured trajectory, the ground-truth links and the worst frames' events; with ``online``
+        False (``aligned``: the (N, 4, 4) Sim(3)-aligned estimate) also the series. Returns the report lines."""
+        n = len(self.frames)
+        if n < 2:
+            return []
+        gt = self.gt[np.array(self.run_positions)]
+        if self.online:
+            errors = FrameErrors(*(np.array(column) for column in zip(*self.rows, strict=True)))
+            estimate = np.array(self.positions)
+        elif aligned is None:
+            return []
+        else:
+            errors = frame_errors(gt, aligned[:n])
+            estimate = aligned[:n, :3, 3]
+            self._send_series(rec, errors)
+        indices = np.array([f.index for f in self.frames])
+        strips = np.stack([estimate[:-1], estimate[1:]], axis=1)
+        rec.log(DRIFT_ENTITY, rr.Transform3D(translation=[0.0, -DRIFT_LIFT_M, 0.0]), static=True)
+        rec.log(DRIFT_ENTITY, rr.LineStrips3D(strips, colors=drift_colours(errors.translation_pct[1:]), radii=0.3),
+                rr.AnyValues(frame=indices[1:], translation_pct=np.nan_to_num(errors.translation_pct[1:]),
+                             rotation_deg=errors.rotation_deg[1:]), static=True)
+        linked = np.arange(0, n, LINK_EVERY)
+        rec.log(LINKS_ENTITY, rr.LineStrips3D(np.stack([estimate[linked], gt[linked, :3, 3]], axis=1),
+                                              colors=LINK_COLOUR, radii=0.04),
+                rr.AnyValues(frame=indices[linked]), static=True)
+        return self._events(columns, errors, indices)
+
+    def _send_series(self, rec: rr.RecordingStream, errors: FrameErrors) -> None:
+        for name in SERIES:
+            values = getattr(errors, name)
+            keep = np.isfinite(values)
+            frames = [f.index for f, k in zip(self.frames, keep, strict=True) if k]
+            rec.send_columns(f"/metrics/drift/{name}", indexes=[rr.TimeColumn("frame", sequence=frames)],
+                             columns=rr.Scalars.columns(scalars=values[keep]))
+
+    def _events(self, columns: ColumnBuffer, errors: FrameErrors, indices: np.ndarray) -> list[str]:
+        by_frame = {int(index): i for i, index in enumerate(indices)}
+        rotation = worst_frames(errors.rotation_deg, WORST, indices)
+        translation = worst_frames(errors.translation_m, WORST, indices)
+        lines = [
+            "## Where the error comes from",
+            "",
+            f"`{DRIFT_ENTITY}`: the estimate coloured by each frame's translation error in % of its step, "
+            f"green 0 %, yellow {DRIFT_SCALE_PCT / 2:g} %, red ≥ {DRIFT_SCALE_PCT:g} % (grey: standing still); "
+            f"`{LINKS_ENTITY}`: estimate → ground truth every {LINK_EVERY} frames.",
+            "",
+            "| rank | frame | rotation ° | health | frame | translation m | % of step | health |",
+            "|---|---|---|---|---|---|---|---|",
+        ]
+        for rank in range(max(len(rotation), len(translation))):
+            r = rotation[rank] if rank < len(rotation) else None
+            t = translation[rank] if rank < len(translation) else None
+            pct = errors.translation_pct[by_frame[t[0]]] if t is not None else np.nan
+            lines.append(f"| {rank + 1} | {r[0] if r else ''} | {f'{r[1]:.3f}' if r else ''} | "
+                         f"{self._health_text(by_frame[r[0]]) if r else ''} | "
+                         f"{t[0] if t else ''} | {f'{t[1]:.3f}' if t else ''} | "
+                         f"{f'{pct:.1f}' if np.isfinite(pct) else 'n/a'} | "
+                         f"{self._health_text(by_frame[t[0]]) if t else ''} |")
+        for rank, (index, value) in enumerate(rotation):
+            i = by_frame[index]
+            add_event(columns, self.frames[i], f"drift: rotation #{rank + 1}, {value:.3f}° this frame "
+                      f"({errors.translation_m[i]:.3f} m); health {self._health_text(i)}", "WARN")
+        for rank, (index, value) in enumerate(translation):
+            i = by_frame[index]
+            pct = errors.translation_pct[i]
+            add_event(columns, self.frames[i], f"drift: translation #{rank + 1}, {value:.3f} m this frame"
+                      + (f" ({pct:.1f} % of the step)" if np.isfinite(pct) else "")
+                      + f" ({errors.rotation_deg[i]:.3f}°); health {self._health_text(i)}", "WARN")
+        return lines
+
+    def _health_text(self, i: int) -> str:
+        status, reasons = self.health[i]
+        return status + (f": {reasons.replace(',', ', ')}" if reasons else "")
+
+
+SERIES = ("rotation_deg", "translation_m", "translation_pct", "scale_ratio")
+_NO_IMAGE = np.zeros((0, 0), np.uint8)

@@ -1,0 +1,259 @@
+"""Entities of the map backend (`--backend map`), logged only for results that carry `FrameResult.mapping`.
+
+    /tracking                           AnyValues per frame: mode (init, two_view, map, relocalised, lost),
+                                        segment, pnp_inliers, landmarks_tracked, pnp_rejected (why PnP was
+                                        not used: "" if it was, "no PnP" if it was not tried)
+    /metrics/tracking/{mode,pnp_inliers,landmarks_tracked}   per-frame series (mode numbered as in
+                                        `MODE_LEVELS`: 0 lost, 1 two-view or init, 2 map, 3 relocalised)
+    /metrics/ba/...                     per bundle adjustment run: iterations, costs, mean/max errors, solver
+                                        time, factors, culled landmarks
+    /metrics/timing_ms/{pnp,relocalise,mapping}   the map backend's stages, on frames that ran them
+    /world/map/keyframes/window         LineStrips3D: a frustum per keyframe of the BA window (orange) and per
+                                        keyframe held fixed in the last BA (blue); re-logged at each keyframe;
+                                        keyframe_id and fixed on hover
+    /world/map/keyframes/retired        LineStrips3D: keyframes that left the window, logged once each at their
+                                        final pose (grey; the 3-D view shows their whole past)
+    /world/map/landmarks/window         Points3D: the landmarks the window sees, re-logged at each keyframe
+    /world/map/landmarks/retired        Points3D: landmarks no window keyframe sees any more, logged once at
+                                        their final position (whole past in the 3-D view: the cloud grows)
+    /world/map/keyframe_path            LineStrips3D: every keyframe position of the map segment, as refined
+                                        so far (re-logged at each keyframe); not /world/trajectory/estimate,
+                                        which holds the poses as tracked
+    /world/map/ba_residuals             Points3D: the landmarks of the last BA at their refined positions,
+                                        coloured by mean reprojection error after (full detail)
+    /world/camera/image/landmarks       Points2D: landmarks tracked in this frame at their tracked pixel,
+                                        class PnP inlier / outlier (landmark_id on hover in full detail)
+    /world/camera/image/reprojection    LineStrips2D: each landmark's projection with the pose used → its
+                                        tracked pixel (the residual as a short line), same classes
+    /events                             keyframes, bundle adjustments, relocalisation, new map segments
+
+Landmarks are coloured by the number of keyframes observing them, on a fixed ramp: 2 or fewer dark blue,
+3 cyan, 4 green, 5 yellow, 6 orange, 7 or more red (`OBSERVATION_RAMP`). Hover: landmark_id, observations.
+BA residual points use a second ramp: < 0.5 px green, < 1 px yellow, < 2 px orange, worse red, no finite
+error grey (`RESIDUAL_RAMP`).
+
+Detail levels: summary logs the tracking mode, series, events, keyframe frusta and the keyframe path (no
+per-point data, nothing in the image); standard adds the landmark clouds and the image overlays without
+per-point hover values; full adds those and the BA residual points.
+
+Rows are logged where a thing changes and persist until the next row (latest-at): the window keyframes,
+landmarks and the keyframe path until the next keyframe, the BA residuals until the next BA (cleared with
+an empty row when a new map segment starts); the image overlays get a row every frame (empty without PnP).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import rerun as rr
+
+from vslam.recording.columns import ColumnBuffer, Part, add_event
+from vslam.recording.metrics import MAP_METRICS, MAP_STAGES, MAP_TIMING, map_frame_metrics
+from vslam.recording.styles import Detail
+from vslam_core.results import BundleAdjusted, FrameResult, MapFrame, MapView, PnPEstimate
+from vslam_core.sources.base import CameraIntrinsics, Frame
+
+FRUSTUM_DEPTH = 1.0  # metres (or baselines with --scale none) from a keyframe's centre to its image plane
+WINDOW_COLOUR = (255, 160, 40)
+FIXED_COLOUR = (60, 140, 255)
+RETIRED_COLOUR = (150, 150, 150)
+KEYFRAME_PATH_COLOUR = (255, 220, 60)
+# (fewest observations, colour): a landmark takes the last row it reaches
+OBSERVATION_RAMP: tuple[tuple[int, tuple[int, int, int]], ...] = (
+    (0, (40, 60, 200)), (3, (0, 200, 255)), (4, (40, 220, 60)), (5, (255, 230, 0)), (6, (255, 140, 0)),
+    (7, (230, 30, 30)),
+)
+# (residual below, colour) in pixels; worse than the last bound: red; NaN: grey
+RESIDUAL_RAMP: tuple[tuple[float, tuple[int, int, int]], ...] = (
+    (0.5, (40, 220, 60)), (1.0, (255, 230, 0)), (2.0, (255, 140, 0)), (np.inf, (230, 30, 30)),
+)
+NO_RESIDUAL_COLOUR = (120, 120, 120)
+PNP_OUTLIER, PNP_INLIER = 0, 1
+PNP_STYLE = {PNP_OUTLIER: ("PnP outlier", (230, 30, 30)), PNP_INLIER: ("PnP inlier", (0, 230, 255))}
+
+
+class MapRecording:
+    """Buffers the map backend's entities of each frame into the recorder's column buffer."""
+
+    def __init__(self, rec: rr.RecordingStream, columns: ColumnBuffer, intrinsics: CameraIntrinsics,
+                 detail: Detail) -> None:
+        self._columns = columns
+        self._detail = detail
+        self._frustum = frustum_outline(intrinsics.K, intrinsics.width, intrinsics.height, FRUSTUM_DEPTH)
+        self._segment: int | None = None
+        self._log_static(rec)
+
+    def _log_static(self, rec: rr.RecordingStream) -> None:
+        for group, series in MAP_METRICS.items():
+            for name, (legend, colour) in series.items():
+                rec.log(f"/metrics/{group}/{name}", rr.SeriesLines(names=legend, colors=colour), static=True)
+        for stage, (legend, colour) in MAP_TIMING.items():
+            rec.log(f"/metrics/timing_ms/{stage}", rr.SeriesLines(names=legend, colors=colour), static=True)
+        # labels "KF <id>" on hover only: drawn, the window's ~10 close keyframes' labels overlap
+        rec.log("/world/map/keyframes/window", rr.LineStrips3D.from_fields(radii=0.04, show_labels=False), static=True)
+        rec.log("/world/map/keyframes/retired", rr.LineStrips3D.from_fields(radii=0.02, colors=RETIRED_COLOUR),
+                static=True)
+        rec.log("/world/map/keyframe_path", rr.LineStrips3D.from_fields(radii=0.08, colors=KEYFRAME_PATH_COLOUR),
+                static=True)
+        if self._detail == Detail.SUMMARY:
+            return
+        rec.log("/world/map/landmarks/window", rr.Points3D.from_fields(radii=0.06), static=True)
+        rec.log("/world/map/landmarks/retired", rr.Points3D.from_fields(radii=0.04), static=True)
+        classes = rr.AnnotationContext([(class_id, label, colour) for class_id, (label, colour) in PNP_STYLE.items()])
+        rec.log("/world/camera/image/landmarks", classes, rr.Points2D.from_fields(radii=2.5), static=True)
+        rec.log("/world/camera/image/reprojection", classes, rr.LineStrips2D.from_fields(radii=0.8), static=True)
+        if self._detail == Detail.FULL:
+            rec.log("/world/map/ba_residuals", rr.Points3D.from_fields(radii=0.08), static=True)
+
+    def log_frame(self, frame: Frame, result: FrameResult, mapping: MapFrame) -> None:
+        columns = self._columns
+        pnp = mapping.pnp
+        columns.add("/tracking", frame, (rr.AnyValues.columns, {
+            "mode": str(mapping.mode),
+            "segment": mapping.segment,
+            "pnp_inliers": int(np.count_nonzero(pnp.inlier_mask)) if pnp is not None else 0,
+            "landmarks_tracked": len(pnp.landmark_ids) if pnp is not None else 0,
+            "pnp_rejected": (pnp.rejected or "") if pnp is not None else "no PnP",
+        }))
+        values = map_frame_metrics(mapping)
+        for group, series in MAP_METRICS.items():
+            for name in series:
+                if name in values:
+                    columns.add_scalar(f"/metrics/{group}/{name}", frame, values[name])
+        for stage in MAP_STAGES:
+            if stage in result.timings_ms:
+                columns.add_scalar(f"/metrics/timing_ms/{stage}", frame, result.timings_ms[stage])
+        new_segment = self._segment is not None and mapping.segment != self._segment
+        self._segment = mapping.segment
+        if mapping.view is not None:
+            self._log_view(frame, mapping.view)
+        if self._detail != Detail.SUMMARY:
+            self._log_image(frame, pnp)
+        if self._detail == Detail.FULL:
+            if mapping.bundle_adjustment is not None:
+                self._log_residuals(frame, mapping.bundle_adjustment)
+            elif new_segment:  # the old map's residuals go
+                self._log_residuals(frame, None)
+        self._log_events(frame, mapping, new_segment)
+
+    def _log_view(self, frame: Frame, view: MapView) -> None:
+        """Window and fixed keyframes, what retired, the landmarks and the keyframe path (at a keyframe)."""
+        columns = self._columns
+        full = self._detail == Detail.FULL
+        ids = np.concatenate([view.window_ids, view.fixed_ids])
+        poses = np.concatenate([view.window_poses, view.fixed_poses])
+        fixed = np.arange(len(ids)) >= len(view.window_ids)
+        colours = np.where(fixed[:, None], np.array(FIXED_COLOUR, np.uint8), np.array(WINDOW_COLOUR, np.uint8))
+        columns.add("/world/map/keyframes/window", frame,
+                    (rr.LineStrips3D.columns, {"strips": self._frusta(poses), "colors": colours.astype(np.uint8),
+                                               "labels": [f"KF {i}" for i in ids.tolist()]}),
+                    (rr.AnyValues.columns, {"keyframe_id": ids.astype(np.uint32), "fixed": fixed}),
+                    batch=True)
+        if len(view.retired_ids):
+            columns.add("/world/map/keyframes/retired", frame,
+                        (rr.LineStrips3D.columns, {"strips": self._frusta(view.retired_poses)}),
+                        (rr.AnyValues.columns, {"keyframe_id": view.retired_ids.astype(np.uint32)}),
+                        batch=True)
+        path = np.asarray(view.keyframe_path, np.float32).reshape(-1, 3)
+        columns.add("/world/map/keyframe_path", frame, (rr.LineStrips3D.columns, {"strips": path}))
+        if self._detail == Detail.SUMMARY:
+            return
+        self._log_landmarks("/world/map/landmarks/window", frame, view.landmark_ids, view.landmark_positions,
+                            view.landmark_observations, full)
+        if len(view.retired_landmark_ids):
+            self._log_landmarks("/world/map/landmarks/retired", frame, view.retired_landmark_ids,
+                                view.retired_landmark_positions, view.retired_landmark_observations, full)
+
+    def _log_landmarks(self, entity: str, frame: Frame, ids: np.ndarray, positions: np.ndarray,
+                       observations: np.ndarray, hover: bool) -> None:
+        parts: list[Part] = [(rr.Points3D.columns, {
+            "positions": np.asarray(positions, np.float32).reshape(-1, 3),
+            "colors": observation_colours(observations)})]
+        if hover:
+            parts.append((rr.AnyValues.columns, {"landmark_id": ids.astype(np.uint32),
+                                                 "observations": observations.astype(np.uint16)}))
+        self._columns.add(entity, frame, *parts, batch=True)
+
+    def _frusta(self, poses: np.ndarray) -> list[np.ndarray]:
+        """One strip per (4, 4) T_world_cam: the frustum outline moved into the world."""
+        return [(self._frustum @ pose[:3, :3].T + pose[:3, 3]).astype(np.float32) for pose in poses]
+
+    def _log_image(self, frame: Frame, pnp: PnPEstimate | None) -> None:
+        """Tracked landmarks at their pixel, and a line from each projection to it (empty rows without PnP)."""
+        observed, projected = np.zeros((0, 2), np.float32), np.zeros((0, 2), np.float32)
+        classes, ids = np.zeros(0, np.uint16), np.zeros(0, np.uint32)
+        if pnp is not None:
+            observed = pnp.observed.astype(np.float32).reshape(-1, 2)
+            projected = pnp.projected.astype(np.float32).reshape(-1, 2)
+            classes = np.where(pnp.inlier_mask, PNP_INLIER, PNP_OUTLIER).astype(np.uint16)
+            ids = pnp.landmark_ids.astype(np.uint32)
+        points: list[Part] = [(rr.Points2D.columns, {"positions": observed, "class_ids": classes})]
+        if self._detail == Detail.FULL:
+            points.append((rr.AnyValues.columns, {"landmark_id": ids}))
+        self._columns.add("/world/camera/image/landmarks", frame, *points, batch=True)
+        finite = np.isfinite(projected).all(axis=1)
+        strips = list(np.stack([projected[finite], observed[finite]], axis=1))
+        self._columns.add("/world/camera/image/reprojection", frame,
+                          (rr.LineStrips2D.columns, {"strips": strips, "class_ids": classes[finite]}), batch=True)
+
+    def _log_residuals(self, frame: Frame, ba: BundleAdjusted | None) -> None:
+        """The last BA's landmarks with a finite residual, at their refined positions (None: an empty row)."""
+        positions, residuals, ids = np.zeros((0, 3), np.float32), np.zeros(0, np.float32), np.zeros(0, np.uint32)
+        if ba is not None:
+            finite = np.isfinite(ba.landmark_residual_px)
+            positions = ba.landmark_positions[finite].astype(np.float32).reshape(-1, 3)
+            residuals = ba.landmark_residual_px[finite].astype(np.float32)
+            ids = ba.landmark_ids[finite].astype(np.uint32)
+        self._columns.add("/world/map/ba_residuals", frame,
+                          (rr.Points3D.columns, {"positions": positions, "colors": residual_colours(residuals)}),
+                          (rr.AnyValues.columns, {"landmark_id": ids, "residual_px": residuals}), batch=True)
+
+    def _log_events(self, frame: Frame, mapping: MapFrame, new_segment: bool) -> None:
+        columns = self._columns
+        reloc = mapping.relocalisation
+        if reloc is not None:
+            if reloc.success:
+                add_event(columns, frame, f"relocalised against keyframe {reloc.keyframe_id}: {reloc.matches} "
+                          f"matches, {reloc.inliers} inliers ({reloc.candidates} landmarks searched)", "INFO")
+            else:
+                add_event(columns, frame, f"relocalisation failed: {reloc.matches} matches, {reloc.inliers} "
+                          f"inliers ({reloc.candidates} landmarks searched)", "WARN")
+        if new_segment:
+            add_event(columns, frame, f"new map segment {mapping.segment} started", "WARN")
+        ba = mapping.bundle_adjustment
+        if ba is not None:
+            span = (f"{int(ba.keyframe_ids.min())}–{int(ba.keyframe_ids.max())}" if len(ba.keyframe_ids)
+                    else "(none)")
+            add_event(columns, frame, f"bundle adjustment over keyframes {span} ({len(ba.fixed_keyframe_ids)} "
+                      f"fixed): mean error {ba.mean_error_before:.2f} → {ba.mean_error_after:.2f} px, "
+                      f"{ba.culled} culled", "DEBUG")
+        keyframe = mapping.keyframe
+        if keyframe is not None:
+            total = f", {mapping.view.landmarks_total} in the map" if mapping.view is not None else ""
+            add_event(columns, frame, f"keyframe {keyframe.keyframe_id} ({keyframe.why}): "
+                      f"{keyframe.observed_landmarks} landmarks seen, {keyframe.new_landmarks} new, "
+                      f"{keyframe.culled_landmarks} culled{total}", "DEBUG")
+
+
+def frustum_outline(K: np.ndarray, width: int, height: int, depth: float) -> np.ndarray:  # noqa: N803
+    """(11, 3) one line strip through every edge of a camera frustum (camera frame): the image rectangle at
+    `depth`, then each corner joined to the centre."""
+    pixels = np.array([[0.0, 0.0], [width, 0.0], [width, height], [0.0, height]])
+    rays = np.linalg.solve(K, np.column_stack([pixels, np.ones(4)]).T).T
+    c0, c1, c2, c3 = rays / rays[:, 2:3] * depth
+    centre = np.zeros(3)
+    return np.array([c0, c1, c2, c3, c0, centre, c1, centre, c2, centre, c3])
+
+
+def observation_colours(observations: np.ndarray) -> np.ndarray:
+    """(N, 3) uint8 colour of each landmark from the number of keyframes observing it (`OBSERVATION_RAMP`)."""
+    bounds = np.array([bound for bound, _ in OBSERVATION_RAMP])
+    colours = np.array([colour for _, colour in OBSERVATION_RAMP], np.uint8)
+    return colours[np.searchsorted(bounds, np.asarray(observations), side="right") - 1]
+
+
+def residual_colours(residuals: np.ndarray) -> np.ndarray:
+    """(N, 3) uint8 colour of each BA residual in pixels (`RESIDUAL_RAMP`; NaN grey)."""
+    bounds = np.array([bound for bound, _ in RESIDUAL_RAMP])
+    colours = np.array([colour for _, colour in RESIDUAL_RAMP] + [NO_RESIDUAL_COLOUR], np.uint8)
+    index = np.searchsorted(bounds, np.asarray(residuals), side="right")
+    return colours[np.where(np.isfinite(residuals), np.minimum(index, len(RESIDUAL_RAMP) - 1), len(RESIDUAL_RAMP))]

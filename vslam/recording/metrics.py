@@ -1,0 +1,150 @@
+"""Per-frame series: what `/metrics/<group>/<series>` holds, with legends and colours (one plot per group).
+
+`METRICS` and `STAGES` are every run's (the odometry front end, both backends); `MAP_METRICS` and `MAP_STAGES`
+are logged only by the map backend (`vslam inspect` and `vslam compare` read the former).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from vslam.recording.styles import ESTIMATE_COLOUR, NEW_CORNER_COLOUR, ROAD_COLOUR
+from vslam_core.geometry import angle_between, invert_pose, rotation_angle
+from vslam_core.results import BundleAdjusted, FrameResult, HealthStatus, MapFrame, TrackingMode
+
+HEALTH_LEVELS = {HealthStatus.OK: 0, HealthStatus.WARN: 1, HealthStatus.FAIL: 2}
+STAGES = ("decode", "track", "essential", "chirality", "detect", "record")
+
+# Per-frame series, logged to /metrics/<group>/<series> only on frames that have a value (no NaN: it
+# would make identical runs compare unequal). One plot per group. `vslam inspect` reads them back.
+METRICS: dict[str, dict[str, tuple[str, tuple[int, int, int]]]] = {
+    "tracks": {
+        "alive": ("tracks alive", (40, 120, 255)),
+        "new_corners": ("corners detected", NEW_CORNER_COLOUR),
+        "fb_rejected": ("forward–backward rejects", (255, 140, 0)),
+        "road_points": ("road points in the plane fit (--scale height)", ROAD_COLOUR),
+    },
+    "ransac": {
+        "inliers": ("RANSAC inliers", (40, 220, 60)),
+        "chirality_margin": ("chirality margin (best − 2nd)", (200, 0, 200)),
+    },
+    "ratio": {"inlier_ratio": ("inlier ratio", (40, 220, 60))},
+    "health": {"status": ("health: 0 ok, 1 warn, 2 fail", (255, 140, 0))},
+    "motion": {"rotation_deg": ("rotation (°)", (255, 200, 0)), "scale": ("step length", (0, 200, 255))},
+    "road": {  # --scale height
+        "measured_step": ("step from this frame's road plane (m)", (255, 140, 0)),
+        "camera_height_m": ("camera height over the plane at the step used (m)", ROAD_COLOUR),
+    },
+    "error": {"position_m": ("position error (m)", ESTIMATE_COLOUR)},
+    "angle_error": {
+        "heading_deg": ("heading error (°)", (255, 80, 200)),
+        "translation_direction_deg": ("translation direction error (°)", (0, 200, 255)),
+    },
+    "drift": {  # with ground truth: this frame's own relative pose error (vslam/recording/drift.py)
+        "rotation_deg": ("rotation error of this frame's step (°)", (255, 80, 200)),
+        "translation_m": ("translation error of this frame's step (m)", ESTIMATE_COLOUR),
+        "translation_pct": ("translation error (% of the step)", (255, 140, 0)),
+        "scale_ratio": ("step length estimate / truth", (0, 200, 255)),
+    },
+    "timing_ms": {
+        "decode": ("decode (ms)", (150, 150, 150)),
+        "track": ("track (ms)", (40, 120, 255)),
+        "essential": ("essential (ms)", (230, 30, 30)),
+        "chirality": ("chirality (ms)", (200, 0, 200)),
+        "detect": ("detect (ms)", (255, 230, 0)),
+        "record": ("record (ms)", (0, 200, 200)),
+    },
+}
+
+
+def frame_metrics(result: FrameResult, ground_truth: np.ndarray | None) -> dict[str, float]:
+    """The per-frame series of one result (names as in `METRICS`); absent where a frame has no value."""
+    counts = result.fate_counts()
+    used = counts["ransac_outlier"] + counts["chirality_failed"] + counts["inlier"]
+    values: dict[str, float] = {
+        "status": HEALTH_LEVELS[result.health.status],
+        "alive": result.live_tracks,
+        "new_corners": len(result.new_corners),
+        "fb_rejected": counts["fb_rejected"],
+        "inliers": counts["inlier"],
+    }
+    if used:
+        values["inlier_ratio"] = counts["inlier"] / used
+    if len(result.candidate_poses) == 4:
+        in_front = sorted((c.in_front for c in result.candidate_poses), reverse=True)
+        values["chirality_margin"] = in_front[0] - in_front[1]
+    if result.T_key_cur is not None:
+        values["rotation_deg"] = float(np.degrees(rotation_angle(result.T_key_cur[:3, :3])))
+        values["scale"] = result.scale or 0.0
+    estimate = result.scale_estimate
+    if estimate is not None:
+        values["road_points"] = len(estimate.road_points)
+        if estimate.measured_step is not None and estimate.camera_height is not None:
+            values["measured_step"] = estimate.measured_step
+            values["camera_height_m"] = estimate.camera_height
+    if ground_truth is not None:
+        gt_pose = ground_truth[result.position]
+        values["position_m"] = float(np.linalg.norm(gt_pose[:3, 3] - result.T_world_cam[:3, 3]))
+        values["heading_deg"] = float(np.degrees(rotation_angle(gt_pose[:3, :3].T @ result.T_world_cam[:3, :3])))
+        if result.T_key_cur is not None:
+            gt_step = invert_pose(ground_truth[result.keyframe_position]) @ gt_pose
+            values["translation_direction_deg"] = float(
+                np.degrees(angle_between(gt_step[:3, 3], result.T_key_cur[:3, 3])))
+    return values
+
+
+# Map backend (--backend map): tracking mode and bundle adjustment. The mode as a number, so it plots as a
+# step line (the string is in the `/tracking` entity): 0 lost, 1 two-view (the first frame of a map segment,
+# `init`, counts as two-view: nothing but two-view geometry can follow it), 2 map (PnP), 3 relocalised;
+# 0.5 coasted (a degraded frame whose pose was dead-reckoned).
+MODE_LEVELS = {TrackingMode.LOST: 0, TrackingMode.COASTED: 0.5, TrackingMode.INIT: 1, TrackingMode.TWO_VIEW: 1,
+               TrackingMode.MAP: 2, TrackingMode.RELOCALISED: 3}
+MAP_METRICS: dict[str, dict[str, tuple[str, tuple[int, int, int]]]] = {
+    "tracking": {
+        "mode": ("tracking mode: 0 lost, 0.5 coasted, 1 two-view, 2 map, 3 relocalised", (255, 200, 0)),
+        "pnp_inliers": ("PnP inliers", (40, 220, 60)),
+        "landmarks_tracked": ("landmarks tracked", (80, 160, 255)),
+    },
+    "ba": {
+        "mean_error_before_px": ("mean error before (px)", (255, 140, 0)),
+        "mean_error_after_px": ("mean error after (px)", (40, 220, 60)),
+        "max_error_before_px": ("max error before (px)", (230, 30, 30)),
+        "max_error_after_px": ("max error after (px)", (0, 200, 200)),
+        "iterations": ("iterations", (255, 230, 0)),
+        "cost_before": ("cost before", (255, 80, 200)),
+        "cost_after": ("cost after", (200, 0, 200)),
+        "milliseconds": ("solver time (ms)", (150, 150, 150)),
+        "factors": ("projection factors", (40, 120, 255)),
+        "culled": ("landmarks culled", (255, 60, 60)),
+    },
+}
+# extra /metrics/timing_ms stages of the map backend (shown in the timing plot beside `STAGES`)
+MAP_TIMING: dict[str, tuple[str, tuple[int, int, int]]] = {
+    "pnp": ("PnP (ms)", (120, 255, 120)),
+    "relocalise": ("relocalisation (ms)", (255, 80, 80)),
+    "mapping": ("keyframe insertion and mapping (ms)", (255, 160, 60)),
+}
+MAP_STAGES = tuple(MAP_TIMING)
+BA_ERROR_SERIES = ("mean_error_before_px", "mean_error_after_px", "max_error_before_px", "max_error_after_px")
+
+
+def map_frame_metrics(mapping: MapFrame) -> dict[str, float]:
+    """The map backend's series of one frame (names as in `MAP_METRICS`); absent where a frame has no value."""
+    values: dict[str, float] = {"mode": MODE_LEVELS[mapping.mode]}
+    if mapping.pnp is not None:
+        values["pnp_inliers"] = int(np.count_nonzero(mapping.pnp.inlier_mask))
+        values["landmarks_tracked"] = len(mapping.pnp.landmark_ids)
+    if mapping.bundle_adjustment is not None:
+        values.update(bundle_adjustment_metrics(mapping.bundle_adjustment))
+    return values
+
+
+def bundle_adjustment_metrics(ba: BundleAdjusted) -> dict[str, float]:
+    """The `/metrics/ba/` series of one bundle adjustment (non-finite values left out)."""
+    values = {
+        "iterations": ba.iterations, "cost_before": ba.cost_before, "cost_after": ba.cost_after,
+        "mean_error_before_px": ba.mean_error_before, "mean_error_after_px": ba.mean_error_after,
+        "max_error_before_px": ba.max_error_before, "max_error_after_px": ba.max_error_after,
+        "milliseconds": ba.milliseconds, "factors": ba.factors, "culled": ba.culled,
+    }
+    return {name: float(value) for name, value in values.items() if np.isfinite(value)}

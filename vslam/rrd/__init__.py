@@ -1,0 +1,83 @@
+"""Reading recordings back: the `.rrd` reader and the `rerun` CLI (`read`), a recording's run properties
+(`provenance`), `vslam inspect` (`inspect`), `vslam crop` (`crop`, `crop_video`) and `vslam repair` (`repair`).
+
+The names other packages use are importable from here, loaded on first use (PEP 562).
+"""
+
+from importlib import import_module
+from typing import TYPE_CHECKING, Any
+
+#: Where each public name lives.
+_HOMES = {
+    "RecordingError": "read",
+    "comparison_prefixes": "provenance",
+    "crop_recording": "crop",
+    "first_line": "read",
+    "flatten": "provenance",
+    "format_repair": "repair",
+    "format_report": "inspect",
+    "has_footer": "read",
+    "inspect_recording": "inspect",
+    "open_store": "read",
+    "parse_crop_frames": "crop",
+    "read_entity": "read",
+    "readable": "read",
+    "repair_recording": "repair",
+    "repaired_path": "repair",
+    "rerun_binary": "read",
+    "run_differences": "provenance",
+    "run_rerun_cli": "read",
+    "same_file": "read",
+    "video_codecs": "crop_video",
+    "work_dir_beside": "read",
+}
+
+if TYPE_CHECKING:
+    from vslam.rrd.crop import crop_recording, parse_crop_frames
+    from vslam.rrd.crop_video import video_codecs
+    from vslam.rrd.inspect import format_report, inspect_recording
+    from vslam.rrd.provenance import comparison_prefixes, flatten, run_differences
+    from vslam.rrd.read import (
+        RecordingError,
+        first_line,
+        has_footer,
+        open_store,
+        read_entity,
+        readable,
+        rerun_binary,
+        run_rerun_cli,
+        same_file,
+        work_dir_beside,
+    )
+    from vslam.rrd.repair import format_repair, repair_recording, repaired_path
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _HOMES:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(import_module(f"{__name__}.{_HOMES[name]}"), name)
+
+
+__all__ = [
+    "RecordingError",
+    "comparison_prefixes",
+    "crop_recording",
+    "first_line",
+    "flatten",
+    "format_repair",
+    "format_report",
+    "has_footer",
+    "inspect_recording",
+    "open_store",
+    "parse_crop_frames",
+    "read_entity",
+    "readable",
+    "repair_recording",
+    "repaired_path",
+    "rerun_binary",
+    "run_differences",
+    "run_rerun_cli",
+    "same_file",
+    "video_codecs",
+    "work_dir_beside",
+]

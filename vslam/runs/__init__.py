@@ -1,0 +1,83 @@
+"""One run of the engine and its files: running a source through the engine into its outputs (`runner`), claiming
+output files (`outputs`), the trajectory written as the run goes (`trajectory_out`), progress lines (`progress`)
+and the checks on what a user asked for (`checks`).
+
+The names other packages use are importable from here, loaded on first use (PEP 562).
+"""
+
+from importlib import import_module
+from typing import TYPE_CHECKING, Any
+
+#: Where each public name lives.
+_HOMES = {
+    "EXIT_NOTHING_TRACKED": "checks",
+    "Interrupted": "runner",
+    "OutputError": "outputs",
+    "backend_problem": "checks",
+    "camera_height_problem": "checks",
+    "claim_run_outputs": "runner",
+    "claimed": "outputs",
+    "describe_outputs": "runner",
+    "eta": "progress",
+    "hold_stuck_writer": "outputs",
+    "input_warnings": "checks",
+    "likely_errno": "outputs",
+    "lock_folder": "outputs",
+    "nothing_tracked": "checks",
+    "output_problem": "checks",
+    "record_run": "runner",
+    "stuck_writers": "outputs",
+    "with_camera_height": "checks",
+    "write_failure": "outputs",
+}
+
+if TYPE_CHECKING:
+    from vslam.runs.checks import (
+        EXIT_NOTHING_TRACKED,
+        backend_problem,
+        camera_height_problem,
+        input_warnings,
+        nothing_tracked,
+        output_problem,
+        with_camera_height,
+    )
+    from vslam.runs.outputs import (
+        OutputError,
+        claimed,
+        hold_stuck_writer,
+        likely_errno,
+        lock_folder,
+        stuck_writers,
+        write_failure,
+    )
+    from vslam.runs.progress import eta
+    from vslam.runs.runner import Interrupted, claim_run_outputs, describe_outputs, record_run
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _HOMES:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(import_module(f"{__name__}.{_HOMES[name]}"), name)
+
+
+__all__ = [
+    "EXIT_NOTHING_TRACKED",
+    "Interrupted",
+    "OutputError",
+    "backend_problem",
+    "camera_height_problem",
+    "claim_run_outputs",
+    "claimed",
+    "describe_outputs",
+    "eta",
+    "hold_stuck_writer",
+    "input_warnings",
+    "likely_errno",
+    "lock_folder",
+    "nothing_tracked",
+    "output_problem",
+    "record_run",
+    "stuck_writers",
+    "with_camera_height",
+    "write_failure",
+]

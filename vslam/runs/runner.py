@@ -1,0 +1,205 @@
+"""One run of the engine as the CLI does it: progress (a bar, or plain lines without a terminal), optional
+recording, safe interruption."""
+
+from __future__ import annotations
+
+import signal
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from types import FrameType
+
+from rich.console import Console
+
+from vslam.recording import Detail, ImageCodec, Recorder
+from vslam.rrd import has_footer
+from vslam.runs.outputs import ClaimedFile, OutputError, claim, default_recording
+from vslam.runs.progress import progress
+from vslam.runs.trajectory_out import Format, TrajectoryWriter
+from vslam_core.config import EngineConfig
+from vslam_core.errors import VslamError
+from vslam_core.pipeline import FrameSink, RunResult, run_odometry
+from vslam_core.results import FrameResult
+from vslam_core.sources.base import Frame, FrameSource
+
+
+class Interrupted(Exception):
+    """The run was stopped by a signal; `code` is the conventional exit code (128 + signal number)."""
+
+    def __init__(self, code: int, name: str) -> None:
+        super().__init__(name)
+        self.code = code
+
+
+@dataclass
+class RecordedRun:
+    result: RunResult  # the frames processed (all of them unless stopped early)
+    interrupted: Interrupted | None  # stopped by a signal
+    failure: VslamError | None = None  # stopped by bad input (e.g. an unreadable image with on_bad_frame=fail)
+
+
+class _StopRequest:
+    """The first SIGINT or SIGTERM of a run, noted by the handler and acted on between frames: an exception
+    raised inside library code (Rerun converts data under a catch-all) could be swallowed or leave a
+    half-written batch, so the handler only records the signal."""
+
+    def __init__(self) -> None:
+        self.signum: int | None = None
+
+    def note(self, signum: int, _frame: FrameType | None) -> None:
+        if self.signum is None:
+            self.signum = signum
+
+    def interruption(self) -> Interrupted | None:
+        """The noted signal as the exception that stops a run, if one arrived."""
+        if self.signum is None:
+            return None
+        return Interrupted(128 + self.signum, signal.Signals(self.signum).name)
+
+    def check(self) -> None:
+        if (interruption := self.interruption()) is not None:
+            raise interruption
+
+
+@contextmanager
+def _signals_stop_between_frames() -> Iterator[_StopRequest]:
+    stop = _StopRequest()
+    previous = {signum: signal.signal(signum, stop.note) for signum in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield stop
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+@dataclass
+class RunOutputs:
+    """The files one run writes, claimed for it alone (see `vslam.runs.outputs`)."""
+
+    recording: ClaimedFile | None
+    trajectory_file: ClaimedFile | None
+    trajectory: TrajectoryWriter | None
+
+    def release(self) -> None:
+        for claimed in (self.recording, self.trajectory_file):
+            if claimed is not None:
+                claimed.release(keep=claimed is self.recording or bool(self.trajectory and self.trajectory.lines))
+
+
+def claim_run_outputs(output: Path | None, record: bool, source_name: str, frames: str, trajectory: Path | None,
+                      trajectory_format: Format, force: bool) -> RunOutputs:
+    """Claim the recording (`output`, or a fresh default name when `record`) and the trajectory file before
+    the run starts; `OutputError` in one line if one is taken."""
+    recording: ClaimedFile | None = None
+    if output is not None:
+        recording = claim(output, force, "recording")
+    elif record:
+        for attempt in range(3):  # a default name is new by construction; a clash means another id
+            try:
+                recording = claim(default_recording(source_name, frames), False, "recording")
+                break
+            except OutputError:
+                if attempt == 2:
+                    raise
+    if trajectory is None:
+        return RunOutputs(recording, None, None)
+    try:
+        trajectory_file = claim(trajectory, force, "trajectory")
+    except OutputError:
+        if recording is not None:
+            recording.release(keep=False)
+        raise
+    return RunOutputs(recording, trajectory_file, TrajectoryWriter(trajectory_file, trajectory_format))
+
+
+def describe_outputs(outputs: RunOutputs, failed: bool) -> str:
+    """Where the outputs are (also, and above all, after a failure): one line each."""
+    lines = []
+    if outputs.recording is not None:
+        path = outputs.recording.path
+        complete = has_footer(path)
+        lines.append(f"recording   {path}" + ("" if complete else
+                                              f" (cut short: finalise with `vslam repair {path}`)"))
+    if outputs.trajectory is not None and outputs.trajectory_file is not None:
+        writer = outputs.trajectory
+        if writer.lines or not failed:
+            lines.append(f"trajectory  {writer.path} ({writer.format}, {writer.lines} poses)")
+    return "\n".join(lines)
+
+
+def record_run(
+    source: FrameSource,
+    config: EngineConfig,
+    rrd: Path | None,
+    properties: dict[str, str],
+    console: Console,
+    detail: Detail = Detail.FULL,
+    jpeg_quality: int = 75,
+    trajectory: TrajectoryWriter | None = None,
+    image_codec: ImageCodec = ImageCodec.JPEG,
+) -> RecordedRun:
+    """Run the engine over `source`, recording to `rrd` (None: no recording) and writing each frame's pose
+    to `trajectory` as it goes. Ctrl-C, SIGTERM, bad input (a `VslamError` from the source) and a write
+    error (full disk: `OutputError`) stop the run cleanly: the outputs keep what was written, the recording
+    is finalised where the disk allows, and the frames processed so far are returned with what stopped
+    them."""
+    result = RunResult([], [], [])
+    interrupted: Interrupted | None = None
+    failure: VslamError | None = None
+    recorder = Recorder(rrd, source, config, properties, detail, jpeg_quality, image_codec) if rrd is not None else None
+    with progress(console, source.name, len(source)) as step, _signals_stop_between_frames() as stop:
+
+        def advance(_frame: Frame, _result: FrameResult) -> None:
+            step()
+            stop.check()
+
+        # the trajectory first: a frame the recorder fails on still has its pose on disk
+        sinks: list[FrameSink] = [trajectory] if trajectory is not None else []
+        sinks += [recorder.log_frame] if recorder is not None else []
+        try:
+            run_odometry(source, config, (*sinks, advance), result)
+        except Interrupted as exc:
+            interrupted = exc
+        except VslamError as exc:
+            failure = exc
+        finally:
+            stopped = _stopped(result, interrupted or stop.interruption(), failure)
+            closing = _close_outputs(recorder, trajectory, result, stopped)
+        failure = _with_progress(failure or closing, result)  # the first error is the one to report
+        interrupted = interrupted or stop.interruption()  # a signal during the last frame or finalising
+    return RecordedRun(result, interrupted, failure)
+
+
+def _with_progress(failure: VslamError | None, result: RunResult) -> VslamError | None:
+    """A write error, with how far the run got (its outputs keep that much)."""
+    if not isinstance(failure, OutputError):
+        return failure
+    done = f"at frame {result.indices[-1]}" if result.indices else "before the first frame"
+    return OutputError(f"{failure}; the run stopped {done}, the outputs keep what was written")
+
+
+def _close_outputs(recorder: Recorder | None, trajectory: TrajectoryWriter | None, result: RunResult,
+                   stopped: str | None) -> VslamError | None:
+    """Finish both outputs whatever happens to the other; the first write error, if any."""
+    first: VslamError | None = None
+    if recorder is not None:
+        try:
+            recorder.finish(result, stopped)
+        except VslamError as exc:
+            first = exc
+    if trajectory is not None:
+        try:
+            trajectory.finish(result)
+        except VslamError as exc:
+            first = first or exc
+    return first
+
+
+def _stopped(result: RunResult, interrupted: Interrupted | None, failure: VslamError | None) -> str | None:
+    """Why a run ended before its last frame, for the recording (None: it did not)."""
+    if interrupted is not None:
+        return f"interrupted by {interrupted} after {result.frames} frames"
+    if failure is not None:
+        return f"stopped by an error after {result.frames} frames: {failure}"
+    return None

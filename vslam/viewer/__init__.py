@@ -1,0 +1,36 @@
+"""The Rerun viewer: its processes and the checks before starting one (`processes`), `vslam open` native or in a
+browser (`web`) and headless PNGs (`snapshot`).
+
+The names other packages use are importable from here, loaded on first use (PEP 562).
+"""
+
+from importlib import import_module
+from typing import TYPE_CHECKING, Any
+
+#: Where each public name lives.
+_HOMES = {
+    "open_recording": "web",
+    "parse_frame": "snapshot",
+    "parse_size": "snapshot",
+    "port_problem": "web",
+    "snapshot": "snapshot",
+}
+
+if TYPE_CHECKING:
+    from vslam.viewer.snapshot import parse_frame, parse_size, snapshot
+    from vslam.viewer.web import open_recording, port_problem
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _HOMES:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(import_module(f"{__name__}.{_HOMES[name]}"), name)
+
+
+__all__ = [
+    "open_recording",
+    "parse_frame",
+    "parse_size",
+    "port_problem",
+    "snapshot",
+]
