@@ -33,10 +33,10 @@ import polars as pl
 
 from benchmarks.paper_baseline import run_paper_configuration
 from vslam_core.config import Backend, EngineConfig, ScaleSource, load_config
-from vslam_core.metrics import ate, kitti_errors
 from vslam_core.pipeline import run_odometry
 from vslam_core.sources.base import FrameRange
 from vslam_core.sources.kitti import KittiSource
+from vslam_core.trajectory.metrics import ate, kitti_errors
 
 BACKENDS: tuple[Backend, ...] = ("vo", "map")
 SCALES: tuple[ScaleSource, ...] = ("gt", "height")

@@ -15,11 +15,11 @@ from multiprocessing import Pool
 import numpy as np
 
 from vslam_core.config import EngineConfig
-from vslam_core.metrics import kitti_errors, rpe
 from vslam_core.pipeline import run_odometry
 from vslam_core.results import FrameResult, HealthStatus
 from vslam_core.sources.base import FrameRange
 from vslam_core.sources.open import open_source
+from vslam_core.trajectory.metrics import kitti_errors, rpe
 
 FAULTS = ["dark@120", "overexposed@90", "blur@160:166", "frozen@60:62", "drop@150:152", "brightness@250:255",
           "noise@30:35", "blur@200:210"]

@@ -34,11 +34,11 @@ import polars as pl
 
 from vslam_core.config import Backend, EngineConfig
 from vslam_core.geometry import rotation_angle
-from vslam_core.metrics import kitti_errors
 from vslam_core.pipeline import run_odometry
 from vslam_core.results import FrameResult, FrameStatus, TrackingMode
 from vslam_core.sources.base import FrameRange
 from vslam_core.sources.open import open_source
+from vslam_core.trajectory.metrics import kitti_errors
 
 TURNS = "00:93-126,00:191-217,05:116-153"  # sequence:first-last (source frame indices, inclusive)
 KINDS = ("blur", "dark", "drop")

@@ -54,13 +54,13 @@ import numpy as np
 
 from tests.ros_logs import LOGS, KittiClip, LensLog, Reimager, kitti_clip, make_reimager, write_lens_log
 from vslam_core.config import EngineConfig
-from vslam_core.metrics import kitti_errors
 from vslam_core.pipeline import RunResult, run_odometry
 from vslam_core.sources.base import CameraIntrinsics, FrameRange, FrameSource
 from vslam_core.sources.calibration_files import read_calibration
 from vslam_core.sources.folder import ImageFolderSource
 from vslam_core.sources.kitti import KittiSource
 from vslam_core.sources.rosbag import RosbagSource
+from vslam_core.trajectory.metrics import kitti_errors
 
 LOG_FRAMES = range(0, 300)
 RECTIFIED = "rectified KITTI"

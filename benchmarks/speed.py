@@ -44,11 +44,11 @@ from benchmarks.memory import status_mb
 from benchmarks.paper_baseline import run_paper_configuration
 from vslam.recording import Detail, Recorder
 from vslam_core.config import Backend, EngineConfig
-from vslam_core.metrics import kitti_errors
 from vslam_core.pipeline import run_odometry
 from vslam_core.results import FrameResult
 from vslam_core.sources.base import Frame, FrameRange
 from vslam_core.sources.kitti import KittiSource
+from vslam_core.trajectory.metrics import kitti_errors
 
 STAGES = ("decode", "track", "essential", "chirality", "detect", "match", "pnp", "mapping", "record")
 CSV_STAGES = (*STAGES, "relocalise")

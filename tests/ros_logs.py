@@ -29,7 +29,7 @@ import numpy as np
 from vslam_core.lens import undistort_pixels
 from vslam_core.sources.base import CameraIntrinsics
 from vslam_core.sources.kitti import read_p0_intrinsics, read_times
-from vslam_core.trajectory_io import quaternion_from_rotation, read_kitti_poses, write_tum_poses
+from vslam_core.trajectory.io import quaternion_from_rotation, read_kitti_poses, write_tum_poses
 
 LogKind = Literal["ros1", "mcap", "sqlite3"]
 

@@ -18,7 +18,7 @@ from cli_helpers import vslam, vslam_here
 from vslam.batch.manifest import LogSpec, shard
 from vslam.batch.results import config_hash
 from vslam_core.config import EngineConfig
-from vslam_core.trajectory_io import read_kitti_poses, write_kitti_poses
+from vslam_core.trajectory.io import read_kitti_poses, write_kitti_poses
 
 ROOT = Path(__file__).resolve().parents[1]
 NAMES = ["kitti-00-a", "kitti-00-b", "broken", "kitti-05-a", "kitti-05-b"]

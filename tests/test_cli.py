@@ -19,7 +19,7 @@ from vslam_core.pipeline import run_odometry
 from vslam_core.results import TrackFate
 from vslam_core.sources.base import FrameRange
 from vslam_core.sources.kitti import KittiSource
-from vslam_core.trajectory_io import read_kitti_poses, read_tum_poses
+from vslam_core.trajectory.io import read_kitti_poses, read_tum_poses
 
 ROOT = Path(__file__).resolve().parents[1]
 

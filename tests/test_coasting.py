@@ -13,7 +13,7 @@ from vslam_core.coasting import DeadReckoning, agrees, degraded_motion
 from vslam_core.geometry import pose_matrix, rotation_angle
 from vslam_core.scale import GroundTruthScale
 from vslam_core.sources.kitti import KittiSource
-from vslam_core.trajectory_io import read_kitti_poses
+from vslam_core.trajectory.io import read_kitti_poses
 
 TURN = (198, 207)  # KITTI 00: the car turns 2.8° and 3.9° between these frames and the next
 

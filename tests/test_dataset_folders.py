@@ -16,7 +16,7 @@ from vslam_core.sources.base import Frame, FrameRange, FrameSource, rebase_poses
 from vslam_core.sources.euroc import EurocSource, is_euroc, read_sensor_yaml
 from vslam_core.sources.kitti import read_p0_intrinsics, read_times
 from vslam_core.sources.tum_mono import TumMonoSource, is_tum_mono, read_camera_txt
-from vslam_core.trajectory_io import quaternion_from_rotation, read_kitti_poses, tum_line
+from vslam_core.trajectory.io import quaternion_from_rotation, read_kitti_poses, tum_line
 
 pytestmark = pytest.mark.kitti
 

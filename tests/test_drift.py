@@ -1,5 +1,5 @@
 """Drift attribution: each frame's own relative pose error against the ground truth, in the engine
-(`vslam_core.drift`), the recording and `vslam inspect`."""
+(`vslam_core.trajectory.drift`), the recording and `vslam inspect`."""
 
 from __future__ import annotations
 
@@ -13,10 +13,10 @@ from cli_helpers import vslam
 from vslam.recording.drift import DRIFT_ENTITY, DRIFT_LIFT_M, LINKS_ENTITY, drift_colours
 from vslam.rrd.inspect import format_report, inspect_recording
 from vslam.rrd.read import read_entity
-from vslam_core.drift import frame_errors, worst_frames
-from vslam_core.metrics import position_errors, sim3_aligned
 from vslam_core.sources.base import rebase_poses
-from vslam_core.trajectory_io import read_kitti_poses
+from vslam_core.trajectory.drift import frame_errors, worst_frames
+from vslam_core.trajectory.io import read_kitti_poses
+from vslam_core.trajectory.metrics import position_errors, sim3_aligned
 
 ROOT = Path(__file__).resolve().parents[1]
 KITTI_K = "718.856,718.856,607.1928,185.2157"

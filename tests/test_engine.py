@@ -14,13 +14,13 @@ from vslam_core.config import EngineConfig
 from vslam_core.engine import Odometry
 from vslam_core.errors import ConfigError
 from vslam_core.geometry import normalise_points, rotation_angle
-from vslam_core.metrics import kitti_errors
 from vslam_core.pipeline import run_odometry
 from vslam_core.results import FrameStatus, Reason, TrackFate
 from vslam_core.scale import GroundTruthScale, make_scale_provider
 from vslam_core.sources.base import Frame, FrameRange
 from vslam_core.sources.kitti import KittiSource
 from vslam_core.sources.synthetic import SyntheticStreet
+from vslam_core.trajectory.metrics import kitti_errors
 
 
 @pytest.fixture(scope="module")

@@ -12,9 +12,9 @@ import pytest
 from cli_helpers import vslam
 
 from vslam.rrd.read import read_entity
-from vslam_core.metrics import evaluate
 from vslam_core.sources.base import rebase_poses
-from vslam_core.trajectory_io import read_kitti_poses, write_tum_poses
+from vslam_core.trajectory.io import read_kitti_poses, write_tum_poses
+from vslam_core.trajectory.metrics import evaluate
 
 ROOT = Path(__file__).resolve().parents[1]
 JSON_KEYS = {"t_err", "r_err", "ate_se3", "ate_sim3", "rpe_trans", "rpe_rot", "paper_rms", "frames"}

@@ -18,7 +18,7 @@ from vslam.evaluation.trajectory_images import stamps_from_names
 from vslam.rrd.read import read_entity
 from vslam_core.errors import TrajectoryFormatError
 from vslam_core.sources.kitti import read_times
-from vslam_core.trajectory_io import read_kitti_poses, write_kitti_poses, write_tum_poses
+from vslam_core.trajectory.io import read_kitti_poses, write_kitti_poses, write_tum_poses
 
 ROOT = Path(__file__).resolve().parents[1]
 FRAMES = 120

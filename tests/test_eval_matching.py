@@ -11,7 +11,7 @@ import polars as pl
 import pytest
 from cli_helpers import vslam, vslam_here
 
-from vslam_core.trajectory_io import read_kitti_poses, write_kitti_poses, write_tum_poses
+from vslam_core.trajectory.io import read_kitti_poses, write_kitti_poses, write_tum_poses
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -9,7 +9,7 @@ import polars as pl
 import pytest
 from cli_helpers import vslam
 
-from vslam_core.trajectory_io import read_kitti_poses, write_kitti_poses
+from vslam_core.trajectory.io import read_kitti_poses, write_kitti_poses
 
 ROOT = Path(__file__).resolve().parents[1]
 KITTI_00 = "718.856 718.856 607.1928 185.2157"

@@ -14,12 +14,12 @@ from vslam.rrd.read import read_entity
 from vslam_core.config import EngineConfig
 from vslam_core.errors import SourceError
 from vslam_core.geometry import rotation_angle
-from vslam_core.metrics import kitti_errors, rpe
 from vslam_core.pipeline import run_odometry
 from vslam_core.results import FrameResult, HealthStatus, Reason
 from vslam_core.sources.base import FrameRange
 from vslam_core.sources.faults import Fault, parse_faults
 from vslam_core.sources.open import open_source
+from vslam_core.trajectory.metrics import kitti_errors, rpe
 
 FRAMES = FrameRange(0, 90)  # KITTI 00: straight road, no turn before frame 90
 FAULT_AT = (40, 42)

@@ -13,7 +13,7 @@ import pytest
 from cli_helpers import vslam, vslam_here
 
 from vslam.rrd.provenance import read_properties
-from vslam_core.trajectory_io import read_kitti_poses
+from vslam_core.trajectory.io import read_kitti_poses
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -17,11 +17,11 @@ from test_cli_inputs import assert_one_line_error, vslam
 from vslam.rrd.provenance import PROPERTIES, read_properties
 from vslam.rrd.read import read_entity
 from vslam_core.config import EngineConfig
-from vslam_core.metrics import kitti_errors
 from vslam_core.pipeline import RunResult, run_odometry
 from vslam_core.sources.base import CameraIntrinsics, FrameRange, FrameSource
 from vslam_core.sources.kitti import KittiSource
 from vslam_core.sources.rosbag import RosbagSource
+from vslam_core.trajectory.metrics import kitti_errors
 
 #: KITTI 00 frames 0:150: ~150 m of road, enough for the KITTI metric's 100 m segments.
 FRAMES = range(0, 150)

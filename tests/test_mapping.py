@@ -15,13 +15,13 @@ from vslam_core.geometry import interpolate_pose, invert_pose, pose_matrix, rota
 from vslam_core.mapping.bundle_adjustment import BundleAdjuster, Problem, solve
 from vslam_core.mapping.pnp import project, solve_pnp
 from vslam_core.mapping.tracking import MapTracking
-from vslam_core.metrics import kitti_errors
 from vslam_core.pipeline import run_odometry
 from vslam_core.results import FrameResult, FrameStatus, Reason, TrackingMode
 from vslam_core.scale import GroundTruthScale
 from vslam_core.sources.base import Frame, FrameRange
 from vslam_core.sources.faults import FaultInjector, parse_faults
 from vslam_core.sources.kitti import KittiSource
+from vslam_core.trajectory.metrics import kitti_errors
 
 K = np.array([[718.856, 0.0, 607.19], [0.0, 718.856, 185.22], [0.0, 0.0, 1.0]])
 WIDTH, HEIGHT = 1241, 376

@@ -1,4 +1,4 @@
-"""Tests of vslam_core.metrics: known answers, Umeyama round trips, real KITTI ground truth, evo."""
+"""Tests of vslam_core.trajectory.metrics: known answers, Umeyama round trips, real KITTI ground truth, evo."""
 
 from __future__ import annotations
 
@@ -13,7 +13,8 @@ from hypothesis import strategies as st
 
 from vslam_core.errors import GeometryError, VslamError
 from vslam_core.geometry import so3_exp
-from vslam_core.metrics import (
+from vslam_core.trajectory.io import read_kitti_poses
+from vslam_core.trajectory.metrics import (
     KITTI_LENGTHS,
     TrajectoryMetrics,
     align_positions,
@@ -31,7 +32,6 @@ from vslam_core.metrics import (
     trajectory_distances,
     umeyama_alignment,
 )
-from vslam_core.trajectory_io import read_kitti_poses
 
 # --------------------------------------------------------------------------------------------------
 # helpers

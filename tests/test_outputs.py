@@ -33,7 +33,7 @@ from vslam.viewer.snapshot import snapshot
 from vslam_core.config import EngineConfig
 from vslam_core.sources.base import FrameRange
 from vslam_core.sources.kitti import KittiSource
-from vslam_core.trajectory_io import read_kitti_poses
+from vslam_core.trajectory.io import read_kitti_poses
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -18,7 +18,7 @@ from vslam_core.geometry import candidate_poses, chirality_check, normalise_poin
 from vslam_core.scale import UnitScale
 from vslam_core.sources.base import CameraIntrinsics, Frame
 from vslam_core.sources.kitti import read_grey_image, read_p0_intrinsics
-from vslam_core.trajectory_io import read_kitti_poses, read_tum_poses
+from vslam_core.trajectory.io import read_kitti_poses, read_tum_poses
 
 K = np.array([[718.856, 0.0, 607.1928], [0.0, 718.856, 185.2157], [0.0, 0.0, 1.0]])
 
@@ -66,7 +66,7 @@ def test_two_view_geometry_never_raises_and_returns_rotations(views: tuple[np.nd
     p_cur, p_prev = views
     essential, mask = cv2.findEssentialMat(p_cur, p_prev, K, method=cv2.RANSAC, prob=0.999, threshold=1.0)
     if essential is None or essential.shape[0] < 3 or not np.all(np.isfinite(essential[:3])):
-        return  # OpenCV found no (finite) model: the engine holds the pose, as `_find_essential` does
+        return  # OpenCV found no (finite) model: the engine holds the pose (two_view.find_essential)
     inliers = mask.ravel().astype(bool)
     x_cur, x_prev = normalise_points(p_cur[inliers], K), normalise_points(p_prev[inliers], K)
     for rotation, translation in candidate_poses(essential[:3]):

@@ -16,7 +16,7 @@ from cli_helpers import vslam
 
 from vslam.rrd.provenance import read_properties
 from vslam.rrd.read import read_entity
-from vslam_core.trajectory_io import read_kitti_poses
+from vslam_core.trajectory.io import read_kitti_poses
 
 ROOT = Path(__file__).resolve().parents[1]
 

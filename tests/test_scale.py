@@ -13,7 +13,6 @@ from vslam.rrd.read import read_entity
 from vslam_core.config import EngineConfig, HeightScaleConfig
 from vslam_core.errors import ConfigError
 from vslam_core.geometry import so3_exp
-from vslam_core.metrics import kitti_errors, scale_errors
 from vslam_core.pipeline import run_odometry
 from vslam_core.results import FrameResult, Reason
 from vslam_core.road import fit_road_plane, road_region
@@ -21,6 +20,7 @@ from vslam_core.scale import HeightScale, TwoView, make_scale_provider
 from vslam_core.sources.base import FrameRange
 from vslam_core.sources.kitti import KittiSource
 from vslam_core.sources.synthetic import SyntheticStreet
+from vslam_core.trajectory.metrics import kitti_errors, scale_errors
 
 ROOT = Path(__file__).resolve().parents[1]
 K = np.array([[718.9, 0.0, 607.2], [0.0, 718.9, 185.2], [0.0, 0.0, 1.0]])

@@ -14,9 +14,9 @@ from cli_helpers import vslam
 from vslam.evaluation import evaluate as evaluation
 from vslam.rrd.read import read_entity
 from vslam_core.config import EngineConfig
-from vslam_core.metrics import kitti_errors, paper_rms_error, sim3_aligned
 from vslam_core.sources.base import rebase_poses
-from vslam_core.trajectory_io import read_kitti_poses
+from vslam_core.trajectory.io import read_kitti_poses
+from vslam_core.trajectory.metrics import kitti_errors, paper_rms_error, sim3_aligned
 
 ROOT = Path(__file__).resolve().parents[1]
 

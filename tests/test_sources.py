@@ -14,7 +14,7 @@ from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange, FrameSo
 from vslam_core.sources.folder import ImageFolderSource, PartialIntrinsics, parse_intrinsics
 from vslam_core.sources.kitti import KittiSource, read_p0_intrinsics
 from vslam_core.sources.video import VideoSource
-from vslam_core.trajectory_io import read_kitti_poses, write_kitti_poses, write_tum_poses
+from vslam_core.trajectory.io import read_kitti_poses, write_kitti_poses, write_tum_poses
 
 KITTI_00 = dict(fx=718.856, fy=718.856, cx=607.1928, cy=185.2157, width=1241, height=376)
 KITTI_05 = dict(fx=707.0912, fy=707.0912, cx=601.8873, cy=183.1104, width=1226, height=370)

@@ -26,13 +26,7 @@ from vslam_core.coasting import DeadReckoning, agrees
 from vslam_core.config import EngineConfig
 from vslam_core.features import detect_corners, fill_flow, match_features, track_points
 from vslam_core.geometry import (
-    CandidatePose,
-    chirality_check,
-    in_front_mask,
-    normalise_points,
     pose_matrix,
-    refine_relative_pose,
-    triangulate,
 )
 from vslam_core.lens import inside_mask, undistort_pixels, valid_pixel_mask
 from vslam_core.quality import ImageStats, image_stats
@@ -40,6 +34,7 @@ from vslam_core.results import FrameResult, FrameStatus, Health, Reason, ScaleEs
 from vslam_core.road import RoadBand
 from vslam_core.scale import ScaleProvider, TwoView
 from vslam_core.sources.base import CameraIntrinsics, Frame
+from vslam_core.two_view import Motion, two_view_motion
 
 
 @dataclass
@@ -59,30 +54,6 @@ class _Tracks:
 
     def __len__(self) -> int:
         return len(self.ids)
-
-
-@dataclass(frozen=True)
-class _Motion:
-    """Outcome of the two-view step between keyframe and current frame."""
-
-    essential: np.ndarray | None = None
-    inlier_mask: np.ndarray | None = None  # over the used correspondences
-    candidates: tuple[CandidatePose, ...] = ()
-    chosen: int | None = None
-    rotation: np.ndarray | None = None
-    translation: np.ndarray | None = None  # unit
-    in_front: np.ndarray | None = None  # over the used correspondences
-    points_cur: np.ndarray | None = None  # (P, 3) in front, current frame, unit baseline
-    pixels_cur: np.ndarray | None = None  # (P, 2) their pixel positions in the current frame
-    derotated_parallax: float = 0.0  # median inlier parallax (px) left once the rotation is removed
-    reason: Reason | None = None
-
-    def fates(self) -> np.ndarray:
-        """TrackFate of each used correspondence (needs `inlier_mask`)."""
-        assert self.inlier_mask is not None
-        inlier = np.where(self.in_front, TrackFate.INLIER, TrackFate.CHIRALITY_FAILED) \
-            if self.in_front is not None else TrackFate.NOT_USED
-        return np.where(self.inlier_mask, inlier, TrackFate.RANSAC_OUTLIER).astype(np.uint8)
 
 
 class Odometry:
@@ -123,7 +94,7 @@ class Odometry:
         tracks = self._tracks
         fate = np.full(len(tracks), TrackFate.LOST, np.uint8)
         tracked = tracks.points.copy()
-        motion, parallax = _Motion(), 0.0
+        motion, parallax = Motion(), 0.0
         T_w_cur, T_key_cur, scale = self._T_w_key.copy(), None, None  # noqa: N806
         scale_estimate: ScaleEstimate | None = None
         points_world = np.zeros((0, 3))
@@ -289,7 +260,7 @@ class Odometry:
         )
         return ids
 
-    def _match_keyframe(self, image: np.ndarray, timings: dict[str, float]) -> tuple[_Motion, float]:
+    def _match_keyframe(self, image: np.ndarray, timings: dict[str, float]) -> tuple[Motion, float]:
         """Two-view motion keyframe → this frame from ORB descriptor matches (no tracks needed)."""
         assert self._key_image is not None
         clock = time.perf_counter()
@@ -298,9 +269,10 @@ class Odometry:
         p_key, p_cur = self._ideal(p_key[keep]), self._ideal(p_cur[keep])
         timings["match"] = _lap(clock)
         if len(p_cur) < self.config.pose.min_tracks:
-            return _Motion(reason=Reason.TOO_FEW_TRACKS), 0.0
+            return Motion(reason=Reason.TOO_FEW_TRACKS), 0.0
         parallax = float(np.median(np.linalg.norm(p_cur - p_key, axis=1)))
-        return self._two_view(p_cur, p_key, timings), parallax
+        order = np.random.default_rng((self.config.pose.seed, self._position)).permutation(len(p_cur))
+        return two_view_motion(p_cur, p_key, self._K, self.config, order, timings), parallax
 
     def _ideal(self, raw: np.ndarray) -> np.ndarray:
         """(N, 2) raw image pixels as float32 ideal pinhole pixels (the lens's distortion removed)."""
@@ -330,7 +302,7 @@ class Odometry:
             warnings.append(Reason.BRIGHTNESS_JUMP)
         return warnings
 
-    def _motion_warnings(self, motion: _Motion, used: int, step: float) -> list[Reason]:
+    def _motion_warnings(self, motion: Motion, used: int, step: float) -> list[Reason]:
         """Suspicious but accepted motion."""
         cfg = self.config.health
         warnings = []
@@ -383,64 +355,16 @@ class Odometry:
 
     def _estimate_motion(
         self, p_cur: np.ndarray, p_key: np.ndarray, timings: dict[str, float]
-    ) -> tuple[_Motion, float]:
+    ) -> tuple[Motion, float]:
         """Motion keyframe → current frame from (N, 2) matched points, and the median parallax (px)."""
         cfg = self.config.pose
         if len(p_cur) < cfg.min_tracks:
-            return _Motion(reason=Reason.TOO_FEW_TRACKS), 0.0
+            return Motion(reason=Reason.TOO_FEW_TRACKS), 0.0
         parallax = float(np.median(np.linalg.norm(p_cur - p_key, axis=1)))
         if parallax < cfg.min_parallax_px:
-            return _Motion(reason=Reason.LOW_PARALLAX), parallax
-        return self._two_view(p_cur, p_key, timings), parallax
-
-    def _two_view(self, p_cur: np.ndarray, p_key: np.ndarray, timings: dict[str, float]) -> _Motion:
-        """Essential matrix (5-point RANSAC), four candidates, chirality, refinement."""
-        cfg = self.config.pose
-        clock = time.perf_counter()
-        # Seeded shuffle: OpenCV's RANSAC draws from a fixed RNG, so the input order is the seed.
-        order = np.random.default_rng((cfg.seed, self._position)).permutation(len(p_cur))
-        essential, shuffled_mask = _find_essential(p_cur[order], p_key[order], self._K, self.config)
-        timings["essential"] = _lap(clock)
-        clock = time.perf_counter()
-        if essential is None or shuffled_mask is None:
-            return _Motion(reason=Reason.NO_ESSENTIAL)
-        inlier_mask = np.zeros(len(p_cur), bool)
-        inlier_mask[order] = shuffled_mask
-        if inlier_mask.sum() < cfg.min_inliers:
-            return _Motion(essential=essential, inlier_mask=inlier_mask, reason=Reason.TOO_FEW_INLIERS)
-        x_cur = normalise_points(p_cur, self._K)
-        x_key = normalise_points(p_key, self._K)
-        candidates, best = chirality_check(essential, x_cur[inlier_mask], x_key[inlier_mask],
-                                           cfg.chirality_max_depth)
-        rotation, translation = candidates[best].rotation, candidates[best].translation
-        if candidates[best].in_front < cfg.min_inliers:
-            timings["chirality"] = _lap(clock)
-            return _Motion(essential=essential, inlier_mask=inlier_mask, candidates=tuple(candidates),
-                           chosen=best, reason=Reason.CHIRALITY)
-        if cfg.refine:
-            focal = 0.5 * (self._K[0, 0] + self._K[1, 1])
-            rotation, translation = refine_relative_pose(
-                rotation, translation, x_cur[inlier_mask], x_key[inlier_mask],
-                robust_scale=cfg.ransac_threshold_px / focal,
-            )
-        derotated = _derotated_parallax(rotation, p_cur[inlier_mask], p_key[inlier_mask], self._K)
-        points = triangulate(rotation, translation, x_cur, x_key)
-        # A track fails chirality only if it lands behind a camera; far points are fine, just not shown.
-        in_front = in_front_mask(rotation, translation, points, np.inf)
-        near = in_front_mask(rotation, translation, points, cfg.chirality_max_depth)
-        timings["chirality"] = _lap(clock)
-        return _Motion(
-            essential=essential,
-            inlier_mask=inlier_mask,
-            candidates=tuple(candidates),
-            chosen=best,
-            rotation=rotation,
-            translation=translation,
-            in_front=in_front,
-            points_cur=points[inlier_mask & near],
-            pixels_cur=p_cur[inlier_mask & near],
-            derotated_parallax=derotated,
-        )
+            return Motion(reason=Reason.LOW_PARALLAX), parallax
+        order = np.random.default_rng((self.config.pose.seed, self._position)).permutation(len(p_cur))
+        return two_view_motion(p_cur, p_key, self._K, self.config, order, timings), parallax
 
     def _road_corners(self, image: np.ndarray, existing: np.ndarray) -> np.ndarray:
         """With --scale height: FAST corners (a lower threshold) in the road band ahead while it holds fewer
@@ -469,50 +393,6 @@ class Odometry:
         ids = self._append_tracks(corners, at_keyframe=self._key_position == self._position)
         timings["detect"] = _lap(clock)
         return ids, corners
-
-
-def _find_essential(
-    p_cur: np.ndarray, p_key: np.ndarray, K: np.ndarray, config: EngineConfig  # noqa: N803
-) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """cv2.findEssentialMat(p_cur, p_key) with the configured robust estimator. Returns (E (3, 3), inlier
-    mask (N,) bool), or (None, None) when no model was found."""
-    cfg = config.pose
-    if len(p_cur) < 5:
-        return None, None
-    a = p_cur.astype(np.float64)
-    b = p_key.astype(np.float64)
-    if cfg.ransac_method == "magsac":
-        params = cv2.UsacParams()
-        params.confidence = cfg.ransac_probability
-        params.threshold = cfg.ransac_threshold_px
-        params.maxIterations = cfg.ransac_max_iterations
-        params.randomGeneratorState = cfg.seed
-        params.sampler = cv2.SAMPLING_UNIFORM
-        params.score = cv2.SCORE_METHOD_MAGSAC
-        params.loMethod = cv2.LOCAL_OPTIM_SIGMA
-        params.loIterations = 10
-        params.loSampleSize = 20
-        params.final_polisher = cv2.MAGSAC
-        params.final_polisher_iterations = 10
-        params.isParallel = False
-        essential, mask = cv2.findEssentialMat(a, b, K, K, np.zeros((1, 5)), np.zeros((1, 5)), params)
-    else:
-        essential, mask = cv2.findEssentialMat(
-            a, b, K, method=cv2.RANSAC, prob=cfg.ransac_probability, threshold=cfg.ransac_threshold_px,
-            maxIters=cfg.ransac_max_iterations,
-        )
-    if essential is None or mask is None or essential.shape[0] < 3 or not np.all(np.isfinite(essential[:3])):
-        return None, None  # no model, or a degenerate one (OpenCV can return NaN for 5 collinear points)
-    return essential[:3, :3], mask.reshape(-1).astype(bool)
-
-
-def _derotated_parallax(rotation: np.ndarray, p_cur: np.ndarray, p_key: np.ndarray, K: np.ndarray) -> float:  # noqa: N803
-    """Median distance (px) between the (N, 2) keyframe points and the current points moved by the rotation
-    alone (x_key ∝ K·R·K⁻¹·x_cur for X_key = R·X_cur + t at infinity): the parallax translation caused."""
-    homogeneous = np.column_stack((p_cur, np.ones(len(p_cur))))
-    moved = homogeneous @ (K @ rotation @ np.linalg.inv(K)).T
-    predicted = moved[:, :2] / moved[:, 2:3]
-    return float(np.median(np.linalg.norm(predicted - p_key, axis=1))) if len(p_cur) else 0.0
 
 
 def _lap(start: float) -> float:

@@ -89,8 +89,8 @@ def _summary(source: FrameSource, run: RunResult, config: EngineConfig) -> None:
     import numpy as np
 
     from vslam.evaluation import scored_estimate
-    from vslam_core.metrics import kitti_errors, paper_rms_error, scale_errors
     from vslam_core.scale import default_camera_height
+    from vslam_core.trajectory.metrics import kitti_errors, paper_rms_error, scale_errors
 
     fps = run.frames / run.seconds if run.seconds > 0 else float("nan")
     lines = [

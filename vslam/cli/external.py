@@ -24,7 +24,7 @@ from vslam.evaluation import (
 )
 from vslam.recording import Detail, ExternalRun, RunFrames, record_external, version_properties
 from vslam_core.sources.base import describe_indices
-from vslam_core.trajectory_io import TrajectoryFormat
+from vslam_core.trajectory.io import TrajectoryFormat
 
 
 def evaluate_external(

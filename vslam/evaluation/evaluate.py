@@ -25,15 +25,15 @@ from vslam.runs import Interrupted, record_run
 from vslam_core.config import EngineConfig
 from vslam_core.errors import SourceError, TrajectoryFormatError
 from vslam_core.geometry import invert_pose
-from vslam_core.metrics import kitti_errors_by_length
 from vslam_core.sources.base import FrameSource, describe_indices, rebase_poses
-from vslam_core.trajectory_io import (
+from vslam_core.trajectory.io import (
     TrajectoryFormat,
     detect_format,
     read_kitti_poses,
     read_tum_poses,
     write_kitti_poses,
 )
+from vslam_core.trajectory.metrics import kitti_errors_by_length
 
 REPORT_FILES = ("metrics.csv", "metrics.parquet", "report.md")
 #: The top view of several --trajectory files.

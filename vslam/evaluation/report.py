@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from vslam_core.metrics import evaluate, rpe_by_distance, scale_errors, sim3_aligned
+from vslam_core.trajectory.metrics import evaluate, rpe_by_distance, scale_errors, sim3_aligned
 
 # key -> (column header, format); the keys are also the JSON keys of `vslam eval --json`.
 COLUMNS: dict[str, tuple[str, str]] = {

@@ -1,7 +1,7 @@
 """Drift attribution in the recording: each frame's own relative pose error against the ground truth.
 
 Per frame (`DriftRecording.frame_values`, O(1) on two 4×4 steps): ``/metrics/drift/{rotation_deg,
-translation_m, translation_pct, scale_ratio}`` (`vslam_core.drift`; frame i against frame i−1). With
+translation_m, translation_pct, scale_ratio}`` (`vslam_core.trajectory.drift`; frame i against frame i−1). With
 ``--scale none`` the estimate has unit steps, so the series are logged when the run ends, of the estimate
 after Sim(3) alignment onto the ground truth (as every other error of such a run).
 
@@ -25,9 +25,9 @@ import numpy as np
 import rerun as rr
 
 from vslam.recording.columns import ColumnBuffer, add_event
-from vslam_core.drift import FrameErrors, frame_errors, step_errors, worst_frames
 from vslam_core.geometry import invert_pose
 from vslam_core.sources.base import Frame
+from vslam_core.trajectory.drift import FrameErrors, frame_errors, step_errors, worst_frames
 
 DRIFT_ENTITY = "/world/trajectory/drift"
 LINKS_ENTITY = "/world/trajectory/gt_links"

@@ -24,7 +24,7 @@ from vslam.rrd.provenance import (
     read_properties,
 )
 from vslam.rrd.read import RecordingError, read_entity, readable
-from vslam_core.drift import worst_frames
+from vslam_core.trajectory.drift import worst_frames
 
 SCHEMA_VERSION = 1
 

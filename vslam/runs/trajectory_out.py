@@ -15,7 +15,7 @@ from vslam.runs.outputs import ClaimedFile, OutputError, write_failure
 from vslam_core.pipeline import RunResult
 from vslam_core.results import FrameResult
 from vslam_core.sources.base import Frame
-from vslam_core.trajectory_io import kitti_line, tum_line
+from vslam_core.trajectory.io import kitti_line, tum_line
 
 Format = Literal["kitti", "tum"]
 

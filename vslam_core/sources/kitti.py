@@ -24,7 +24,7 @@ import numpy as np
 
 from vslam_core.errors import SourceError
 from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange, SelectedSource, rebase_poses
-from vslam_core.trajectory_io import detect_format, read_kitti_poses, read_tum_poses
+from vslam_core.trajectory.io import detect_format, read_kitti_poses, read_tum_poses
 
 GroundTruthFormat = Literal["kitti", "tum", "auto"]
 

@@ -36,7 +36,7 @@ from vslam_core.sources.ros_ground_truth import topic_ground_truth
 from vslam_core.sources.ros_images import IMAGE_TYPES, ImageDecoder
 from vslam_core.sources.ros_messages import bag_errors, bare, field, one_line
 from vslam_core.sources.stamps import DEFAULT_GT_TOLERANCE_S, ground_truth_at, stamp_problems
-from vslam_core.trajectory_io import read_tum_poses
+from vslam_core.trajectory.io import read_tum_poses
 
 CAMERA_INFO_TYPE = "sensor_msgs/msg/CameraInfo"
 

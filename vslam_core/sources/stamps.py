@@ -8,7 +8,7 @@ import numpy as np
 
 from vslam_core.errors import SourceError, TrajectoryFormatError
 from vslam_core.sources.base import rebase_poses
-from vslam_core.trajectory_io import read_tum_poses
+from vslam_core.trajectory.io import read_tum_poses
 
 DEFAULT_GT_TOLERANCE_S = 0.010
 

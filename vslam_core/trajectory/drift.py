@@ -6,9 +6,9 @@ the estimate E, frame-aligned (row i of both is the same frame).
 The absolute position error keeps growing after a single bad frame; the relative pose error between
 consecutive frames does not: it is the error of that frame's own step. This is the RPE of Sturm,
 Engelhard, Endres, Burgard, Cremers, "A benchmark for the evaluation of RGB-D SLAM systems", IROS 2012
-(TUM RGB-D benchmark), eqs. 1–2 with Δ = 1, kept per frame instead of averaged (`vslam_core.metrics.rpe`).
+(TUM RGB-D benchmark), eqs. 1–2 with Δ = 1, kept per frame instead of averaged (`vslam_core.trajectory.metrics.rpe`).
 An estimate known only up to scale (``--scale none``) must be Sim(3)-aligned onto the ground truth first
-(`vslam_core.metrics.sim3_aligned`).
+(`vslam_core.trajectory.metrics.sim3_aligned`).
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vslam_core.errors import GeometryError
-from vslam_core.metrics import _check_pair
+from vslam_core.trajectory.metrics import _check_pair
 
 #: A ground-truth step shorter than this (metres) has no meaningful percentage or scale ratio (NaN).
 MIN_STEP_M = 1e-3

@@ -1,0 +1,157 @@
+"""The two-view step: the motion between the keyframe and the current frame from matched points.
+
+5-point essential matrix in RANSAC → its four candidate poses → chirality (the candidate with most
+triangulated points in front of both cameras) → refinement on the inliers. Points are (N, 2) ideal pinhole
+pixels; the translation is a unit vector (its length is the scale source's job). Pure computation.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from vslam_core.config import EngineConfig
+from vslam_core.geometry import (
+    CandidatePose,
+    chirality_check,
+    in_front_mask,
+    normalise_points,
+    refine_relative_pose,
+    triangulate,
+)
+from vslam_core.results import Reason, TrackFate
+
+
+@dataclass(frozen=True)
+class Motion:
+    """Outcome of the two-view step between keyframe and current frame."""
+
+    essential: np.ndarray | None = None
+    inlier_mask: np.ndarray | None = None  # over the used correspondences
+    candidates: tuple[CandidatePose, ...] = ()
+    chosen: int | None = None
+    rotation: np.ndarray | None = None
+    translation: np.ndarray | None = None  # unit
+    in_front: np.ndarray | None = None  # over the used correspondences
+    points_cur: np.ndarray | None = None  # (P, 3) in front, current frame, unit baseline
+    pixels_cur: np.ndarray | None = None  # (P, 2) their pixel positions in the current frame
+    derotated_parallax: float = 0.0  # median inlier parallax (px) left once the rotation is removed
+    reason: Reason | None = None
+
+    def fates(self) -> np.ndarray:
+        """TrackFate of each used correspondence (needs `inlier_mask`)."""
+        assert self.inlier_mask is not None
+        inlier = np.where(self.in_front, TrackFate.INLIER, TrackFate.CHIRALITY_FAILED) \
+            if self.in_front is not None else TrackFate.NOT_USED
+        return np.where(self.inlier_mask, inlier, TrackFate.RANSAC_OUTLIER).astype(np.uint8)
+
+
+
+
+def two_view_motion(
+    p_cur: np.ndarray, p_key: np.ndarray, K: np.ndarray, config: EngineConfig, order: np.ndarray,  # noqa: N803
+    timings: dict[str, float],
+) -> Motion:
+    """Motion keyframe → current frame from (N, 2) matched ideal pixels: the essential matrix by the 5-point
+    algorithm in RANSAC (Nistér 2004), its four candidate poses, the one with most points in front
+    (chirality), refined on the robust Sampson error of the inliers.
+
+    `order` (N,) is a permutation of the correspondences: OpenCV's RANSAC draws from a fixed RNG, so the input
+    order is the seed. `timings` gets the stages' milliseconds (``essential``, ``chirality``).
+    """
+    cfg = config.pose
+    clock = time.perf_counter()
+    essential, shuffled_mask = find_essential(p_cur[order], p_key[order], K, config)
+    timings["essential"] = _lap(clock)
+    clock = time.perf_counter()
+    if essential is None or shuffled_mask is None:
+        return Motion(reason=Reason.NO_ESSENTIAL)
+    inlier_mask = np.zeros(len(p_cur), bool)
+    inlier_mask[order] = shuffled_mask
+    if inlier_mask.sum() < cfg.min_inliers:
+        return Motion(essential=essential, inlier_mask=inlier_mask, reason=Reason.TOO_FEW_INLIERS)
+    x_cur = normalise_points(p_cur, K)
+    x_key = normalise_points(p_key, K)
+    candidates, best = chirality_check(essential, x_cur[inlier_mask], x_key[inlier_mask],
+                                       cfg.chirality_max_depth)
+    rotation, translation = candidates[best].rotation, candidates[best].translation
+    if candidates[best].in_front < cfg.min_inliers:
+        timings["chirality"] = _lap(clock)
+        return Motion(essential=essential, inlier_mask=inlier_mask, candidates=tuple(candidates),
+                       chosen=best, reason=Reason.CHIRALITY)
+    if cfg.refine:
+        focal = 0.5 * (K[0, 0] + K[1, 1])
+        rotation, translation = refine_relative_pose(
+            rotation, translation, x_cur[inlier_mask], x_key[inlier_mask],
+            robust_scale=cfg.ransac_threshold_px / focal,
+        )
+    derotated = derotated_parallax(rotation, p_cur[inlier_mask], p_key[inlier_mask], K)
+    points = triangulate(rotation, translation, x_cur, x_key)
+    # A track fails chirality only if it lands behind a camera; far points are fine, just not shown.
+    in_front = in_front_mask(rotation, translation, points, np.inf)
+    near = in_front_mask(rotation, translation, points, cfg.chirality_max_depth)
+    timings["chirality"] = _lap(clock)
+    return Motion(
+        essential=essential,
+        inlier_mask=inlier_mask,
+        candidates=tuple(candidates),
+        chosen=best,
+        rotation=rotation,
+        translation=translation,
+        in_front=in_front,
+        points_cur=points[inlier_mask & near],
+        pixels_cur=p_cur[inlier_mask & near],
+        derotated_parallax=derotated,
+    )
+
+
+
+def find_essential(
+    p_cur: np.ndarray, p_key: np.ndarray, K: np.ndarray, config: EngineConfig  # noqa: N803
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """cv2.findEssentialMat(p_cur, p_key) with the configured robust estimator. Returns (E (3, 3), inlier
+    mask (N,) bool), or (None, None) when no model was found."""
+    cfg = config.pose
+    if len(p_cur) < 5:
+        return None, None
+    a = p_cur.astype(np.float64)
+    b = p_key.astype(np.float64)
+    if cfg.ransac_method == "magsac":
+        params = cv2.UsacParams()
+        params.confidence = cfg.ransac_probability
+        params.threshold = cfg.ransac_threshold_px
+        params.maxIterations = cfg.ransac_max_iterations
+        params.randomGeneratorState = cfg.seed
+        params.sampler = cv2.SAMPLING_UNIFORM
+        params.score = cv2.SCORE_METHOD_MAGSAC
+        params.loMethod = cv2.LOCAL_OPTIM_SIGMA
+        params.loIterations = 10
+        params.loSampleSize = 20
+        params.final_polisher = cv2.MAGSAC
+        params.final_polisher_iterations = 10
+        params.isParallel = False
+        essential, mask = cv2.findEssentialMat(a, b, K, K, np.zeros((1, 5)), np.zeros((1, 5)), params)
+    else:
+        essential, mask = cv2.findEssentialMat(
+            a, b, K, method=cv2.RANSAC, prob=cfg.ransac_probability, threshold=cfg.ransac_threshold_px,
+            maxIters=cfg.ransac_max_iterations,
+        )
+    if essential is None or mask is None or essential.shape[0] < 3 or not np.all(np.isfinite(essential[:3])):
+        return None, None  # no model, or a degenerate one (OpenCV can return NaN for 5 collinear points)
+    return essential[:3, :3], mask.reshape(-1).astype(bool)
+
+
+def derotated_parallax(rotation: np.ndarray, p_cur: np.ndarray, p_key: np.ndarray, K: np.ndarray) -> float:  # noqa: N803
+    """Median distance (px) between the (N, 2) keyframe points and the current points moved by the rotation
+    alone (x_key ∝ K·R·K⁻¹·x_cur for X_key = R·X_cur + t at infinity): the parallax translation caused."""
+    homogeneous = np.column_stack((p_cur, np.ones(len(p_cur))))
+    moved = homogeneous @ (K @ rotation @ np.linalg.inv(K)).T
+    predicted = moved[:, :2] / moved[:, 2:3]
+    return float(np.median(np.linalg.norm(predicted - p_key, axis=1))) if len(p_cur) else 0.0
+
+
+def _lap(start: float) -> float:
+    return (time.perf_counter() - start) * 1000.0
