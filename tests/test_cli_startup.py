@@ -9,11 +9,11 @@ import sys
 from pathlib import Path
 
 import vslam.cli.commands
-from vslam.viewer.snapshot import DEFAULT_SIZE
+from vslam.viewer.headless import DEFAULT_SIZE
 
 ROOT = Path(__file__).resolve().parents[1]
 HEAVY = ("polars", "av", "gtsam", "ray", "rosbags", "vslam_core.engine", "vslam.recording.recorder",
-         "vslam.evaluation.evaluate", "vslam.viewer.snapshot", "vslam.batch.run", "vslam_core.sources.kitti")
+         "vslam.evaluation.evaluate", "vslam.viewer.headless", "vslam.batch.run", "vslam_core.sources.kitti")
 
 
 def test_importing_the_cli_loads_none_of_the_heavy_modules() -> None:

@@ -18,8 +18,8 @@ from vslam.rrd.crop import crop_recording
 from vslam.rrd.crop_video import _decode
 from vslam.rrd.read import rerun_binary
 from vslam.viewer import processes as viewer
+from vslam.viewer.headless import snapshot
 from vslam.viewer.processes import ViewerError
-from vslam.viewer.snapshot import snapshot
 
 ROOT = Path(__file__).resolve().parents[1]
 IMAGE = "/world/camera/image"

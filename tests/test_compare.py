@@ -31,8 +31,8 @@ from vslam.rrd.crop import crop_recording
 from vslam.rrd.inspect import inspect_recording
 from vslam.rrd.read import RecordingError, read_entity
 from vslam.viewer import processes as viewer
+from vslam.viewer.headless import snapshot, view_file_name
 from vslam.viewer.processes import NO_VULKAN, rerun_executable
-from vslam.viewer.snapshot import snapshot, view_file_name
 
 ROOT = Path(__file__).resolve().parents[1]
 FRAMES = list(range(20))

@@ -28,8 +28,8 @@ from vslam.recording import stream as stream_module
 from vslam.rrd.read import has_footer, read_entity, readable
 from vslam.runs import outputs
 from vslam.runs.outputs import OutputError, claim, default_recording
+from vslam.viewer.headless import snapshot
 from vslam.viewer.processes import recording_frames, vulkan_available
-from vslam.viewer.snapshot import snapshot
 from vslam_core.config import EngineConfig
 from vslam_core.sources.base import FrameRange
 from vslam_core.sources.kitti import KittiSource

@@ -20,19 +20,19 @@ import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
-from vslam.recording.blueprint import CAR_ENTITY
+from vslam.recording.layout import CAR_ENTITY
 from vslam.rrd.read import read_entity
+from vslam.viewer import headless as snapshots
 from vslam.viewer import processes as viewer
-from vslam.viewer import snapshot as snapshots
 from vslam.viewer import web
+from vslam.viewer.headless import DEFAULT_SIZE, snapshot
 from vslam.viewer.processes import NO_VULKAN, ViewerError, choose_viewer, vulkan_icd_files
-from vslam.viewer.snapshot import DEFAULT_SIZE, snapshot
 from vslam.viewer.web import open_recording
 from vslam_core.errors import VslamError
 
 ROOT = Path(__file__).resolve().parents[1]
 FRAME = 10
-#: The views of vslam.recording.blueprint() for a run with ground truth and --scale gt, in reading order.
+#: The views of vslam.recording.layout() for a run with ground truth and --scale gt, in reading order.
 VIEWS = ["frame", "world", "tracks", "inliers", "inlier_ratio", "health", "motion", "position_error_m",
          "angle_errors", "drift_per_frame_m", "drift_per_frame_of_step_scale_ratio", "timing_ms", "events", "report"]
 
@@ -233,7 +233,7 @@ def test_viewer_failure_after_start_still_stops_it(
 
 
 def test_terminated_snapshot_stops_the_viewer_first(recording: Path, vulkan: None, tmp_path: Path) -> None:
-    code = ("import sys; from pathlib import Path; from vslam.viewer import snapshot, processes as viewer\n"
+    code = ("import sys; from pathlib import Path; from vslam.viewer import headless as snapshot, processes as viewer\n"
             "start = viewer._start\n"
             "def spy(args, env=None):\n"
             "    process = start(args, env)\n"

@@ -262,7 +262,7 @@ def snapshot_command(
     frame: Annotated[str, typer.Option(help="frame to show: the source's frame index, or 'last'")],
     out_dir: Annotated[Path, typer.Option("--out", help="folder for one PNG per view")],
     size: Annotated[str, typer.Option(help="viewer window WIDTHxHEIGHT: each view's PNG is about this large")]
-    = "1280x720",  # vslam.viewer.snapshot.DEFAULT_SIZE (a test keeps the two equal)
+    = "1280x720",  # vslam.viewer.headless.DEFAULT_SIZE (a test keeps the two equal)
 ) -> None:
     """Render every view of the recording's blueprint at one frame to PNG, with the real viewer, headless."""
     from vslam.viewer import parse_frame, parse_size, snapshot

@@ -38,7 +38,7 @@ SERIES_WIDTHS = (2.5, 1.0)
 ESTIMATE_COLOURS: tuple[tuple[str, tuple[int, int, int] | None], ...] = (
     ("red", None), ("blue", (60, 170, 255)), ("orange", (255, 160, 0)), ("purple", (190, 90, 255)),
     ("cyan", (0, 220, 220)), ("pink", (255, 110, 190)))
-#: Plot titles per metric group (as in vslam.recording.blueprint); groups not listed use their own name.
+#: Plot titles per metric group (as in vslam.recording.layout); groups not listed use their own name.
 GROUP_TITLES = {
     "tracks": "tracks",
     "ransac": "inliers",

@@ -36,7 +36,7 @@ each (~25 a frame). Styles that never change are logged once, static.
 
 Modules: `recorder` (the `Recorder` and the front end's entities), `map` (the map backend's entities),
 `columns` (the column buffer), `metrics` (the series), `drift` (each frame's own error against the ground
-truth), `blueprint` (the default layout), `styles` (detail levels, colours, legends), `external` (another
+truth), `layout` (the default blueprint), `styles` (detail levels, colours, legends), `external` (another
 system's trajectory file as a recording of the same entities, for `vslam eval --trajectory --report`).
 """
 
@@ -46,24 +46,24 @@ from typing import TYPE_CHECKING, Any
 #: Where each name lives: imported on first use (PEP 562), so `from vslam.recording import Detail` in the CLI
 #: does not load the recorder, its video encoder and the map entities.
 _HOMES = {
-    "blueprint": "blueprint",
+    "blueprint": "layout",
     "FLUSH_BYTES": "columns", "FLUSH_FRAMES": "columns", "ColumnBuffer": "columns",
     "MapRecording": "map",
     "HEALTH_LEVELS": "metrics", "MAP_METRICS": "metrics", "MAP_STAGES": "metrics", "METRICS": "metrics",
     "MODE_LEVELS": "metrics", "STAGES": "metrics", "frame_metrics": "metrics", "map_frame_metrics": "metrics",
     "Recorder": "recorder", "road_outline": "recorder", "version_properties": "recorder",
     "APPLICATION_ID": "styles", "FATE_STYLE": "styles", "Detail": "styles", "ImageCodec": "styles",
-    "CAR_ENTITY": "blueprint", "EYE_OFFSET": "blueprint",
+    "CAR_ENTITY": "layout", "EYE_OFFSET": "layout",
     "DRIFT_ENTITY": "drift", "LINKS_ENTITY": "drift", "WORST": "drift",
     "ExternalRun": "external", "RunFrames": "external", "record_external": "external",
     "RERUN_CODEC": "video", "VIDEO_SETTINGS": "video", "open_encoder": "video",
 }
 
 if TYPE_CHECKING:
-    from vslam.recording.blueprint import CAR_ENTITY, EYE_OFFSET, blueprint
     from vslam.recording.columns import FLUSH_BYTES, FLUSH_FRAMES, ColumnBuffer
     from vslam.recording.drift import DRIFT_ENTITY, LINKS_ENTITY, WORST
     from vslam.recording.external import ExternalRun, RunFrames, record_external
+    from vslam.recording.layout import CAR_ENTITY, EYE_OFFSET, blueprint
     from vslam.recording.map import MapRecording
     from vslam.recording.metrics import (
         HEALTH_LEVELS,

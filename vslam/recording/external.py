@@ -22,9 +22,9 @@ import numpy as np
 import rerun as rr
 
 from vslam.evaluation import TrajectoryImages
-from vslam.recording.blueprint import blueprint
 from vslam.recording.columns import FLUSH_FRAMES, ColumnBuffer
 from vslam.recording.drift import DriftRecording
+from vslam.recording.layout import blueprint
 from vslam.recording.metrics import METRICS
 from vslam.recording.stream import StreamStopped, close_stream, flush_or_stop, log_world, open_stream
 from vslam.recording.styles import Detail

@@ -13,9 +13,9 @@ import rerun as rr
 
 import vslam_core
 from vslam.evaluation import markdown_table, metrics_row, scored_estimate
-from vslam.recording.blueprint import UNDISTORTED, blueprint
 from vslam.recording.columns import FLUSH_FRAMES, ColumnBuffer, Part, add_event
 from vslam.recording.drift import DriftRecording
+from vslam.recording.layout import UNDISTORTED, blueprint
 from vslam.recording.map import MapRecording
 from vslam.recording.metrics import METRICS, STAGES, frame_metrics
 from vslam.recording.stream import StreamStopped, close_stream, flush_or_stop, log_world, open_stream, pinhole

@@ -10,7 +10,7 @@ from pathlib import Path
 import rerun as rr
 import rerun.blueprint as rrb
 
-from vslam.recording.blueprint import CAR_ENTITY
+from vslam.recording.layout import CAR_ENTITY
 from vslam.recording.styles import APPLICATION_ID, CAR_COLOUR, ESTIMATE_COLOUR, GROUND_TRUTH_COLOUR
 from vslam.runs import OutputError, hold_stuck_writer, likely_errno, write_failure
 from vslam_core.sources.base import CameraIntrinsics

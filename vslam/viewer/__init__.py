@@ -1,5 +1,5 @@
 """The Rerun viewer: its processes and the checks before starting one (`processes`), `vslam open` native or in a
-browser (`web`) and headless PNGs (`snapshot`).
+browser (`web`) and headless PNGs (`headless`).
 
 The names other packages use are importable from here, loaded on first use (PEP 562).
 """
@@ -10,14 +10,14 @@ from typing import TYPE_CHECKING, Any
 #: Where each public name lives.
 _HOMES = {
     "open_recording": "web",
-    "parse_frame": "snapshot",
-    "parse_size": "snapshot",
+    "parse_frame": "headless",
+    "parse_size": "headless",
     "port_problem": "web",
-    "snapshot": "snapshot",
+    "snapshot": "headless",
 }
 
 if TYPE_CHECKING:
-    from vslam.viewer.snapshot import parse_frame, parse_size, snapshot
+    from vslam.viewer.headless import parse_frame, parse_size, snapshot
     from vslam.viewer.web import open_recording, port_problem
 
 

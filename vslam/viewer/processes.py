@@ -1,4 +1,4 @@
-"""The Rerun viewer's processes and the checks made before starting one (shared by `vslam.viewer.snapshot`, the
+"""The Rerun viewer's processes and the checks made before starting one (shared by `vslam.viewer.headless`, the
 headless PNG snapshots, and `vslam.viewer.web`, the interactive native or web viewer).
 
 Every viewer process is started in its own session and killed by process group, on success, error or
