@@ -242,7 +242,7 @@ def _existing_recording(path: Path) -> Path:
 @app.command()
 def inspect(
     recording: Annotated[Path, typer.Argument(help="a .rrd written by vslam run")],
-    as_json: Annotated[bool, typer.Option("--json", help="machine-readable output (keys documented in README)")]
+    as_json: Annotated[bool, typer.Option("--json", help="machine-readable output (keys in docs/recordings.md)")]
     = False,
 ) -> None:
     """Summarise a recording without a viewer: properties, frames, stage timings, accuracy, flagged frames."""
@@ -265,7 +265,11 @@ def snapshot_command(
     = "1280x720",  # vslam.viewer.snapshot.DEFAULT_SIZE (a test keeps the two equal)
 ) -> None:
     """Render every view of the recording's blueprint at one frame to PNG, with the real viewer, headless."""
-    from vslam.viewer import parse_frame, parse_size, snapshot
+    from vslam.viewer import parse_frame, parse_size
+
+    # `vslam.viewer.snapshot` is both a module and a function: once the module is loaded, the package attribute
+    # is the module, so the function is imported from its module.
+    from vslam.viewer.snapshot import snapshot
 
     window = parse_size(size)
     paths = snapshot(_existing_recording(recording), parse_frame(frame), out_dir, window_size=window)
@@ -327,7 +331,7 @@ def compare(
                                                "recording, comma-separated, e.g. before,after [default: A,B,C…]")]
     = None,
     force: Annotated[bool, typer.Option("--force", help="replace an existing output")] = False,
-    as_json: Annotated[bool, typer.Option("--json", help="machine-readable output (keys documented in README)")]
+    as_json: Annotated[bool, typer.Option("--json", help="machine-readable output (keys in docs/recordings.md)")]
     = False,
 ) -> None:
     """Put two or more runs side by side in one recording (overlaid metric plots), print one summary row per
