@@ -242,7 +242,7 @@ def _existing_recording(path: Path) -> Path:
 @app.command()
 def inspect(
     recording: Annotated[Path, typer.Argument(help="a .rrd written by vslam run")],
-    as_json: Annotated[bool, typer.Option("--json", help="machine-readable output (keys documented in README)")]
+    as_json: Annotated[bool, typer.Option("--json", help="machine-readable output (keys in docs/recordings.md)")]
     = False,
 ) -> None:
     """Summarise a recording without a viewer: properties, frames, stage timings, accuracy, flagged frames."""
@@ -327,7 +327,7 @@ def compare(
                                                "recording, comma-separated, e.g. before,after [default: A,B,C…]")]
     = None,
     force: Annotated[bool, typer.Option("--force", help="replace an existing output")] = False,
-    as_json: Annotated[bool, typer.Option("--json", help="machine-readable output (keys documented in README)")]
+    as_json: Annotated[bool, typer.Option("--json", help="machine-readable output (keys in docs/recordings.md)")]
     = False,
 ) -> None:
     """Put two or more runs side by side in one recording (overlaid metric plots), print one summary row per

@@ -38,7 +38,7 @@ if TYPE_CHECKING:
     from vslam_core.sources.base import FrameSource
 
 MANIFEST_HELP = ("many logs, one a row: CSV (or TOML [[log]]) with name, source and columns named like the vslam "
-                 "run options (README)")
+                 "run options (docs/batches.md)")
 WORKERS_HELP = "--manifest: local worker processes [default: the cores, capped by memory]"
 RAY_HELP = "--manifest: run each log as a task on this Ray cluster (needs vslam[cluster])"
 SHARD_HELP = "--manifest: run only slice K of N (1-based: manifest rows i with i % N == K-1)"
@@ -86,7 +86,8 @@ def eval_command(
     = DEFAULT_TOLERANCE_MS,
     trajectory_format: Annotated[TrajectoryFormat | None, typer.Option("--format", help="kitti or tum "
                                                                        "[default: from the columns]")] = None,
-    as_json: Annotated[bool, typer.Option("--json", help="print the metrics as JSON (keys in README)")] = False,
+    as_json: Annotated[bool, typer.Option("--json", help="print the metrics as JSON (keys in docs/evaluation.md)")]
+    = False,
     max_t_err: Annotated[float | None, typer.Option(help="gate: fail if any sequence's t_err (%) is above")] = None,
     max_r_err: Annotated[float | None, typer.Option(help="gate: fail if any r_err (°/100 m) is above")] = None,
     max_ate: Annotated[float | None, typer.Option(help="gate: fail if any ATE Sim(3) (m) is above")] = None,

@@ -38,7 +38,7 @@ class VideoSettings:
     options: dict[str, str] = field(default_factory=dict)
 
 
-#: The encoder settings of each video codec (chosen from benchmarks/codecs.py; see the README).
+#: The encoder settings of each video codec (chosen from benchmarks/codecs.py; see docs/recordings.md).
 VIDEO_SETTINGS: dict[ImageCodec, VideoSettings] = {
     ImageCodec.AV1: VideoSettings("libsvtav1", {"preset": "10", "crf": "41",
                                                 "svtav1-params": "pred-struct=1:lookahead=0:rtc=1"}),

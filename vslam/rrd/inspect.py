@@ -1,6 +1,6 @@
 """`vslam inspect`: what a bug report needs from a recording, read without a viewer.
 
-The JSON form (`inspect_recording`) is a stable interface; its keys are documented in README.md.
+The JSON form (`inspect_recording`) is a stable interface; its keys are documented in docs/recordings.md.
 """
 
 from __future__ import annotations
@@ -161,7 +161,7 @@ def _accuracy_alignment(path: Path, prefix: str = "") -> str:
 
 
 def inspect_recording(path: Path) -> dict[str, Any]:
-    """Everything `vslam inspect --json` prints (see README: "vslam inspect --json"). A `vslam compare`
+    """Everything `vslam inspect --json` prints (see docs/recordings.md: "vslam inspect --json"). A `vslam compare`
     output gives ``comparison`` (labels, input files) and ``runs`` (``a``, ``b``, …: each run's report)."""
     if not path.is_file():
         raise RecordingError(f"{path}: no such recording")
