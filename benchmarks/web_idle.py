@@ -8,8 +8,11 @@ For every configuration: start the server, wait `--warmup` s (the recording is i
 then open the page in headless Chromium (Playwright, `/usr/bin/chromium`), wait until it holds a gRPC connection
 and `--settle` s more (the recording is transferred and drawn), and measure again over `--seconds` s. Chromium's
 own CPU is measured separately over the same window. Each configuration is started `--repeats` times; the table
-gives the mean and [min–max] over repeats, in % of one core. CPU time is robust to other load on the machine
-(it counts only what the process did, not how long it waited for a core).
+gives the mean and [min–max] over repeats, in % of one core. CPU time counts only what the process did, not how
+long it waited for a core, so an idle server reads the same under any load; but a busy loop takes what the
+other processes leave it, so it reads less on a loaded machine. The *demand* column (mean number of the server's
+threads that are runnable, x 100, sampled every 0.1 s) does not depend on the load: a thread spinning forever
+counts 100 % (a whole core, which it uses on an idle machine), a sleeping server 0 %.
 
 Configurations (`--configs`):
 - `file`: `rerun --serve-web … FILE`, what `open --web` ran before (rerun-sdk 0.41.0);
@@ -31,7 +34,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import os
-import signal
 import socket
 import statistics
 import subprocess
@@ -181,20 +183,51 @@ def _cpu_seconds(processes: list[psutil.Process]) -> dict[int, float]:
     return seconds
 
 
-def cpu_percent(groups: dict[str, Callable[[], list[psutil.Process]]], seconds: float) -> dict[str, float]:
-    """% of one core used by each group of processes over `seconds`. The groups are listed again at the end: a
-    process started meanwhile counts whole, one gone by the end is not counted (none is, in these runs)."""
+def _runnable_threads(processes: list[psutil.Process]) -> int:
+    """Threads of `processes` running or waiting for a core now (state R in /proc/PID/task/*/stat)."""
+    count = 0
+    for process in processes:
+        with contextlib.suppress(OSError):
+            for task in Path(f"/proc/{process.pid}/task").iterdir():
+                with contextlib.suppress(OSError):
+                    stat = (task / "stat").read_text()
+                    count += stat[stat.rindex(")") + 2] == "R"
+    return count
+
+
+@dataclass
+class Usage:
+    """CPU used by a group of processes over a window, in % of one core. `demand`: mean number of its threads
+    that were runnable (sampled every 0.1 s), x 100: what it would use with free cores, whatever the load."""
+
+    cpu: float
+    demand: float
+
+
+def usage(groups: dict[str, Callable[[], list[psutil.Process]]], seconds: float) -> dict[str, Usage]:
+    """CPU time used by each group of processes over `seconds`, and its runnable threads sampled meanwhile. The
+    groups are listed again at the end: a process started meanwhile counts whole, one gone by the end is not
+    counted (none is, in these runs)."""
     before = {name: _cpu_seconds(find()) for name, find in groups.items()}
+    runnable = {name: 0 for name in groups}
+    samples = 0
     start = time.monotonic()
-    time.sleep(seconds)
+    while time.monotonic() - start < seconds:
+        for name, find in groups.items():
+            runnable[name] += _runnable_threads(find())
+        samples += 1
+        time.sleep(0.1)
     after = {name: _cpu_seconds(find()) for name, find in groups.items()}
     wall = time.monotonic() - start
-    return {name: 100 * sum(used - before[name].get(pid, 0.0) for pid, used in after[name].items()) / wall
+    return {name: Usage(100 * sum(used - before[name].get(pid, 0.0) for pid, used in after[name].items()) / wall,
+                        100 * runnable[name] / max(samples, 1))
             for name in groups}
 
 
 @contextlib.contextmanager
 def running(config: str, rrd: Path) -> Iterator[Server]:
+    """`config` started on free ports and listening; stopped with every process it started (SIGTERM first, so
+    `open_recording` stops its own server, then SIGKILL whatever is left of the tree)."""
     web, grpc = free_port(), free_port()
     server = CONFIGS[config](rrd, web, grpc)
     try:
@@ -202,9 +235,15 @@ def running(config: str, rrd: Path) -> Iterator[Server]:
         _wait_port(web, server.popen)
         yield server
     finally:
+        tree = _tree([psutil.Process(popen.pid) for popen in [server.popen, *server.helpers] if popen.poll() is None])
         for popen in [server.popen, *server.helpers]:
             with contextlib.suppress(ProcessLookupError):
-                os.killpg(popen.pid, signal.SIGKILL)
+                popen.terminate()
+        psutil.wait_procs(tree, timeout=10)
+        for process in tree:
+            with contextlib.suppress(psutil.NoSuchProcess):
+                process.kill()
+        for popen in [server.popen, *server.helpers]:
             popen.wait()
 
 
@@ -228,27 +267,44 @@ def browser(url: str) -> Iterator[Callable[[], list[psutil.Process]]]:
             context.close()
 
 
-def measure(config: str, rrd: Path, args: argparse.Namespace) -> dict[str, float]:
-    """One start of `config`: server CPU with no browser, then server and browser CPU with one idle browser."""
+def measure(config: str, rrd: Path, args: argparse.Namespace) -> dict[str, Usage]:
+    """One start of `config`: the server's usage with no browser, then the server's and the browser's with one
+    idle browser (`connected`: cpu 1 when the page held a gRPC connection)."""
     with running(config, rrd) as server:
         time.sleep(args.warmup)
         server_tree = psutil.Process(server.popen.pid)
-        result = {"alone": cpu_percent({"server": lambda: _tree([server_tree])}, args.seconds)["server"]}
+        result = {"alone": usage({"server": lambda: _tree([server_tree])}, args.seconds)["server"]}
         if args.no_browser:
             return result
         with browser(server.url) as chromium:
             deadline = time.monotonic() + 60
             while not connections_to(server.grpc_port) and time.monotonic() < deadline:
                 time.sleep(0.5)
-            result["connected"] = float(bool(connections_to(server.grpc_port)))
+            result["connected"] = Usage(float(bool(connections_to(server.grpc_port))), 0.0)
             time.sleep(args.settle)
-            both = cpu_percent({"server": lambda: _tree([server_tree]), "browser": chromium}, args.seconds)
+            both = usage({"server": lambda: _tree([server_tree]), "browser": chromium}, args.seconds)
         result["with browser"], result["browser"] = both["server"], both["browser"]
         return result
 
 
 def _cell(values: list[float]) -> str:
     return f"{statistics.mean(values):.1f} [{min(values):.1f}–{max(values):.1f}]"
+
+
+def table(rows: list[tuple[str, list[dict[str, Usage]]]], browser: bool) -> list[str]:
+    """Markdown rows: per configuration, CPU and demand of the server alone and with one idle browser."""
+    lines = ["| configuration | no browser: CPU | demand | one idle browser: CPU | demand | browser's own CPU "
+             "| browser connected |", "|---|---|---|---|---|---|---|"]
+    for config, runs in rows:
+        cells = [_cell([r["alone"].cpu for r in runs]), _cell([r["alone"].demand for r in runs])]
+        if browser:
+            connected = sum(int(r["connected"].cpu) for r in runs)
+            cells += [_cell([r["with browser"].cpu for r in runs]), _cell([r["with browser"].demand for r in runs]),
+                      _cell([r["browser"].cpu for r in runs]), f"{connected}/{len(runs)}"]
+        else:
+            cells += ["-"] * 4
+        lines.append(f"| {config} | " + " | ".join(cells) + " |")
+    return lines
 
 
 def main() -> None:
@@ -269,23 +325,13 @@ def main() -> None:
         runs = []
         for repeat in range(args.repeats):
             runs.append(measure(config, args.rrd, args))
-            print(f"{config} #{repeat + 1}: " + ", ".join(f"{k} {v:.1f}" for k, v in runs[-1].items()),
-                  file=sys.stderr, flush=True)
+            figures = ", ".join(f"{k} {v.cpu:.1f} ({v.demand:.0f})" for k, v in runs[-1].items())
+            print(f"{config} #{repeat + 1}: {figures}", file=sys.stderr, flush=True)
         rows.append((config, runs))
-    print(f"\nserver CPU, % of one core (mean [min–max] over {args.repeats} starts, {args.seconds:.0f} s each); "
-          f"{args.rrd.name}, {args.rrd.stat().st_size / 1e6:.0f} MB\n")
-    print("| configuration | no browser | one idle browser | browser's own CPU | browser connected |")
-    print("|---|---|---|---|---|")
-    for config, runs in rows:
-        cells = [_cell([r["alone"] for r in runs])]
-        if args.no_browser:
-            cells += ["-", "-", "-"]
-        else:
-            connected = sum(int(r["connected"]) for r in runs)
-            cells += [_cell([r["with browser"] for r in runs]), _cell([r["browser"] for r in runs]),
-                      f"{connected}/{len(runs)}"]
-        print(f"| {config} | " + " | ".join(cells) + " |")
-
+    print(f"\nserver's CPU time and demand (runnable threads), % of one core; mean [min–max] over {args.repeats} "
+          f"starts, {args.seconds:.0f} s each; {args.rrd.name}, {args.rrd.stat().st_size / 1e6:.0f} MB; "
+          f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores\n")
+    print("\n".join(table(rows, not args.no_browser)))
 
 if __name__ == "__main__":
     main()
