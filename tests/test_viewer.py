@@ -511,6 +511,10 @@ def test_web_viewer_fixed_ports_browser_watch_and_frame_timeline(recording: Path
             while not (recordings := client.get_state().recordings) and time.monotonic() < deadline:
                 time.sleep(0.2)
             assert recordings and recordings[0].current_timeline == "frame", recordings
+            # the layout embedded in the file arrives too (the server reads the recording from its stdin)
+            while not (views := client.get_state().views) and time.monotonic() < deadline:
+                time.sleep(0.2)
+            assert sorted(snapshots.view_file_name(v.name) for v in views) == sorted(VIEWS)
         proc.terminate()
         proc.communicate(timeout=20)
         assert _refused(web_port) and _refused(grpc_port)
