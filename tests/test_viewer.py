@@ -320,6 +320,35 @@ def test_web_viewer_port_in_use_is_a_clear_error(recording: Path) -> None:
             open_recording(recording, web=True, web_port=port)
 
 
+def test_web_server_sleeps_once_the_recording_is_in(recording: Path) -> None:
+    """`open --web` writes the recording to the server's stdin and holds the pipe open, so once it is in, every
+    thread of the server sleeps. (Given the file's path, or a pipe that ends, the 0.41 server's ingest loop polls
+    its finished source: one thread stays runnable as long as the server runs, up to a whole core.)"""
+    with web.serve_web(recording) as (_, _, _, process):
+        assert process.popen.args[-1] == web.STDIN  # type: ignore[index]
+        assert process.fed.wait(30), "the recording was not written to the server's stdin in 30 s"
+        deadline, running = time.monotonic() + 30, _running_threads(process.popen.pid)
+        while running and time.monotonic() < deadline:
+            time.sleep(0.2)
+            running = _running_threads(process.popen.pid)
+        assert not running, f"server threads still runnable 30 s after the recording was in: {running}"
+        assert process.popen.poll() is None
+
+
+def _running_threads(pid: int) -> list[str]:
+    """Names of the threads of `pid` that are running or runnable now (state R in /proc/PID/task/*/stat)."""
+    names = []
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        try:
+            stat = (task / "stat").read_text()
+        except OSError:  # the thread ended
+            continue
+        name_end = stat.rindex(")")
+        if stat[name_end + 2] == "R":
+            names.append(stat[stat.index("(") + 1:name_end])
+    return names
+
+
 def test_snapshot_command_writes_pngs_and_errors_in_one_line(recording: Path, vulkan: None, tmp_path: Path) -> None:
     out = tmp_path / "shots"
     result = subprocess.run([sys.executable, "-m", "vslam.cli", "snapshot", str(recording), "--frame", "5", "--out",
@@ -483,6 +512,10 @@ def test_web_viewer_fixed_ports_browser_watch_and_frame_timeline(recording: Path
             while not (recordings := client.get_state().recordings) and time.monotonic() < deadline:
                 time.sleep(0.2)
             assert recordings and recordings[0].current_timeline == "frame", recordings
+            # the layout embedded in the file arrives too (the server reads the recording from its stdin)
+            while not (views := client.get_state().views) and time.monotonic() < deadline:
+                time.sleep(0.2)
+            assert sorted(snapshots.view_file_name(v.name) for v in views) == sorted(VIEWS)
         proc.terminate()
         proc.communicate(timeout=20)
         assert _refused(web_port) and _refused(grpc_port)

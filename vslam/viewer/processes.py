@@ -20,7 +20,7 @@ import threading
 import time
 import warnings
 from collections.abc import Iterator, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from types import FrameType
 from typing import IO, Literal
@@ -141,6 +141,9 @@ class _Process:
     popen: subprocess.Popen[bytes]
     stderr: IO[bytes]
     stopped: bool = False
+    #: Set once the whole `feed` file was written to the process's stdin (see `_start`).
+    fed: threading.Event = field(default_factory=threading.Event)
+    feeder: threading.Thread | None = None
 
     def stderr_text(self) -> str:
         self.stderr.flush()
@@ -178,25 +181,55 @@ class _Process:
             with contextlib.suppress(ProcessLookupError, PermissionError):
                 os.killpg(pgid, signal.SIGKILL)
             break
+        if self.popen.stdin is not None:  # the pipe `_start` held open for a fed process
+            if self.feeder is not None:  # its reader is gone: a write in progress fails at once
+                self.feeder.join(grace_s)
+            with contextlib.suppress(OSError):
+                self.popen.stdin.close()
         self.stderr.close()
 
 
-def _start(args: Sequence[str], env: Mapping[str, str] | None = None) -> _Process:
+def _start(args: Sequence[str], env: Mapping[str, str] | None = None, feed: Path | None = None) -> _Process:
+    """Start the Rerun CLI with `args`. With `feed`, a thread writes that file to the process's stdin and
+    then keeps the pipe open until `_Process.stop`: `rerun … -` reads a recording from stdin and, as long as
+    the pipe is open, waits for more in a blocking read. (Given a file path, or stdin that reaches its end,
+    the 0.41 server's ingest loop polls its finished source forever and keeps one core ≈40–100 % busy.)"""
     stderr = tempfile.TemporaryFile()  # noqa: SIM115 (closed by _Process.stop)
     child_env = {**os.environ, **(env or {}), "RERUN_APP_ONLY": "true"}  # no analytics prompt
     try:
         popen = subprocess.Popen(
             [*rerun_executable(), *args],
-            stdin=subprocess.DEVNULL,
+            stdin=subprocess.DEVNULL if feed is None else subprocess.PIPE,
             stdout=subprocess.DEVNULL,
             stderr=stderr,
             env=child_env,
             start_new_session=True,  # own process group: killed as a whole, not by the terminal's Ctrl-C
+            bufsize=0,  # stdin unbuffered: `stop` closes it without a flush into a dead pipe
         )
     except BaseException:
         stderr.close()
         raise
-    return _Process(popen, stderr)
+    process = _Process(popen, stderr)
+    if feed is not None:
+        process.feeder = threading.Thread(target=_feed, args=(process, feed), name="rerun-stdin-feed", daemon=True)
+        process.feeder.start()
+    return process
+
+
+def _feed(process: _Process, path: Path, block_size: int = 1 << 20) -> None:
+    """Write `path` to `process`'s stdin, whole blocks despite partial writes; set `process.fed` at the end.
+    The pipe is left open (closed by `stop`). A server that exits early ends the copy (broken pipe)."""
+    assert process.popen.stdin is not None
+    fd = process.popen.stdin.fileno()  # closed by `stop` only after this thread ended
+    try:
+        with path.open("rb") as source:
+            while block := source.read(block_size):
+                view = memoryview(block)
+                while view:
+                    view = view[os.write(fd, view):]
+    except OSError:  # broken pipe: the server is gone
+        return
+    process.fed.set()
 
 
 @contextlib.contextmanager

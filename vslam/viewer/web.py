@@ -5,13 +5,17 @@ The web viewer needs two ports: HTTP for the page (`--web-port`, alias `--port`)
 port's established TCP connections (from /proc/net/tcp) tell whether a browser is connected: the user is told
 when none is after `BROWSER_WAIT_S`, and when one connects or leaves (one poll a second: ≈1–3 % of a core).
 
-Idle CPU (measured with /proc/<pid>/task/*/stat, 2-core machine, no browser): the Rerun server
-(`rerun --serve-web … file.rrd`) keeps one tokio thread at ≈22–29 % of one core for as long as it runs, for
-a 5-frame as for a 300-frame recording, with `--serve-grpc` alone too, and with the file on stdin. Neither
-`--threads 1` nor `--server-memory-limit` changes it; no option of `rerun --help` (0.41) limits it. The same
-server with no file is at 0 %, also after the recording was pushed into it over gRPC from the SDK
-(`RecordingStream.connect_grpc` + `log_file_from_path`); that route loses the embedded blueprint, so it is
-not used here.
+Idle CPU. Given the recording's path (`rerun --serve-web … file.rrd`), the 0.41 server keeps one thread
+(`tokio-#1`) busy for as long as it runs, with or without a browser: its ingest loop
+(`re_grpc_server::spawn_from_rx_set`) asks its set of sources for the next message, gets "disconnected" at once
+from the file source that has ended, finds the set not yet empty and asks again (perf: `LogReceiverSet::recv`,
+`crossbeam_channel::select`, no syscall). That thread takes whatever a core has to give: ≈100 % on an idle machine
+(issue 24), 20–40 % on this shared 2-core one. Neither `--server-memory-limit` nor `--threads 1` changes it, nor a
+stdin that reaches its end. So the recording is written to the server's stdin (`rerun … -`) and the pipe is held
+open until the server is stopped (`viewer._start(feed=…)`): the source never ends, the loop waits in a blocking
+read, and the server sleeps (≈0 % of a core, with or without an idle browser; `benchmarks/web_idle.py`). The
+embedded layout (blueprint) arrives as from the file, which pushing the recording over gRPC from the SDK
+(`log_file_from_path`, `send_chunks`) would lose.
 """
 
 from __future__ import annotations
@@ -33,6 +37,8 @@ from vslam.viewer.processes import HOST, ViewerError, choose_viewer, free_port
 BROWSER_WAIT_S = 10.0
 PORT_RANGE = (1, 65535)
 _TCP_ESTABLISHED = "01"
+#: The Rerun CLI's name for its standard input: the recording is fed there, never given as a path.
+STDIN = "-"
 
 
 def port_problem(port: int | None, option: str) -> str | None:
@@ -88,8 +94,8 @@ def serve_web(rrd: Path, web_port: int | None = None, grpc_port: int | None = No
     for _attempt in range(3):
         web = web_port if web_port is not None else free_port()
         grpc = grpc_port if grpc_port is not None else free_port()
-        process = viewer._start(["--serve-web", "--bind", HOST, "--port", str(grpc),
-                                 "--web-viewer-port", str(web), str(viewer.viewable(rrd).resolve())])
+        process = viewer._start(["--serve-web", "--bind", HOST, "--port", str(grpc), "--web-viewer-port", str(web),
+                                 STDIN], feed=viewer.viewable(rrd).resolve())
         try:
             if not _wait_listening(process, web, deadline):
                 if process.address_in_use() and (web_port is None or grpc_port is None):
