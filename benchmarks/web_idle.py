@@ -23,8 +23,8 @@ Configurations (`--configs`):
   (`RecordingStream.connect_grpc` + `log_file_from_path`): the embedded layout (blueprint) is lost;
 - `in-process`: `rr.serve_grpc` + `rr.serve_web_viewer` in a Python process that sent the recording's chunks
   (`send_chunks(RrdReader(FILE).store())`): the embedded layout is lost, and the recording id with it;
-- `open-web`: `app.web.open_recording(web=True)` as `vslam open --web` runs it (Python + the Rerun server): the file
-  is written to the server's stdin and the pipe held open.
+- `open-web`: `open_recording(web=True)` (vslam.viewer.web) as `vslam open --web` runs it (Python + the Rerun
+  server): the file is written to the server's stdin and the pipe held open.
 
 Needs `pip install playwright` and Debian's `chromium`; `--no-browser` measures only the first state.
 """
@@ -47,9 +47,9 @@ from pathlib import Path
 
 import psutil
 
-from app.rrd import rerun_binary
-from app.viewer import HOST, free_port
-from app.web import connections_to, web_viewer_url
+from vslam.rrd.read import rerun_binary
+from vslam.viewer.processes import HOST, free_port
+from vslam.viewer.web import connections_to, web_viewer_url
 
 ROOT = Path(__file__).resolve().parents[1]
 CHROMIUM = "/usr/bin/chromium"
@@ -131,7 +131,7 @@ def start_in_process(rrd: Path, web: int, grpc: int) -> Server:
 OPEN_WEB = """
     import sys
     from pathlib import Path
-    from app.web import open_recording
+    from vslam.viewer.web import open_recording
     open_recording(Path(sys.argv[1]), web=True, web_port=int(sys.argv[2]), grpc_port=int(sys.argv[3]),
                    browser_wait_s=1e9)
 """
