@@ -29,7 +29,7 @@ import numpy as np
 from vslam_core.errors import SourceError
 from vslam_core.sources.base import CameraIntrinsics, FrameRange
 from vslam_core.sources.calibration_files import load_yaml, number_list, read_calibration
-from vslam_core.sources.kitti import BadFramePolicy, ImageFilesSource, first_image_size, select
+from vslam_core.sources.kitti import BadFramePolicy, ImageFilesSource, first_image, select
 from vslam_core.sources.stamps import (
     DEFAULT_GT_TOLERANCE_S,
     read_tum_ground_truth,
@@ -230,7 +230,7 @@ class EurocSource(ImageFilesSource):
         self._indices = select(frames, len(self._files), self.folder)
         self.notes: list[str] = [f"{self.folder / 'data.csv'}: {note}" for note in stamp_problems(self._times)]
         self._check_missing()
-        self._size = first_image_size(self._files, self._indices, on_bad_frame, self.folder)
+        self._size, self._shift = first_image(self._files, self._indices, on_bad_frame, self.folder)
 
         intrinsics, self.t_bs = read_sensor_yaml(self.folder / "sensor.yaml")
         if (intrinsics.width, intrinsics.height) != self._size:
