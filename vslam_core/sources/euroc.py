@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vslam_core.errors import SourceError
+from vslam_core.errors import SourceError, TrajectoryFormatError
 from vslam_core.sources.base import CameraIntrinsics, FrameRange
 from vslam_core.sources.calibration_files import load_yaml, number_list, read_calibration
 from vslam_core.sources.kitti import BadFramePolicy, ImageFilesSource, first_image, select
@@ -36,6 +36,7 @@ from vslam_core.sources.stamps import (
     selected_ground_truth,
     stamp_problems,
 )
+from vslam_core.trajectory_io import check_ground_truth_steps
 
 GROUND_TRUTH_FOLDER = "state_groundtruth_estimate0"
 _CAMERA_NAME = re.compile(r"cam\d+")
@@ -120,7 +121,7 @@ def rotations_from_quaternions(wxyz: np.ndarray) -> np.ndarray:
 def read_body_ground_truth(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """``state_groundtruth_estimate0/data.csv``: ((M,) int64 nanosecond stamps, (M, 4, 4) T_R_body). Only
     the first 8 columns (stamp, position, quaternion w x y z) are used. `SourceError` naming the file and
-    line for a malformed row or a quaternion that is not of unit length."""
+    line for a malformed row, a quaternion that is not of unit length or a jump (`check_ground_truth_steps`)."""
     try:
         lines = path.read_text().splitlines()
     except (OSError, UnicodeDecodeError) as exc:
@@ -155,6 +156,10 @@ def read_body_ground_truth(path: Path) -> tuple[np.ndarray, np.ndarray]:
     poses = np.tile(np.eye(4), (len(table), 1, 1))
     poses[:, :3, :3] = rotations_from_quaternions(table[:, 3:7])
     poses[:, :3, 3] = table[:, :3]
+    try:
+        check_ground_truth_steps(path, poses, np.asarray(stamps, np.float64) / 1e9, lines=numbers)
+    except TrajectoryFormatError as exc:
+        raise SourceError(str(exc)) from None
     return np.asarray(stamps, np.int64), poses
 
 

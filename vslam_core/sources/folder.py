@@ -144,7 +144,7 @@ class ImageFolderSource(ImageFilesSource):
             None
             if ground_truth is None
             else select_ground_truth(
-                read_ground_truth(Path(ground_truth), len(self._files), gt_format), self._indices
+                read_ground_truth(Path(ground_truth), len(self._files), gt_format, self._times), self._indices
             )
         )
         self._name = _short_name(self.folder)

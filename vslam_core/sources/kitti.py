@@ -29,7 +29,7 @@ from vslam_core.sources.image_files import (
     read_grey_image,
     sixteen_bit_shift,
 )
-from vslam_core.trajectory_io import detect_format, read_kitti_poses, read_tum_poses
+from vslam_core.trajectory_io import check_ground_truth_steps, detect_format, read_kitti_poses, read_tum_poses
 
 GroundTruthFormat = Literal["kitti", "tum", "auto"]
 
@@ -91,20 +91,27 @@ def read_times(path: Path, count: int) -> list[float]:
     return times
 
 
-def read_ground_truth(path: Path, count: int, fmt: GroundTruthFormat = "auto") -> np.ndarray:
+def read_ground_truth(path: Path, count: int, fmt: GroundTruthFormat = "auto",
+                      frame_times: Sequence[float] | np.ndarray | None = None) -> np.ndarray:
     """The first ``count`` poses (count, 4, 4) of a KITTI or TUM trajectory file, in file order.
 
     ``fmt="auto"`` guesses from the column count. The file may hold more rows than ``count`` (only the
     first are kept); fewer is a `SourceError`, a malformed file a `TrajectoryFormatError` (both name
-    the file). TUM timestamps are ignored: row i belongs to frame i.
+    the file). TUM timestamps are ignored: row i belongs to frame i. A row that jumps further than a car can move
+    (`check_ground_truth_steps`: in the TUM file's own time, else the frames' `frame_times`, else one second a
+    row) is a `TrajectoryFormatError` naming its line.
     """
     if not path.is_file():
         raise SourceError(f"{path}: ground-truth file not found")
     kind = detect_format(path) if fmt == "auto" else fmt
     if kind == "kitti":
         poses = read_kitti_poses(path, max_rows=count)
+        times = None if frame_times is None else np.asarray(frame_times, np.float64)[: len(poses)]
+        check_ground_truth_steps(path, poses, times)
     elif kind == "tum":
-        poses = read_tum_poses(path)[1][:count]
+        stamps, poses = read_tum_poses(path)
+        check_ground_truth_steps(path, poses, stamps)
+        poses = poses[:count]
     else:
         raise SourceError(f"{path}: unknown ground-truth format {fmt!r} (kitti, tum or auto)")
     if len(poses) < count:
@@ -275,7 +282,7 @@ class KittiSource(ImageFilesSource):
         self._times = read_times(times_file, len(self._files)) if times_file.is_file() else None
         self.poses_file = poses_file if poses_file.is_file() else None
         self._ground_truth = (
-            select_ground_truth(read_ground_truth(poses_file, len(self._files), "kitti"), self._indices)
+            select_ground_truth(read_ground_truth(poses_file, len(self._files), "kitti", self._times), self._indices)
             if self.poses_file is not None
             else None
         )

@@ -32,11 +32,12 @@ from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange, Selecte
 from vslam_core.sources.calibration import make_intrinsics
 from vslam_core.sources.folder import complete_intrinsics
 from vslam_core.sources.kitti import BadFramePolicy, select
+from vslam_core.sources.mcap_recovery import RecoveredMcap, is_cut_short, recover_mcap
 from vslam_core.sources.ros_ground_truth import topic_ground_truth
 from vslam_core.sources.ros_images import IMAGE_TYPES, ImageDecoder
 from vslam_core.sources.ros_messages import bag_errors, bare, field, one_line
 from vslam_core.sources.stamps import DEFAULT_GT_TOLERANCE_S, ground_truth_at, stamp_problems
-from vslam_core.trajectory_io import read_tum_poses
+from vslam_core.trajectory_io import check_ground_truth_steps, read_tum_poses
 
 CAMERA_INFO_TYPE = "sensor_msgs/msg/CameraInfo"
 
@@ -85,6 +86,14 @@ def _open_reader(path: Path) -> Any:
     return reader
 
 
+def _cut_short_mcap(path: Path) -> Path | None:
+    """The MCAP file of `path` (a bare ``.mcap``, or a ROS 2 bag folder's only ``.mcap``) when it is cut short."""
+    files = sorted(path.glob("*.mcap")) if path.is_dir() else [path]
+    if len(files) != 1 or files[0].suffix != ".mcap" or not is_cut_short(files[0]):
+        return None
+    return files[0]
+
+
 def _log_format(path: Path) -> str:
     if path.is_dir():
         suffixes = {p.suffix for p in path.iterdir()}
@@ -131,13 +140,15 @@ class RosbagSource(SelectedSource):
         self._cdr = self.path.suffix != ".bag"
         self._decoder = ImageDecoder()
 
-        with bag_errors(self._where, "cannot open the log (corrupt, truncated or not a ROS log?)"):
-            reader = _open_reader(self.path)
+        self._recovered: RecoveredMcap | None = None
+        reader = self._open_log()
         try:
             with bag_errors(self._where, "cannot read the log"):
                 topics = {name: info.msgtype or "" for name, info in reader.topics.items()}
                 self.topic = self._pick_topic(topics, topic)
                 self._msgtype = topics[self.topic]
+            if self._recovered is not None:
+                self.notes.append(self._recovered.note(self.topic))
             self._scan_stamps(reader)
             self._indices = select(frames, len(self._order), f"{self._where} {self.topic}")
             first = self._read_first_frame(reader)
@@ -164,6 +175,26 @@ class RosbagSource(SelectedSource):
 
     # ----------------------------------------------------------------------------------------------
     # construction steps
+
+    def _open_log(self) -> Any:
+        """An opened reader of the log: rosbags' `AnyReader`, or, for an MCAP file cut short (no summary: the
+        recorder was killed), a reader of the messages before the cut (`mcap_recovery`), with a note saying how
+        many were recovered and where the file stops."""
+        if self._recovered is not None:
+            return self._recovered.open()
+        try:
+            with bag_errors(self._where, "cannot open the log (corrupt, truncated or not a ROS log?)"):
+                return _open_reader(self.path)
+        except SourceError:
+            cut = _cut_short_mcap(self.path)
+            if cut is None:
+                raise
+        with bag_errors(self._where, f"cannot read the cut-short log {cut}"):
+            self._recovered = recover_mcap(cut)
+            reader = self._recovered.open()
+        self.properties["recovered"] = (f"recovered {self._recovered.messages} messages before byte "
+                                        f"{self._recovered.stopped_at} of {self._recovered.size}")
+        return reader
 
     def _check_path(self) -> None:
         path = self.path
@@ -370,6 +401,7 @@ class RosbagSource(SelectedSource):
             if not gt_path.is_file():
                 raise SourceError(f"{gt_path}: ground-truth file not found")
             gt_stamps, gt_poses = read_tum_poses(gt_path)
+            check_ground_truth_steps(gt_path, gt_poses, gt_stamps)
             self.properties["ground_truth"] = f"TUM {gt_path.name}"
             return ground_truth_at(self._selected_stamps(), gt_stamps, gt_poses, tolerance_s, str(gt_path))
         if gt_topic is None:
@@ -389,8 +421,7 @@ class RosbagSource(SelectedSource):
         return self._selected_stamps()
 
     def __iter__(self) -> Iterator[Frame]:
-        with bag_errors(self._where, "cannot open the log"):
-            reader = _open_reader(self.path)
+        reader = self._open_log()
         try:
             yield from self._frames(reader)
         finally:

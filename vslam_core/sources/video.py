@@ -88,7 +88,7 @@ class VideoSource(SelectedSource):
             None
             if ground_truth is None
             else select_ground_truth(
-                read_ground_truth(Path(ground_truth), self._count, gt_format), self._indices
+                read_ground_truth(Path(ground_truth), self._count, gt_format, self._times), self._indices
             )
         )
         self._name = "video-" + (re.sub(r"[^A-Za-z0-9._-]+", "_", self.path.stem) or "video")
