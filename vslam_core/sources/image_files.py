@@ -50,8 +50,8 @@ class FrameFiles:
         if not self.skipped:
             return None
         total = sum(self.skipped.values())
-        kinds = ", ".join(f"{count} {kind} file{'s' if count != 1 else ''}"
-                          for kind, count in sorted(self.skipped.items(), key=lambda item: -item[1]))
+        ordered = sorted(self.skipped.items(), key=lambda item: (-item[1], _KINDS.index(item[0])))
+        kinds = ", ".join(f"{count} {kind} file{'s' if count != 1 else ''}" for kind, count in ordered)
         return f"{folder}: skipped {total} image file{'s' if total != 1 else ''} that are not frames ({kinds})"
 
     def order_property(self) -> str:
@@ -70,14 +70,17 @@ def _order_example(files: list[Path]) -> str | None:
     return None
 
 
+_KINDS = ("macOS '._' AppleDouble", "hidden", "empty")
+
+
 def _skip_reason(path: Path) -> str | None:
-    """Why `path` (an image file by its extension) is not a frame, or None if it may be one."""
+    """Why `path` (an image file by its extension) is not a frame (one of `_KINDS`), or None if it may be one."""
     if path.name.startswith("._"):
-        return "macOS '._' AppleDouble"
+        return _KINDS[0]
     if path.name.startswith("."):
-        return "hidden"
+        return _KINDS[1]
     if path.stat().st_size == 0:
-        return "empty"
+        return _KINDS[2]
     return None
 
 

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from vslam_core.errors import SourceError
-from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange, SelectedSource
+from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange, SelectedSource, is_utf8_path, shown_path
 from vslam_core.sources.calibration import make_intrinsics
 from vslam_core.sources.folder import complete_intrinsics
 from vslam_core.sources.kitti import BadFramePolicy, select
@@ -130,7 +130,7 @@ class RosbagSource(SelectedSource):
         on_bad_frame: BadFramePolicy = "fail",
     ):
         self.path = Path(path)
-        self._where = str(self.path)
+        self._where = shown_path(self.path)
         self._on_bad_frame = on_bad_frame
         self.notes: list[str] = []
         self.properties: dict[str, str] = {}
@@ -207,6 +207,9 @@ class RosbagSource(SelectedSource):
         elif path.suffix not in (".bag", ".mcap", ".db3"):
             raise SourceError(f"{path}: not a ROS log (expected a ROS 1 .bag, a .mcap or .db3 file, or a ROS 2 bag "
                               "folder)")
+        if "sqlite3" in _log_format(path) and not is_utf8_path(path):
+            raise SourceError(f"{self._where}: SQLite cannot open a log whose path is not valid UTF-8; rename the log "
+                              "(or its folder)")
 
     def _pick_topic(self, topics: dict[str, str], topic: str | None) -> str:
         images = sorted(name for name, kind in topics.items() if kind in IMAGE_TYPES)
