@@ -106,7 +106,7 @@ def make_euroc(
     (camera / "sensor.yaml").write_text(sensor_yaml(kitti_root))
     if gt_frames is None:
         return root
-    decoy = rigid([0.0, 1.0, 0.0], 0.2, [0.5, 0.0, 0.5])
+    decoy = rigid([0.0, 1.0, 0.0], 0.02, [0.05, 0.0, 0.05])  # wrong, yet a motion a vehicle can make
     lines = ["#timestamp, p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], q_RS_w [], q_RS_x [], q_RS_y [], q_RS_z [], "
              "v_RS_R_x [m s^-1], v_RS_R_y [m s^-1], v_RS_R_z [m s^-1], b_w_RS_S_x [rad s^-1], b_w_RS_S_y [rad s^-1], "
              "b_w_RS_S_z [rad s^-1], b_a_RS_S_x [m s^-2], b_a_RS_S_y [m s^-2], b_a_RS_S_z [m s^-2]\n"]

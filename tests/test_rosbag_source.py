@@ -172,19 +172,34 @@ def test_calibration_argument_overrides_the_camera_info(lens_logs: dict[str, tup
         RosbagSource(log.path, calibration=wrong)
 
 
-def test_truncated_logs_are_refused_in_one_line(lens_logs: dict[str, tuple[LensLog, Reimager]],
-                                                tmp_path: Path) -> None:
+def test_a_truncated_ros1_bag_is_refused_in_one_line(lens_logs: dict[str, tuple[LensLog, Reimager]],
+                                                      tmp_path: Path) -> None:
     bag = lens_logs["ros1-equidistant"][0].path
     half = tmp_path / "half.bag"
     half.write_bytes(bag.read_bytes()[: bag.stat().st_size // 2])
     with pytest.raises(SourceError, match="half.bag: cannot open the log") as excinfo:
         RosbagSource(half)
     check_one_line(excinfo)
+
+
+def test_a_truncated_mcap_yields_the_frames_before_the_cut(lens_logs: dict[str, tuple[LensLog, Reimager]],
+                                                           tmp_path: Path) -> None:
+    """Issue 24 item 11: the complete chunks before the cut are read as a stream; their frames are the log's."""
     (mcap,) = lens_logs["mcap-plumb_bob"][0].path.glob("*.mcap")
     half_mcap = tmp_path / "half.mcap"
     half_mcap.write_bytes(mcap.read_bytes()[: mcap.stat().st_size // 2])
-    with pytest.raises(SourceError, match="half.mcap: cannot open the log") as excinfo:
-        RosbagSource(half_mcap)
+    source = RosbagSource(half_mcap)
+    frames = list(source)
+    assert 5 <= len(frames) < len(FRAMES)
+    for frame, whole in zip(frames, RosbagSource(mcap, frames=FrameRange(0, len(frames))), strict=True):
+        assert frame.timestamp == whole.timestamp and np.array_equal(frame.image, whole.image)
+    (note,) = source.notes
+    assert note.startswith(f"{half_mcap}: the log is cut short") and f"{len(frames)} of {source.topic}" in note
+    assert source.properties["recovered"].endswith(f"of {half_mcap.stat().st_size}")
+    stub = tmp_path / "stub.mcap"
+    stub.write_bytes(mcap.read_bytes()[:100])  # not even a message before the cut
+    with pytest.raises(SourceError, match="stub.mcap: the log is cut short .* no message before the cut") as excinfo:
+        RosbagSource(stub)
     check_one_line(excinfo)
 
 

@@ -52,6 +52,9 @@ def one_line(text: object) -> str:
 def run(app: Callable[..., Any], report: Callable[[str], None]) -> None:
     """Run the Typer app and exit with its code. `report(message)` prints ``error: message`` on stderr."""
     silence_opencv()
+    reconfigure = getattr(sys.stdout, "reconfigure", None)
+    if callable(reconfigure):  # a path that is not UTF-8 is printed with \xff escapes, never a UnicodeEncodeError
+        reconfigure(errors="backslashreplace")
     try:
         code = app(standalone_mode=False)
     except VslamError as exc:

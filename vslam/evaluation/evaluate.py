@@ -28,6 +28,7 @@ from vslam_core.geometry import invert_pose
 from vslam_core.sources.base import FrameSource, describe_indices, rebase_poses
 from vslam_core.trajectory.io import (
     TrajectoryFormat,
+    check_ground_truth_steps,
     detect_format,
     read_kitti_poses,
     read_tum_poses,
@@ -262,6 +263,8 @@ def evaluate_trajectory_files(
         names[path.stem] = path
     own_gt_times, gt_all = load_trajectory(ground_truth, fmt)
     times = gt_times_for(gt_times, own_gt_times, len(gt_all), ground_truth)
+    # a broken row would skew every figure (KITTI times.txt may cover the first rows only: then 1 s a row)
+    check_ground_truth_steps(ground_truth, gt_all, times if times is not None and len(times) == len(gt_all) else None)
     scored = []
     for path in estimates:
         est_times, est = load_trajectory(path, fmt)

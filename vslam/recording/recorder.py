@@ -36,7 +36,7 @@ from vslam_core.geometry import invert_pose
 from vslam_core.lens import distort_pixels, undistortion_maps
 from vslam_core.pipeline import RunResult
 from vslam_core.results import FrameResult, FrameStatus, HealthStatus, Reason, TrackFate
-from vslam_core.sources.base import Frame, FrameSource, describe_indices, source_properties
+from vslam_core.sources.base import Frame, FrameSource, describe_indices, shown_path, source_properties
 from vslam_core.sources.calibration import describe_calibration
 
 #: --scale none: the position error and the estimate after Sim(3) alignment (logged when the run ends).
@@ -87,6 +87,8 @@ class Recorder:
         self._columns = ColumnBuffer(self._rec)
         self._properties = {**properties, **describe_calibration(source.intrinsics), **source_properties(source),
                             "detail": str(detail)}
+        # a path that is not UTF-8 (lone surrogates) cannot be stored: keep its bytes as \xff escapes
+        self._properties = {k: shown_path(v) if isinstance(v, str) else v for k, v in self._properties.items()}
         self._rec.send_property("run", rr.AnyValues(**self._properties))  # type: ignore[arg-type]
         self._rec.send_property("config", rr.AnyValues(**flatten(config.to_dict())))
         self._intrinsics = source.intrinsics

@@ -331,6 +331,11 @@ def _camera_lines(props: dict[str, Any]) -> list[str]:
                      + f", from {props.get('calibration_origin', '?')}")
     if "topic" in props:
         lines.append(f"log         {props.get('log_format', '?')}, topic {props['topic']}, stamps "
-                     f"{props.get('stamps', '?')}")
+                     f"{props.get('stamps', '?')}" + (f"; cut short: {props['recovered']}" if "recovered" in props
+                                                      else ""))
+    if "frame_order" in props:
+        lines.append(f"order       {props['frame_order']}")
+    if "sixteen_bit" in props:
+        lines.append(f"16-bit      {props['sixteen_bit']}")
     return lines
 

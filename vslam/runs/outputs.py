@@ -20,6 +20,7 @@ from datetime import datetime
 from pathlib import Path
 
 from vslam_core.errors import VslamError
+from vslam_core.sources.base import is_utf8_path, shown_path
 
 RECORDINGS = Path("recordings")
 #: Free space below which a failed write is put down to a full disk (file systems keep a few blocks back).
@@ -89,6 +90,9 @@ def claim(path: Path, force: bool, what: str) -> ClaimedFile:
     and `force` is off, another command is writing it, or it cannot be created."""
     if path.is_dir():
         raise OutputError(f"{path}: is a folder, not a {what} file")
+    if what == "recording" and not is_utf8_path(path):  # Rerun's file writer takes UTF-8 paths only
+        raise OutputError(f"{shown_path(path)}: a recording path must be valid UTF-8 (Rerun cannot write to this "
+                          "name); choose another")
     ensure_folder(path.parent, "output folder")
     flags = os.O_WRONLY | os.O_CREAT | os.O_CLOEXEC
     created = True

@@ -12,6 +12,7 @@ frame, see ../shared/docs/conventions.md).
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Literal, Protocol, runtime_checkable
@@ -242,3 +243,18 @@ def describe_indices(indices: list[int]) -> str:
         step = steps.pop() if steps else 1
         return f"{first}:{last + 1}" + (f":{step}" if step != 1 else "")
     return f"{first}..{last} ({len(indices)} frames)"
+
+
+def is_utf8_path(path: str | os.PathLike[str]) -> bool:
+    """True when `path` is valid UTF-8 (a name holding other bytes comes into Python as lone surrogates, which
+    OpenCV's and Rerun's file functions cannot take: OpenCV crashes on them)."""
+    try:
+        os.fspath(path).encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
+
+
+def shown_path(path: str | os.PathLike[str]) -> str:
+    """`path` for a message: its bytes that are not UTF-8 written as ``\\xff`` escapes."""
+    return os.fsencode(path).decode("utf-8", "backslashreplace")

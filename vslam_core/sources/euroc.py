@@ -26,16 +26,17 @@ from pathlib import Path
 
 import numpy as np
 
-from vslam_core.errors import SourceError
+from vslam_core.errors import SourceError, TrajectoryFormatError
 from vslam_core.sources.base import CameraIntrinsics, FrameRange
 from vslam_core.sources.calibration_files import load_yaml, number_list, read_calibration
-from vslam_core.sources.kitti import BadFramePolicy, ImageFilesSource, first_image_size, select
+from vslam_core.sources.kitti import BadFramePolicy, ImageFilesSource, first_image, select
 from vslam_core.sources.stamps import (
     DEFAULT_GT_TOLERANCE_S,
     read_tum_ground_truth,
     selected_ground_truth,
     stamp_problems,
 )
+from vslam_core.trajectory.io import check_ground_truth_steps
 
 GROUND_TRUTH_FOLDER = "state_groundtruth_estimate0"
 _CAMERA_NAME = re.compile(r"cam\d+")
@@ -120,7 +121,7 @@ def rotations_from_quaternions(wxyz: np.ndarray) -> np.ndarray:
 def read_body_ground_truth(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """``state_groundtruth_estimate0/data.csv``: ((M,) int64 nanosecond stamps, (M, 4, 4) T_R_body). Only
     the first 8 columns (stamp, position, quaternion w x y z) are used. `SourceError` naming the file and
-    line for a malformed row or a quaternion that is not of unit length."""
+    line for a malformed row, a quaternion that is not of unit length or a jump (`check_ground_truth_steps`)."""
     try:
         lines = path.read_text().splitlines()
     except (OSError, UnicodeDecodeError) as exc:
@@ -155,6 +156,10 @@ def read_body_ground_truth(path: Path) -> tuple[np.ndarray, np.ndarray]:
     poses = np.tile(np.eye(4), (len(table), 1, 1))
     poses[:, :3, :3] = rotations_from_quaternions(table[:, 3:7])
     poses[:, :3, 3] = table[:, :3]
+    try:
+        check_ground_truth_steps(path, poses, np.asarray(stamps, np.float64) / 1e9, lines=numbers)
+    except TrajectoryFormatError as exc:
+        raise SourceError(str(exc)) from None
     return np.asarray(stamps, np.int64), poses
 
 
@@ -230,7 +235,7 @@ class EurocSource(ImageFilesSource):
         self._indices = select(frames, len(self._files), self.folder)
         self.notes: list[str] = [f"{self.folder / 'data.csv'}: {note}" for note in stamp_problems(self._times)]
         self._check_missing()
-        self._size = first_image_size(self._files, self._indices, on_bad_frame, self.folder)
+        self._size, self._shift = first_image(self._files, self._indices, on_bad_frame, self.folder)
 
         intrinsics, self.t_bs = read_sensor_yaml(self.folder / "sensor.yaml")
         if (intrinsics.width, intrinsics.height) != self._size:

@@ -1,10 +1,12 @@
 """A folder of images (any camera), with intrinsics given or from a calibration file.
 
-Images are the folder's ``.png .jpg .jpeg .bmp .tif .tiff`` files sorted by name; colour images are
-converted to grey. Intrinsics: an ``--intrinsics fx,fy,cx,cy`` string (`parse_intrinsics`, the image size
-is filled from the first image), a full `CameraIntrinsics`, or the ``P0:`` line of a KITTI ``calib.txt``
-(given, or found in the folder or its parent). Timestamps come from a ``times.txt`` in the folder or its
-parent, else None. Optional ground truth in KITTI or TUM format (row i = image i).
+Images are the folder's ``.png .jpg .jpeg .bmp .tif .tiff`` files in natural name order (``f_2`` before
+``f_10``; hidden, macOS ``._`` and empty files are skipped with a note), see `image_files`; colour images are
+converted to grey, 16-bit images scaled by the bit depth their data use. Intrinsics: an ``--intrinsics
+fx,fy,cx,cy`` string (`parse_intrinsics`, the image size is filled from the first image), a full
+`CameraIntrinsics`, or the ``P0:`` line of a KITTI ``calib.txt`` (given, or found in the folder or its parent).
+Timestamps come from a ``times.txt`` in the folder or its parent, else None. Optional ground truth in KITTI or
+TUM format (row i = image i).
 """
 
 from __future__ import annotations
@@ -19,16 +21,17 @@ import numpy as np
 from vslam_core.errors import SourceError
 from vslam_core.sources.base import CameraIntrinsics, FrameRange
 from vslam_core.sources.calibration_files import read_calibration
+from vslam_core.sources.image_files import list_frame_files
 from vslam_core.sources.kitti import (
     BadFramePolicy,
     GroundTruthFormat,
     ImageFilesSource,
-    first_image_size,
-    list_images,
+    first_image,
     read_ground_truth,
     read_times,
     select,
     select_ground_truth,
+    sixteen_bit_property,
 )
 
 
@@ -117,9 +120,12 @@ class ImageFolderSource(ImageFilesSource):
     ):
         self._on_bad_frame = on_bad_frame
         self.folder = Path(path)
-        self._files = list_images(self.folder)
+        listing = list_frame_files(self.folder)
+        self._files = listing.files
+        self.notes = [note] if (note := listing.skipped_note(self.folder)) else []
         self._indices = select(frames, len(self._files), self.folder)
-        self._size = first_image_size(self._files, self._indices, on_bad_frame, self.folder)
+        self._size, self._shift = first_image(self._files, self._indices, on_bad_frame, self.folder)
+        self.properties = {"frame_order": listing.order_property(), **sixteen_bit_property(self._shift)}
 
         if intrinsics is not None and calib is not None:
             raise SourceError(f"{self.folder}: give either intrinsics or a calib file, not both")
@@ -138,7 +144,7 @@ class ImageFolderSource(ImageFilesSource):
             None
             if ground_truth is None
             else select_ground_truth(
-                read_ground_truth(Path(ground_truth), len(self._files), gt_format), self._indices
+                read_ground_truth(Path(ground_truth), len(self._files), gt_format, self._times), self._indices
             )
         )
         self._name = _short_name(self.folder)

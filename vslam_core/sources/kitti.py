@@ -19,17 +19,20 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Literal
 
-import cv2
 import numpy as np
 
 from vslam_core.errors import SourceError
 from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange, SelectedSource, rebase_poses
-from vslam_core.trajectory.io import detect_format, read_kitti_poses, read_tum_poses
+from vslam_core.sources.image_files import (
+    decode_image,
+    list_frame_files,
+    read_grey_image,
+    sixteen_bit_shift,
+)
+from vslam_core.trajectory.io import check_ground_truth_steps, detect_format, read_kitti_poses, read_tum_poses
 
 GroundTruthFormat = Literal["kitti", "tum", "auto"]
 
-#: Image file extensions a folder of frames may hold (compared case-insensitively).
-IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 KITTI_CAMERA_HEIGHT_M = 1.65
 
 
@@ -88,20 +91,27 @@ def read_times(path: Path, count: int) -> list[float]:
     return times
 
 
-def read_ground_truth(path: Path, count: int, fmt: GroundTruthFormat = "auto") -> np.ndarray:
+def read_ground_truth(path: Path, count: int, fmt: GroundTruthFormat = "auto",
+                      frame_times: Sequence[float] | np.ndarray | None = None) -> np.ndarray:
     """The first ``count`` poses (count, 4, 4) of a KITTI or TUM trajectory file, in file order.
 
     ``fmt="auto"`` guesses from the column count. The file may hold more rows than ``count`` (only the
     first are kept); fewer is a `SourceError`, a malformed file a `TrajectoryFormatError` (both name
-    the file). TUM timestamps are ignored: row i belongs to frame i.
+    the file). TUM timestamps are ignored: row i belongs to frame i. A row that jumps further than a car can move
+    (`check_ground_truth_steps`: in the TUM file's own time, else the frames' `frame_times`, else one second a
+    row) is a `TrajectoryFormatError` naming its line.
     """
     if not path.is_file():
         raise SourceError(f"{path}: ground-truth file not found")
     kind = detect_format(path) if fmt == "auto" else fmt
     if kind == "kitti":
         poses = read_kitti_poses(path, max_rows=count)
+        times = None if frame_times is None else np.asarray(frame_times, np.float64)[: len(poses)]
+        check_ground_truth_steps(path, poses, times)
     elif kind == "tum":
-        poses = read_tum_poses(path)[1][:count]
+        stamps, poses = read_tum_poses(path)
+        check_ground_truth_steps(path, poses, stamps)
+        poses = poses[:count]
     else:
         raise SourceError(f"{path}: unknown ground-truth format {fmt!r} (kitti, tum or auto)")
     if len(poses) < count:
@@ -110,42 +120,22 @@ def read_ground_truth(path: Path, count: int, fmt: GroundTruthFormat = "auto") -
 
 
 def list_images(folder: Path, what: str = "image folder") -> list[Path]:
-    """The image files of ``folder`` sorted by name; `SourceError` when it is missing or holds none."""
-    if not folder.exists():
-        raise SourceError(f"{folder}: {what} not found")
-    if not folder.is_dir():
-        raise SourceError(f"{folder}: {what} is not a folder")
-    images = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS and p.is_file())
-    if not images:
-        raise SourceError(f"{folder}: no images ({', '.join(IMAGE_EXTENSIONS)}) in the {what}")
-    return images
-
-
-def read_grey_image(path: Path, size: tuple[int, int] | None = None) -> np.ndarray:
-    """Decode one image as (H, W) uint8 grey (colour is converted). ``size`` = (width, height) expected.
-
-    Raises `SourceError` naming the file when it cannot be decoded or has another size."""
-    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-    if image is None or image.size == 0:
-        raise SourceError(f"{path}: cannot read image (missing, corrupt or not an image)")
-    if size is not None and (image.shape[1], image.shape[0]) != size:
-        raise SourceError(
-            f"{path}: image is {image.shape[1]}x{image.shape[0]}, the first frame is {size[0]}x{size[1]}"
-        )
-    return image
+    """The frame files of ``folder`` in natural name order (`list_frame_files`, without what was skipped)."""
+    return list_frame_files(folder, what).files
 
 
 BadFramePolicy = Literal["fail", "skip"]
 
 
 def read_frame(
-    index: int, path: Path, size: tuple[int, int], stamp: float | None, on_bad_frame: BadFramePolicy
+    index: int, path: Path, size: tuple[int, int], stamp: float | None, on_bad_frame: BadFramePolicy,
+    shift: int | None = None,
 ) -> Frame:
-    """One frame of an image sequence. An unreadable image (or one of another size) raises `SourceError`
-    with ``on_bad_frame="fail"``; with ``"skip"`` it becomes a black placeholder frame carrying the error as
-    its `defect`, and the run goes on."""
+    """One frame of an image sequence (16-bit images shifted right by `shift` bits, see `read_grey_image`). An
+    unreadable image (or one of another size) raises `SourceError` with ``on_bad_frame="fail"``; with ``"skip"``
+    it becomes a black placeholder frame carrying the error as its `defect`, and the run goes on."""
     try:
-        return Frame(index=index, timestamp=stamp, image=read_grey_image(path, size))
+        return Frame(index=index, timestamp=stamp, image=read_grey_image(path, size, shift))
     except SourceError as exc:
         if on_bad_frame == "fail":
             raise
@@ -155,13 +145,15 @@ def read_frame(
 class ImageFilesSource(SelectedSource):
     """A `SelectedSource` whose frames are image files: a subclass also sets ``_files`` (every frame's file, in
     frame order: source index i = ``_files[i]``), ``_size`` (the first selected image's width, height),
-    ``_on_bad_frame`` and ``_times`` (every frame's timestamp in seconds, or None without a clock); images are
-    decoded lazily, one per iteration step."""
+    ``_on_bad_frame`` and ``_times`` (every frame's timestamp in seconds, or None without a clock), and
+    ``_shift`` (`first_image`'s: how 16-bit images become 8-bit); images are decoded lazily, one per iteration
+    step."""
 
     _files: list[Path]
     _size: tuple[int, int]
     _on_bad_frame: BadFramePolicy
     _times: Sequence[float] | np.ndarray | None = None
+    _shift: int | None = None
 
     @property
     def files(self) -> list[Path]:
@@ -176,23 +168,38 @@ class ImageFilesSource(SelectedSource):
     def __iter__(self) -> Iterator[Frame]:
         for index in self._indices:
             stamp = None if self._times is None else float(self._times[index])
-            yield read_frame(index, self._files[index], self._size, stamp, self._on_bad_frame)
+            yield read_frame(index, self._files[index], self._size, stamp, self._on_bad_frame, self._shift)
 
 
-def first_image_size(files: list[Path], indices: list[int], on_bad_frame: BadFramePolicy, where: object
-                     ) -> tuple[int, int]:
-    """(width, height) of the first selected image. With ``on_bad_frame="skip"`` unreadable images are passed
-    over (they become placeholder frames of this size); `SourceError` when none can be read, or with
-    ``"fail"`` when the first cannot."""
+def first_image(files: list[Path], indices: list[int], on_bad_frame: BadFramePolicy, where: object
+                ) -> tuple[tuple[int, int], int | None]:
+    """(width, height) of the first selected image, and the right shift that makes the sequence's 16-bit images
+    8-bit (`sixteen_bit_shift` of that image; None for 8-bit images). With ``on_bad_frame="skip"`` unreadable
+    images are passed over (they become placeholder frames of this size); `SourceError` when none can be read,
+    or with ``"fail"`` when the first cannot."""
     for index in indices:
         try:
-            image = read_grey_image(files[index])
+            image = decode_image(files[index])
         except SourceError:
             if on_bad_frame == "fail":
                 raise
             continue
-        return image.shape[1], image.shape[0]
+        shift = sixteen_bit_shift(image) if image.dtype == np.uint16 else None
+        return (image.shape[1], image.shape[0]), shift
     raise SourceError(f"{where}: none of the {len(indices)} selected images can be read")
+
+
+def first_image_size(files: list[Path], indices: list[int], on_bad_frame: BadFramePolicy, where: object
+                     ) -> tuple[int, int]:
+    """(width, height) of the first selected image (`first_image`)."""
+    return first_image(files, indices, on_bad_frame, where)[0]
+
+
+def sixteen_bit_property(shift: int | None) -> dict[str, str]:
+    """The run property saying how 16-bit images were made 8-bit ({} for 8-bit images)."""
+    if shift is None:
+        return {}
+    return {"sixteen_bit": f"{shift + 8}-bit data in 16-bit images: >> {shift} bits (from the first frame's range)"}
 
 
 def select(frames: FrameRange | None, available: int, where: object) -> list[int]:
@@ -262,17 +269,20 @@ class KittiSource(ImageFilesSource):
         else:
             raise SourceError(f"{root}: not a KITTI sequence folder (no image_0/) nor a dataset root")
 
-        self._files = list_images(self.folder / "image_0", "KITTI image folder")
+        listing = list_frame_files(self.folder / "image_0", "KITTI image folder")
+        self._files = listing.files
+        self.notes = [note] if (note := listing.skipped_note(self.folder / "image_0")) else []
         self._indices = select(frames, len(self._files), self.folder)
         fx, fy, cx, cy = read_p0_intrinsics(self.folder / "calib.txt")
-        self._size = first_image_size(self._files, self._indices, on_bad_frame, self.folder)
+        self._size, self._shift = first_image(self._files, self._indices, on_bad_frame, self.folder)
+        self.properties = {"frame_order": listing.order_property(), **sixteen_bit_property(self._shift)}
         self._intrinsics = CameraIntrinsics(fx, fy, cx, cy, width=self._size[0], height=self._size[1])
 
         times_file = self.folder / "times.txt"
         self._times = read_times(times_file, len(self._files)) if times_file.is_file() else None
         self.poses_file = poses_file if poses_file.is_file() else None
         self._ground_truth = (
-            select_ground_truth(read_ground_truth(poses_file, len(self._files), "kitti"), self._indices)
+            select_ground_truth(read_ground_truth(poses_file, len(self._files), "kitti", self._times), self._indices)
             if self.poses_file is not None
             else None
         )

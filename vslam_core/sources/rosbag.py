@@ -28,15 +28,16 @@ from typing import Any
 import numpy as np
 
 from vslam_core.errors import SourceError
-from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange, SelectedSource
+from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange, SelectedSource, is_utf8_path, shown_path
 from vslam_core.sources.calibration import make_intrinsics
 from vslam_core.sources.folder import complete_intrinsics
 from vslam_core.sources.kitti import BadFramePolicy, select
+from vslam_core.sources.mcap_recovery import RecoveredMcap, is_cut_short, recover_mcap
 from vslam_core.sources.ros_ground_truth import topic_ground_truth
 from vslam_core.sources.ros_images import IMAGE_TYPES, ImageDecoder
 from vslam_core.sources.ros_messages import bag_errors, bare, field, one_line
 from vslam_core.sources.stamps import DEFAULT_GT_TOLERANCE_S, ground_truth_at, stamp_problems
-from vslam_core.trajectory.io import read_tum_poses
+from vslam_core.trajectory.io import check_ground_truth_steps, read_tum_poses
 
 CAMERA_INFO_TYPE = "sensor_msgs/msg/CameraInfo"
 
@@ -85,6 +86,14 @@ def _open_reader(path: Path) -> Any:
     return reader
 
 
+def _cut_short_mcap(path: Path) -> Path | None:
+    """The MCAP file of `path` (a bare ``.mcap``, or a ROS 2 bag folder's only ``.mcap``) when it is cut short."""
+    files = sorted(path.glob("*.mcap")) if path.is_dir() else [path]
+    if len(files) != 1 or files[0].suffix != ".mcap" or not is_cut_short(files[0]):
+        return None
+    return files[0]
+
+
 def _log_format(path: Path) -> str:
     if path.is_dir():
         suffixes = {p.suffix for p in path.iterdir()}
@@ -121,7 +130,7 @@ class RosbagSource(SelectedSource):
         on_bad_frame: BadFramePolicy = "fail",
     ):
         self.path = Path(path)
-        self._where = str(self.path)
+        self._where = shown_path(self.path)
         self._on_bad_frame = on_bad_frame
         self.notes: list[str] = []
         self.properties: dict[str, str] = {}
@@ -131,13 +140,15 @@ class RosbagSource(SelectedSource):
         self._cdr = self.path.suffix != ".bag"
         self._decoder = ImageDecoder()
 
-        with bag_errors(self._where, "cannot open the log (corrupt, truncated or not a ROS log?)"):
-            reader = _open_reader(self.path)
+        self._recovered: RecoveredMcap | None = None
+        reader = self._open_log()
         try:
             with bag_errors(self._where, "cannot read the log"):
                 topics = {name: info.msgtype or "" for name, info in reader.topics.items()}
                 self.topic = self._pick_topic(topics, topic)
                 self._msgtype = topics[self.topic]
+            if self._recovered is not None:
+                self.notes.append(self._recovered.note(self.topic))
             self._scan_stamps(reader)
             self._indices = select(frames, len(self._order), f"{self._where} {self.topic}")
             first = self._read_first_frame(reader)
@@ -165,6 +176,26 @@ class RosbagSource(SelectedSource):
     # ----------------------------------------------------------------------------------------------
     # construction steps
 
+    def _open_log(self) -> Any:
+        """An opened reader of the log: rosbags' `AnyReader`, or, for an MCAP file cut short (no summary: the
+        recorder was killed), a reader of the messages before the cut (`mcap_recovery`), with a note saying how
+        many were recovered and where the file stops."""
+        if self._recovered is not None:
+            return self._recovered.open()
+        try:
+            with bag_errors(self._where, "cannot open the log (corrupt, truncated or not a ROS log?)"):
+                return _open_reader(self.path)
+        except SourceError:
+            cut = _cut_short_mcap(self.path)
+            if cut is None:
+                raise
+        with bag_errors(self._where, f"cannot read the cut-short log {cut}"):
+            self._recovered = recover_mcap(cut)
+            reader = self._recovered.open()
+        self.properties["recovered"] = (f"recovered {self._recovered.messages} messages before byte "
+                                        f"{self._recovered.stopped_at} of {self._recovered.size}")
+        return reader
+
     def _check_path(self) -> None:
         path = self.path
         if not path.exists():
@@ -176,6 +207,9 @@ class RosbagSource(SelectedSource):
         elif path.suffix not in (".bag", ".mcap", ".db3"):
             raise SourceError(f"{path}: not a ROS log (expected a ROS 1 .bag, a .mcap or .db3 file, or a ROS 2 bag "
                               "folder)")
+        if "sqlite3" in _log_format(path) and not is_utf8_path(path):
+            raise SourceError(f"{self._where}: SQLite cannot open a log whose path is not valid UTF-8; rename the log "
+                              "(or its folder)")
 
     def _pick_topic(self, topics: dict[str, str], topic: str | None) -> str:
         images = sorted(name for name, kind in topics.items() if kind in IMAGE_TYPES)
@@ -370,6 +404,7 @@ class RosbagSource(SelectedSource):
             if not gt_path.is_file():
                 raise SourceError(f"{gt_path}: ground-truth file not found")
             gt_stamps, gt_poses = read_tum_poses(gt_path)
+            check_ground_truth_steps(gt_path, gt_poses, gt_stamps)
             self.properties["ground_truth"] = f"TUM {gt_path.name}"
             return ground_truth_at(self._selected_stamps(), gt_stamps, gt_poses, tolerance_s, str(gt_path))
         if gt_topic is None:
@@ -389,8 +424,7 @@ class RosbagSource(SelectedSource):
         return self._selected_stamps()
 
     def __iter__(self) -> Iterator[Frame]:
-        with bag_errors(self._where, "cannot open the log"):
-            reader = _open_reader(self.path)
+        reader = self._open_log()
         try:
             yield from self._frames(reader)
         finally:

@@ -8,7 +8,7 @@ import numpy as np
 
 from vslam_core.errors import SourceError, TrajectoryFormatError
 from vslam_core.sources.base import rebase_poses
-from vslam_core.trajectory.io import read_tum_poses
+from vslam_core.trajectory.io import check_ground_truth_steps, read_tum_poses
 
 DEFAULT_GT_TOLERANCE_S = 0.010
 
@@ -51,11 +51,14 @@ def ground_truth_at(
 def read_tum_ground_truth(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """A TUM file of camera poses to match to frames by time: ((M,) stamps in seconds, (M, 4, 4) T_w_c), read
     with `read_tum_poses`; rows holding NaN (frames without a pose, as in TUM monoVO's groundtruthSync.txt) are
-    left out. A missing or malformed file, or one without any pose, is a `SourceError` naming it (and the line)."""
+    left out. A missing or malformed file, one without any pose, or one that jumps (`check_ground_truth_steps`) is
+    a `SourceError` naming it (and the line)."""
     if not path.is_file():
         raise SourceError(f"{path}: ground-truth file not found")
     try:
-        return read_tum_poses(path, skip_non_finite=True)
+        stamps, poses = read_tum_poses(path, skip_non_finite=True)
+        check_ground_truth_steps(path, poses, stamps, skip_non_finite=True)
+        return stamps, poses
     except TrajectoryFormatError as exc:
         raise SourceError(str(exc)) from None
 

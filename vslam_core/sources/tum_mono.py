@@ -30,7 +30,8 @@ import numpy as np
 from vslam_core.errors import SourceError
 from vslam_core.sources.base import CameraIntrinsics, FrameRange
 from vslam_core.sources.calibration import make_intrinsics
-from vslam_core.sources.kitti import BadFramePolicy, ImageFilesSource, first_image_size, list_images, select
+from vslam_core.sources.image_files import list_frame_files
+from vslam_core.sources.kitti import BadFramePolicy, ImageFilesSource, first_image, select
 from vslam_core.sources.stamps import (
     DEFAULT_GT_TOLERANCE_S,
     read_tum_ground_truth,
@@ -178,12 +179,13 @@ class TumMonoSource(ImageFilesSource):
         if not (folder / "images").is_dir():
             raise SourceError(f"{folder / 'images.zip'}: the frames are zipped; unzip them into "
                               f"{folder / 'images'}/ first (zip archives are not read)")
-        self._files = list_images(folder / "images", "TUM monoVO image folder")
+        listing = list_frame_files(folder / "images", "TUM monoVO image folder")
+        self._files = listing.files
         self._indices = select(frames, len(self._files), folder)
 
         camera_file = folder / "camera.txt"
         self._intrinsics = read_camera_txt(camera_file)
-        self._size = first_image_size(self._files, self._indices, on_bad_frame, folder)
+        self._size, self._shift = first_image(self._files, self._indices, on_bad_frame, folder)
         if (self._intrinsics.width, self._intrinsics.height) != self._size:
             raise SourceError(f"{camera_file}:2: the calibration is for {self._intrinsics.width}x"
                               f"{self._intrinsics.height} images but they are {self._size[0]}x{self._size[1]}")
@@ -198,6 +200,8 @@ class TumMonoSource(ImageFilesSource):
             stamps.append(stamp)
         self._times = np.asarray(stamps, np.float64)
         self.notes: list[str] = [f"{times_file}: {note}" for note in stamp_problems(self._times)]
+        if (skipped := listing.skipped_note(folder / "images")) is not None:
+            self.notes.append(skipped)
         photometric = [name for name in PHOTOMETRIC_FILES if (folder / name).is_file()]
         if photometric:
             self.notes.append(f"photometric calibration ({', '.join(photometric)}) not applied: images are used as "

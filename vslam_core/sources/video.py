@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 
 from vslam_core.errors import SourceError
-from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange, SelectedSource
+from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange, SelectedSource, is_utf8_path, shown_path
 from vslam_core.sources.folder import PartialIntrinsics, complete_intrinsics
 from vslam_core.sources.kitti import GroundTruthFormat, read_ground_truth, select, select_ground_truth
 
@@ -63,6 +63,9 @@ class VideoSource(SelectedSource):
         self.path = Path(path)
         if not self.path.is_file():
             raise SourceError(f"{self.path}: video file not found")
+        if not is_utf8_path(self.path):  # cv2.VideoCapture crashes the process on such a path
+            raise SourceError(f"{shown_path(self.path)}: OpenCV cannot open a video whose path is not valid UTF-8; "
+                              "rename the file (or its folder)")
         capture = self._open()
         try:
             ok, first = capture.read()
@@ -85,7 +88,7 @@ class VideoSource(SelectedSource):
             None
             if ground_truth is None
             else select_ground_truth(
-                read_ground_truth(Path(ground_truth), self._count, gt_format), self._indices
+                read_ground_truth(Path(ground_truth), self._count, gt_format, self._times), self._indices
             )
         )
         self._name = "video-" + (re.sub(r"[^A-Za-z0-9._-]+", "_", self.path.stem) or "video")

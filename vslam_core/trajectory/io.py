@@ -6,6 +6,7 @@ Malformed files raise `TrajectoryFormatError` naming the file and the line.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
@@ -16,6 +17,17 @@ from vslam_core.errors import TrajectoryFormatError
 TrajectoryFormat = Literal["kitti", "tum"]
 
 _ROTATION_TOLERANCE = 1e-3
+#: No road vehicle moves faster: a ground-truth step that needs more is a broken row (a jump), not motion.
+MAX_GROUND_TRUTH_SPEED_M_S = 100.0
+#: The time between two rows assumed when neither the file nor the frames have a clock: one row a second, the
+#: slowest frame rate a driving log has (so a real file at any frame rate passes; 100 m per row at most).
+UNTIMED_ROW_S = 1.0
+#: Rows closer in time than this are allowed the step of this much time (repeated or rounded stamps).
+MIN_ROW_INTERVAL_S = 0.01
+#: A row this far (metres) from both neighbours, and `SPIKE_RATIO` times further than they are from each other, is
+#: a broken row whatever the clock: the camera cannot leave its path and come back between two frames.
+SPIKE_MIN_M = 5.0
+SPIKE_RATIO = 4.0
 
 
 def _rows(
@@ -169,3 +181,69 @@ def detect_format(path: str | Path) -> TrajectoryFormat:
     except (OSError, UnicodeDecodeError) as exc:
         raise TrajectoryFormatError(f"{path}: cannot read ({exc.__class__.__name__})") from None
     raise TrajectoryFormatError(f"{path}: no poses in file")
+
+
+
+@dataclass(frozen=True)
+class GroundTruthJump:
+    """A ground-truth row that cannot be a camera's motion: `row` (0-based) is `metres` from the row before,
+    `seconds` after it; `spike`: it is that far from the row after too, whose distance to the row before is
+    `across` metres."""
+
+    row: int
+    metres: float
+    seconds: float
+    spike: bool = False
+    across: float = 0.0
+
+
+def first_jump(positions: np.ndarray, row_seconds: np.ndarray | None = None) -> GroundTruthJump | None:
+    """The first implausible row of a ground truth, or None. positions: (N, 3) camera positions in metres;
+    row_seconds: (N,) time of each row (None: `UNTIMED_ROW_S` apart). A row is implausible when reaching it needs
+    more than `MAX_GROUND_TRUTH_SPEED_M_S` over the time since the row before (at least `MIN_ROW_INTERVAL_S`), or
+    when it is a spike: at least `SPIKE_MIN_M` from both neighbours and `SPIKE_RATIO` times their distance to each
+    other (one row off the path, at any frame rate)."""
+    positions = np.asarray(positions, np.float64)
+    if len(positions) < 2:
+        return None
+    steps = np.linalg.norm(np.diff(positions, axis=0), axis=1)
+    if row_seconds is None:
+        seconds = np.full(len(steps), UNTIMED_ROW_S)
+    else:
+        seconds = np.maximum(np.abs(np.diff(np.asarray(row_seconds, np.float64))), MIN_ROW_INTERVAL_S)
+    too_fast = ~(steps <= MAX_GROUND_TRUTH_SPEED_M_S * seconds)  # NaN counts as too fast
+    across = np.linalg.norm(positions[2:] - positions[:-2], axis=1)
+    nearer = np.minimum(steps[:-1], steps[1:])
+    spike = (nearer > SPIKE_MIN_M) & (nearer > SPIKE_RATIO * across)
+    rows = [int(np.argmax(too_fast)) + 1 if too_fast.any() else len(positions),
+            int(np.argmax(spike)) + 1 if spike.any() else len(positions)]
+    row = min(rows)
+    if row == len(positions):
+        return None
+    is_spike = row == rows[1] and row != rows[0]
+    return GroundTruthJump(row, float(steps[row - 1]), float(seconds[row - 1]), is_spike,
+                           float(across[row - 1]) if is_spike else 0.0)
+
+
+def check_ground_truth_steps(path: str | Path, poses: np.ndarray, row_seconds: np.ndarray | None = None,
+                             skip_non_finite: bool = False, lines: list[int] | None = None) -> None:
+    """`TrajectoryFormatError` naming the file's line when a ground truth read from `path` (rows as read: (N, 4, 4)
+    `poses`, (N,) `row_seconds` or None) jumps (`first_jump`): one broken row would otherwise set the scale of a
+    ``--scale gt`` run and every error figure. `lines`: each row's line number in the file (None: a KITTI or TUM
+    file, re-read for them, `skip_non_finite` as it was read)."""
+    jump = first_jump(np.asarray(poses)[:, :3, 3], row_seconds)
+    if jump is None:
+        return
+    path = Path(path)
+    if lines is None:
+        columns = 12 if detect_format(path) == "kitti" else 8
+        lines = [line for line, _ in _rows(path, columns, max_rows=jump.row + 2, skip_non_finite=skip_non_finite)]
+    line, before = lines[jump.row], lines[jump.row - 1]
+    if jump.spike:
+        why = (f"lies {jump.metres:.3g} m off the path: lines {before} and {lines[jump.row + 1]} around it are "
+               f"{jump.across:.3g} m apart")
+    else:
+        clock = "" if row_seconds is not None else f", {UNTIMED_ROW_S:g} s assumed between rows"
+        why = (f"jumps {jump.metres:.3g} m from line {before} in {jump.seconds:.3g} s ({jump.metres / jump.seconds:.3g}"
+               f" m/s{clock}; no car moves faster than {MAX_GROUND_TRUTH_SPEED_M_S:g} m/s)")
+    raise TrajectoryFormatError(f"{path}:{line}: ground truth {why}: a broken row? fix or remove it")
