@@ -265,7 +265,8 @@ def snapshot_command(
     = "1280x720",  # vslam.viewer.snapshot.DEFAULT_SIZE (a test keeps the two equal)
 ) -> None:
     """Render every view of the recording's blueprint at one frame to PNG, with the real viewer, headless."""
-    from vslam.viewer import parse_frame, parse_size, snapshot
+    # the function, not the submodule of the same name (importing `parse_frame` binds `vslam.viewer.snapshot`)
+    from vslam.viewer.snapshot import parse_frame, parse_size, snapshot
 
     window = parse_size(size)
     paths = snapshot(_existing_recording(recording), parse_frame(frame), out_dir, window_size=window)
