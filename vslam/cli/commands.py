@@ -380,6 +380,21 @@ def repair(
     out.print(format_repair(summary), highlight=False)
 
 
+@app.command()
+def check(
+    recording: Annotated[Path, typer.Argument(help="any .rrd: vslam's, the logging API's (vslam.log), or one "
+                                              "written with the Rerun SDK")],
+) -> None:
+    """Validate a recording against the recording schema (docs/recording-schema.md): one line per missing or
+    malformed entity, component or property, with the commands it affects. Exit 0 only when it conforms."""
+    from vslam.rrd import check_recording, format_check
+
+    result = check_recording(_existing_recording(recording))
+    for line in format_check(result):
+        print(line)
+    if not result.conforms:
+        raise typer.Exit(1)
+
 
 def main() -> None:
     """Entry point: every `VslamError` and usage error becomes one line on stderr and exit code 2."""

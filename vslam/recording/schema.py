@@ -54,7 +54,8 @@ def _series(group: str, names: tuple[str, ...], readers: tuple[str, ...], what: 
 
 
 ENTITIES: tuple[EntitySpec, ...] = (
-    EntitySpec("/world/camera", ("Transform3D:translation", "Transform3D:mat3x3"), False, True, EVERY_COMMAND,
+    # and a rotation: Transform3D:mat3x3 (vslam writes it), :quaternion or :rotation_axis_angle
+    EntitySpec("/world/camera", ("Transform3D:translation",), False, True, EVERY_COMMAND,
                "T_world_cam per frame (world = camera frame of the first frame, RDF, metres)"),
     EntitySpec("/world", ("ViewCoordinates:xyz",), True, False, VIEWER, "the world's axes: RDF"),
     EntitySpec("/world/camera/image", ("Pinhole:image_from_camera", "Pinhole:resolution"), True, False, VIEWER,
@@ -103,10 +104,6 @@ REQUIRED_PROPERTIES: dict[str, tuple[str, ...]] = {
 OPTIONAL_PROPERTIES = ("recording_id", "source_path", "scale", "backend", "detail", "pipeline", "inject", "stopped",
                        "cropped_from", "vslam_version", "opencv_version", "rerun_version", "calibration_model",
                        "calibration_K", "calibration_coefficients", "calibration_size", "calibration_origin")
-
-#: Entities whose names are the schema's, at any depth below them (map backend, road scale, candidates, …):
-#: present ones are not "unknown".
-KNOWN_PREFIXES = ("/world/", "/metrics/", "/__properties", "/tracking")
 
 
 def spec(path: str) -> EntitySpec | None:
