@@ -1,4 +1,4 @@
-"""Log another odometry pipeline's frames as a vslam recording (recording schema 1, docs/logging-api.md).
+"""Log another odometry pipeline's frames as a vslam recording (docs/logging-api.md, docs/recording-schema.md).
 
     from vslam.log import CameraIntrinsics, FrameLog
 
@@ -200,8 +200,8 @@ class FrameLog:
 
     def close(self, stopped: str | None = None) -> None:
         """Write the verdict (metrics table, drift attribution when there is ground truth) and the footer.
-        `stopped`: why the run ended early, for the run properties. Raises `vslam_core.errors.VslamError`
-        (`OutputError`) when the file could not be written, ValueError when no frame was logged."""
+        `stopped`: why the run ended early, for the run properties. Raises `vslam.runs.OutputError` (a
+        `VslamError`) when the file could not be written, ValueError when no frame was logged."""
         if self._closed:
             return
         self._closed = True
