@@ -48,6 +48,7 @@ def main() -> None:
     parser.add_argument("--frames", default="0:40", help="START:END of the sequence's frames")
     parser.add_argument("--scale", choices=("gt", "unit"), default="gt")
     parser.add_argument("-o", "--output", type=Path, required=True)
+    parser.add_argument("--trajectory-out", type=Path, help="also write the poses here (KITTI format)")
     args = parser.parse_args()
     start, end = (int(v) for v in args.frames.split(":"))
     camera, times, gt, images = read_kitti(args.kitti_root, args.sequence)
@@ -58,7 +59,7 @@ def main() -> None:
     previous: tuple[list[cv2.KeyPoint], np.ndarray] | None = None
     with FrameLog(args.output, camera=camera, source=f"kitti-{args.sequence}", pipeline="orb-vo",
                   ground_truth=gt, scale="metric" if args.scale == "gt" else "none",
-                  properties={"source_path": str(args.kitti_root)}) as log:
+                  properties={"source_path": str(args.kitti_root)}, trajectory=args.trajectory_out) as log:
         for i in range(start, min(end, len(images))):
             image = cv2.imread(str(images[i]), cv2.IMREAD_GRAYSCALE)
             t0 = time.perf_counter()

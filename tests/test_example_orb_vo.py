@@ -22,9 +22,9 @@ FRAMES = "0:40"
 def orb_rrd(kitti_root: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     path = tmp_path_factory.mktemp("orb") / "orb.rrd"
     environment = {**os.environ, "PYTHONPATH": str(ROOT)}
-    done = subprocess.run([sys.executable, str(ROOT / "examples" / "orb_vo.py"), str(kitti_root), "--sequence", "05",
-                           "--frames", FRAMES, "-o", str(path)], capture_output=True, text=True, timeout=600,
-                          env=environment)
+    command = [sys.executable, str(ROOT / "examples" / "orb_vo.py"), str(kitti_root), "--sequence", "05",
+               "--frames", FRAMES, "-o", str(path), "--trajectory-out", str(path.with_suffix(".txt"))]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=600, env=environment)
     assert done.returncode == 0, done.stderr[-2000:]
     assert done.stdout.strip() == f"{path}: 40 frames of kitti-05 {FRAMES} (orb-vo)"
     return path
@@ -47,6 +47,20 @@ def test_its_recording_conforms_and_inspect_has_health_tracks_and_drift(orb_rrd:
     assert report["accuracy"]["final_heading_error_deg"] < 6.0
     flow = read_entity(orb_rrd, "/world/camera/image/flow")
     assert flow["frame"].to_list() == list(range(40))
+
+
+@pytest.mark.kitti
+def test_eval_scores_its_trajectory_as_its_recording_reports(orb_rrd: Path, kitti_root: Path) -> None:
+    """FrameLog(trajectory=…) writes the poses with vslam's trajectory writer: `vslam eval --trajectory` scores
+    them exactly as the recording's own verdict (/report) did."""
+    result = vslam("eval", "--trajectory", orb_rrd.with_suffix(".txt"), "--gt", kitti_root / "poses" / "05.txt",
+                   "--match", "rows", "--json")
+    assert result.returncode == 0, result.stderr
+    scored = json.loads(result.stdout)["sequences"][0]
+    assert scored["frames"] == 40
+    reported = json.loads(vslam("inspect", orb_rrd, "--json").stdout)["report_metrics"]
+    for key in ("ate_se3", "ate_sim3", "rpe_trans", "paper_rms"):
+        assert scored[key] == pytest.approx(reported[key], abs=1e-3), key  # the report prints 3 decimals
 
 
 @pytest.mark.kitti

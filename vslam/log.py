@@ -35,6 +35,7 @@ from typing import Literal, cast
 import numpy as np
 
 from vslam.recording import STAGES, Detail, Recorder, version_properties
+from vslam.runs import ClaimedFile, TrajectoryWriter, claim
 from vslam_core.config import EngineConfig
 from vslam_core.geometry import invert_pose
 from vslam_core.pipeline import RunResult
@@ -85,7 +86,9 @@ class FrameLog:
     or give ``gt=`` per frame instead. scale: ``metric`` (poses in metres: errors per frame) or ``none`` (unit or
     arbitrary scale: errors after Sim(3) alignment, when closing). detail: ``standard`` (images, corners, tracks)
     or ``full`` (also track and corner ids on hover: give corners as ``(ids, pixels)``) or ``summary`` (no
-    images or pixels). properties: extra run properties (strings)."""
+    images or pixels). properties: extra run properties (strings). trajectory: also write the (re-based) poses to
+    this file, one line per frame as it goes (``kitti`` or ``tum``: `vslam run --trajectory-out`'s writer), for
+    ``vslam eval --trajectory``."""
 
     def __init__(
         self,
@@ -100,6 +103,8 @@ class FrameLog:
         name: str | None = None,
         properties: Mapping[str, str] | None = None,
         jpeg_quality: int = 75,
+        trajectory: str | Path | None = None,
+        trajectory_format: Literal["kitti", "tum"] = "kitti",
     ) -> None:
         self.path = Path(path)
         if self.path.suffix != ".rrd":
@@ -130,6 +135,10 @@ class FrameLog:
         self._first_pose: np.ndarray | None = None
         self._first_gt: np.ndarray | None = None
         self._ages: dict[int, int] = {}  # track id → frames lived, as of the previous frame
+        self._trajectory: tuple[ClaimedFile, TrajectoryWriter] | None = None
+        if trajectory is not None:  # last: nothing above can fail and leave the file claimed
+            claimed = claim(Path(trajectory), True, "trajectory")
+            self._trajectory = (claimed, TrajectoryWriter(claimed, trajectory_format))
         self._closed = False
 
     def __enter__(self) -> FrameLog:
@@ -191,6 +200,8 @@ class FrameLog:
         if timings_ms:
             result = dataclasses.replace(result, timings_ms=_timings(timings_ms, index))
         recorder.log_frame(frame, result, unreported)
+        if self._trajectory is not None:
+            self._trajectory[1](frame, result)
         if scalars:
             recorder.log_series(frame, _scalars(scalars, index))
         self._run.indices.append(index)
@@ -205,9 +216,17 @@ class FrameLog:
         if self._closed:
             return
         self._closed = True
-        if self._recorder is None:
-            raise ValueError(f"{self.path}: no frame was logged, nothing was written")
-        self._recorder.finish(self._run, stopped)
+        try:
+            if self._recorder is None:
+                raise ValueError(f"{self.path}: no frame was logged, nothing was written")
+            self._recorder.finish(self._run, stopped)
+        finally:
+            if self._trajectory is not None:
+                claimed, writer = self._trajectory
+                try:
+                    writer.finish(self._run)
+                finally:
+                    claimed.release(keep=self._run.frames > 0)
 
     # ------------------------------------------------------------------------------------------ helpers
 
