@@ -165,6 +165,10 @@ def test_bad_input_is_refused_in_one_sentence(tmp_path: Path) -> None:
     log = FrameLog(path, camera=KITTI_05, source="s")
     with pytest.raises(ValueError, match="not a rigid transform"):
         log.frame(0, pose=np.diag([2.0, 1.0, 1.0, 1.0]))
+    shifted = np.eye(4)
+    shifted[:3, 3] = 5.0
+    with pytest.raises(ValueError, match="corners"):  # refused: it does not become the first (world) pose
+        log.frame(0, pose=shifted, corners=np.zeros((3, 3)))
     log.frame(0, pose=np.eye(4))
     with pytest.raises(ValueError, match="indices must increase"):
         log.frame(0, pose=np.eye(4))
@@ -179,6 +183,8 @@ def test_bad_input_is_refused_in_one_sentence(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="unknown stage"):
         log.frame(2, pose=np.eye(4), timings_ms={"orb": 1.0})
     log.close()
+    camera = read_entity(path, "/world/camera")
+    assert camera["frame"].to_list() == [0] and list(camera["Transform3D:translation"].to_list()[0][0]) == [0, 0, 0]
     with pytest.raises(ValueError, match="no frame was logged"):
         FrameLog(tmp_path / "empty.rrd", camera=KITTI_05, source="s").close()
     assert not (tmp_path / "empty.rrd").exists()

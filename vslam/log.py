@@ -189,21 +189,26 @@ class FrameLog:
         position = self._run.frames
         if self._run.indices and index <= self._run.indices[-1]:
             raise ValueError(f"frame {index}: indices must increase (the last was {self._run.indices[-1]})")
-        T_world_cam = self._rebased_pose(_pose(pose, f"frame {index}: pose"))  # noqa: N806
-        truth = self._truth(index, gt)
-        recorder = self._open(truth is not None)
-        if truth is not None:
-            recorder.extend_ground_truth(truth)
-        result, unreported = self._result(position, index, time, T_world_cam, image, corners, tracks, inliers,
-                                          health, reasons)
+        # every check first: a refused frame changes nothing (the first pose, the track ages)
+        checked = _pose(pose, f"frame {index}: pose")
+        first_pose = self._first_pose if self._first_pose is not None else invert_pose(checked)
+        T_world_cam = first_pose @ checked  # noqa: N806
+        truth, first_gt = self._truth(index, gt)
+        result, unreported, ages = self._result(position, index, time, T_world_cam, image, corners, tracks, inliers,
+                                                health, reasons)
         frame = Frame(index, time, _NO_IMAGE if image is None else _image(image, index))
         if timings_ms:
             result = dataclasses.replace(result, timings_ms=_timings(timings_ms, index))
+        series = _scalars(scalars, index) if scalars else {}
+        recorder = self._open(index, truth is not None)
+        self._first_pose, self._first_gt, self._ages = first_pose, first_gt, ages
+        if truth is not None:
+            recorder.extend_ground_truth(truth)
         recorder.log_frame(frame, result, unreported)
         if self._trajectory is not None:
             self._trajectory[1](frame, result)
-        if scalars:
-            recorder.log_series(frame, _scalars(scalars, index))
+        if series:
+            recorder.log_series(frame, series)
         self._run.indices.append(index)
         self._run.timestamps.append(time)
         self._run.poses.append(T_world_cam)
@@ -230,12 +235,12 @@ class FrameLog:
 
     # ------------------------------------------------------------------------------------------ helpers
 
-    def _open(self, with_gt: bool) -> Recorder:
+    def _open(self, index: int, with_gt: bool) -> Recorder:
         """The recorder, opened at the first frame (which says whether there is ground truth)."""
         if self._recorder is not None:
             if with_gt != self._with_gt:
-                raise ValueError(f"frame {self._run.indices[-1] + 1 if self._run.indices else 0}…: give ground "
-                                 "truth for every frame or for none")
+                raise ValueError(f"frame {index}: give ground truth for every frame or for none (the first frame "
+                                 f"had {'some' if self._with_gt else 'none'})")
             return self._recorder
         self._with_gt = with_gt
         config = EngineConfig().with_scale("gt" if self._scale == "metric" else "none")
@@ -244,13 +249,9 @@ class FrameLog:
                                   external=True)
         return self._recorder
 
-    def _rebased_pose(self, pose: np.ndarray) -> np.ndarray:
-        if self._first_pose is None:
-            self._first_pose = invert_pose(pose)
-        return self._first_pose @ pose
-
-    def _truth(self, index: int, gt: np.ndarray | None) -> np.ndarray | None:
-        """This frame's ground truth, re-based to the first frame's; None without."""
+    def _truth(self, index: int, gt: np.ndarray | None) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """This frame's ground truth re-based to the first frame's (None without), and the first frame's
+        inverse ground truth."""
         if gt is not None and self._ground_truth is not None:
             raise ValueError(f"frame {index}: ground truth given twice (gt= and ground_truth=)")
         if self._ground_truth is not None:
@@ -258,17 +259,17 @@ class FrameLog:
                 raise ValueError(f"frame {index}: ground_truth has rows for frames 0..{len(self._ground_truth) - 1}")
             gt = self._ground_truth[index]
         if gt is None:
-            return None
+            return None, self._first_gt
         pose = _pose(gt, f"frame {index}: gt")
-        if self._first_gt is None:
-            self._first_gt = invert_pose(pose)
-        return self._first_gt @ pose
+        first = self._first_gt if self._first_gt is not None else invert_pose(pose)
+        return first @ pose, first
 
     def _result(self, position: int, index: int, time: float | None, T_world_cam: np.ndarray,  # noqa: N803
                 image: np.ndarray | None, corners: np.ndarray | tuple[np.ndarray, np.ndarray] | None,
                 tracks: Tracks | None, inliers: np.ndarray | None, health: HealthText | None,
-                reasons: Sequence[str]) -> tuple[FrameResult, frozenset[str]]:
-        """The engine-style result of one logged frame, and the series it does not report."""
+                reasons: Sequence[str]) -> tuple[FrameResult, frozenset[str], dict[int, int]]:
+        """The engine-style result of one logged frame, the series it does not report, and the track ages after
+        it (track id → frames lived)."""
         unreported = set(_NEVER_REPORTED)
         corner_ids, corner_px = _corners(corners, index, self._detail == Detail.FULL)
         if corners is None:
@@ -285,8 +286,7 @@ class FrameLog:
                 raise ValueError(f"frame {index}: inliers needs one flag per track ({len(ids)} tracks)")
             fate = np.where(mask, TrackFate.INLIER, TrackFate.RANSAC_OUTLIER).astype(np.uint8)
         ages = np.array([self._ages.get(int(i), 1) + 1 for i in ids], np.int32)
-        self._ages = {int(i): int(a) for i, a in zip(ids, ages, strict=True)}
-        self._ages.update({int(i): 1 for i in corner_ids})
+        ages_after = {int(i): int(a) for i, a in zip(ids, ages, strict=True)} | {int(i): 1 for i in corner_ids}
         if health is None:
             if reasons:
                 raise ValueError(f"frame {index}: reasons need a health (ok, warn or fail)")
@@ -304,7 +304,7 @@ class FrameLog:
             points_world=np.zeros((0, 3)), scale=None if T_key_cur is None else float(np.linalg.norm(T_key_cur[:3, 3])),
             parallax_px=math.nan, health=_health(health, reasons, index),
         )
-        return result, frozenset(unreported)
+        return result, frozenset(unreported), ages_after
 
 
 def _health(health: HealthText | None, reasons: Sequence[str], index: int) -> Health:
