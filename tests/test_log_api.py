@@ -92,7 +92,7 @@ def test_inspect_reads_health_tracks_and_drift(logged: dict[str, object]) -> Non
     top = report["drift"]["rotation"][0]
     assert top["frame"] == KINK_FRAME and top["deg"] == pytest.approx(KINK_DEG, abs=1e-4)  # KITTI: 1e-6 rounding
     assert top["reasons"] == ["sharp_turn"]
-    assert report["drift"]["rotation"][1]["deg"] < 1e-3  # every other step is the ground truth's own
+    assert all(e["deg"] < 1e-3 for e in report["drift"]["rotation"][1:])  # every other step is the truth's own
     assert report["series"]["tracks_alive"]["min"] > 100
     assert 0.8 < report["series"]["inlier_ratio"]["mean"] < 0.9  # 6 in 7 flagged inliers
     assert report["series"]["fb_rejected"] is None  # not reported: left out, not zero
