@@ -265,6 +265,7 @@ def snapshot_command(
     = "1280x720",  # vslam.viewer.headless.DEFAULT_SIZE (a test keeps the two equal)
 ) -> None:
     """Render every view of the recording's blueprint at one frame to PNG, with the real viewer, headless."""
+    # the function, not the submodule of the same name (importing `parse_frame` binds `vslam.viewer.headless`)
     from vslam.viewer import parse_frame, parse_size, snapshot
 
     window = parse_size(size)
@@ -378,6 +379,21 @@ def repair(
         summary = repair_recording(recording, target)
     out.print(format_repair(summary), highlight=False)
 
+
+@app.command()
+def check(
+    recording: Annotated[Path, typer.Argument(help="any .rrd: vslam's, the logging API's (vslam.log), or one "
+                                              "written with the Rerun SDK")],
+) -> None:
+    """Validate a recording against the recording schema (docs/recording-schema.md): one line per missing or
+    malformed entity, component or property, with the commands it affects. Exit 0 only when it conforms."""
+    from vslam.rrd import check_recording, format_check
+
+    result = check_recording(_existing_recording(recording))
+    for line in format_check(result):
+        print(line)
+    if not result.conforms:
+        raise typer.Exit(1)
 
 
 def main() -> None:

@@ -37,7 +37,9 @@ each (~25 a frame). Styles that never change are logged once, static.
 Modules: `recorder` (the `Recorder` and the front end's entities), `map` (the map backend's entities),
 `columns` (the column buffer), `metrics` (the series), `drift` (each frame's own error against the ground
 truth), `layout` (the default blueprint), `styles` (detail levels, colours, legends), `external` (another
-system's trajectory file as a recording of the same entities, for `vslam eval --trajectory --report`).
+system's trajectory file as a recording of the same entities, for `vslam eval --trajectory --report`),
+`schema` (all of the above as data, versioned: docs/recording-schema.md, `vslam check`). Another pipeline's
+frames are written by the same `Recorder` through the logging API, `vslam.log`.
 """
 
 from importlib import import_module
@@ -57,6 +59,7 @@ _HOMES = {
     "DRIFT_ENTITY": "drift", "LINKS_ENTITY": "drift", "WORST": "drift",
     "ExternalRun": "external", "RunFrames": "external", "record_external": "external",
     "RERUN_CODEC": "video", "VIDEO_SETTINGS": "video", "open_encoder": "video",
+    "SCHEMA_VERSION": "schema", "EntitySpec": "schema",
 }
 
 if TYPE_CHECKING:
@@ -76,6 +79,7 @@ if TYPE_CHECKING:
         map_frame_metrics,
     )
     from vslam.recording.recorder import Recorder, road_outline, version_properties
+    from vslam.recording.schema import SCHEMA_VERSION, EntitySpec
     from vslam.recording.styles import APPLICATION_ID, FATE_STYLE, Detail, ImageCodec
     from vslam.recording.video import RERUN_CODEC, VIDEO_SETTINGS, open_encoder
 
@@ -92,6 +96,7 @@ __all__ = [
     "DRIFT_ENTITY",
     "Detail",
     "EYE_OFFSET",
+    "EntitySpec",
     "ExternalRun",
     "FATE_STYLE",
     "FLUSH_BYTES",
@@ -107,6 +112,7 @@ __all__ = [
     "RERUN_CODEC",
     "Recorder",
     "RunFrames",
+    "SCHEMA_VERSION",
     "STAGES",
     "VIDEO_SETTINGS",
     "WORST",

@@ -9,10 +9,11 @@ When the run ends (`DriftRecording.finish`):
 
     /world/trajectory/drift      static: the estimate, one segment per frame coloured by that frame's
                                  translation error in % of its step (`DRIFT_SCALE_PCT`: green 0 %, yellow,
-                                 red at 5 % and more; grey where the car stood still); frame, % and ° on hover;
+                                 red at 5 % and more; grey where the car stood still); ``frame_index``, % and ° on
+                                 hover (not ``frame``: no component shares a timeline's name);
                                  drawn `DRIFT_LIFT_M` above the estimate line (a static Transform3D)
     /world/trajectory/gt_links   static: a line from the estimated to the ground-truth position every
-                                 `LINK_EVERY` frames (as evo's Rerun bridge draws them)
+                                 `LINK_EVERY` frames (as evo's Rerun bridge draws them), ``frame_index`` on hover
     /events                      the `WORST` worst frames by rotation and by translation, with their health
     /report                      (the lines returned) the colour scale's legend and the worst frames' table
 """
@@ -112,12 +113,12 @@ class DriftRecording:
         strips = np.stack([estimate[:-1], estimate[1:]], axis=1)
         rec.log(DRIFT_ENTITY, rr.Transform3D(translation=[0.0, -DRIFT_LIFT_M, 0.0]), static=True)
         rec.log(DRIFT_ENTITY, rr.LineStrips3D(strips, colors=drift_colours(errors.translation_pct[1:]), radii=0.3),
-                rr.AnyValues(frame=indices[1:], translation_pct=np.nan_to_num(errors.translation_pct[1:]),
+                rr.AnyValues(frame_index=indices[1:], translation_pct=np.nan_to_num(errors.translation_pct[1:]),
                              rotation_deg=errors.rotation_deg[1:]), static=True)
         linked = np.arange(0, n, LINK_EVERY)
         rec.log(LINKS_ENTITY, rr.LineStrips3D(np.stack([estimate[linked], gt[linked, :3, 3]], axis=1),
                                               colors=LINK_COLOUR, radii=0.04),
-                rr.AnyValues(frame=indices[linked]), static=True)
+                rr.AnyValues(frame_index=indices[linked]), static=True)
         return self._events(columns, errors, indices)
 
     def _send_series(self, rec: rr.RecordingStream, errors: FrameErrors) -> None:

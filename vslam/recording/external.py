@@ -26,6 +26,7 @@ from vslam.recording.columns import FLUSH_FRAMES, ColumnBuffer
 from vslam.recording.drift import DriftRecording
 from vslam.recording.layout import blueprint
 from vslam.recording.metrics import METRICS
+from vslam.recording.schema import SCHEMA_VERSION
 from vslam.recording.stream import StreamStopped, close_stream, flush_or_stop, log_world, open_stream
 from vslam.recording.styles import Detail
 from vslam.rrd import RecordingError, has_footer
@@ -76,7 +77,8 @@ def record_external(path: Path, run: ExternalRun, properties: dict[str, str], de
     rec = open_stream(path, properties.get("recording_id"), layout, properties.get("name", run.name))
     stuck = False
     try:
-        rec.send_property("run", rr.AnyValues(**{**properties, "detail": str(detail)}))  # type: ignore[arg-type]
+        rec.send_property("run", rr.AnyValues(**{**properties, "detail": str(detail),
+                                                  "schema_version": str(SCHEMA_VERSION)}))  # type: ignore[arg-type]
         log_world(rec, camera)
         _log_series_styles(rec)
         columns = ColumnBuffer(rec)

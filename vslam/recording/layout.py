@@ -23,7 +23,7 @@ DRIFT_PLOTS = (("drift per frame (°, m)", ("rotation_deg", "translation_m")),
 
 def blueprint(map_backend: bool = False, *, image: bool = True, road_scale: bool = False,
               ground_truth: bool = True, undistorted: bool = False, engine: bool = True,
-              frustum: bool = True) -> rrb.Blueprint:
+              frustum: bool = True, own_series: bool = False) -> rrb.Blueprint:
     """Frame with overlays and 3-D world following the car | metric plots; below, events | report; on `frame`.
 
     Views that would stay empty are left out: the frame without `image` (detail `summary`), "scale from the
@@ -31,13 +31,16 @@ def blueprint(map_backend: bool = False, *, image: bool = True, road_scale: bool
     the map (retired keyframes and landmarks keep their whole past) and the plots of the tracking mode and
     bundle adjustment. `undistorted` (a distorted lens): the undistorted frame beside the raw one. Without
     `engine` (another system's trajectory, `vslam.recording.external`) only the error plots: there are no tracks,
-    inliers, health or timings; without `frustum` (no camera known) the frame stays out of the 3-D view."""
+    inliers, health or timings; without `frustum` (no camera known) the frame stays out of the 3-D view.
+    `own_series`: a plot of another pipeline's own series (``/metrics/custom``, `vslam.log`)."""
     left: list[rrb.Spatial2DView | rrb.Spatial3DView | rrb.Horizontal] = [world_view(map_backend, frustum)]
     if image:
         frame = rrb.Spatial2DView(name="frame", origin="/world/camera/image")
         left.insert(0, rrb.Horizontal(frame, rrb.Spatial2DView(name="undistorted", origin=UNDISTORTED))
                     if undistorted else frame)
     plots = _plots(road_scale, ground_truth, engine) + (_map_plots() if map_backend else [])
+    if own_series:
+        plots.append(rrb.TimeSeriesView(name="pipeline series", origin="/metrics/custom"))
     return rrb.Blueprint(
         rrb.Vertical(
             rrb.Horizontal(rrb.Vertical(*left, row_shares=[1, 2][-len(left):]), rrb.Grid(*plots, grid_columns=2),

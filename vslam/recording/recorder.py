@@ -18,6 +18,7 @@ from vslam.recording.drift import DriftRecording
 from vslam.recording.layout import UNDISTORTED, blueprint
 from vslam.recording.map import MapRecording
 from vslam.recording.metrics import METRICS, STAGES, frame_metrics
+from vslam.recording.schema import SCHEMA_VERSION
 from vslam.recording.stream import StreamStopped, close_stream, flush_or_stop, log_world, open_stream, pinhole
 from vslam.recording.styles import (
     AXIS_COLOURS,
@@ -59,7 +60,10 @@ class Recorder:
         detail: Detail = Detail.FULL,
         jpeg_quality: int = 75,
         image_codec: ImageCodec = ImageCodec.JPEG,
+        external: bool = False,
     ) -> None:
+        """`external`: the frames come from another pipeline through the logging API (`vslam.log`), not from
+        vslam's engine: no engine config is stated, and its own series (``/metrics/custom/*``) get a plot."""
         if detail == Detail.OFF:
             raise ValueError("detail 'off' writes no recording: do not build a Recorder")
         self.path = path
@@ -68,6 +72,7 @@ class Recorder:
         # with a second core, frames are JPEG-encoded beside the engine (cv2.imencode releases the GIL)
         self._encoder = ThreadPoolExecutor(1, thread_name_prefix="vslam-jpeg") if config.threads > 1 else None
         self._gt = source.ground_truth
+        self._gt_buffer: np.ndarray | None = None  # `extend_ground_truth`: room for more
         self._name = properties.get("name", source.name)
         self._source_name = source.name
         self._scale = config.scale
@@ -82,15 +87,16 @@ class Recorder:
         undistorted = source.intrinsics.distorted and detail == Detail.FULL
         layout = blueprint(map_backend=config.backend == "map", image=detail in (Detail.FULL, Detail.STANDARD),
                            road_scale=config.scale == "height", ground_truth=source.ground_truth is not None,
-                           undistorted=undistorted)
+                           undistorted=undistorted, own_series=external)
         self._rec = open_stream(path, properties.get("recording_id"), layout, properties.get("name", source.name))
         self._columns = ColumnBuffer(self._rec)
         self._properties = {**properties, **describe_calibration(source.intrinsics), **source_properties(source),
-                            "detail": str(detail)}
+                            "detail": str(detail), "schema_version": str(SCHEMA_VERSION)}
         # a path that is not UTF-8 (lone surrogates) cannot be stored: keep its bytes as \xff escapes
         self._properties = {k: shown_path(v) if isinstance(v, str) else v for k, v in self._properties.items()}
         self._rec.send_property("run", rr.AnyValues(**self._properties))  # type: ignore[arg-type]
-        self._rec.send_property("config", rr.AnyValues(**flatten(config.to_dict())))
+        if not external:
+            self._rec.send_property("config", rr.AnyValues(**flatten(config.to_dict())))
         self._intrinsics = source.intrinsics
         # a distorted lens at full detail: also the frame as the pinhole sees it (the 3-D view's geometry)
         self._undistort = undistortion_maps(source.intrinsics) if undistorted else None
@@ -140,9 +146,10 @@ class Recorder:
     def finish(self, run: RunResult, stopped: str | None) -> None:
         """Log the run's verdict (metrics table against ground truth, when there is one) and close. `stopped`
         says why a run ended early (interrupted, bad input): the run properties and the recording name are
-        then re-logged to say which frames the file really holds (``frames``, ``frame_count``, ``stopped``)."""
+        then re-logged to say which frames the file really holds (``frames``, ``frame_count``, ``stopped``), as
+        they are when the frame count was not known up front (the logging API, `vslam.log`)."""
         try:
-            if stopped is not None:
+            if stopped is not None or self._properties.get("frame_count") != str(run.frames):
                 self._restate_frames(run, stopped)
             lines = [f"# {self._name}", "", f"{run.frames} frames, {run.held_summary}"
                      + (f" — {stopped}" if stopped else "")]
@@ -176,10 +183,11 @@ class Recorder:
                                                         labels=["estimate after Sim(3) alignment"]), static=True)
         return aligned
 
-    def _restate_frames(self, run: RunResult, stopped: str) -> None:
+    def _restate_frames(self, run: RunResult, stopped: str | None) -> None:
         """Static properties are last-write-wins: re-log them with the frames actually processed."""
         held = describe_indices(list(run.indices))
-        properties = {**self._properties, "frames": held, "frame_count": str(run.frames), "stopped": stopped}
+        properties = {**self._properties, "frames": held, "frame_count": str(run.frames),
+                      **({"stopped": stopped} if stopped is not None else {})}
         self._name = re.sub(r"\bframes \S+", f"frames {held}", self._name, count=1)
         properties["name"] = self._name
         self._rec.send_recording_name(self._name)
@@ -210,8 +218,13 @@ class Recorder:
             for name, (legend, colour) in series.items():
                 rec.log(f"/metrics/{group}/{name}", rr.SeriesLines(names=legend, colors=colour), static=True)
 
-    def log_frame(self, frame: Frame, result: FrameResult) -> None:
-        """Buffer everything about one frame for the `frame` timeline (and `time`, when known)."""
+    def log_frame(self, frame: Frame, result: FrameResult, unreported: frozenset[str] = frozenset()) -> None:
+        """Buffer everything about one frame for the `frame` timeline (and `time`, when known).
+
+        `unreported`: what the frame's producer did not report (another pipeline's frames, `vslam.log`): names of
+        `METRICS` series (and ``record``: the recorder's own time, which is not the producer's), left out rather
+        than recorded as zero; ``status`` also leaves out the frame's ``/health`` row. A frame whose
+        `frame.image` is empty (0×0) records no image."""
         start = time.perf_counter()
         columns = self._columns
         pose = result.T_world_cam
@@ -226,17 +239,18 @@ class Recorder:
         if self._scale == "height":
             self._log_road(frame, result)
         self._log_trajectories(frame, result)
-        self._log_metrics(frame, result)
+        self._log_metrics(frame, result, unreported)
         self._log_events(frame, result)
         if result.mapping is not None:
             if self._map is None:
                 self._map = MapRecording(self._rec, columns, self._intrinsics, self.detail)
             self._map.log_frame(frame, result, result.mapping)
-        columns.add("/health", frame, (rr.AnyValues.columns, {"status": str(result.health.status),
-                                                              "reasons": ",".join(result.health.reasons)}))
+        if "status" not in unreported:
+            columns.add("/health", frame, (rr.AnyValues.columns, {"status": str(result.health.status),
+                                                                  "reasons": ",".join(result.health.reasons)}))
         timings = dict(result.timings_ms, record=(time.perf_counter() - start) * 1000.0)
         for stage in STAGES:
-            if stage in timings:
+            if stage in timings and stage not in unreported:
                 columns.add_scalar(f"/metrics/timing_ms/{stage}", frame, timings[stage])
         self._frames += 1
         if self._frames % FLUSH_FRAMES == 0:
@@ -247,10 +261,31 @@ class Recorder:
         elif time.monotonic() - self._checked_at > WRITE_CHECK_S:  # images are sent every ~1 MiB
             self._check_written()
 
+    def log_series(self, frame: Frame, values: dict[str, float]) -> None:
+        """Series of the frame's producer beyond `METRICS` (another pipeline's own, `vslam.log`):
+        ``/metrics/custom/<name>``, plotted together."""
+        for name, value in values.items():
+            self._columns.add_scalar(f"/metrics/custom/{name}", frame, float(value))
+
+    def extend_ground_truth(self, T_world_cam: np.ndarray) -> None:  # noqa: N803
+        """Append the next frame's (4, 4) ground-truth pose, for producers that learn it frame by frame
+        (`vslam.log`): the recorder was opened with an empty (0, 4, 4) ground truth. Amortised O(1)."""
+        if self._gt is None:
+            raise ValueError("this recording was opened without ground truth")
+        count = len(self._gt)
+        if self._gt_buffer is None or count == len(self._gt_buffer):
+            grown = np.empty((max(64, 2 * count), 4, 4))
+            grown[:count] = self._gt
+            self._gt_buffer = grown
+        self._gt_buffer[count] = T_world_cam
+        self._gt = self._gt_buffer[: count + 1]
+        if self._drift is not None:
+            self._drift.gt = self._gt
+
     def _log_image_and_tracks(self, frame: Frame, result: FrameResult) -> None:
         columns = self._columns
-        images = {"/world/camera/image": frame.image}
-        if self._undistort is not None:
+        images = {"/world/camera/image": frame.image} if frame.image.size else {}
+        if self._undistort is not None and frame.image.size:
             images[UNDISTORTED] = cv2.remap(frame.image, *self._undistort, cv2.INTER_LINEAR)
         for entity, image in images.items():
             if self._videos:
@@ -339,8 +374,8 @@ class Recorder:
                               (rr.LineStrips3D.columns, {"strips": np.array([gt[max(i - 1, 0)], gt[i]])}))
         self._previous_position = position
 
-    def _log_metrics(self, frame: Frame, result: FrameResult) -> None:
-        values = frame_metrics(result, self._gt)
+    def _log_metrics(self, frame: Frame, result: FrameResult, unreported: frozenset[str]) -> None:
+        values = {name: value for name, value in frame_metrics(result, self._gt).items() if name not in unreported}
         if self._scale == "none":  # unit steps against metres: logged after Sim(3) alignment at the end
             values.pop("position_m", None)
         for group, series in METRICS.items():

@@ -1,5 +1,6 @@
 """Reading recordings back: the `.rrd` reader and the `rerun` CLI (`read`), a recording's run properties
-(`provenance`), `vslam inspect` (`inspect`), `vslam crop` (`crop`, `crop_video`) and `vslam repair` (`repair`).
+(`provenance`), `vslam inspect` (`inspect`), `vslam crop` (`crop`, `crop_video`), `vslam repair` (`repair`) and
+`vslam check` (`check`: any recording against the schema).
 
 The names other packages use are importable from here, loaded on first use (PEP 562).
 """
@@ -10,6 +11,8 @@ from typing import TYPE_CHECKING, Any
 #: Where each public name lives.
 _HOMES = {
     "RecordingError": "read",
+    "check_recording": "check",
+    "format_check": "check",
     "comparison_prefixes": "provenance",
     "crop_recording": "crop",
     "first_line": "read",
@@ -33,6 +36,7 @@ _HOMES = {
 }
 
 if TYPE_CHECKING:
+    from vslam.rrd.check import check_recording, format_check
     from vslam.rrd.crop import crop_recording, parse_crop_frames
     from vslam.rrd.crop_video import video_codecs
     from vslam.rrd.inspect import format_report, inspect_recording
@@ -60,10 +64,12 @@ def __getattr__(name: str) -> Any:
 
 __all__ = [
     "RecordingError",
+    "check_recording",
     "comparison_prefixes",
     "crop_recording",
     "first_line",
     "flatten",
+    "format_check",
     "format_repair",
     "format_report",
     "has_footer",

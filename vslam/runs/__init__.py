@@ -10,11 +10,14 @@ from typing import TYPE_CHECKING, Any
 
 #: Where each public name lives.
 _HOMES = {
+    "ClaimedFile": "outputs",
     "EXIT_NOTHING_TRACKED": "checks",
+    "TrajectoryWriter": "trajectory_out",
     "Interrupted": "runner",
     "OutputError": "outputs",
     "backend_problem": "checks",
     "camera_height_problem": "checks",
+    "claim": "outputs",
     "claim_run_outputs": "runner",
     "claimed": "outputs",
     "describe_outputs": "runner",
@@ -42,7 +45,9 @@ if TYPE_CHECKING:
         with_camera_height,
     )
     from vslam.runs.outputs import (
+        ClaimedFile,
         OutputError,
+        claim,
         claimed,
         hold_stuck_writer,
         likely_errno,
@@ -52,6 +57,7 @@ if TYPE_CHECKING:
     )
     from vslam.runs.progress import eta
     from vslam.runs.runner import Interrupted, claim_run_outputs, describe_outputs, record_run
+    from vslam.runs.trajectory_out import TrajectoryWriter
 
 
 def __getattr__(name: str) -> Any:
@@ -61,11 +67,14 @@ def __getattr__(name: str) -> Any:
 
 
 __all__ = [
+    "ClaimedFile",
     "EXIT_NOTHING_TRACKED",
     "Interrupted",
     "OutputError",
+    "TrajectoryWriter",
     "backend_problem",
     "camera_height_problem",
+    "claim",
     "claim_run_outputs",
     "claimed",
     "describe_outputs",

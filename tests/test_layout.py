@@ -1,0 +1,46 @@
+"""The code's layout (issue: a house someone new can move into): the application's packages use each other's
+public names only, and no module or folder grows past what one reader takes in."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("vslam", "vslam_core")
+
+
+def _modules() -> list[Path]:
+    return [p for package in PACKAGES for p in (ROOT / package).rglob("*.py") if "__pycache__" not in p.parts]
+
+
+def test_no_subpackage_imports_a_siblings_modules() -> None:
+    app = ROOT / "vslam"
+    subpackages = {p.name for p in app.iterdir() if (p / "__init__.py").is_file()}
+    offences = []
+    for path in app.rglob("*.py"):
+        parts = path.relative_to(app).parts
+        own = parts[0] if len(parts) > 1 else None
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                names = node.module.split(".")
+                if names[0] == "vslam" and len(names) > 2 and names[1] in subpackages and names[1] != own:
+                    offences.append(f"{path.relative_to(ROOT)}:{node.lineno} from {node.module}")
+    assert offences == []
+
+
+def test_no_module_over_500_lines_and_no_folder_over_15_modules() -> None:
+    long = [f"{p.relative_to(ROOT)} ({n})" for p in _modules() if (n := len(p.read_text().splitlines())) > 500]
+    folders: dict[Path, int] = {}
+    for p in _modules():
+        if p.name != "__init__.py":
+            folders[p.parent] = folders.get(p.parent, 0) + 1
+    crowded = [f"{folder.relative_to(ROOT)} ({n})" for folder, n in folders.items() if n > 15]
+    assert long == [] and crowded == []
+
+
+def test_only_the_projects_own_names_are_installed() -> None:
+    text = (ROOT / "pyproject.toml").read_text()
+    assert 'include = ["vslam*", "vslam_core*"]' in text
+    assert 'vslam = "vslam.cli:main"' in text
+    assert not (ROOT / "app").exists()
