@@ -58,7 +58,7 @@ def write_bag(path: Path, size_gb: float, storage: str) -> int:
 
 def measure(path: str) -> dict[str, float]:
     """Open and iterate the source in this process: peak RSS (MB) before, after opening and after iterating."""
-    from vslam_core.sources.rosbag import RosbagSource
+    from vslam_core.sources.ros.bag import RosbagSource
 
     def peak_mb() -> float:
         return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KB on Linux

@@ -59,7 +59,7 @@ from vslam_core.sources.base import CameraIntrinsics, FrameRange, FrameSource
 from vslam_core.sources.calibration_files import read_calibration
 from vslam_core.sources.folder import ImageFolderSource
 from vslam_core.sources.kitti import KittiSource
-from vslam_core.sources.rosbag import RosbagSource
+from vslam_core.sources.ros.bag import RosbagSource
 from vslam_core.trajectory.metrics import kitti_errors
 
 LOG_FRAMES = range(0, 300)

@@ -43,4 +43,4 @@ def test_only_the_projects_own_names_are_installed() -> None:
     text = (ROOT / "pyproject.toml").read_text()
     assert 'include = ["vslam*", "vslam_core*"]' in text
     assert 'vslam = "vslam.cli:main"' in text
-    assert not (ROOT / "app").exists()
+    assert not any((ROOT / "app").rglob("*.py"))

@@ -20,7 +20,7 @@ from vslam_core.config import EngineConfig
 from vslam_core.pipeline import RunResult, run_odometry
 from vslam_core.sources.base import CameraIntrinsics, FrameRange, FrameSource
 from vslam_core.sources.kitti import KittiSource
-from vslam_core.sources.rosbag import RosbagSource
+from vslam_core.sources.ros.bag import RosbagSource
 from vslam_core.trajectory.metrics import kitti_errors
 
 #: KITTI 00 frames 0:150: ~150 m of road, enough for the KITTI metric's 100 m segments.

@@ -22,9 +22,9 @@ from ros_logs import (
 
 from vslam_core.errors import SourceError
 from vslam_core.lens import undistort_pixels
-from vslam_core.sources import rosbag
 from vslam_core.sources.base import CameraIntrinsics, FrameRange, rebase_poses
-from vslam_core.sources.rosbag import RosbagSource
+from vslam_core.sources.ros import bag as rosbag
+from vslam_core.sources.ros.bag import RosbagSource
 
 FRAMES = range(0, 40)
 STAMP0 = 1_700_000_000_000_000_000

@@ -59,7 +59,8 @@ _HOMES = {
     "DRIFT_ENTITY": "drift", "LINKS_ENTITY": "drift", "WORST": "drift",
     "ExternalRun": "external", "RunFrames": "external", "record_external": "external",
     "RERUN_CODEC": "video", "VIDEO_SETTINGS": "video", "open_encoder": "video",
-    "SCHEMA_VERSION": "schema", "EntitySpec": "schema",
+    "SCHEMA_VERSION": "schema", "EntitySpec": "schema", "ENTITIES": "schema", "EVERY_COMMAND": "schema",
+    "FRAME_TIMELINE": "schema", "HEALTH_STATUSES": "schema", "REQUIRED_PROPERTIES": "schema", "TIMELINES": "schema",
 }
 
 if TYPE_CHECKING:
@@ -79,7 +80,16 @@ if TYPE_CHECKING:
         map_frame_metrics,
     )
     from vslam.recording.recorder import Recorder, road_outline, version_properties
-    from vslam.recording.schema import SCHEMA_VERSION, EntitySpec
+    from vslam.recording.schema import (
+        ENTITIES,
+        EVERY_COMMAND,
+        FRAME_TIMELINE,
+        HEALTH_STATUSES,
+        REQUIRED_PROPERTIES,
+        SCHEMA_VERSION,
+        TIMELINES,
+        EntitySpec,
+    )
     from vslam.recording.styles import APPLICATION_ID, FATE_STYLE, Detail, ImageCodec
     from vslam.recording.video import RERUN_CODEC, VIDEO_SETTINGS, open_encoder
 
@@ -95,13 +105,17 @@ __all__ = [
     "ColumnBuffer",
     "DRIFT_ENTITY",
     "Detail",
+    "ENTITIES",
+    "EVERY_COMMAND",
     "EYE_OFFSET",
     "EntitySpec",
     "ExternalRun",
     "FATE_STYLE",
     "FLUSH_BYTES",
     "FLUSH_FRAMES",
+    "FRAME_TIMELINE",
     "HEALTH_LEVELS",
+    "HEALTH_STATUSES",
     "ImageCodec",
     "LINKS_ENTITY",
     "MAP_METRICS",
@@ -109,11 +123,13 @@ __all__ = [
     "METRICS",
     "MODE_LEVELS",
     "MapRecording",
+    "REQUIRED_PROPERTIES",
     "RERUN_CODEC",
     "Recorder",
     "RunFrames",
     "SCHEMA_VERSION",
     "STAGES",
+    "TIMELINES",
     "VIDEO_SETTINGS",
     "WORST",
     "blueprint",

@@ -20,7 +20,16 @@ import numpy as np
 import polars as pl
 from rerun.chunk import Chunk
 
-from vslam.recording import ENTITIES, EVERY_COMMAND, FRAME_TIMELINE, HEALTH_STATUSES, REQUIRED_PROPERTIES, SCHEMA_VERSION, TIMELINES, EntitySpec
+from vslam.recording import (
+    ENTITIES,
+    EVERY_COMMAND,
+    FRAME_TIMELINE,
+    HEALTH_STATUSES,
+    REQUIRED_PROPERTIES,
+    SCHEMA_VERSION,
+    TIMELINES,
+    EntitySpec,
+)
 from vslam.rrd.provenance import PROPERTIES, comparison_prefixes, read_properties
 from vslam.rrd.read import RecordingError, first_line, open_store, read_entity, readable
 

@@ -13,7 +13,7 @@ from vslam_core.sources.euroc import EurocSource, is_euroc
 from vslam_core.sources.faults import FaultInjector, parse_faults
 from vslam_core.sources.folder import ImageFolderSource, parse_intrinsics
 from vslam_core.sources.kitti import BadFramePolicy, GroundTruthFormat, KittiSource
-from vslam_core.sources.rosbag import RosbagSource
+from vslam_core.sources.ros.bag import RosbagSource
 from vslam_core.sources.stamps import DEFAULT_GT_TOLERANCE_S
 from vslam_core.sources.synthetic import SyntheticStreet
 from vslam_core.sources.tum_mono import TumMonoSource, is_tum_mono

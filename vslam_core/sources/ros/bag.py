@@ -32,10 +32,10 @@ from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange, Selecte
 from vslam_core.sources.calibration import make_intrinsics
 from vslam_core.sources.folder import complete_intrinsics
 from vslam_core.sources.kitti import BadFramePolicy, select
-from vslam_core.sources.mcap_recovery import RecoveredMcap, is_cut_short, recover_mcap
-from vslam_core.sources.ros_ground_truth import topic_ground_truth
-from vslam_core.sources.ros_images import IMAGE_TYPES, ImageDecoder
-from vslam_core.sources.ros_messages import bag_errors, bare, field, one_line
+from vslam_core.sources.ros.ground_truth import topic_ground_truth
+from vslam_core.sources.ros.images import IMAGE_TYPES, ImageDecoder
+from vslam_core.sources.ros.mcap_recovery import RecoveredMcap, is_cut_short, recover_mcap
+from vslam_core.sources.ros.messages import bag_errors, bare, field, one_line
 from vslam_core.sources.stamps import DEFAULT_GT_TOLERANCE_S, ground_truth_at, stamp_problems
 from vslam_core.trajectory.io import check_ground_truth_steps, read_tum_poses
 

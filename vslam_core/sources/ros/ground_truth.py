@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from vslam_core.errors import SourceError
-from vslam_core.sources.ros_messages import bag_errors, bare, stamp_ns
+from vslam_core.sources.ros.messages import bag_errors, bare, stamp_ns
 from vslam_core.sources.stamps import ground_truth_at
 from vslam_core.trajectory.io import rotation_from_quaternion
 
