@@ -193,7 +193,7 @@ def _start(args: Sequence[str], env: Mapping[str, str] | None = None, feed: Path
     """Start the Rerun CLI with `args`. With `feed`, a thread writes that file to the process's stdin and
     then keeps the pipe open until `_Process.stop`: `rerun … -` reads a recording from stdin and, as long as
     the pipe is open, waits for more in a blocking read. (Given a file path, or stdin that reaches its end,
-    the 0.41 server's ingest loop polls its finished source forever and keeps one core ≈40–100 % busy.)"""
+    the 0.41 server's ingest loop polls its finished source forever: up to a whole core, see `vslam.viewer.web`.)"""
     stderr = tempfile.TemporaryFile()  # noqa: SIM115 (closed by _Process.stop)
     child_env = {**os.environ, **(env or {}), "RERUN_APP_ONLY": "true"}  # no analytics prompt
     try:

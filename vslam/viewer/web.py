@@ -9,13 +9,13 @@ Idle CPU. Given the recording's path (`rerun --serve-web … file.rrd`), the 0.4
 (`tokio-#1`) busy for as long as it runs, with or without a browser: its ingest loop
 (`re_grpc_server::spawn_from_rx_set`) asks its set of sources for the next message, gets "disconnected" at once
 from the file source that has ended, finds the set not yet empty and asks again (perf: `LogReceiverSet::recv`,
-`crossbeam_channel::select`, no syscall). That thread takes whatever a core has to give: ≈100 % on an idle machine
-(issue 24), 20–40 % on this shared 2-core one. Neither `--server-memory-limit` nor `--threads 1` changes it, nor a
-stdin that reaches its end. So the recording is written to the server's stdin (`rerun … -`) and the pipe is held
-open until the server is stopped (`viewer._start(feed=…)`): the source never ends, the loop waits in a blocking
-read, and the server sleeps (≈0 % of a core, with or without an idle browser; `benchmarks/web_idle.py`). The
-embedded layout (blueprint) arrives as from the file, which pushing the recording over gRPC from the SDK
-(`log_file_from_path`, `send_chunks`) would lose.
+`crossbeam_channel::select`, no syscall). That thread is runnable all the time and takes whatever a core has to
+give: ≈100 % on an idle machine (issue 24), 15–40 % on this shared 2-core one (load average 30–40). Neither
+`--server-memory-limit` nor `--threads 1` changes it, nor a stdin that reaches its end. So the recording is written
+to the server's stdin (`rerun … -`) and the pipe is held open until the server is stopped
+(`viewer._start(feed=…)`): the source never ends, the loop waits in a blocking read, and the server sleeps (0.0 %
+of a core, with or without an idle browser; `benchmarks/web_idle.py`). The embedded layout (blueprint) arrives as
+from the file, which pushing the recording over gRPC from the SDK (`log_file_from_path`, `send_chunks`) would lose.
 """
 
 from __future__ import annotations
