@@ -193,6 +193,14 @@ def test_a_cut_short_mcap_runs_on_the_messages_before_the_cut(kitti_root: Path, 
     assert paper_rms(result) < 0.5
     shown = vslam("inspect", rrd)
     assert "cut short: recovered " in shown.stdout and f"of {cut.stat().st_size}" in shown.stdout
+    # the bag folder of a recorder killed before it wrote metadata.yaml: its one .mcap is the log
+    (whole.parent / "metadata.yaml").unlink()
+    whole.write_bytes(cut.read_bytes())
+    result = vslam("run", whole.parent, "--detail", "off")
+    assert result.returncode == 0, result.stderr  # before: exit 2, "no images (.png, …) in the image folder"
+    (warning,) = error_lines(result)
+    assert warning.startswith(f"warning: {whole}: the log is cut short")
+    assert summary_value(result, "frames") == f"{frames} (0 held the previous pose)"
 
 
 # ------------------------------------------------------------------------- item 12: files that are not frames

@@ -7,8 +7,8 @@ Layout (the official ``data_odometry_gray`` + ``data_odometry_poses``)::
     ROOT/sequences/NN/times.txt              one timestamp (s) per image (optional)
     ROOT/poses/NN.txt                        ground truth, KITTI format (optional; may hold more rows)
 
-The readers here (`read_p0_intrinsics`, `read_times`, `read_ground_truth`, `list_images`,
-`read_grey_image`) are also used by `ImageFolderSource` and `VideoSource`; every problem is a one-line
+The readers here (`read_p0_intrinsics`, `read_times`, `read_ground_truth`, `first_image`, and `read_grey_image`
+of `image_files`) are also used by `ImageFolderSource` and `VideoSource`; every problem is a one-line
 `SourceError` (or `TrajectoryFormatError` for a malformed poses file) naming the file. `ImageFilesSource` is
 the base of the sources whose frames are image files (KITTI, image folders, EuRoC, TUM monoVO).
 """
@@ -119,11 +119,6 @@ def read_ground_truth(path: Path, count: int, fmt: GroundTruthFormat = "auto",
     return poses
 
 
-def list_images(folder: Path, what: str = "image folder") -> list[Path]:
-    """The frame files of ``folder`` in natural name order (`list_frame_files`, without what was skipped)."""
-    return list_frame_files(folder, what).files
-
-
 BadFramePolicy = Literal["fail", "skip"]
 
 
@@ -187,12 +182,6 @@ def first_image(files: list[Path], indices: list[int], on_bad_frame: BadFramePol
         shift = sixteen_bit_shift(image) if image.dtype == np.uint16 else None
         return (image.shape[1], image.shape[0]), shift
     raise SourceError(f"{where}: none of the {len(indices)} selected images can be read")
-
-
-def first_image_size(files: list[Path], indices: list[int], on_bad_frame: BadFramePolicy, where: object
-                     ) -> tuple[int, int]:
-    """(width, height) of the first selected image (`first_image`)."""
-    return first_image(files, indices, on_bad_frame, where)[0]
 
 
 def sixteen_bit_property(shift: int | None) -> dict[str, str]:

@@ -12,6 +12,7 @@ from vslam_core.sources.calibration_files import read_calibration
 from vslam_core.sources.euroc import EurocSource, is_euroc
 from vslam_core.sources.faults import FaultInjector, parse_faults
 from vslam_core.sources.folder import ImageFolderSource, parse_intrinsics
+from vslam_core.sources.image_files import IMAGE_EXTENSIONS
 from vslam_core.sources.kitti import BadFramePolicy, GroundTruthFormat, KittiSource
 from vslam_core.sources.ros.bag import RosbagSource
 from vslam_core.sources.stamps import DEFAULT_GT_TOLERANCE_S
@@ -40,7 +41,8 @@ def open_source(
     gt_tolerance_s: float = DEFAULT_GT_TOLERANCE_S,
 ) -> FrameSource:
     """None or "synthetic": the embedded synthetic street. A ROS 1 ``.bag``, a ROS 2 bag folder or a bare
-    ``.mcap``/``.db3``: `RosbagSource`. A video file: `VideoSource`. A folder with ``sequences/`` or
+    ``.mcap``/``.db3``, or a ROS 2 bag folder without ``metadata.yaml`` (the recorder killed) holding one
+    ``.mcap``: `RosbagSource`. A video file: `VideoSource`. A folder with ``sequences/`` or
     ``image_0/``: KITTI; with ``mav0/``: EuRoC; with ``camera.txt``, ``times.txt`` and ``images/``: TUM
     monoVO. Any other folder: `ImageFolderSource`. `inject` wraps the source in a `FaultInjector` (e.g.
     ``"dark@120,blur@200:210"``)."""
@@ -78,6 +80,7 @@ def _open(r: _Request) -> FrameSource:
     path = Path(r.spec)
     if not path.exists():
         raise SourceError(f"{path}: no such file or folder")
+    path = _unfinished_bag(path) or path
     if path.suffix.lower() in LOG_SUFFIXES or (path / "metadata.yaml").is_file():
         _refuse(given, ("--sequence",), f"{path} is a ROS log, not a KITTI dataset root")
         return RosbagSource(path, topic=r.topic, frames=r.frames, calibration=_calibration(r),
@@ -107,6 +110,18 @@ def _open(r: _Request) -> FrameSource:
                              on_bad_frame=r.on_bad_frame)
     return ImageFolderSource(path, intrinsics=_calibration(r), ground_truth=r.ground_truth, gt_format=r.gt_format,
                              frames=r.frames, on_bad_frame=r.on_bad_frame)
+
+
+def _unfinished_bag(path: Path) -> Path | None:
+    """The MCAP file of a ROS 2 bag folder whose recorder was killed before it wrote ``metadata.yaml``: a folder
+    holding one ``.mcap`` file and no images (None for anything else)."""
+    if not path.is_dir() or (path / "metadata.yaml").exists():
+        return None
+    files = [p for p in path.iterdir() if p.is_file()]
+    logs = [p for p in files if p.suffix == ".mcap"]
+    if len(logs) != 1 or any(p.suffix.lower() in IMAGE_EXTENSIONS for p in files):
+        return None
+    return logs[0]
 
 
 def _refuse(given: Mapping[str, object], options: tuple[str, ...], reason: str) -> None:
