@@ -116,9 +116,11 @@ class MapConfig:
 
     # keyframe selection: a frame becomes a keyframe when any of these holds
     keyframe_parallax_px: float = 30.0  # median track displacement since the last keyframe reaches this
+    keyframe_derotated_parallax: bool = False  # ... counting only the displacement translation caused
     keyframe_overlap: float = 0.5  # fewer than this share of the last keyframe's landmarks are still tracked
     keyframe_min_landmarks: int = 120  # fewer landmarks tracked than this
     keyframe_max_frames: int = 10  # this many frames since the last keyframe
+    init_parallax_px: float = 20.0  # --scale none: the map's first baseline needs this translation parallax
     # landmarks
     min_triangulation_deg: float = 1.0  # rays of a new landmark meet at least at this angle
     max_reprojection_px: float = 2.0  # a new landmark reprojects this well into both keyframes
