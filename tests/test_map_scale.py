@@ -4,17 +4,25 @@ with ground-truth scale the series sits at 1."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from cli_helpers import vslam
 
 from app.rrd import read_entity
+from vslam_core.config import EngineConfig
 from vslam_core.mapping.map_scale import INITIAL_SPEED, MapSpeed, translation_parallax
+from vslam_core.mapping.tracking import MapTracking
 from vslam_core.metrics import kitti_errors, sim3_aligned
-from vslam_core.scale import TwoView
-from vslam_core.sources.base import rebase_poses
+from vslam_core.pipeline import run_odometry
+from vslam_core.results import FrameResult, TrackingMode
+from vslam_core.scale import TwoView, UnitScale
+from vslam_core.sources.base import FrameRange, rebase_poses
+from vslam_core.sources.faults import FaultInjector, parse_faults
+from vslam_core.sources.kitti import KittiSource
 from vslam_core.trajectory_io import read_kitti_poses
 
 #: KITTI 05 frames 0:150: ~150 m, a turn at frames 116–153 (05 ground truth agrees with its images).
@@ -102,3 +110,56 @@ def test_scale_gt_series_sits_at_one(kitti_root: Path, tmp_path: Path) -> None:
     assert abs(np.median(ratios) - 1.0) < 0.02
     legend = read_entity(rrd, "/metrics/map_scale/step_over_truth", static=True)["SeriesLines:names"].to_list()
     assert legend[-1] == ["step length estimate / truth (ground truth given)"]
+
+
+@pytest.mark.kitti
+def test_frames_the_map_cannot_place_take_the_maps_speed(kitti_root: Path) -> None:
+    """KITTI 05 0:80 with frames 60–62 blurred, --scale none: the map was initialised at one unit a frame
+    while the car drove 0.6 m a frame, and it drives ~1.07 m a frame by frame 40, so the map moves ~1.8 units a
+    frame there. The blurred frames are dead-reckoned with that speed, not with unit steps."""
+    source = FaultInjector(KittiSource(kitti_root, sequence="05", frames=FrameRange(0, 80)), parse_faults("blur@60:62"))
+    results: list[FrameResult] = []
+    run_odometry(source, EngineConfig(backend="map", scale="none", threads=1), (lambda _, r: results.append(r),))
+    centres = np.array([r.T_world_cam[:3, 3] for r in results])
+    steps = np.linalg.norm(np.diff(centres, axis=0), axis=1)  # steps[i - 1]: frame i - 1 → i, as tracked
+    modes = [r.mapping.mode if r.mapping is not None else None for r in results]
+    mapped = [steps[i - 1] for i in range(45, 60) if modes[i] == TrackingMode.MAP and modes[i - 1] == TrackingMode.MAP]
+    coasted = [steps[i - 1] for i in range(60, 63) if modes[i] == TrackingMode.COASTED]
+    assert len(mapped) >= 10 and coasted, modes[40:70]
+    speed = float(np.median(mapped))
+    assert speed > 1.4  # the map's unit is not the car's metre: a unit step would be far off
+    np.testing.assert_allclose(coasted, speed, rtol=0.25)
+
+
+def keyframe_reasons(results: list[FrameResult]) -> list[str]:
+    return [r.mapping.keyframe.why for r in results if r.mapping is not None and r.mapping.keyframe is not None]
+
+
+@pytest.mark.kitti
+def test_the_map_is_not_initialised_from_a_pure_rotation(kitti_root: Path) -> None:
+    """A camera turning on the spot (a real KITTI frame re-imaged through K·R·K⁻¹, 0.8° of yaw a frame) gives
+    no translation parallax: with --scale none no second keyframe sets the map's scale from it, and no landmark
+    is made. The same frames driven forward initialise the map within a few frames."""
+    source = KittiSource(kitti_root, sequence="05", frames=FrameRange(0, 25))
+    camera = source.intrinsics
+    first = next(iter(source))
+    config = EngineConfig(backend="map", scale="none", threads=1)
+    tracking = MapTracking(camera, config, UnitScale())
+    try:
+        results = []
+        for i in range(25):
+            angle = np.radians(0.8 * i)
+            rotation = np.array([[np.cos(angle), 0, np.sin(angle)], [0, 1, 0], [-np.sin(angle), 0, np.cos(angle)]])
+            warp = camera.K @ rotation.T @ np.linalg.inv(camera.K)
+            image = cv2.warpPerspective(first.image, warp, (camera.width, camera.height))
+            results.append(tracking.process(replace(first, index=i, image=image)))
+        reasons = keyframe_reasons(results)
+        assert reasons[0] == "initialisation" and not [why for why in reasons if why.startswith("initialisation:")]
+        assert not tracking.mapping.map.landmarks
+    finally:
+        tracking.close()
+    driven: list[FrameResult] = []
+    run_odometry(source, config, (lambda _, r: driven.append(r),))
+    reasons = keyframe_reasons(driven)
+    assert reasons[0] == "initialisation" and reasons[1].startswith("initialisation: parallax"), reasons
+    assert float(reasons[1].split()[2]) >= config.map.init_parallax_px

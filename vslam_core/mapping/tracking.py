@@ -27,7 +27,7 @@ from vslam_core.features import match_descriptors
 from vslam_core.geometry import interpolate_pose, invert_pose, orthonormalise, pose_matrix, rotation_angle
 from vslam_core.lens import distort_pixels, undistort_pixels
 from vslam_core.mapping.local_mapping import DESCRIPTOR_PATCH, LocalMapping
-from vslam_core.mapping.map_scale import MapSpeed, translation_parallax
+from vslam_core.mapping.map_scale import MapSpeed, for_scale, translation_parallax
 from vslam_core.mapping.pnp import PnPSolution, solve_pnp
 from vslam_core.results import (
     BundleAdjusted,
@@ -63,13 +63,13 @@ class MapTracking:
             raise ConfigError(problem)
         self._lens = intrinsics  # tracks are on raw pixels; the map's geometry on ideal ones (vslam_core/lens.py)
         self.config = config
-        self._cfg = config.map
+        self._cfg = for_scale(config.map, config.scale)
         self._K = intrinsics.K
         # --scale none: steps the map cannot place take their length from the map's speed, never unit steps
         self._speed = MapSpeed() if config.scale == "none" else None
         self._scale: ScaleProvider = self._speed if self._speed is not None else scale
         self._odometry = Odometry(intrinsics, config, self._scale, coast=False)  # coasting is done here, with the map
-        self.mapping = LocalMapping(self._K, config.map, config.scale, background=config.threads > 1,
+        self.mapping = LocalMapping(self._K, self._cfg, config.scale, background=config.threads > 1,
                                     lens=intrinsics)
         self._links: dict[int, int] = {}  # live track id -> landmark id
         self._segment = 0
@@ -295,7 +295,7 @@ class MapTracking:
         if len(in_frame):
             pixels = self._ideal(vo.track_cur[alive][in_frame])
             parallax = translation_parallax(reference.T_world_cam, pose, pixels, reference.pixels[in_reference],
-                                            self._K) if cfg.keyframe_derotated_parallax else \
+                                            self._K) if self._speed is not None else \
                 float(np.median(np.linalg.norm(pixels - reference.pixels[in_reference], axis=1)))
             if parallax >= cfg.keyframe_parallax_px:
                 return f"parallax {parallax:.0f} px"
