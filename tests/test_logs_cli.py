@@ -18,6 +18,7 @@ from vslam.rrd.provenance import PROPERTIES, read_properties
 from vslam.rrd.read import read_entity
 from vslam_core.config import EngineConfig
 from vslam_core.pipeline import RunResult, run_odometry
+from vslam_core.results import FrameResult, TrackingMode
 from vslam_core.sources.base import CameraIntrinsics, FrameRange, FrameSource
 from vslam_core.sources.kitti import KittiSource
 from vslam_core.sources.ros.bag import RosbagSource
@@ -118,10 +119,43 @@ def test_eval_scores_a_log_against_tum_ground_truth(logs: dict[str, LensLog]) ->
     assert row["r_err"] == pytest.approx(r_err, abs=1e-6)
 
 
+def map_run(source: FrameSource) -> tuple[float, float, list[FrameResult]]:
+    """KITTI t_err and r_err of the map backend on `source` (scale from ground truth), and its results."""
+    results: list[FrameResult] = []
+    run = run_odometry(source, EngineConfig(backend="map", threads=1), (lambda _, r: results.append(r),))
+    assert source.ground_truth is not None
+    return (*kitti_errors(source.ground_truth, run.pose_array()), results)
+
+
 @pytest.mark.kitti
-def test_a_log_with_the_map_backend_is_refused_in_one_line(logs: dict[str, LensLog]) -> None:
-    result = vslam("run", logs["sqlite3-plumb_bob"].path, "--backend", "map", "--detail", "off")
-    assert_one_line_error(result, "--backend map does not model lens distortion yet")
+def test_the_map_backend_tracks_a_log_through_a_lens(kitti_root: Path, logs: dict[str, LensLog]) -> None:
+    """Strong radial–tangential lens: PnP, landmarks and BA on ideal pixels track as well as on the rectified
+    frames, and the PnP overlays are drawn where the tracks are, on the raw image."""
+    log = logs["sqlite3-plumb_bob"]
+    t_lens, r_lens, results = map_run(RosbagSource(log.path, ground_truth=log.gt_path))
+    t_rect, r_rect, _ = map_run(KittiSource(kitti_root, sequence="00", frames=FrameRange(FRAMES.start, FRAMES.stop)))
+    assert t_lens <= 1.5 * t_rect + 0.5, (t_lens, t_rect)
+    assert r_lens <= 1.5 * r_rect + 0.5, (r_lens, r_rect)
+    mapped = [r for r in results if r.mapping is not None and r.mapping.mode == TrackingMode.MAP]
+    assert len(mapped) >= 0.8 * len(FRAMES)
+    for result in mapped[::10]:
+        assert result.mapping is not None and result.mapping.pnp is not None
+        observed = result.mapping.pnp.observed
+        tracked = result.track_cur.astype(np.float64)
+        nearest = np.min(np.linalg.norm(observed[:, None] - tracked[None], axis=2), axis=1)
+        assert np.all(nearest < 1e-3)  # each landmark is drawn at its track's raw pixel
+        inliers = result.mapping.pnp.inlier_mask
+        residual = np.linalg.norm(result.mapping.pnp.projected[inliers] - observed[inliers], axis=1)
+        assert np.median(residual) < 1.5  # projected through the lens, next to the raw pixel
+
+
+@pytest.mark.kitti
+def test_the_map_backend_runs_a_log_through_a_lens_from_the_cli(logs: dict[str, LensLog], tmp_path: Path) -> None:
+    result = vslam("run", logs["sqlite3-plumb_bob"].path, "--backend", "map", "--frames", "0:40", "--detail",
+                   "summary", "-o", tmp_path / "lens.rrd")
+    assert result.returncode == 0, result.stderr
+    modes = [v[0] for v in read_entity(tmp_path / "lens.rrd", "/tracking")["mode"].to_list()]
+    assert modes.count("map") >= 30, modes
 
 
 # ------------------------------------------------------------------------------------------- bad logs

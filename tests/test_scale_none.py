@@ -40,7 +40,7 @@ def test_run_summary_prints_the_aligned_errors_and_says_so(unit_run: tuple[Path,
     raw_t, _ = kitti_errors(gt, poses)
     printed = float(re.search(r"t_err ([\d.]+) %", stdout).group(1))  # type: ignore[union-attr]
     assert printed == pytest.approx(aligned_t, abs=0.006) and abs(raw_t - aligned_t) > 1.0
-    assert "after Sim(3) alignment: --scale none has unit steps" in stdout
+    assert "after Sim(3) alignment: --scale none has no metric scale" in stdout
     rms = float(re.search(r"paper RMS\s+([\d.]+) m \(x–z, after Sim\(3\) alignment\)", stdout).group(1))  # type: ignore[union-attr]
     assert rms == pytest.approx(paper_rms_error(gt, sim3_aligned(gt, poses)), abs=0.006)
 

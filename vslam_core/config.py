@@ -140,6 +140,12 @@ class MapConfig:
     ba_max_landmarks: int = 400  # the window's landmarks with the most observations
     scale_sigma_gt: float = 0.01  # m: keyframe-to-keyframe distance prior with --scale gt
     scale_sigma_height: float = 0.05  # fraction of the distance with --scale height
+    # --scale none: the map's own scale carries the trajectory (vslam_core/mapping/map_scale.py). The first
+    # baseline waits for this much translation parallax; then these replace min_triangulation_deg and
+    # ba_iterations, and the keyframe parallax counts only the displacement translation caused
+    init_parallax_px: float = 20.0
+    none_min_triangulation_deg: float = 3.0
+    none_ba_iterations: int = 10
     # relocalisation
     reloc_keyframes: int = 10  # landmarks of this many recent keyframes are searched
     reloc_fast_threshold: int = 15  # FAST corners of the lost frame that are described and matched

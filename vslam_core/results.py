@@ -112,8 +112,9 @@ class PnPEstimate:
     """Tracking against the map: L landmarks seen by this frame's tracks (or matched by relocalisation)."""
 
     landmark_ids: np.ndarray  # (L,) int64
-    observed: np.ndarray  # (L, 2) pixel position of each in this frame (tracked or matched)
-    projected: np.ndarray  # (L, 2) the landmark projected with the pose used (NaN where behind the camera)
+    observed: np.ndarray  # (L, 2) raw image pixel of each in this frame (tracked or matched)
+    projected: np.ndarray  # (L, 2) the landmark projected with the pose used, through the lens onto the raw image
+    # (NaN where behind the camera); inside the engine both are ideal pinhole pixels until the frame's result
     inlier_mask: np.ndarray  # (L,) bool: RANSAC inliers kept after refinement
     T_world_cam: np.ndarray | None  # (4, 4) the refined PnP pose; None when PnP failed  # noqa: N815
     rejected: str | None = None  # why it was not used, if it was not

@@ -113,7 +113,7 @@ def _summary(source: FrameSource, run: RunResult, config: EngineConfig) -> None:
         t_err, r_err = kitti_errors(gt, scored)
         lines.append(f"KITTI       t_err {t_err:.2f} %   r_err {r_err:.2f} °/100 m"
                      + ("   (path < 100 m: no segment)" if np.isnan(t_err) else "")
-                     + ("   (after Sim(3) alignment: --scale none has unit steps)" if aligned else ""))
+                     + ("   (after Sim(3) alignment: --scale none has no metric scale)" if aligned else ""))
         lines.append(f"paper RMS   {paper_rms_error(gt, scored):.2f} m (x–z, "
                      + ("after Sim(3) alignment)" if aligned else "no alignment)"))
     out.print("\n".join(lines), highlight=False)

@@ -5,6 +5,11 @@
                                         not used: "" if it was, "no PnP" if it was not tried)
     /metrics/tracking/{mode,pnp_inliers,landmarks_tracked}   per-frame series (mode numbered as in
                                         `MODE_LEVELS`: 0 lost, 1 two-view or init, 2 map, 3 relocalised)
+    /metrics/map_scale/step             per frame with a pose: the distance from the previous frame's pose as
+                                        tracked, in the map's units (metres with gt or height; with none the
+                                        map's own scale, which should drift slowly, never reset)
+    /metrics/map_scale/step_over_truth  with ground truth: that step over the ground truth's step (frames whose
+                                        ground-truth step is at least `MIN_TRUTH_STEP_M`): where scale was lost
     /metrics/ba/...                     per bundle adjustment run: iterations, costs, mean/max errors, solver
                                         time, factors, culled landmarks
     /metrics/timing_ms/{pnp,relocalise,mapping}   the map backend's stages, on frames that ran them
@@ -49,7 +54,7 @@ import rerun as rr
 from vslam.recording.columns import ColumnBuffer, Part, add_event
 from vslam.recording.metrics import MAP_METRICS, MAP_STAGES, MAP_TIMING, map_frame_metrics
 from vslam.recording.styles import Detail
-from vslam_core.results import BundleAdjusted, FrameResult, MapFrame, MapView, PnPEstimate
+from vslam_core.results import BundleAdjusted, FrameResult, MapFrame, MapView, PnPEstimate, TrackingMode
 from vslam_core.sources.base import CameraIntrinsics, Frame
 
 FRUSTUM_DEPTH = 1.0  # metres (or baselines with --scale none) from a keyframe's centre to its image plane
@@ -68,6 +73,7 @@ RESIDUAL_RAMP: tuple[tuple[float, tuple[int, int, int]], ...] = (
 )
 NO_RESIDUAL_COLOUR = (120, 120, 120)
 PNP_OUTLIER, PNP_INLIER = 0, 1
+MIN_TRUTH_STEP_M = 0.05  # a ground-truth step shorter than this (the car stands) gives no scale ratio
 PNP_STYLE = {PNP_OUTLIER: ("PnP outlier", (230, 30, 30)), PNP_INLIER: ("PnP inlier", (0, 230, 255))}
 
 
@@ -75,8 +81,10 @@ class MapRecording:
     """Buffers the map backend's entities of each frame into the recorder's column buffer."""
 
     def __init__(self, rec: rr.RecordingStream, columns: ColumnBuffer, intrinsics: CameraIntrinsics,
-                 detail: Detail) -> None:
+                 detail: Detail, ground_truth: np.ndarray | None = None) -> None:
         self._columns = columns
+        self._truth = ground_truth[:, :3, 3] if ground_truth is not None else None  # (N, 3) positions
+        self._previous: tuple[int, np.ndarray] | None = None  # run position and centre of the last frame with a pose
         self._detail = detail
         self._frustum = frustum_outline(intrinsics.K, intrinsics.width, intrinsics.height, FRUSTUM_DEPTH)
         self._segment: int | None = None
@@ -119,6 +127,7 @@ class MapRecording:
             for name in series:
                 if name in values:
                     columns.add_scalar(f"/metrics/{group}/{name}", frame, values[name])
+        self._log_scale(frame, result, mapping)
         for stage in MAP_STAGES:
             if stage in result.timings_ms:
                 columns.add_scalar(f"/metrics/timing_ms/{stage}", frame, result.timings_ms[stage])
@@ -134,6 +143,21 @@ class MapRecording:
             elif new_segment:  # the old map's residuals go
                 self._log_residuals(frame, None)
         self._log_events(frame, mapping, new_segment)
+
+    def _log_scale(self, frame: Frame, result: FrameResult, mapping: MapFrame) -> None:
+        """The map's scale: this frame's step in map units, and over the ground truth's step when known."""
+        if mapping.mode == TrackingMode.LOST:
+            return
+        centre = result.T_world_cam[:3, 3]
+        previous, self._previous = self._previous, (result.position, centre.copy())
+        if previous is None or mapping.mode == TrackingMode.INIT:
+            return
+        step = float(np.linalg.norm(centre - previous[1]))
+        self._columns.add_scalar("/metrics/map_scale/step", frame, step)
+        if self._truth is not None and result.position < len(self._truth):
+            truth = float(np.linalg.norm(self._truth[result.position] - self._truth[previous[0]]))
+            if truth >= MIN_TRUTH_STEP_M:
+                self._columns.add_scalar("/metrics/map_scale/step_over_truth", frame, step / truth)
 
     def _log_view(self, frame: Frame, view: MapView) -> None:
         """Window and fixed keyframes, what retired, the landmarks and the keyframe path (at a keyframe)."""

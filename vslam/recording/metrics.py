@@ -105,6 +105,10 @@ MAP_METRICS: dict[str, dict[str, tuple[str, tuple[int, int, int]]]] = {
         "pnp_inliers": ("PnP inliers", (40, 220, 60)),
         "landmarks_tracked": ("landmarks tracked", (80, 160, 255)),
     },
+    "map_scale": {  # the map's scale as it goes: with --scale none an arbitrary unit that should only drift slowly
+        "step": ("step length in map units (metres with gt or height)", (0, 200, 255)),
+        "step_over_truth": ("step length estimate / truth (ground truth given)", (255, 140, 0)),
+    },
     "ba": {
         "mean_error_before_px": ("mean error before (px)", (255, 140, 0)),
         "mean_error_after_px": ("mean error after (px)", (40, 220, 60)),

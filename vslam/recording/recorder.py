@@ -107,8 +107,8 @@ class Recorder:
             entities = ["/world/camera/image"] + ([UNDISTORTED] if self._undistort is not None else [])
             self._videos = {e: VideoEntity(self._rec, e, image_codec, self._encoder) for e in entities}
         # the map backend's entities (statics logged here; nothing at all is logged with the odometry backend)
-        self._map = (MapRecording(self._rec, self._columns, source.intrinsics, detail) if config.backend == "map"
-                     else None)
+        self._map = (MapRecording(self._rec, self._columns, source.intrinsics, detail, self._gt)
+                     if config.backend == "map" else None)
 
     def __enter__(self) -> Recorder:
         return self
@@ -243,7 +243,7 @@ class Recorder:
         self._log_events(frame, result)
         if result.mapping is not None:
             if self._map is None:
-                self._map = MapRecording(self._rec, columns, self._intrinsics, self.detail)
+                self._map = MapRecording(self._rec, columns, self._intrinsics, self.detail, self._gt)
             self._map.log_frame(frame, result, result.mapping)
         if "status" not in unreported:
             columns.add("/health", frame, (rr.AnyValues.columns, {"status": str(result.health.status),

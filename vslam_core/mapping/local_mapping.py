@@ -18,9 +18,11 @@ import numpy as np
 
 from vslam_core.config import MapConfig, ScaleSource
 from vslam_core.geometry import invert_pose, normalise_points, orthonormalise, triangulate
+from vslam_core.lens import distort_pixels
 from vslam_core.mapping.bundle_adjustment import BundleAdjuster, Problem, Solution
 from vslam_core.mapping.map import Keyframe, Map
 from vslam_core.results import BundleAdjusted, KeyframeInserted, MapView
+from vslam_core.sources.base import CameraIntrinsics
 
 DESCRIPTOR_PATCH = 31.0  # ORB's patch size: the keypoint size of a landmark's descriptor
 
@@ -37,8 +39,12 @@ class _Submitted:
 class LocalMapping:
     """Owns the map; tracking hands it keyframes and reads landmarks back."""
 
-    def __init__(self, K: np.ndarray, config: MapConfig, scale: ScaleSource, background: bool) -> None:  # noqa: N803
+    def __init__(self, K: np.ndarray, config: MapConfig, scale: ScaleSource, background: bool,  # noqa: N803
+                 lens: CameraIntrinsics | None = None) -> None:
+        """Pixels handed in are ideal pinhole pixels of K; `lens` (if distorted) places them on the raw image
+        for the descriptors."""
         self.map = Map()
+        self._lens = lens
         self._K = K
         self._config = config
         self._scale = scale
@@ -251,8 +257,10 @@ class LocalMapping:
         landmark_ids = sorted(keyframe.landmark_ids)
         if not landmark_ids:
             return
+        ideal = np.array([self.map.landmarks[i].observations[keyframe.id] for i in landmark_ids], np.float64)
+        raw = distort_pixels(ideal, self._lens) if self._lens is not None and self._lens.distorted else ideal
         keypoints = [cv2.KeyPoint(float(p[0]), float(p[1]), DESCRIPTOR_PATCH, 0.0, 0.0, 0, i)
-                     for i, p in ((i, self.map.landmarks[i].observations[keyframe.id]) for i in landmark_ids)]
+                     for i, p in zip(landmark_ids, raw, strict=True)]
         described, descriptors = self.describer.compute(image, keypoints)
         if descriptors is None:
             return

@@ -25,7 +25,9 @@ from vslam_core.engine import Odometry
 from vslam_core.errors import ConfigError
 from vslam_core.features import match_descriptors
 from vslam_core.geometry import interpolate_pose, invert_pose, orthonormalise, pose_matrix, rotation_angle
+from vslam_core.lens import distort_pixels, undistort_pixels
 from vslam_core.mapping.local_mapping import DESCRIPTOR_PATCH, LocalMapping
+from vslam_core.mapping.map_scale import MapSpeed, for_scale, translation_parallax
 from vslam_core.mapping.pnp import PnPSolution, solve_pnp
 from vslam_core.results import (
     BundleAdjusted,
@@ -48,12 +50,9 @@ HOLD_REASONS = {Reason.TOO_FEW_TRACKS, Reason.LOW_PARALLAX, Reason.NO_ESSENTIAL,
 
 
 def unsupported_camera(intrinsics: CameraIntrinsics) -> str | None:
-    """Why this backend cannot run on this camera, if so: its PnP, landmarks and relocalisation treat raw
-    pixels as pinhole ones, so a distorted lens is refused rather than tracked wrongly."""
-    if not intrinsics.distorted:
-        return None
-    return (f"--backend map does not model lens distortion yet (this camera: {intrinsics.model}); use the "
-            "default backend vo, which undistorts its tracks")
+    """Why this backend cannot run on this camera, if so: none since it models lens distortion (tracks stay
+    on raw pixels; PnP, landmarks, triangulation and bundle adjustment use their ideal pinhole pixels)."""
+    return None
 
 
 class MapTracking:
@@ -62,12 +61,16 @@ class MapTracking:
     def __init__(self, intrinsics: CameraIntrinsics, config: EngineConfig, scale: ScaleProvider) -> None:
         if (problem := unsupported_camera(intrinsics)) is not None:
             raise ConfigError(problem)
+        self._lens = intrinsics  # tracks are on raw pixels; the map's geometry on ideal ones (vslam_core/lens.py)
         self.config = config
-        self._cfg = config.map
+        self._cfg = for_scale(config.map, config.scale)
         self._K = intrinsics.K
-        self._scale = scale
-        self._odometry = Odometry(intrinsics, config, scale, coast=False)  # coasting is done here, with the map
-        self.mapping = LocalMapping(self._K, config.map, config.scale, background=config.threads > 1)
+        # --scale none: steps the map cannot place take their length from the map's speed, never unit steps
+        self._speed = MapSpeed() if config.scale == "none" else None
+        self._scale: ScaleProvider = self._speed if self._speed is not None else scale
+        self._odometry = Odometry(intrinsics, config, self._scale, coast=False)  # coasting is done here, with the map
+        self.mapping = LocalMapping(self._K, self._cfg, config.scale, background=config.threads > 1,
+                                    lens=intrinsics)
         self._links: dict[int, int] = {}  # live track id -> landmark id
         self._segment = 0
         self._reference = -1  # newest keyframe id
@@ -183,7 +186,7 @@ class MapTracking:
         if not rows and not self._links:
             return None
         landmark_ids = np.array([landmark for _, landmark in rows], np.int64)
-        observed = pixels[np.array([n for n, _ in rows], np.int64)].astype(np.float64).reshape(-1, 2)
+        observed = self._ideal(pixels[np.array([n for n, _ in rows], np.int64)])
         if len(rows) < cfg.pnp_min_landmarks:
             return PnPEstimate(landmark_ids, observed, np.full_like(observed, np.nan), np.zeros(len(rows), bool),
                                None, f"only {len(rows)} landmarks tracked")
@@ -249,7 +252,8 @@ class MapTracking:
         if len(query_index) < cfg.reloc_min_inliers:
             return failed, None
         landmark_ids = np.array(candidates, np.int64)[train_index]
-        pixels = np.array([keypoints[i].pt for i in query_index], np.float64)
+        raw = np.array([keypoints[i].pt for i in query_index], np.float64).reshape(-1, 2)
+        pixels = self._ideal(raw)
         solution = solve_pnp(self.mapping.map.positions(landmark_ids), pixels, self._K, cfg.reloc_threshold_px,
                              cfg.reloc_iterations, (self.config.pose.seed, position, 1))
         inliers = int(solution.inlier_mask.sum())
@@ -257,7 +261,7 @@ class MapTracking:
             return replace(failed, inliers=inliers), None
         found = set(landmark_ids[solution.inlier_mask].tolist())
         best = max(recent, key=lambda k: (len(k.landmark_ids & found), k.id))
-        new_tracks = self._odometry.add_tracks(pixels[solution.inlier_mask].astype(np.float32))
+        new_tracks = self._odometry.add_tracks(raw[solution.inlier_mask].astype(np.float32))
         self._links.update(zip(new_tracks.tolist(), landmark_ids[solution.inlier_mask].tolist(), strict=True))
         return (Relocalisation(True, best.id, len(candidates), len(query_index), inliers),
                 PnPEstimate(landmark_ids, pixels, solution.projected, solution.inlier_mask, solution.T_world_cam))
@@ -265,8 +269,8 @@ class MapTracking:
     def _coast(self, image: np.ndarray, position: int) -> np.ndarray | None:
         """Dead reckoning from the previous frame: the rotation and direction the degraded images still give
         (vslam_core/coasting.py), the step length from the scale source. None if they give none."""
-        if self._previous_image is None or self._reference < 0:
-            return None
+        if self._previous_image is None or self._reference < 0 or self._lens.distorted:
+            return None  # dead reckoning works on pinhole images only (as in vo)
         motion = degraded_motion(self._previous_image, image, self._K)
         if motion is None:
             return None
@@ -276,18 +280,23 @@ class MapTracking:
 
     # -- keyframes and the result ---------------------------------------------------------------------------
 
-    def _keyframe_reason(self, vo: FrameResult, pnp: PnPEstimate | None) -> str | None:
+    def _keyframe_reason(self, vo: FrameResult, pnp: PnPEstimate | None, pose: np.ndarray) -> str | None:
         """What makes this tracked frame a keyframe, if anything."""
         cfg = self._cfg
         reference = self.mapping.map.keyframes[self._reference]
-        if self._since_keyframe >= cfg.keyframe_max_frames:
-            return f"{self._since_keyframe} frames"
         alive = vo.track_fate >= TrackFate.NOT_USED
         _, in_reference, in_frame = np.intersect1d(reference.track_ids, vo.track_ids[alive], assume_unique=True,
                                                    return_indices=True)
+        if self._speed is not None and not self._has_map():
+            return self._initialisation_reason(vo, pose, reference.T_world_cam, in_frame,
+                                               reference.pixels[in_reference])
+        if self._since_keyframe >= cfg.keyframe_max_frames:
+            return f"{self._since_keyframe} frames"
         if len(in_frame):
-            parallax = float(np.median(np.linalg.norm(vo.track_cur[alive][in_frame] - reference.pixels[in_reference],
-                                                      axis=1)))
+            pixels = self._ideal(vo.track_cur[alive][in_frame])
+            parallax = translation_parallax(reference.T_world_cam, pose, pixels, reference.pixels[in_reference],
+                                            self._K) if self._speed is not None else \
+                float(np.median(np.linalg.norm(pixels - reference.pixels[in_reference], axis=1)))
             if parallax >= cfg.keyframe_parallax_px:
                 return f"parallax {parallax:.0f} px"
         if pnp is not None and pnp.T_world_cam is not None and reference.landmark_ids:
@@ -298,6 +307,22 @@ class MapTracking:
             if overlap < cfg.keyframe_overlap:
                 return f"overlap {overlap:.2f}"
         return None
+
+    def _initialisation_reason(self, vo: FrameResult, pose: np.ndarray, T_world_key: np.ndarray,  # noqa: N803
+                               in_frame: np.ndarray, key_pixels: np.ndarray) -> str | None:
+        """--scale none, before the map has landmarks: the next keyframe's baseline sets the map's scale, so it
+        waits for a well-conditioned two-view reconstruction from the last keyframe: translation parallax
+        (rotation removed) of `init_parallax_px` and an unambiguous chirality (Hartley & Zisserman, sec. 9.6:
+        pure rotation and near-degenerate baselines leave the translation, and so the scale, undetermined).
+        If the keyframe's tracks are lost first, initialisation starts again from this frame."""
+        if len(in_frame) < self._cfg.pnp_min_landmarks:
+            return "re-initialisation: tracks lost"
+        alive = vo.track_fate >= TrackFate.NOT_USED
+        parallax = translation_parallax(T_world_key, pose, self._ideal(vo.track_cur[alive][in_frame]), key_pixels,
+                                        self._K)
+        if parallax < self._cfg.init_parallax_px or Reason.CLOSE_CHIRALITY in vo.health.reasons:
+            return None
+        return f"initialisation: parallax {parallax:.0f} px"
 
     def _metric_step(self, position: int, pose: np.ndarray) -> float | None:
         """Distance from the previous keyframe by the scale source (the BA's range prior); None for unit scale."""
@@ -324,7 +349,7 @@ class MapTracking:
                 self._gap = False
         self._since_keyframe += 1
         if not held and why is None and mode in (TrackingMode.MAP, TrackingMode.TWO_VIEW):
-            why = self._keyframe_reason(vo, pnp)
+            why = self._keyframe_reason(vo, pnp, pose)
         keyframe = view = None
         bundle: BundleAdjusted | None = None
         if why is not None:
@@ -335,7 +360,8 @@ class MapTracking:
                 pose = orthonormalise(correction @ pose)
             track_ids, pixels = self._odometry.live_tracks()
             keyframe, links, view = self.mapping.insert_keyframe(
-                vo.position, self._segment, pose, track_ids, pixels, frame.image, self._metric_step(vo.position, pose),
+                vo.position, self._segment, pose, track_ids, self._ideal(pixels), frame.image,
+                self._metric_step(vo.position, pose),
                 why, self._links)
             live = set(track_ids.tolist())
             landmarks = self.mapping.map.landmarks
@@ -347,12 +373,26 @@ class MapTracking:
             self._relative[vo.position] = (self._reference,
                                            invert_pose(self.mapping.map.keyframes[self._reference].T_world_cam) @ pose)
         self._last_pose = pose
+        if self._speed is not None and not held:
+            self._speed.observe(vo.position, pose, mode in (TrackingMode.MAP, TrackingMode.RELOCALISED))
         self._previous_image = frame.image
         if mode in (TrackingMode.COASTED, TrackingMode.RELOCALISED) and vo.reason not in UNUSABLE_IMAGE:
             self._odometry.rebase_keyframe()  # the front end measures the next frame from this one
         self._odometry.set_keyframe_pose(self.pose_of(self._odometry.key_position))
         return self._result(vo, pose, held, mode, warnings, two_view,
-                            MapFrame(mode, self._segment, two_view, pnp, keyframe, bundle, relocalisation, view))
+                            MapFrame(mode, self._segment, two_view, self._at_raw_pixels(pnp), keyframe, bundle,
+                                     relocalisation, view))
+
+    def _ideal(self, raw: np.ndarray) -> np.ndarray:
+        """(N, 2) raw image pixels → (N, 2) float64 ideal pinhole pixels of K (a copy when the lens has none)."""
+        return undistort_pixels(raw, self._lens)
+
+    def _at_raw_pixels(self, pnp: PnPEstimate | None) -> PnPEstimate | None:
+        """The estimate with its observed and projected pixels on the raw image, where overlays are drawn."""
+        if pnp is None or not self._lens.distorted:
+            return pnp
+        return replace(pnp, observed=distort_pixels(pnp.observed, self._lens),
+                       projected=distort_pixels(pnp.projected, self._lens))
 
     def _result(self, vo: FrameResult, pose: np.ndarray, held: bool, mode: TrackingMode, warnings: list[Reason],
                 two_view: np.ndarray | None, mapping: MapFrame) -> FrameResult:
