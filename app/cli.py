@@ -158,6 +158,8 @@ def run(
                                                    "skip (hold the pose, log an event)")] = BadFrame.fail,
     force: Annotated[bool, typer.Option("--force", help="replace existing output files (never one another run "
                                         "is writing)")] = False,
+    route: Annotated[str | None, typer.Option(help="synthetic street's route: street (default) or loop (around "
+                                              "a block and back past the start, 660 frames)")] = None,
 ) -> None:
     """Run the odometry on a source and write a Rerun recording (and optionally the trajectory)."""
     from app.checks import (
@@ -178,7 +180,7 @@ def run(
     config = load_config(config_file) if config_file is not None else EngineConfig()
     src = open_source(source, sequence=sequence, frames=frame_range, intrinsics=intrinsics, calib=calib,
                       ground_truth=gt, on_bad_frame=on_bad_frame.value, inject=inject, topic=topic, gt_topic=gt_topic,
-                      gt_tolerance_s=gt_tolerance / 1000.0)
+                      gt_tolerance_s=gt_tolerance / 1000.0, route=route)
     if scale is not None:
         config = config.with_scale(scale.value)
     elif config_file is None and src.ground_truth is None:
