@@ -47,6 +47,7 @@ import numpy as np
 import rerun as rr
 
 from app.recording.columns import ColumnBuffer, Part, add_event
+from app.recording.loops import LoopRecording
 from app.recording.metrics import MAP_METRICS, MAP_STAGES, MAP_TIMING, map_frame_metrics
 from app.recording.styles import Detail
 from vslam_core.results import BundleAdjusted, FrameResult, MapFrame, MapView, PnPEstimate
@@ -81,6 +82,7 @@ class MapRecording:
         self._frustum = frustum_outline(intrinsics.K, intrinsics.width, intrinsics.height, FRUSTUM_DEPTH)
         self._segment: int | None = None
         self._log_static(rec)
+        self._loops = LoopRecording(rec, columns, detail)
 
     def _log_static(self, rec: rr.RecordingStream) -> None:
         for group, series in MAP_METRICS.items():
@@ -134,6 +136,7 @@ class MapRecording:
             elif new_segment:  # the old map's residuals go
                 self._log_residuals(frame, None)
         self._log_events(frame, mapping, new_segment)
+        self._loops.log_frame(frame, result.position, mapping.loop)
 
     def _log_view(self, frame: Frame, view: MapView) -> None:
         """Window and fixed keyframes, what retired, the landmarks and the keyframe path (at a keyframe)."""

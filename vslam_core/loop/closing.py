@@ -76,8 +76,10 @@ class LoopClosing:
         timings["verify"] = _lap(clock)
         best = max((c for c in checked if c[2].rejected is None), key=lambda c: (c[2].inliers, -c[0]), default=None)
         accepted, why = self._consistent(query.keyframe_id, best[0] if best is not None else None)
-        candidates = tuple(self._candidate(query, candidate, score, result, accepted and best is not None
-                                           and candidate == best[0], why)
+        chosen = best[0] if accepted and best is not None else None
+        candidates = tuple(self._candidate(query, candidate, score, result, candidate == chosen,
+                                           why if chosen is None or candidate == chosen
+                                           else "another candidate had more inliers")
                            for candidate, score, result in checked)
         if not accepted or best is None:
             return LoopStep(candidates, None, timings), None
