@@ -201,7 +201,8 @@ class LoopCandidate:
     accepted: bool  # verified and consistent: the loop is closed with it
     why: str  # "accepted", or why not (e.g. "12 inliers < 40", "not consistent yet (1 of 2)")
     query_pixels: np.ndarray  # (M, 2) matched features in the query keyframe's image
-    candidate_pixels: np.ndarray  # (M, 2) the matched landmarks' pixels in the candidate keyframe's image
+    candidate_pixels: np.ndarray  # (M, 2) the matched landmarks' pixels in the candidate keyframe's image (NaN
+    # for a landmark only its neighbouring keyframes saw)
     inlier_mask: np.ndarray  # (M,) bool
     T_candidate_query: np.ndarray | None  # (4, 4) the query camera in the candidate's camera frame  # noqa: N815
     query_image: np.ndarray | None = None  # (H, W) uint8 thumbnails (half size) of both keyframes

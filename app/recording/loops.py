@@ -5,7 +5,8 @@
                                         inliers, accepted, why
     /loops/candidate/image              Image: the query keyframe (left) and its best candidate (right), half
                                         size, side by side (standard and full detail)
-    /loops/candidate/image/matches      LineStrips2D on it: each descriptor match, class inlier / outlier
+    /loops/candidate/image/matches      LineStrips2D on it: each descriptor match to a landmark the candidate
+                                        saw itself, class inlier / outlier
     /loops/closed                       AnyValues per closed loop: query_frame, candidate_frame, inliers,
                                         correction_m, correction_deg (of the query keyframe: the largest),
                                         similarity (Sim(3) graph)
@@ -109,12 +110,14 @@ class LoopRecording:
         side = np.zeros((height, left.shape[1] + right.shape[1]), np.uint8)
         side[: left.shape[0], : left.shape[1]] = left
         side[: right.shape[0], left.shape[1]:] = right
-        half_query = best.query_pixels.astype(np.float32) * 0.5
-        half_candidate = best.candidate_pixels.astype(np.float32) * 0.5 + np.array([left.shape[1], 0], np.float32)
+        shown = np.isfinite(best.candidate_pixels).all(axis=1)  # matches to a neighbour's landmark: not drawn
+        half_query = best.query_pixels[shown].astype(np.float32) * 0.5
+        half_candidate = (best.candidate_pixels[shown].astype(np.float32) * 0.5
+                          + np.array([left.shape[1], 0], np.float32))
         self._rec.log("/loops/candidate/image", rr.Image(side, color_model="L"))
         self._rec.log("/loops/candidate/image/matches", rr.LineStrips2D(
             list(np.stack([half_query, half_candidate], axis=1)), radii=0.6,
-            class_ids=np.where(best.inlier_mask, INLIER, OUTLIER).astype(np.uint16)))
+            class_ids=np.where(best.inlier_mask[shown], INLIER, OUTLIER).astype(np.uint16)))
         self._rec.reset_time()
 
     def _set_time(self, frame: Frame) -> None:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import importlib
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -24,6 +24,7 @@ from vslam_core.mapping.map import Map
 from vslam_core.results import LoopCandidate, LoopClosed, LoopStep
 
 CONSISTENT_KEYFRAMES = 5  # verified candidates of consecutive queries are this close (keyframe ids) to agree
+NEIGHBOURS = 2  # keyframes on each side of a candidate whose landmarks join its verification
 
 
 @dataclass
@@ -40,6 +41,7 @@ class LoopClosing:
         self._config = config.loop
         self._seed = config.pose.seed
         self._metric = config.scale != "none"
+        self._settled = config.map.ba_window + config.map.ba_max_fixed + 1  # keyframes after which BA is done
         self._describer = describer
         self.database = PlaceDatabase(config.loop, config.pose.seed)
         self._pending: _Pending | None = None
@@ -64,13 +66,14 @@ class LoopClosing:
         timings: dict[str, float] = {}
         clock = time.perf_counter()
         query = self._place(map_, pending)
+        self._refresh(map_, pending.keyframe_id - self._settled)
         timings["describe"] = _lap(clock)
         clock = time.perf_counter()
         self.database.add(query)  # its words first (the search never returns the query: min separation)
         found = self.database.candidates(query)
         timings["query"] = _lap(clock)
         clock = time.perf_counter()
-        checked = [(candidate, score, verify(query, self.database.places[candidate], self._K, self._config,
+        checked = [(candidate, score, verify(query, self._with_neighbours(map_, candidate), self._K, self._config,
                                              (self._seed, query.position, candidate, 2), self._metric))
                    for candidate, score in found]
         timings["verify"] = _lap(clock)
@@ -115,6 +118,42 @@ class LoopClosing:
                                if landmark_ids else EMPTY_DESCRIPTORS),
             thumbnail=cv2.resize(pending.image, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA),
         )
+
+    def _refresh(self, map_: Map, keyframe_id: int) -> None:
+        """Re-read a keyframe's landmarks into its place once bundle adjustment no longer moves them (it left the
+        window and the fixed keyframes): verification then uses their refined positions."""
+        place = self.database.places.get(keyframe_id)
+        keyframe = map_.keyframes.get(keyframe_id)
+        if place is None or keyframe is None:
+            return
+        T_cam_world = invert_pose(keyframe.T_world_cam)  # noqa: N806
+        for n, landmark_id in enumerate(place.point_ids.tolist()):
+            landmark = map_.landmarks.get(landmark_id)
+            if landmark is not None:
+                place.points_cam[n] = T_cam_world[:3, :3] @ landmark.position + T_cam_world[:3, 3]
+
+    def _with_neighbours(self, map_: Map, candidate: int) -> KeyframePlace:
+        """The candidate's place with the landmarks of its `NEIGHBOURS` keyframes on each side added (moved into
+        its camera frame by the map's poses; each landmark once): more correspondences for the loop edge."""
+        place = self.database.places[candidate]
+        T_cam_world = invert_pose(map_.keyframes[candidate].T_world_cam)  # noqa: N806
+        seen = set(place.point_ids.tolist())
+        points, pixels, descriptors, ids = [place.points_cam], [place.point_pixels], [place.point_descriptors], \
+            [place.point_ids]
+        for other_id in range(candidate - NEIGHBOURS, candidate + NEIGHBOURS + 1):
+            other = self.database.places.get(other_id)
+            keyframe = map_.keyframes.get(other_id)
+            if other is None or keyframe is None or other_id == candidate or other.segment != place.segment:
+                continue
+            new = np.array([i not in seen for i in other.point_ids.tolist()], bool)
+            seen |= set(other.point_ids[new].tolist())
+            T = T_cam_world @ keyframe.T_world_cam  # noqa: N806
+            points.append(other.points_cam[new] @ T[:3, :3].T + T[:3, 3])
+            pixels.append(np.full((int(new.sum()), 2), np.nan, np.float32))  # not seen in the candidate's image
+            descriptors.append(other.point_descriptors[new])
+            ids.append(other.point_ids[new])
+        return replace(place, points_cam=np.concatenate(points), point_pixels=np.concatenate(pixels),
+                       point_descriptors=np.concatenate(descriptors), point_ids=np.concatenate(ids))
 
     def _consistent(self, query: int, candidate: int | None) -> tuple[bool, str]:
         """Track verified places over consecutive keyframes: accept the `consistency`-th in a row."""
