@@ -160,6 +160,10 @@ def run(
                                         "is writing)")] = False,
     route: Annotated[str | None, typer.Option(help="synthetic street's route: street (default) or loop (around "
                                               "a block and back past the start, 660 frames)")] = None,
+    save_map: Annotated[Path | None, typer.Option(help="--backend map: save the map into this new folder after "
+                                                  "the run (Parquet tables + header.json)")] = None,
+    prior_map: Annotated[Path | None, typer.Option("--map", help="localise each frame in this saved map (poses in "
+                                                   "the map's frame; the map is not changed)")] = None,
 ) -> None:
     """Run the odometry on a source and write a Rerun recording (and optionally the trajectory)."""
     from app.checks import (
@@ -188,6 +192,14 @@ def run(
     config = with_camera_height(config, camera_height, src)
     if backend is not None:
         config = config.with_backend(backend.value)
+    from app.map_files import map_saver, save_map_problem
+    from vslam_core.mapping.storage import load_map
+
+    stored = None
+    if prior_map is not None:
+        stored = load_map(prior_map, src.intrinsics)  # a MapFileError is one line
+        config = config.with_backend("map").with_scale(stored.header.get("scale", config.scale))
+    refuse(save_map_problem(save_map, prior_map, config))
 
     refuse(output_problem(output, detail == Detail.OFF))
     refuse(backend_problem(src, config))
@@ -209,11 +221,12 @@ def run(
         "scale": config.scale,
         "backend": config.backend,
         **({"inject": inject} if inject else {}),
+        **({"prior_map": str(prior_map)} if prior_map is not None else {}),
         **version_properties(),
     }
     try:
         recorded = record_run(src, config, rrd, properties, err, detail, jpeg_quality, outputs.trajectory,
-                              image_codec)
+                              image_codec, stored, map_saver(save_map, src, config) if save_map else None)
     finally:
         outputs.release()
     result, interrupted = recorded.result, recorded.interrupted
@@ -241,7 +254,8 @@ def _existing_recording(path: Path) -> Path:
 
 @app.command()
 def inspect(
-    recording: Annotated[Path, typer.Argument(help="a .rrd written by vslam run")],
+    recording: Annotated[Path, typer.Argument(help="a .rrd written by vslam run, or a map folder written by "
+                                              "--save-map")],
     as_json: Annotated[bool, typer.Option("--json", help="machine-readable output (keys documented in README)")]
     = False,
 ) -> None:
@@ -249,6 +263,15 @@ def inspect(
     from app.inspect import format_report, inspect_recording
     from app.report import json_ready
 
+    if recording.is_dir() and (recording / "header.json").is_file():  # a saved map (vslam run --save-map)
+        from app.map_files import format_map_summary, map_summary
+
+        header = map_summary(recording)
+        if as_json:
+            print(json.dumps(header, indent=2))
+        else:
+            out.print(format_map_summary(recording, header), highlight=False, markup=False)
+        return
     report = inspect_recording(_existing_recording(recording))
     if as_json:
         print(json.dumps(json_ready(report), indent=2, allow_nan=False))

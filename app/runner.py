@@ -4,7 +4,7 @@ recording, safe interruption."""
 from __future__ import annotations
 
 import signal
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,7 +20,8 @@ from app.rrd import has_footer
 from app.trajectory_out import Format, TrajectoryWriter
 from vslam_core.config import EngineConfig
 from vslam_core.errors import VslamError
-from vslam_core.pipeline import FrameSink, RunResult, run_odometry
+from vslam_core.mapping.storage import StoredMap
+from vslam_core.pipeline import Engine, FrameSink, RunResult, run_odometry
 from vslam_core.results import FrameResult
 from vslam_core.sources.base import Frame, FrameSource
 
@@ -139,6 +140,8 @@ def record_run(
     jpeg_quality: int = 75,
     trajectory: TrajectoryWriter | None = None,
     image_codec: ImageCodec = ImageCodec.JPEG,
+    prior_map: StoredMap | None = None,
+    finish: Callable[[Engine], None] | None = None,
 ) -> RecordedRun:
     """Run the engine over `source`, recording to `rrd` (None: no recording) and writing each frame's pose
     to `trajectory` as it goes. Ctrl-C, SIGTERM, bad input (a `VslamError` from the source) and a write
@@ -159,7 +162,7 @@ def record_run(
         sinks: list[FrameSink] = [trajectory] if trajectory is not None else []
         sinks += [recorder.log_frame] if recorder is not None else []
         try:
-            run_odometry(source, config, (*sinks, advance), result)
+            run_odometry(source, config, (*sinks, advance), result, prior_map, finish)
         except Interrupted as exc:
             interrupted = exc
         except VslamError as exc:
