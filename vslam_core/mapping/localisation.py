@@ -5,12 +5,14 @@ should be in view from the predicted pose (the last pose, moved by the last moti
 front, inside the image) matched by descriptor (mutual nearest, Lowe's ratio) → PnP in RANSAC refined on the
 inliers (vslam_core/mapping/pnp.py) in the map's frame (`MAP`). Without a prediction, or when that fails: the
 prior keyframes most alike by bag of words (vocabulary built from the map's own features) give the landmarks
-to match (`RELOCALISED`). A frame neither places keeps the last pose and is flagged held (`LOST`).
+to match (`RELOCALISED`). A pose far from the prediction is rejected. A frame neither places keeps the last
+pose and is flagged held (`LOST`).
 """
 
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -30,6 +32,7 @@ FEATURES = 2000  # strongest FAST corners described per frame
 VIEW_RANGE_M = 80.0  # landmarks farther than this from the predicted camera are not searched
 PREDICTION_FRAMES = 5  # a prediction older than this many frames is not trusted: place recognition instead
 PLACES_SEARCHED = 3  # most alike keyframes whose landmarks are matched when relocalising
+MAX_JUMP_M = 2.0  # a pose this far (per frame since the last localised one) from the prediction is rejected
 
 
 class MapLocalisation:
@@ -66,12 +69,13 @@ class MapLocalisation:
         timings = {"describe": _lap(clock)}
         clock = time.perf_counter()
         estimate, mode = None, TrackingMode.LOST
+        predicted = None
         if self._last_pose is not None and self._since_localised <= PREDICTION_FRAMES:
-            predicted = self._last_pose @ self._motion
-            estimate = self._localise(pixels, descriptors, self._in_view(predicted), 0)
+            predicted = self._last_pose @ np.linalg.matrix_power(self._motion, self._since_localised)
+            estimate = self._checked(self._localise(pixels, descriptors, self._in_view(predicted), 0), predicted)
             mode = TrackingMode.MAP
         if estimate is None or estimate.rejected is not None:
-            estimate = self._localise(pixels, descriptors, self._recognised(descriptors), 1)
+            estimate = self._checked(self._localise(pixels, descriptors, self._recognised(descriptors), 1), predicted)
             mode = TrackingMode.RELOCALISED
         timings["pnp"] = _lap(clock)
         found = estimate is not None and estimate.rejected is None and estimate.T_world_cam is not None
@@ -90,6 +94,16 @@ class MapLocalisation:
         self._position += 1
         return result
 
+    def _checked(self, estimate: PnPEstimate | None, predicted: np.ndarray | None) -> PnPEstimate | None:
+        """The estimate, rejected if it lands more than `MAX_JUMP_M` per frame since the last localised one
+        away from the predicted pose (a PnP on wrong matches)."""
+        if estimate is None or estimate.rejected is not None or estimate.T_world_cam is None or predicted is None:
+            return estimate
+        jump = float(np.linalg.norm(estimate.T_world_cam[:3, 3] - predicted[:3, 3]))
+        if jump > MAX_JUMP_M * self._since_localised:
+            return replace(estimate, rejected=f"{jump:.1f} m from the predicted pose")
+        return estimate
+
     def _in_view(self, T_world_cam: np.ndarray) -> np.ndarray:  # noqa: N803
         """Indices of the prior landmarks in front of the camera, within range, projecting into the image."""
         positions = self.prior.landmark_positions
@@ -103,13 +117,15 @@ class MapLocalisation:
         return near[inside]
 
     def _recognised(self, descriptors: np.ndarray) -> np.ndarray:
-        """Indices of the landmarks seen by the `PLACES_SEARCHED` prior keyframes most alike this frame."""
+        """Indices of the landmarks seen by the `PLACES_SEARCHED` prior keyframes most alike this frame, and of
+        those in view of the most alike one."""
         if self._vocabulary is None or self._words is None or not len(descriptors):
             return np.zeros(0, np.int64)
         scores = similarity(self._vocabulary.vector(descriptors), self._words)
         best = np.argsort(-scores, kind="stable")[:PLACES_SEARCHED]
         ids = np.unique(np.concatenate([self._seen_by[int(self.prior.keyframe_ids[b])] for b in best]))
-        return np.array([self._row[int(i)] for i in ids.tolist() if int(i) in self._row], np.int64)
+        seen = np.array([self._row[int(i)] for i in ids.tolist() if int(i) in self._row], np.int64)
+        return np.union1d(seen, self._in_view(self.prior.poses[best[0]]))  # and all in view of the best one
 
     def _localise(self, pixels: np.ndarray, descriptors: np.ndarray, landmarks: np.ndarray,
                   attempt: int) -> PnPEstimate | None:
