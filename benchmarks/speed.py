@@ -165,6 +165,7 @@ def main() -> None:
     parser.add_argument("--csv", type=Path, default=None)
     parser.add_argument("--taskset", metavar="CPU", default=None,
                         help="run every row pinned to this CPU (taskset -c CPU), e.g. 0")
+    parser.add_argument("--skip-memory", action="store_true", help="leave out the peak-RSS-by-length check")
     parser.add_argument("--rows", default=None, help="only the rows whose label contains this text, e.g. "
                         "'backend map' (the paper configuration always runs: the ratios need it)")
     parser.add_argument("--measure", metavar="LABEL", choices=list(SYSTEMS), default=None,
@@ -200,6 +201,8 @@ def main() -> None:
               f"| {r['r_err']:.2f} | {cells} | {_optional(r['keyframes_per_100'], '{:.1f}')} "
               f"| {_optional(r['ba_ms_per_keyframe'], '{:.1f}')} | {r['peak_rss_mb']:.0f} | {r['kb_per_frame']:.1f} |")
     _loop_table(table)
+    if args.skip_memory:
+        return
 
     sequence = args.sequences.split(",")[0]
     print(f"\nPeak RSS (MB) by run length, KITTI {sequence}")
