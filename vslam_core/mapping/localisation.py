@@ -130,14 +130,17 @@ class MapLocalisation:
     def _localise(self, pixels: np.ndarray, descriptors: np.ndarray, landmarks: np.ndarray,
                   attempt: int) -> PnPEstimate | None:
         """PnP of this frame's features matched to the given prior landmarks (indices), with the map
-        backend's relocalisation thresholds. None when there is nothing to match."""
+        backend's thresholds: its PnP inlier count when matching from the predicted pose (attempt 0, the pose
+        then checked against the prediction), its relocalisation count otherwise. None when there is nothing
+        to match."""
         cfg = self.config.map
         if len(landmarks) < cfg.pnp_min_landmarks or not len(descriptors):
             return None
         query, train = match_descriptors(descriptors, self.prior.landmark_descriptors[landmarks], cfg.reloc_ratio)
         ids = self.prior.landmark_ids[landmarks[train]]
         observed = pixels[query].astype(np.float64).reshape(-1, 2)
-        if len(query) < cfg.reloc_min_inliers:
+        needed = cfg.pnp_min_inliers if attempt == 0 else cfg.reloc_min_inliers  # with a prediction (checked)
+        if len(query) < needed:
             return PnPEstimate(ids, observed, np.full_like(observed, np.nan), np.zeros(len(query), bool), None,
                                f"{len(query)} matches")
         solution = solve_pnp(self.prior.landmark_positions[landmarks[train]], observed, self._K,
@@ -145,7 +148,7 @@ class MapLocalisation:
                                                                              attempt))
         inliers = int(solution.inlier_mask.sum())
         rejected = None
-        if solution.T_world_cam is None or inliers < cfg.reloc_min_inliers:
+        if solution.T_world_cam is None or inliers < needed:
             rejected = f"{inliers} inliers"
         return PnPEstimate(ids, observed, solution.projected, solution.inlier_mask, solution.T_world_cam, rejected)
 
