@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType
 
+import numpy as np
 from rich.console import Console
 
 from app.outputs import ClaimedFile, OutputError, claim, default_recording
@@ -130,6 +131,16 @@ def describe_outputs(outputs: RunOutputs, failed: bool) -> str:
     return "\n".join(lines)
 
 
+def log_prior_map(recorder: Recorder, prior: StoredMap) -> None:
+    """`vslam run --map`: the map localised in, static: its landmarks (grey) and keyframe path (white)."""
+    import rerun as rr
+
+    recorder.log_static("/world/prior_map/landmarks", rr.Points3D(prior.landmark_positions.astype(np.float32),
+                                                                  radii=0.05, colors=(170, 170, 170)))
+    recorder.log_static("/world/prior_map/keyframes", rr.LineStrips3D([prior.poses[:, :3, 3].astype(np.float32)],
+                                                                      radii=0.1, colors=(255, 255, 255)))
+
+
 def record_run(
     source: FrameSource,
     config: EngineConfig,
@@ -152,6 +163,8 @@ def record_run(
     interrupted: Interrupted | None = None
     failure: VslamError | None = None
     recorder = Recorder(rrd, source, config, properties, detail, jpeg_quality, image_codec) if rrd is not None else None
+    if recorder is not None and prior_map is not None:
+        log_prior_map(recorder, prior_map)
     with progress(console, source.name, len(source)) as step, _signals_stop_between_frames() as stop:
 
         def advance(_frame: Frame, _result: FrameResult) -> None:

@@ -78,6 +78,9 @@ def test_odd_frames_localised_in_the_map(kitti_root: Path, saved: Path, localise
     tracking = read_entity(rrd, "/tracking")
     modes = [m[0] for m in tracking["mode"].to_list()]
     assert modes.count("map") >= 20  # most frames tracked against the map from the predicted pose
+    prior = read_entity(rrd, "/world/prior_map/landmarks", static=True)  # the map localised in is recorded
+    header = json.loads((saved / "header.json").read_text())
+    assert len(prior["Points3D:positions"].to_list()[0]) == header["landmarks"]
     estimate = np.loadtxt(trajectory).reshape(-1, 3, 4)
     truth = np.loadtxt(kitti_root / "poses" / "05.txt").reshape(-1, 3, 4)[1:60:2]  # the map's frame: frame 0's
     error = np.linalg.norm(estimate[:, :, 3] - truth[:, :, 3], axis=1)
