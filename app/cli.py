@@ -85,7 +85,7 @@ def _recording_id(source: FrameSource, frames: FrameRange, config: EngineConfig)
     return str(uuid.uuid5(uuid.NAMESPACE_URL, "vslam:" + key))
 
 
-def _summary(source: FrameSource, run: RunResult, config: EngineConfig) -> None:
+def _summary(source: FrameSource, run: RunResult, config: EngineConfig, in_map: bool = False) -> None:
     import numpy as np
 
     from app.report import scored_estimate
@@ -102,6 +102,9 @@ def _summary(source: FrameSource, run: RunResult, config: EngineConfig) -> None:
            "used)" if config.scale == "height" else ""),
     ]
     gt = source.ground_truth
+    if in_map and gt is not None:  # poses in the prior map's frame, ground truth in this run's first frame's
+        lines.append("accuracy    not scored here: the poses are in the prior map's frame (see README, Saving a map)")
+        gt = None
     if gt is not None and run.frames > 1:
         gt = gt[: run.frames]
         if config.scale == "height":
@@ -231,7 +234,7 @@ def run(
         outputs.release()
     result, interrupted = recorded.result, recorded.interrupted
     if recorded.failure is None:
-        _summary(src, result, config)
+        _summary(src, result, config, in_map=prior_map is not None)
     if where := describe_outputs(outputs, recorded.failure is not None):
         out.print(where, highlight=False)
     if recorded.failure is not None:
