@@ -30,6 +30,7 @@ the map backend.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import resource
 import subprocess
@@ -64,7 +65,10 @@ SYSTEMS: dict[str, tuple[str, str, int, Detail]] = {
     "vslam --detail summary (2 threads, default)": ("vslam", "vo", 2, Detail.SUMMARY),
     "vslam --detail full (2 threads, default)": ("vslam", "vo", 2, Detail.FULL),
     "vslam --backend map, recording off (2 threads, default)": ("vslam", "map", 2, Detail.OFF),
+    "vslam --backend map, loop closing off (2 threads)": ("vslam", "map", 2, Detail.OFF),
 }
+LOOP_OFF = {"vslam --backend map, loop closing off (2 threads)"}
+LOOP_PARTS = ("describe", "query", "verify", "optimise")  # loop closing's parts, ms per keyframe
 MEMORY_SYSTEMS = ("vslam, recording off (2 threads, default)", "vslam --detail full (2 threads, default)",
                   "vslam --backend map, recording off (2 threads, default)")
 
@@ -77,6 +81,7 @@ def _measure(label: str, root: str, sequence: str, frames: str) -> dict[str, obj
     stage_ms = dict.fromkeys(CSV_STAGES, 0.0)
     size = 0
     keyframes, ba_ms = 0, 0.0
+    loop_ms: dict[str, float] = {}
     if system == "paper":
         baseline = run_paper_configuration(source)
         poses, seconds = baseline.poses, baseline.seconds
@@ -84,6 +89,8 @@ def _measure(label: str, root: str, sequence: str, frames: str) -> dict[str, obj
     else:
         engine_backend: Backend = "map" if backend == "map" else "vo"
         config = EngineConfig(threads=threads, backend=engine_backend)
+        if label in LOOP_OFF:
+            config = dataclasses.replace(config, loop=dataclasses.replace(config.loop, enabled=False))
         with tempfile.TemporaryDirectory() as folder:
             path = Path(folder) / "run.rrd"
             recorder = Recorder(path, source, config, {"name": "speed"}, detail) if detail != Detail.OFF else None
@@ -92,6 +99,9 @@ def _measure(label: str, root: str, sequence: str, frames: str) -> dict[str, obj
                 nonlocal keyframes, ba_ms
                 if result.mapping is not None:
                     keyframes += result.mapping.keyframe is not None
+                    if result.mapping.loop is not None:
+                        for part, ms in result.mapping.loop.timings_ms.items():
+                            loop_ms[part] = loop_ms.get(part, 0.0) + ms
                     if result.mapping.bundle_adjustment is not None:
                         ba_ms += result.mapping.bundle_adjustment.milliseconds
                 if recorder is not None:
@@ -109,14 +119,16 @@ def _measure(label: str, root: str, sequence: str, frames: str) -> dict[str, obj
     t_err, r_err = kitti_errors(gt, poses)
     n = len(poses)
     is_map = backend == "map"
-    return {"system": label, "backend": backend, "sequence": sequence, "frames": frames, "threads": threads,
+    return {"system": label, "backend": backend + (" (no loop closing)" if label in LOOP_OFF else ""),
+            "sequence": sequence, "frames": frames, "threads": threads,
             "detail": str(detail), "fps": n / seconds, "t_err": t_err, "r_err": r_err,
             "peak_rss_mb": status_mb("VmHWM"), "kb_per_frame": size / 1024 / n,
             # the map backend's bundle-adjustment worker (2 threads), reaped by then: ru_maxrss is in KB
             "worker_peak_rss_mb": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024 if is_map else None,
             "keyframes_per_100": 100 * keyframes / n if is_map else None,
             "ba_ms_per_keyframe": (ba_ms / keyframes if keyframes else 0.0) if is_map else None,
-            **{f"{stage}_ms": stage_ms.get(stage, 0.0) / n for stage in CSV_STAGES}}
+            **{f"{stage}_ms": stage_ms.get(stage, 0.0) / n for stage in CSV_STAGES},
+            **{f"loop_{part}_ms_per_keyframe": loop_ms.get(part, 0.0) / max(keyframes, 1) for part in LOOP_PARTS}}
 
 
 def _in_own_process(label: str, root: str, sequence: str, frames: str, repeat: int = 1,
@@ -153,6 +165,9 @@ def main() -> None:
     parser.add_argument("--csv", type=Path, default=None)
     parser.add_argument("--taskset", metavar="CPU", default=None,
                         help="run every row pinned to this CPU (taskset -c CPU), e.g. 0")
+    parser.add_argument("--skip-memory", action="store_true", help="leave out the peak-RSS-by-length check")
+    parser.add_argument("--rows", default=None, help="only the rows whose label contains this text, e.g. "
+                        "'backend map' (the paper configuration always runs: the ratios need it)")
     parser.add_argument("--measure", metavar="LABEL", choices=list(SYSTEMS), default=None,
                         help=argparse.SUPPRESS)  # internal: one run of LABEL in this process, as JSON on stdout
     args = parser.parse_args()
@@ -160,7 +175,8 @@ def main() -> None:
         print(json.dumps(_measure(args.measure, args.root, args.sequences, args.frames)))
         return
     rows = [_in_own_process(label, args.root, sequence, args.frames, args.repeat, args.taskset)
-            for sequence in args.sequences.split(",") for label in SYSTEMS]
+            for sequence in args.sequences.split(",") for label in SYSTEMS
+            if args.rows is None or args.rows in label or label == next(iter(SYSTEMS))]
     table = pl.DataFrame(rows)
     paper = table.filter(pl.col("system") == next(iter(SYSTEMS))).select("sequence", paper_fps="fps")
     off = (table.filter((pl.col("detail") == str(Detail.OFF)) & pl.col("system").str.starts_with("vslam"))
@@ -184,6 +200,9 @@ def main() -> None:
         print(f"| {r['system']} | {r['sequence']} | {r['fps']:.1f} | {r['x_paper']:.2f} | {cost} | {r['t_err']:.2f} "
               f"| {r['r_err']:.2f} | {cells} | {_optional(r['keyframes_per_100'], '{:.1f}')} "
               f"| {_optional(r['ba_ms_per_keyframe'], '{:.1f}')} | {r['peak_rss_mb']:.0f} | {r['kb_per_frame']:.1f} |")
+    _loop_table(table)
+    if args.skip_memory:
+        return
 
     sequence = args.sequences.split(",")[0]
     print(f"\nPeak RSS (MB) by run length, KITTI {sequence}")
@@ -194,6 +213,22 @@ def main() -> None:
         peaks = [_in_own_process(label, args.root, sequence, frames, cpu=args.taskset)["peak_rss_mb"]
                  for frames in lengths]
         print(f"| {label} | " + " | ".join(f"{peak:.0f}" for peak in peaks) + " |")
+
+
+def _loop_table(table: pl.DataFrame) -> None:
+    """Loop closing's cost: the map backend's fps with it on and off (2 threads), and ms per keyframe of each
+    part (describe the keyframe, query the places, verify candidates, optimise the pose graph)."""
+    on = table.filter(pl.col("system") == "vslam --backend map, recording off (2 threads, default)")
+    off = table.filter(pl.col("system").is_in(list(LOOP_OFF)))
+    if on.is_empty() or off.is_empty():
+        return
+    print("\nLoop closing (map backend, 2 threads, recording off): fps on / off and ms per keyframe")
+    print("| seq | fps on | fps off | change | " + " | ".join(LOOP_PARTS) + " |")
+    print("|---|---|---|---|" + "---|" * len(LOOP_PARTS))
+    for row in on.join(off.select("sequence", fps_off="fps"), on="sequence").iter_rows(named=True):
+        parts = " | ".join(f"{row[f'loop_{part}_ms_per_keyframe']:.1f}" for part in LOOP_PARTS)
+        print(f"| {row['sequence']} | {row['fps']:.1f} | {row['fps_off']:.1f} | "
+              f"{100 * (row['fps'] / row['fps_off'] - 1):+.1f} % | {parts} |")
 
 
 if __name__ == "__main__":

@@ -156,6 +156,31 @@ class MapConfig:
 
 
 @dataclass(frozen=True)
+class LoopConfig:
+    """`backend = "map"`: loop closing (vslam_core/loop/): place recognition, verification, pose graph."""
+
+    enabled: bool = True
+    features: int = 1000  # strongest FAST corners of a keyframe described (upright ORB) for place recognition
+    fast_threshold: int = 15
+    vocabulary_words: int = 1024  # binary words, built from the run's first keyframes (nothing downloaded)
+    vocabulary_keyframes: int = 8  # keyframes whose descriptors build the vocabulary
+    min_separation_keyframes: int = 30  # candidates are at least this many keyframes older than the query
+    min_score_ratio: float = 1.0  # a candidate scores at least this share of the query's best recent neighbour
+    max_candidates: int = 3  # best-scoring candidates verified per keyframe
+    match_ratio: float = 0.8  # Lowe's ratio test of the descriptor matches
+    pnp_threshold_px: float = 3.0
+    pnp_iterations: int = 500
+    min_inliers: int = 40  # PnP inliers for a candidate to be verified
+    min_inlier_ratio: float = 0.3  # ... and this share of its matches
+    consistency: int = 2  # consecutive keyframes that must verify the same place before the loop is closed
+    cooldown_keyframes: int = 5  # keyframes after a closed loop before the next may close
+    odometry_sigma_deg: float = 0.5  # pose graph: keyframe-to-keyframe edges
+    odometry_sigma_m: float = 0.1
+    loop_sigma_deg: float = 0.2  # the loop edge
+    loop_sigma_m: float = 0.05
+
+
+@dataclass(frozen=True)
 class EngineConfig:
     """Everything that decides the trajectory. Same config + same input = same trajectory."""
 
@@ -169,6 +194,7 @@ class EngineConfig:
     health: HealthConfig = field(default_factory=HealthConfig)
     height: HeightScaleConfig = field(default_factory=HeightScaleConfig)
     map: MapConfig = field(default_factory=MapConfig)
+    loop: LoopConfig = field(default_factory=LoopConfig)
 
     def with_scale(self, scale: ScaleSource) -> EngineConfig:
         return dataclasses.replace(self, scale=scale)

@@ -158,6 +158,25 @@ RANGES: dict[str, Range] = {
     "map.reloc_threshold_px": PIXEL_SIZE,
     "map.reloc_iterations": ITERATIONS,
     "map.reloc_min_inliers": closed(4, 100_000),
+    # loop closing
+    "loop.features": closed(10, 100_000),
+    "loop.fast_threshold": FAST,
+    "loop.vocabulary_words": closed(2, 1_000_000),
+    "loop.vocabulary_keyframes": closed(1, 1000),
+    "loop.min_separation_keyframes": closed(1, 100_000),
+    "loop.min_score_ratio": positive(10.0),
+    "loop.max_candidates": closed(1, 100),
+    "loop.match_ratio": positive(1.0),
+    "loop.pnp_threshold_px": PIXEL_SIZE,
+    "loop.pnp_iterations": ITERATIONS,
+    "loop.min_inliers": closed(6, 100_000),
+    "loop.min_inlier_ratio": FRACTION,
+    "loop.consistency": closed(1, 100),
+    "loop.cooldown_keyframes": closed(0, 100_000),
+    "loop.odometry_sigma_deg": positive(180.0),
+    "loop.odometry_sigma_m": positive(1000.0),
+    "loop.loop_sigma_deg": positive(180.0),
+    "loop.loop_sigma_m": positive(1000.0),
 }
 
 

@@ -16,13 +16,15 @@ import numpy as np
 
 from vslam_core.config import EngineConfig
 from vslam_core.engine import Odometry
+from vslam_core.mapping.localisation import MapLocalisation
+from vslam_core.mapping.storage import StoredMap
 from vslam_core.mapping.tracking import MapTracking
 from vslam_core.results import FrameResult, FrameStatus, Reason
 from vslam_core.scale import make_scale_provider
 from vslam_core.sources.base import Frame, FrameSource
 
 FrameSink = Callable[[Frame, FrameResult], None]
-Engine = Odometry | MapTracking
+Engine = Odometry | MapTracking | MapLocalisation
 T = TypeVar("T")
 
 
@@ -116,15 +118,24 @@ def run_odometry(
     config: EngineConfig,
     sinks: tuple[FrameSink, ...] = (),
     result: RunResult | None = None,
+    prior_map: StoredMap | None = None,
+    finish: Callable[[Engine], None] | None = None,
 ) -> RunResult:
     """Estimate one pose per source frame. Fills `result` as it goes (pass one in to keep the frames
-    processed so far if the run is interrupted)."""
+    processed so far if the run is interrupted). With `prior_map`, each frame is localised in that map
+    (`MapLocalisation`) instead. `finish` is given the engine once every frame was processed (e.g. to save
+    the map)."""
     # the height scale is never given the ground truth
     ground_truth = source.ground_truth if config.scale == "gt" else None
     scale = make_scale_provider(config, ground_truth, source.intrinsics.K, source.camera_height)
-    engine: Engine = (MapTracking if config.backend == "map" else Odometry)(source.intrinsics, config, scale)
+    engine: Engine
+    if prior_map is not None:
+        engine = MapLocalisation(source.intrinsics, config, prior_map)
+    else:
+        engine = (MapTracking if config.backend == "map" else Odometry)(source.intrinsics, config, scale)
     run = result if result is not None else RunResult([], [], [])
     start = time.perf_counter()
+    completed = False
     try:
         frames = iterate_timed(source)
         for frame, decode_ms in prefetched(frames) if config.threads > 1 else frames:
@@ -142,9 +153,12 @@ def run_odometry(
                 run.held_reasons[reasons[0]] = run.held_reasons.get(reasons[0], 0) + 1
             for sink in sinks:
                 sink(frame, frame_result)
+        completed = True
     finally:
         if isinstance(engine, MapTracking):  # the map's refined poses replace the tracking-time ones
             run.poses[:] = engine.refined_poses(len(run.poses))
+        if completed and finish is not None:
+            finish(engine)
         engine.close()
         run.seconds = time.perf_counter() - start
     return run

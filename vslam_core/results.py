@@ -188,6 +188,59 @@ class MapView:
 
 
 @dataclass(frozen=True)
+class LoopCandidate:
+    """A place the query keyframe may revisit (vslam_core/loop/): found by its bag of words, checked by PnP of
+    the query's features against the candidate keyframe's landmarks. M descriptor matches."""
+
+    query_keyframe: int
+    query_position: int  # run position of the query keyframe's frame
+    candidate_keyframe: int
+    candidate_position: int
+    score: float  # bag-of-words similarity, 0..1
+    matches: int
+    inliers: int  # PnP RANSAC inliers
+    accepted: bool  # verified and consistent: the loop is closed with it
+    why: str  # "accepted", or why not (e.g. "12 inliers < 40", "not consistent yet (1 of 2)")
+    query_pixels: np.ndarray  # (M, 2) matched features in the query keyframe's image
+    candidate_pixels: np.ndarray  # (M, 2) the matched landmarks' pixels in the candidate keyframe's image (NaN
+    # for a landmark only its neighbouring keyframes saw)
+    inlier_mask: np.ndarray  # (M,) bool
+    T_candidate_query: np.ndarray | None  # (4, 4) the query camera in the candidate's camera frame  # noqa: N815
+    query_image: np.ndarray | None = None  # (H, W) uint8 thumbnails (half size) of both keyframes
+    candidate_image: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class LoopClosed:
+    """A loop closed: the pose graph over the segment's K keyframes (odometry edges + the loop edge) optimised,
+    the keyframes and their landmarks moved. Applied at a keyframe insertion (a fixed point)."""
+
+    query_keyframe: int
+    candidate_keyframe: int
+    query_position: int
+    candidate_position: int
+    inliers: int
+    similarity: bool  # Sim(3) pose graph (--scale none) rather than SE(3)
+    keyframe_ids: np.ndarray  # (K,)
+    keyframe_positions: np.ndarray  # (K,) run positions of their frames
+    poses_before: np.ndarray  # (K, 4, 4) T_world_cam before the correction
+    poses_after: np.ndarray  # (K, 4, 4) and after
+    correction_m: np.ndarray  # (K,) distance each keyframe moved
+    correction_deg: np.ndarray  # (K,) rotation applied to each
+    landmarks_moved: int
+    milliseconds: float  # pose graph optimisation and map update
+
+
+@dataclass(frozen=True)
+class LoopStep:
+    """What loop closing did at a keyframe: the candidates it checked, the loop it closed, and its cost."""
+
+    candidates: tuple[LoopCandidate, ...] = ()
+    closed: LoopClosed | None = None
+    timings_ms: dict[str, float] = field(default_factory=dict)  # describe, query, verify, optimise
+
+
+@dataclass(frozen=True)
 class MapFrame:
     """The map backend's part of a frame result (None with --backend vo)."""
 
@@ -199,6 +252,7 @@ class MapFrame:
     bundle_adjustment: BundleAdjusted | None = None  # applied at this frame
     relocalisation: Relocalisation | None = None
     view: MapView | None = None  # at keyframes
+    loop: LoopStep | None = None  # at keyframes, with loop closing on
 
 
 @dataclass(frozen=True)

@@ -85,7 +85,7 @@ def _recording_id(source: FrameSource, frames: FrameRange, config: EngineConfig)
     return str(uuid.uuid5(uuid.NAMESPACE_URL, "vslam:" + key))
 
 
-def _summary(source: FrameSource, run: RunResult, config: EngineConfig) -> None:
+def _summary(source: FrameSource, run: RunResult, config: EngineConfig, in_map: bool = False) -> None:
     import numpy as np
 
     from vslam.evaluation import scored_estimate
@@ -102,6 +102,9 @@ def _summary(source: FrameSource, run: RunResult, config: EngineConfig) -> None:
            "used)" if config.scale == "height" else ""),
     ]
     gt = source.ground_truth
+    if in_map and gt is not None:  # poses in the prior map's frame, ground truth in this run's first frame's
+        lines.append("accuracy    not scored here: the poses are in the prior map's frame (see README, Saving a map)")
+        gt = None
     if gt is not None and run.frames > 1:
         gt = gt[: run.frames]
         if config.scale == "height":
@@ -158,6 +161,12 @@ def run(
                                                    "skip (hold the pose, log an event)")] = BadFrame.fail,
     force: Annotated[bool, typer.Option("--force", help="replace existing output files (never one another run "
                                         "is writing)")] = False,
+    route: Annotated[str | None, typer.Option(help="synthetic street's route: street (default) or loop (around "
+                                              "a block and back past the start, 660 frames)")] = None,
+    save_map: Annotated[Path | None, typer.Option(help="--backend map: save the map into this new folder after "
+                                                  "the run (Parquet tables + header.json)")] = None,
+    prior_map: Annotated[Path | None, typer.Option("--map", help="localise each frame in this saved map (poses in "
+                                                   "the map's frame; the map is not changed)")] = None,
 ) -> None:
     """Run the odometry on a source and write a Rerun recording (and optionally the trajectory)."""
     from vslam.recording import version_properties
@@ -180,7 +189,7 @@ def run(
     config = load_config(config_file) if config_file is not None else EngineConfig()
     src = open_source(source, sequence=sequence, frames=frame_range, intrinsics=intrinsics, calib=calib,
                       ground_truth=gt, on_bad_frame=on_bad_frame.value, inject=inject, topic=topic, gt_topic=gt_topic,
-                      gt_tolerance_s=gt_tolerance / 1000.0)
+                      gt_tolerance_s=gt_tolerance / 1000.0, route=route)
     if scale is not None:
         config = config.with_scale(scale.value)
     elif config_file is None and src.ground_truth is None:
@@ -188,6 +197,14 @@ def run(
     config = with_camera_height(config, camera_height, src)
     if backend is not None:
         config = config.with_backend(backend.value)
+    from vslam.runs import map_saver, save_map_problem
+    from vslam_core.mapping.storage import load_map
+
+    stored = None
+    if prior_map is not None:
+        stored = load_map(prior_map, src.intrinsics)  # a MapFileError is one line
+        config = config.with_backend("map").with_scale(stored.header.get("scale", config.scale))
+    refuse(save_map_problem(save_map, prior_map, config))
 
     refuse(output_problem(output, detail == Detail.OFF))
     refuse(backend_problem(src, config))
@@ -209,16 +226,17 @@ def run(
         "scale": config.scale,
         "backend": config.backend,
         **({"inject": inject} if inject else {}),
+        **({"prior_map": str(prior_map)} if prior_map is not None else {}),
         **version_properties(),
     }
     try:
         recorded = record_run(src, config, rrd, properties, err, detail, jpeg_quality, outputs.trajectory,
-                              image_codec)
+                              image_codec, stored, map_saver(save_map, src, config) if save_map else None)
     finally:
         outputs.release()
     result, interrupted = recorded.result, recorded.interrupted
     if recorded.failure is None:
-        _summary(src, result, config)
+        _summary(src, result, config, in_map=prior_map is not None)
     if where := describe_outputs(outputs, recorded.failure is not None):
         out.print(where, highlight=False)
     if recorded.failure is not None:
@@ -241,7 +259,8 @@ def _existing_recording(path: Path) -> Path:
 
 @app.command()
 def inspect(
-    recording: Annotated[Path, typer.Argument(help="a .rrd written by vslam run")],
+    recording: Annotated[Path, typer.Argument(help="a .rrd written by vslam run, or a map folder written by "
+                                              "--save-map")],
     as_json: Annotated[bool, typer.Option("--json", help="machine-readable output (keys in docs/recordings.md)")]
     = False,
 ) -> None:
@@ -249,6 +268,15 @@ def inspect(
     from vslam.evaluation import json_ready
     from vslam.rrd import format_report, inspect_recording
 
+    if recording.is_dir() and (recording / "header.json").is_file():  # a saved map (vslam run --save-map)
+        from vslam.runs import format_map_summary, map_summary
+
+        header = map_summary(recording)
+        if as_json:
+            print(json.dumps(header, indent=2))
+        else:
+            out.print(format_map_summary(recording, header), highlight=False, markup=False)
+        return
     report = inspect_recording(_existing_recording(recording))
     if as_json:
         print(json.dumps(json_ready(report), indent=2, allow_nan=False))

@@ -52,6 +52,7 @@ import numpy as np
 import rerun as rr
 
 from vslam.recording.columns import ColumnBuffer, Part, add_event
+from vslam.recording.loops import LoopRecording
 from vslam.recording.metrics import MAP_METRICS, MAP_STAGES, MAP_TIMING, map_frame_metrics
 from vslam.recording.styles import Detail
 from vslam_core.results import BundleAdjusted, FrameResult, MapFrame, MapView, PnPEstimate, TrackingMode
@@ -89,6 +90,7 @@ class MapRecording:
         self._frustum = frustum_outline(intrinsics.K, intrinsics.width, intrinsics.height, FRUSTUM_DEPTH)
         self._segment: int | None = None
         self._log_static(rec)
+        self._loops = LoopRecording(rec, columns, detail)
 
     def _log_static(self, rec: rr.RecordingStream) -> None:
         for group, series in MAP_METRICS.items():
@@ -143,6 +145,7 @@ class MapRecording:
             elif new_segment:  # the old map's residuals go
                 self._log_residuals(frame, None)
         self._log_events(frame, mapping, new_segment)
+        self._loops.log_frame(frame, result.position, mapping.loop)
 
     def _log_scale(self, frame: Frame, result: FrameResult, mapping: MapFrame) -> None:
         """The map's scale: this frame's step in map units, and over the ground truth's step when known."""

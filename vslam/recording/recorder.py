@@ -6,6 +6,7 @@ import re
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -217,6 +218,10 @@ class Recorder:
         for group, series in METRICS.items():
             for name, (legend, colour) in series.items():
                 rec.log(f"/metrics/{group}/{name}", rr.SeriesLines(names=legend, colors=colour), static=True)
+
+    def log_static(self, entity: str, *archetypes: Any) -> None:
+        """Log something that holds for the whole run (e.g. the prior map of `vslam run --map`)."""
+        self._rec.log(entity, *archetypes, static=True)
 
     def log_frame(self, frame: Frame, result: FrameResult, unreported: frozenset[str] = frozenset()) -> None:
         """Buffer everything about one frame for the `frame` timeline (and `time`, when known).

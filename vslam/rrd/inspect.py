@@ -225,7 +225,24 @@ def _run_report(path: Path, prefix: str = "") -> dict[str, Any]:
         "accuracy_alignment": _accuracy_alignment(path, prefix),
         "flagged": flagged,
         "drift": _drift(path, frame_reasons, prefix),
+        "loops": _loops(path, prefix),
     }
+
+
+def _loops(path: Path, prefix: str = "") -> list[dict[str, Any]]:
+    """The loops closed (`/loops/closed`, map backend): frame, matched frame, inliers, and the correction
+    applied to the frame's keyframe in metres and degrees."""
+    table = read_entity(path, f"{prefix}/loops/closed")
+    if table.is_empty():
+        return []
+
+    def column(name: str) -> list[Any]:
+        return [v[0] for v in table[name].to_list()]
+
+    return [{"frame": int(f), "matched_frame": int(m), "inliers": int(n), "correction_m": float(c),
+             "correction_deg": float(d)}
+            for f, m, n, c, d in zip(column("query_frame"), column("candidate_frame"), column("inliers"),
+                                     column("correction_m"), column("correction_deg"), strict=True)]
 
 
 def format_report(report: dict[str, Any]) -> str:
@@ -294,6 +311,12 @@ def _format_run(report: dict[str, Any]) -> list[str]:
     for item in flagged:
         span = f"{item['start']}" if item["start"] == item["end"] else f"{item['start']}..{item['end']}"
         lines.append(f"  frames {span:<12} {item['status']:<5} {', '.join(item['reasons'])}")
+    loops = report.get("loops") or []
+    if loops:
+        lines.append(f"loops       {len(loops)} closed:")
+    for loop in loops:
+        lines.append(f"  frame {loop['frame']} revisits frame {loop['matched_frame']}: {loop['inliers']} inliers, "
+                     f"corrected {loop['correction_m']:.2f} m, {loop['correction_deg']:.2f}°")
     lines += _drift_lines(report.get("drift"))
     return lines
 

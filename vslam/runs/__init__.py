@@ -10,6 +10,10 @@ from typing import TYPE_CHECKING, Any
 
 #: Where each public name lives.
 _HOMES = {
+    "format_map_summary": "map_files",
+    "map_saver": "map_files",
+    "map_summary": "map_files",
+    "save_map_problem": "map_files",
     "ClaimedFile": "outputs",
     "EXIT_NOTHING_TRACKED": "checks",
     "TrajectoryWriter": "trajectory_out",
@@ -44,6 +48,7 @@ if TYPE_CHECKING:
         output_problem,
         with_camera_height,
     )
+    from vslam.runs.map_files import format_map_summary, map_saver, map_summary, save_map_problem
     from vslam.runs.outputs import (
         ClaimedFile,
         OutputError,
@@ -79,13 +84,17 @@ __all__ = [
     "claimed",
     "describe_outputs",
     "eta",
+    "format_map_summary",
     "hold_stuck_writer",
     "input_warnings",
     "likely_errno",
     "lock_folder",
+    "map_saver",
+    "map_summary",
     "nothing_tracked",
     "output_problem",
     "record_run",
+    "save_map_problem",
     "stuck_writers",
     "with_camera_height",
     "write_failure",

@@ -4,12 +4,13 @@ recording, safe interruption."""
 from __future__ import annotations
 
 import signal
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType
 
+import numpy as np
 from rich.console import Console
 
 from vslam.recording import Detail, ImageCodec, Recorder
@@ -19,7 +20,8 @@ from vslam.runs.progress import progress
 from vslam.runs.trajectory_out import Format, TrajectoryWriter
 from vslam_core.config import EngineConfig
 from vslam_core.errors import VslamError
-from vslam_core.pipeline import FrameSink, RunResult, run_odometry
+from vslam_core.mapping.storage import StoredMap
+from vslam_core.pipeline import Engine, FrameSink, RunResult, run_odometry
 from vslam_core.results import FrameResult
 from vslam_core.sources.base import Frame, FrameSource
 
@@ -128,6 +130,16 @@ def describe_outputs(outputs: RunOutputs, failed: bool) -> str:
     return "\n".join(lines)
 
 
+def log_prior_map(recorder: Recorder, prior: StoredMap) -> None:
+    """`vslam run --map`: the map localised in, static: its landmarks (grey) and keyframe path (white)."""
+    import rerun as rr
+
+    recorder.log_static("/world/prior_map/landmarks", rr.Points3D(prior.landmark_positions.astype(np.float32),
+                                                                  radii=0.05, colors=(170, 170, 170)))
+    recorder.log_static("/world/prior_map/keyframes", rr.LineStrips3D([prior.poses[:, :3, 3].astype(np.float32)],
+                                                                      radii=0.1, colors=(255, 255, 255)))
+
+
 def record_run(
     source: FrameSource,
     config: EngineConfig,
@@ -138,6 +150,8 @@ def record_run(
     jpeg_quality: int = 75,
     trajectory: TrajectoryWriter | None = None,
     image_codec: ImageCodec = ImageCodec.JPEG,
+    prior_map: StoredMap | None = None,
+    finish: Callable[[Engine], None] | None = None,
 ) -> RecordedRun:
     """Run the engine over `source`, recording to `rrd` (None: no recording) and writing each frame's pose
     to `trajectory` as it goes. Ctrl-C, SIGTERM, bad input (a `VslamError` from the source) and a write
@@ -148,6 +162,8 @@ def record_run(
     interrupted: Interrupted | None = None
     failure: VslamError | None = None
     recorder = Recorder(rrd, source, config, properties, detail, jpeg_quality, image_codec) if rrd is not None else None
+    if recorder is not None and prior_map is not None:
+        log_prior_map(recorder, prior_map)
     with progress(console, source.name, len(source)) as step, _signals_stop_between_frames() as stop:
 
         def advance(_frame: Frame, _result: FrameResult) -> None:
@@ -158,7 +174,7 @@ def record_run(
         sinks: list[FrameSink] = [trajectory] if trajectory is not None else []
         sinks += [recorder.log_frame] if recorder is not None else []
         try:
-            run_odometry(source, config, (*sinks, advance), result)
+            run_odometry(source, config, (*sinks, advance), result, prior_map, finish)
         except Interrupted as exc:
             interrupted = exc
         except VslamError as exc:

@@ -26,6 +26,7 @@ from vslam_core.errors import ConfigError
 from vslam_core.features import match_descriptors
 from vslam_core.geometry import interpolate_pose, invert_pose, orthonormalise, pose_matrix, rotation_angle
 from vslam_core.lens import distort_pixels, undistort_pixels
+from vslam_core.loop.closing import LoopClosing
 from vslam_core.mapping.local_mapping import DESCRIPTOR_PATCH, LocalMapping
 from vslam_core.mapping.map_scale import MapSpeed, for_scale, translation_parallax
 from vslam_core.mapping.pnp import PnPSolution, solve_pnp
@@ -34,6 +35,7 @@ from vslam_core.results import (
     FrameResult,
     FrameStatus,
     Health,
+    LoopStep,
     MapFrame,
     PnPEstimate,
     Reason,
@@ -81,6 +83,7 @@ class MapTracking:
         self._previous_image: np.ndarray | None = None  # the last frame's image, usable or not
         self._held: set[int] = set()  # run positions whose pose was held (no tracking, no relocalisation)
         self._segment_lost = False  # relocalisation failed: a new segment starts at the next frame with a pose
+        self.loop = LoopClosing(self._K, config, self.mapping.describer) if config.loop.enabled else None
 
     def close(self) -> None:
         self.mapping.close()
@@ -352,12 +355,17 @@ class MapTracking:
             why = self._keyframe_reason(vo, pnp, pose)
         keyframe = view = None
         bundle: BundleAdjusted | None = None
+        loop: LoopStep | None = None
         if why is not None:
             clock = time.perf_counter()
             collected = self.mapping.collect_bundle_adjustment()
             if collected is not None:
                 bundle, correction = collected
                 pose = orthonormalise(correction @ pose)
+            if self.loop is not None and (looped := self.loop.collect(self.mapping.map)) is not None:
+                loop, loop_correction = looped  # the previous keyframe's loop search, after its BA
+                if loop_correction is not None:
+                    pose = orthonormalise(loop_correction @ pose)
             track_ids, pixels = self._odometry.live_tracks()
             keyframe, links, view = self.mapping.insert_keyframe(
                 vo.position, self._segment, pose, track_ids, self._ideal(pixels), frame.image,
@@ -368,6 +376,8 @@ class MapTracking:
             self._links = {t: m for t, m in {**self._links, **links}.items() if t in live and m in landmarks}
             self._reference = keyframe.keyframe_id
             self._since_keyframe = 0
+            if self.loop is not None:
+                self.loop.submit(keyframe.keyframe_id, frame.image)
             vo.timings_ms["mapping"] = _lap(clock)
         if self._reference >= 0:
             self._relative[vo.position] = (self._reference,
@@ -381,7 +391,7 @@ class MapTracking:
         self._odometry.set_keyframe_pose(self.pose_of(self._odometry.key_position))
         return self._result(vo, pose, held, mode, warnings, two_view,
                             MapFrame(mode, self._segment, two_view, self._at_raw_pixels(pnp), keyframe, bundle,
-                                     relocalisation, view))
+                                     relocalisation, view, loop))
 
     def _ideal(self, raw: np.ndarray) -> np.ndarray:
         """(N, 2) raw image pixels → (N, 2) float64 ideal pinhole pixels of K (a copy when the lens has none)."""

@@ -39,15 +39,16 @@ def open_source(
     topic: str | None = None,
     gt_topic: str | None = None,
     gt_tolerance_s: float = DEFAULT_GT_TOLERANCE_S,
+    route: str | None = None,
 ) -> FrameSource:
     """None or "synthetic": the embedded synthetic street. A ROS 1 ``.bag``, a ROS 2 bag folder or a bare
     ``.mcap``/``.db3``, or a ROS 2 bag folder without ``metadata.yaml`` (the recorder killed) holding one
     ``.mcap``: `RosbagSource`. A video file: `VideoSource`. A folder with ``sequences/`` or
     ``image_0/``: KITTI; with ``mav0/``: EuRoC; with ``camera.txt``, ``times.txt`` and ``images/``: TUM
     monoVO. Any other folder: `ImageFolderSource`. `inject` wraps the source in a `FaultInjector` (e.g.
-    ``"dark@120,blur@200:210"``)."""
+    ``"dark@120,blur@200:210"``). `route` picks the synthetic street's route ("street" or "loop")."""
     request = _Request(spec, sequence, frames, intrinsics, calib, ground_truth, gt_format, on_bad_frame, topic,
-                       gt_topic, gt_tolerance_s)
+                       gt_topic, gt_tolerance_s, route)
     source = _open(request)
     return FaultInjector(source, parse_faults(inject)) if inject else source
 
@@ -65,6 +66,7 @@ class _Request:
     topic: str | None
     gt_topic: str | None
     gt_tolerance_s: float
+    route: str | None = None
 
     def given(self) -> dict[str, object]:
         return {"--sequence": self.sequence, "--intrinsics": self.intrinsics, "--calib": self.calib,
@@ -76,7 +78,9 @@ def _open(r: _Request) -> FrameSource:
     if r.spec is None or r.spec == SYNTHETIC:
         _refuse(given, tuple(given), "the synthetic street has its own camera and exact ground truth, and no "
                 "sequences or topics")
-        return SyntheticStreet(frames=r.frames)
+        return SyntheticStreet(frames=r.frames, route=r.route or "street")  # type: ignore[arg-type]
+    if r.route is not None:
+        raise SourceError(f"--route is for the synthetic street, not {r.spec}")
     path = Path(r.spec)
     if not path.exists():
         raise SourceError(f"{path}: no such file or folder")

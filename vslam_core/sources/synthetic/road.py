@@ -26,9 +26,12 @@ class Centreline:
     xy: np.ndarray
     heading: np.ndarray
     curvature: np.ndarray
+    closed: bool = False  # a loop: arc lengths wrap around at s[-1]
 
     def frame_at(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(n,) arc lengths -> positions (n, 2), headings (n,), left unit normals (n, 2)."""
+        if self.closed:
+            s = np.mod(s, self.s[-1])
         xy = np.stack([np.interp(s, self.s, self.xy[:, 0]), np.interp(s, self.s, self.xy[:, 1])], axis=1)
         heading = np.interp(s, self.s, self.heading)
         normal = np.stack([-np.sin(heading), np.cos(heading)], axis=1)
@@ -36,6 +39,8 @@ class Centreline:
 
     def curvature_at(self, s: float) -> float:
         """Curvature (1/m) at arc length s."""
+        if self.closed:
+            s = s % float(self.s[-1])
         return float(np.interp(s, self.s, self.curvature))
 
 
@@ -74,6 +79,32 @@ def make_centreline(length: float, rng: np.random.Generator) -> Centreline:
     steps = 0.5 * (direction[1:] + direction[:-1]) * CENTRELINE_STEP
     xy = np.concatenate([np.zeros((1, 2)), np.cumsum(steps, axis=0)])
     return Centreline(s=s, xy=xy, heading=heading, curvature=curvature)
+
+
+LOOP_PLAN = ((110.0, 0.0), (70.0, 90.0), (50.0, 0.0), (70.0, 90.0)) * 2  # around a block: 600 m
+
+
+def make_loop_centreline(plan: tuple[tuple[float, float], ...] = LOOP_PLAN) -> Centreline:
+    """A closed road around a block (rounded rectangle, four left turns of exactly 90 degrees with the
+    sin^2 curvature ramps of `make_centreline`): opposite sides are equal, so it ends where it starts.
+    Arc lengths wrap around (`Centreline.closed`)."""
+    length = sum(seg_len for seg_len, _ in plan)
+    s = np.arange(0.0, length + CENTRELINE_STEP / 2, CENTRELINE_STEP)
+    curvature = np.zeros_like(s)
+    start = 0.0
+    for seg_len, angle in plan:
+        if angle != 0.0:
+            t = (s - start) / seg_len
+            inside = (t >= 0.0) & (t < 1.0)
+            ramp = 0.25
+            shape = np.sin(0.5 * np.pi * np.minimum(np.minimum(t, 1.0 - t) / ramp, 1.0)) ** 2
+            curvature[inside] = math.radians(angle) / (seg_len * (1.0 - ramp)) * shape[inside]
+        start += seg_len
+    heading = np.concatenate([[0.0], np.cumsum(0.5 * (curvature[1:] + curvature[:-1]) * CENTRELINE_STEP)])
+    direction = np.stack([np.cos(heading), np.sin(heading)], axis=1)
+    steps = 0.5 * (direction[1:] + direction[:-1]) * CENTRELINE_STEP
+    xy = np.concatenate([np.zeros((1, 2)), np.cumsum(steps, axis=0)])
+    return Centreline(s=s, xy=xy, heading=heading, curvature=curvature, closed=True)
 
 
 def _rotation_x(angle: float) -> np.ndarray:

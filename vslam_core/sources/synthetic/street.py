@@ -32,6 +32,7 @@ source that renders a frame from them.
 from __future__ import annotations
 
 from collections.abc import Iterator
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -46,7 +47,7 @@ from vslam_core.sources.synthetic.raster import (
     surface_coords,
     surface_homography,
 )
-from vslam_core.sources.synthetic.road import START_S, camera_path, make_centreline
+from vslam_core.sources.synthetic.road import START_S, camera_path, make_centreline, make_loop_centreline
 from vslam_core.sources.synthetic.scene import COARSE_RES, build_street, ground_layout
 from vslam_core.sources.synthetic.textures import FINE_TILE, PANO_ELEV_MAX, ground_fine_tile, mip_pyramid, panorama
 
@@ -59,30 +60,52 @@ _FINE_RES = 0.015  # ground speckle tile
 _SPECKLE_CONTRAST = 0.45  # ground speckle amplitude, about +-55 grey levels
 _MIP_LEVELS = 7
 _MAX_FRAMES = 2000  # textures must stay under cv2.remap's 32767-texel limit (and memory reasonable)
+Route = Literal["street", "loop"]
+ROUTES: dict[str, int] = {"street": 300, "loop": 660}  # route -> default number of frames
+
+
+def _scaled(intrinsics: CameraIntrinsics, factor: float) -> CameraIntrinsics:
+    """The camera with images `factor` times as wide and high (pixel centres at integer coordinates)."""
+    return CameraIntrinsics(fx=intrinsics.fx * factor, fy=intrinsics.fy * factor,
+                            cx=(intrinsics.cx + 0.5) * factor - 0.5, cy=(intrinsics.cy + 0.5) * factor - 0.5,
+                            width=round(intrinsics.width * factor), height=round(intrinsics.height * factor))
 
 
 class SyntheticStreet:
     """Procedurally generated street, rendered deterministically from `seed` (a `FrameSource`).
 
-    n_frames: number of source frames (the path length is about n_frames metres).
+    n_frames: number of source frames (the path length is about n_frames metres); default by route.
+    route: "street" (an open road with curves both ways) or "loop" (around a 600 m block, four left turns,
+    and on past the start: a closed route whose end revisits its start, for loop closure).
+    resolution: image size factor (< 1 renders smaller images, faster: for tests).
     frames: selection among them (`FrameRange.indices(n_frames)`, SourceError when out of range).
     camera_height: metres between the camera centre and the road plane.
     """
 
     def __init__(
-        self, n_frames: int = 300, frames: FrameRange | None = None, seed: int = 0, camera_height: float = 1.65
+        self, n_frames: int | None = None, frames: FrameRange | None = None, seed: int = 0,
+        camera_height: float = 1.65, route: Route = "street", resolution: float = 1.0,
     ) -> None:
+        if route not in ROUTES:
+            raise SourceError(f"synthetic street: unknown route {route!r} (one of: {', '.join(ROUTES)})")
+        n_frames = n_frames if n_frames is not None else ROUTES[route]
         if not 1 <= n_frames <= _MAX_FRAMES:
             raise SourceError(f"synthetic street: n_frames must be in 1..{_MAX_FRAMES}, got {n_frames}")
+        if not 0.1 <= resolution <= 1.0:
+            raise SourceError(f"synthetic street: resolution must be in 0.1..1, got {resolution}")
         self.n_frames = n_frames
         self.seed = seed
+        self.route = route
         self.camera_height = float(camera_height)
         self._indices = (frames or FrameRange()).indices(n_frames)
         # Independent streams: the road, path and buildings of a shorter run are a prefix of a longer one's.
         rngs = [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(11)]
-        intr = _INTRINSICS
+        self._intr = intr = _INTRINSICS if resolution == 1.0 else _scaled(_INTRINSICS, resolution)
         self._k = intr.K
-        self._line = make_centreline(START_S + 1.25 * n_frames + _LOOK_AHEAD, rngs[0])
+        if route == "loop":  # around a block and back past the start (~1 m per frame)
+            self._line = make_loop_centreline()
+        else:
+            self._line = make_centreline(START_S + 1.25 * n_frames + _LOOK_AHEAD, rngs[0])
         self._poses_map = camera_path(self._line, n_frames, self.camera_height, rngs[1])
         self._quads, atlas = build_street(self._line, rngs[2:8])
         self._atlas = mip_pyramid(atlas, _MIP_LEVELS)
@@ -105,7 +128,7 @@ class SyntheticStreet:
 
     @property
     def intrinsics(self) -> CameraIntrinsics:
-        return _INTRINSICS
+        return self._intr
 
     @property
     def ground_truth(self) -> np.ndarray:
@@ -138,7 +161,7 @@ class SyntheticStreet:
         """(H, W) uint8 grey image of source frame `index` (0 <= index < n_frames)."""
         if not 0 <= index < self.n_frames:
             raise IndexError(f"frame {index} out of range 0..{self.n_frames - 1}")
-        intr = _INTRINSICS
+        intr = self._intr
         pose = self._poses_map[index]
         r_cm = pose[:3, :3].T
         position = pose[:3, 3]
@@ -164,7 +187,7 @@ class SyntheticStreet:
         inverse depth; and per id the homography pixel -> atlas texel coordinates, (9, Q + 1) float32
         row-major (zero for rectangles not drawn).
         """
-        intr = _INTRINSICS
+        intr = self._intr
         w, h = intr.width, intr.height
         u = np.arange(w, dtype=np.float32)[None, :]
         v = np.arange(h, dtype=np.float32)[:, None]
@@ -238,7 +261,7 @@ class SyntheticStreet:
 
     def _shade_sky(self, out: np.ndarray, idx: np.ndarray, r_cm: np.ndarray) -> None:
         """Write the panorama at infinity into out (H*W,) at flat pixel indices idx."""
-        intr = _INTRINSICS
+        intr = self._intr
         xr = (self._u[idx] - intr.cx) / intr.fx
         yr = (self._v[idx] - intr.cy) / intr.fy
         r = r_cm.T.astype(np.float32)  # camera -> map rotation

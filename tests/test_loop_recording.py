@@ -1,0 +1,120 @@
+"""Loop closing on real frames, read back from the recording: KITTI 05 driven forward and then the same
+frames in reverse order (the camera backs up along the street it came: a revisit seen from the same side),
+and the same frames forward only (an open route: no loop may be accepted)."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import cli_helpers
+import numpy as np
+import pytest
+from rerun.chunk import RrdReader
+
+from vslam.rrd.read import read_entity
+
+FORWARD = 40  # frames driven forward; the revisit backs up over them again
+CONFIG = "[loop]\nmin_separation_keyframes = 6\n"  # the short test drive: candidates 6 keyframes back
+
+
+def _folder(kitti_root: Path, folder: Path, order: list[int]) -> Path:
+    """An image folder of KITTI 05 frames in `order` (symbolic links), with its calib.txt and ground truth."""
+    folder.mkdir()
+    sequence = kitti_root / "sequences" / "05"
+    for k, i in enumerate(order):
+        os.symlink(sequence / "image_0" / f"{i:06d}.png", folder / f"{k:06d}.png")
+    (folder / "calib.txt").write_text((sequence / "calib.txt").read_text())
+    poses = np.loadtxt(kitti_root / "poses" / "05.txt").reshape(-1, 12)
+    np.savetxt(folder / "gt.txt", poses[order])
+    return folder
+
+
+def _run(kitti_root: Path, tmp: Path, order: list[int]) -> tuple[Path, list[int]]:
+    folder = _folder(kitti_root, tmp / "images", order)
+    (tmp / "loop.toml").write_text(CONFIG)
+    rrd = tmp / "run.rrd"
+    result = cli_helpers.vslam("run", folder, "--gt", folder / "gt.txt", "--backend", "map", "--scale", "gt",
+                               "--config", tmp / "loop.toml", "--detail", "standard", "-o", rrd)
+    assert result.returncode == 0, result.stderr
+    return rrd, order
+
+
+@pytest.fixture(scope="module")
+def revisit(kitti_root: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[int]]:
+    return _run(kitti_root, tmp_path_factory.mktemp("revisit"),
+                list(range(FORWARD)) + list(range(FORWARD - 1, -1, -1)))
+
+
+@pytest.fixture(scope="module")
+def open_route(kitti_root: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[int]]:
+    return _run(kitti_root, tmp_path_factory.mktemp("open"), list(range(2 * FORWARD)))
+
+
+def test_revisit_is_found_at_the_right_place(revisit: tuple[Path, list[int]]) -> None:
+    rrd, order = revisit
+    closed = read_entity(rrd, "/loops/closed")
+    assert len(closed) >= 1
+    for query, matched in zip(closed["query_frame"].to_list(), closed["candidate_frame"].to_list(), strict=True):
+        assert query[0] >= FORWARD > matched[0]  # a frame of the way back revisits one of the way out ...
+        assert abs(order[query[0]] - order[matched[0]]) <= 3  # ... showing the same place (KITTI frame)
+
+
+def test_candidates_and_images_are_recorded(revisit: tuple[Path, list[int]]) -> None:
+    rrd, _ = revisit
+    candidates = read_entity(rrd, "/loops/candidates")
+    accepted = [a for row in candidates["accepted"].to_list() for a in row]
+    why = [w for row in candidates["why"].to_list() for w in row]
+    assert any(accepted)
+    assert all(w == "accepted" for a, w in zip(accepted, why, strict=True) if a)
+    assert all(w != "accepted" for a, w in zip(accepted, why, strict=True) if not a)
+    inliers = [n for row in candidates["inliers"].to_list() for n in row]
+    assert min(n for n, a in zip(inliers, accepted, strict=True) if a) >= 40
+    image = read_entity(rrd, "/loops/candidate/image")
+    assert len(image) >= 1  # query and candidate side by side, half size: 2 x 620 wide
+    assert "Image:buffer" in image.columns
+    matches = read_entity(rrd, "/loops/candidate/image/matches")
+    assert len(matches) == len(image)
+    edges = read_entity(rrd, "/world/loops/edges")
+    assert len(edges) == len(read_entity(rrd, "/loops/closed"))
+    for name in ("/world/loops/before", "/world/loops/after"):
+        assert len(read_entity(rrd, name)) == len(edges), name
+    for name in ("/loops/correction_m", "/loops/correction_deg"):  # bar charts: one bar per keyframe
+        bars = _bar_charts(rrd, name)
+        assert len(bars) == len(edges), name
+        assert all(len(b) >= 10 and min(b) >= 0.0 for b in bars), name
+    events = read_entity(rrd, "/events")
+    texts = [t[0] for t in events["TextLog:text"].to_list()]
+    assert any("loop closed: frame" in t for t in texts)
+    assert any("loop candidate: frame" in t for t in texts)
+
+
+def _bar_charts(rrd: Path, entity: str) -> list[list[float]]:
+    """The values of each BarChart row of `entity` (polars cannot read a tensor column: pyarrow does)."""
+    reader = RrdReader(rrd)
+    rows: list[list[float]] = []
+    for chunk in reader.stream().filter(content=entity, is_static=False).to_chunks():
+        for tensor in chunk.to_record_batch().column("BarChart:values").to_pylist():
+            rows.append([float(v) for v in tensor[0]["buffer"]])
+    return rows
+
+
+def test_inspect_lists_the_loops(revisit: tuple[Path, list[int]]) -> None:
+    rrd, _ = revisit
+    result = cli_helpers.vslam("inspect", rrd, "--json")
+    assert result.returncode == 0, result.stderr
+    loops = json.loads(result.stdout)["loops"]
+    closed = read_entity(rrd, "/loops/closed")
+    assert [loop["frame"] for loop in loops] == [v[0] for v in closed["query_frame"].to_list()]
+    for loop in loops:
+        assert set(loop) == {"frame", "matched_frame", "inliers", "correction_m", "correction_deg"}
+        assert loop["inliers"] >= 40 and 0.0 <= loop["correction_m"] < 5.0 and 0.0 <= loop["correction_deg"] < 10.0
+
+
+def test_no_loop_on_an_open_route(open_route: tuple[Path, list[int]]) -> None:
+    """The same number of frames driven forward only: candidates may be checked, none is accepted."""
+    rrd, _ = open_route
+    assert read_entity(rrd, "/loops/closed").is_empty()
+    result = cli_helpers.vslam("inspect", rrd, "--json")
+    assert json.loads(result.stdout)["loops"] == []

@@ -1,0 +1,108 @@
+"""Place recognition over past keyframes: what each keyframe keeps for loop closing, and the candidate search.
+
+A keyframe is described by its strongest FAST corners with upright ORB descriptors (like the map's
+landmarks, vslam_core/mapping/local_mapping.py) and, once the vocabulary exists, by their bag of words. It also
+keeps its landmarks in its own camera frame (positions, pixels, descriptors), which is what a later keyframe
+is verified against: camera-frame points stay valid however the keyframe is moved by corrections.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from vslam_core.config import LoopConfig
+from vslam_core.loop.vocabulary import BinaryVocabulary, similarity
+from vslam_core.mapping.local_mapping import DESCRIPTOR_PATCH
+
+EMPTY_DESCRIPTORS = np.zeros((0, 32), np.uint8)
+
+
+@dataclass
+class KeyframePlace:
+    """One keyframe as loop closing sees it. F features, L landmarks."""
+
+    keyframe_id: int
+    position: int  # run position of its frame
+    segment: int
+    pixels: np.ndarray  # (F, 2) float32 feature positions
+    descriptors: np.ndarray  # (F, 32) uint8 upright ORB
+    point_ids: np.ndarray  # (L,) int64 its landmarks' ids
+    points_cam: np.ndarray  # (L, 3) its landmarks in its camera frame
+    point_pixels: np.ndarray  # (L, 2) where it saw them
+    point_descriptors: np.ndarray  # (L, 32) uint8
+    thumbnail: np.ndarray  # (H/2, W/2) uint8 image, for the recording
+    words: np.ndarray | None = None  # (V,) bag of words, once the vocabulary exists
+
+
+def describe_image(image: np.ndarray, count: int, fast_threshold: int,
+                   describer: cv2.ORB) -> tuple[np.ndarray, np.ndarray]:
+    """The `count` strongest FAST corners of a (H, W) uint8 image (ties: row-major order) with upright ORB
+    descriptors: ((F, 2) float32 pixels, (F, 32) uint8)."""
+    corners = cv2.FastFeatureDetector_create(threshold=fast_threshold).detect(image, None)
+    if not corners:
+        return np.zeros((0, 2), np.float32), EMPTY_DESCRIPTORS
+    response = np.array([c.response for c in corners], np.float32)
+    points = cv2.KeyPoint_convert(corners)  # (N, 2)
+    order = np.lexsort((points[:, 0], points[:, 1], -response))[:count]  # strongest; ties: row-major
+    keypoints = [cv2.KeyPoint(float(points[i, 0]), float(points[i, 1]), DESCRIPTOR_PATCH, 0.0, float(response[i]), 0)
+                 for i in order.tolist()]
+    keypoints, descriptors = describer.compute(image, keypoints)
+    if descriptors is None:
+        return np.zeros((0, 2), np.float32), EMPTY_DESCRIPTORS
+    return np.array([k.pt for k in keypoints], np.float32).reshape(-1, 2), descriptors
+
+
+class PlaceDatabase:
+    """The keyframes seen so far, their bags of words, and the search for places a keyframe revisits."""
+
+    def __init__(self, config: LoopConfig, seed: int) -> None:
+        self._config = config
+        self._seed = seed
+        self.places: dict[int, KeyframePlace] = {}
+        self.vocabulary: BinaryVocabulary | None = None
+        self._ids: list[int] = []  # keyframes with words, in insertion order
+        self._matrix = np.zeros((0, 0))  # (N, V) their words
+
+    def add(self, place: KeyframePlace) -> None:
+        """Store a keyframe; the vocabulary is built once `vocabulary_keyframes` keyframes are stored."""
+        self.places[place.keyframe_id] = place
+        cfg = self._config
+        if self.vocabulary is None and len(self.places) >= cfg.vocabulary_keyframes:
+            documents = [p.descriptors for p in self.places.values() if len(p.descriptors)]
+            if sum(len(d) for d in documents) >= 2:
+                self.vocabulary = BinaryVocabulary.build(documents, cfg.vocabulary_words, self._seed)
+                for stored in self.places.values():
+                    self._index(stored)
+                return
+        if self.vocabulary is not None:
+            self._index(place)
+
+    def _index(self, place: KeyframePlace) -> None:
+        assert self.vocabulary is not None
+        place.words = self.vocabulary.vector(place.descriptors)
+        self._ids.append(place.keyframe_id)
+        row = place.words[None, :]
+        self._matrix = row if len(self._ids) == 1 else np.concatenate((self._matrix, row))
+
+    def candidates(self, query: KeyframePlace) -> list[tuple[int, float]]:
+        """(keyframe id, score) of the best-scoring older keyframes of the query's segment, at least
+        `min_separation_keyframes` before it, scoring at least `min_score_ratio` times the query's best score
+        with its 3 previous keyframes (how alike consecutive views of one place are here: on a street every
+        view shares many words with every other, so only a place more alike than the neighbours counts); best
+        first, at most `max_candidates`."""
+        cfg = self._config
+        if query.words is None or not self._ids:
+            return []
+        ids = np.array(self._ids, np.int64)
+        scores = similarity(query.words, self._matrix)
+        neighbours = (ids < query.keyframe_id) & (ids >= query.keyframe_id - 3)
+        if not neighbours.any():
+            return []
+        threshold = cfg.min_score_ratio * float(scores[neighbours].max())
+        segment = np.array([self.places[int(i)].segment == query.segment for i in ids])
+        eligible = segment & (ids <= query.keyframe_id - cfg.min_separation_keyframes) & (scores >= threshold)
+        order = np.flatnonzero(eligible)[np.argsort(-scores[eligible], kind="stable")]
+        return [(int(ids[i]), float(scores[i])) for i in order[: cfg.max_candidates]]
