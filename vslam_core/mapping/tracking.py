@@ -3,12 +3,15 @@
 Per frame: the odometry front end (vslam_core/engine.py) tracks the KLT tracks and measures the two-view
 motion from its keyframe (the 5-point essential matrix) → the landmarks the surviving tracks are linked to
 give 2-D–3-D correspondences → PnP in RANSAC, refined on the inliers (`MAP`); the step length stays the
-scale source's → if PnP fails its checks, the two-view pose (`TWO_VIEW`); if the tracks were lost (a gap, a
-jump), relocalisation against the landmarks of recent keyframes (`RELOCALISED`), and only if that fails a
-new map segment. A frame the health checks refuse (blurred, dark) is dead-reckoned from its degraded
-image (`COASTED`, vslam_core/coasting.py); one nothing can place keeps the last pose (`LOST`). A
-frame becomes a keyframe on parallax, landmark overlap or frame count, and is handed to local mapping; the
-pending bundle adjustment is applied at that moment (a fixed point: deterministic).
+scale source's (gt, height), or with none the whole PnP pose is used, in the map's own scale
+(vslam_core/mapping/map_scale.py) → if PnP fails its checks, the two-view pose (`TWO_VIEW`); if the tracks
+were lost (a gap, a jump), relocalisation against the landmarks of recent keyframes (`RELOCALISED`), and
+only if that fails a new map segment. Tracks live on raw pixels; PnP, landmarks and BA use their ideal
+pinhole pixels (vslam_core/lens.py), and the result's PnP pixels are put back on the raw image. A frame
+the health checks refuse (blurred, dark) is dead-reckoned from its degraded image (`COASTED`,
+vslam_core/coasting.py); one nothing can place keeps the last pose (`LOST`). A frame becomes a keyframe on
+parallax, landmark overlap or frame count, and is handed to local mapping; the pending bundle adjustment is
+applied at that moment (a fixed point: deterministic).
 """
 
 from __future__ import annotations
@@ -315,8 +318,9 @@ class MapTracking:
                                in_frame: np.ndarray, key_pixels: np.ndarray) -> str | None:
         """--scale none, before the map has landmarks: the next keyframe's baseline sets the map's scale, so it
         waits for a well-conditioned two-view reconstruction from the last keyframe: translation parallax
-        (rotation removed) of `init_parallax_px` and an unambiguous chirality (Hartley & Zisserman, sec. 9.6:
-        pure rotation and near-degenerate baselines leave the translation, and so the scale, undetermined).
+        (rotation removed) of `init_parallax_px` and an unambiguous chirality: pure rotation and too short a
+        baseline leave the translation, and so the scale, undetermined (Mur-Artal et al., "ORB-SLAM", 2015,
+        sec. IV, which likewise waits for parallax before it initialises).
         If the keyframe's tracks are lost first, initialisation starts again from this frame."""
         if len(in_frame) < self._cfg.pnp_min_landmarks:
             return "re-initialisation: tracks lost"
