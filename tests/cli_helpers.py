@@ -19,7 +19,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-import vslam.cli
+from vslam.cli import main as cli_main
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -53,7 +53,7 @@ def vslam_here(*args: str | Path, cwd: Path | None = None) -> subprocess.Complet
     sys.argv = argv
     try:
         with contextlib.chdir(cwd or ROOT), contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
-            vslam.cli.main()
+            cli_main()
     except SystemExit as exc:
         code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
     finally:
