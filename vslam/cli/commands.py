@@ -9,7 +9,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
 import typer
-from rich.markup import escape
 
 from vslam.cli.common import (
     BACKEND_HELP,
@@ -27,12 +26,12 @@ from vslam.cli.common import (
     err,
     fail,
     out,
+    print_error,
     refuse,
     warn,
 )
 from vslam.cli.entry import run as run_app
 from vslam.cli.eval import eval_command
-from vslam.evaluation import DEFAULT_TOLERANCE_MS
 from vslam.recording import Detail, ImageCodec
 
 if TYPE_CHECKING:
@@ -91,6 +90,8 @@ def _summary(source: FrameSource, run: RunResult, config: EngineConfig) -> None:
     from vslam.evaluation import scored_estimate
     from vslam_core.metrics import kitti_errors, paper_rms_error, scale_errors
     from vslam_core.scale import default_camera_height
+    from vslam_core.sources.base import ground_truth_matching
+    from vslam_core.sources.calibration import camera_line
 
     fps = run.frames / run.seconds if run.seconds > 0 else float("nan")
     lines = [
@@ -101,7 +102,10 @@ def _summary(source: FrameSource, run: RunResult, config: EngineConfig) -> None:
         + (f" (camera {default_camera_height(source.camera_height, config):.2f} m above the road; no ground truth "
            "used)" if config.scale == "height" else ""),
     ]
+    lines.append(f"camera      {camera_line(source.intrinsics)}")
     gt = source.ground_truth
+    if (matching := ground_truth_matching(source)) is not None:
+        lines.append(f"ground truth {matching}")
     if gt is not None and run.frames > 1:
         gt = gt[: run.frames]
         if config.scale == "height":
@@ -151,7 +155,7 @@ def run(
     gt: Annotated[Path | None, typer.Option(help=GT_HELP)] = None,
     topic: Annotated[str | None, typer.Option(help=TOPIC_HELP)] = None,
     gt_topic: Annotated[str | None, typer.Option(help=GT_TOPIC_HELP)] = None,
-    gt_tolerance: Annotated[float, typer.Option(min=0.0, help=GT_TOLERANCE_HELP)] = DEFAULT_TOLERANCE_MS,
+    gt_tolerance: Annotated[float | None, typer.Option(min=0.0, help=GT_TOLERANCE_HELP + " [default: 10]")] = None,
     inject: Annotated[str | None, typer.Option(help="fault injection, e.g. dark@120,blur@200:210 (kinds: dark, "
                                                "overexposed, blur, frozen, drop, brightness, noise)")] = None,
     on_bad_frame: Annotated[BadFrame, typer.Option(help="an unreadable image: fail (stop, naming the file) or "
@@ -180,7 +184,7 @@ def run(
     config = load_config(config_file) if config_file is not None else EngineConfig()
     src = open_source(source, sequence=sequence, frames=frame_range, intrinsics=intrinsics, calib=calib,
                       ground_truth=gt, on_bad_frame=on_bad_frame.value, inject=inject, topic=topic, gt_topic=gt_topic,
-                      gt_tolerance_s=gt_tolerance / 1000.0)
+                      gt_tolerance_s=None if gt_tolerance is None else gt_tolerance / 1000.0)
     if scale is not None:
         config = config.with_scale(scale.value)
     elif config_file is None and src.ground_truth is None:
@@ -382,8 +386,7 @@ def repair(
 
 def main() -> None:
     """Entry point: every `VslamError` and usage error becomes one line on stderr and exit code 2."""
-    run_app(app, lambda message: err.print(f"[bold red]error:[/] {escape(message)}", highlight=False,
-                                           soft_wrap=True))
+    run_app(app, print_error)
 
 
 if __name__ == "__main__":

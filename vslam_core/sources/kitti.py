@@ -258,15 +258,17 @@ class KittiSource(ImageFilesSource):
             self.sequence = normalise_sequence(root.resolve().name)
             poses_file = root.resolve().parent.parent / "poses" / f"{self.sequence}.txt"
         elif (root / "sequences").is_dir():
-            raise SourceError(f"{root}: a KITTI dataset root; say which sequence (e.g. sequence 00)")
+            raise SourceError(f"{root}: a KITTI dataset root; say which sequence (e.g. --sequence 00)")
         else:
             raise SourceError(f"{root}: not a KITTI sequence folder (no image_0/) nor a dataset root")
 
         self._files = list_images(self.folder / "image_0", "KITTI image folder")
         self._indices = select(frames, len(self._files), self.folder)
-        fx, fy, cx, cy = read_p0_intrinsics(self.folder / "calib.txt")
+        calib = self.folder / "calib.txt"
+        fx, fy, cx, cy = read_p0_intrinsics(calib)
         self._size = first_image_size(self._files, self._indices, on_bad_frame, self.folder)
-        self._intrinsics = CameraIntrinsics(fx, fy, cx, cy, width=self._size[0], height=self._size[1])
+        self._intrinsics = CameraIntrinsics(fx, fy, cx, cy, width=self._size[0], height=self._size[1],
+                                            origin=f"{calib} (KITTI calib.txt)")
 
         times_file = self.folder / "times.txt"
         self._times = read_times(times_file, len(self._files)) if times_file.is_file() else None
@@ -276,6 +278,7 @@ class KittiSource(ImageFilesSource):
             if self.poses_file is not None
             else None
         )
+        self.gt_matching = f"row by row (line i of {poses_file.name} is image i)" if self.poses_file else None
         self._name = f"kitti-{self.sequence}"
         self._camera_height = KITTI_CAMERA_HEIGHT_M
 
