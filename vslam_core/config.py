@@ -74,7 +74,8 @@ class PoseConfig:
     chirality_max_depth: float = 50.0  # in baselines, like cv2.recoverPose's distanceThresh
     min_tracks: int = 30  # fewer tracks from the keyframe: re-initialise
     min_inliers: int = 20
-    min_parallax_px: float = 1.0  # median flow from the keyframe below this: standing still
+    min_parallax_px: float = 1.0  # median flow from the keyframe below this: too little motion to measure
+    stationary_px: float = 0.05  # median flow below this (KLT's noise): the image did not move, a parked car
 
 
 @dataclass(frozen=True)

@@ -389,6 +389,8 @@ class Odometry:
         if len(p_cur) < cfg.min_tracks:
             return _Motion(reason=Reason.TOO_FEW_TRACKS), 0.0
         parallax = float(np.median(np.linalg.norm(p_cur - p_key, axis=1)))
+        if parallax < cfg.stationary_px:
+            return _Motion(reason=Reason.STATIONARY), parallax
         if parallax < cfg.min_parallax_px:
             return _Motion(reason=Reason.LOW_PARALLAX), parallax
         return self._two_view(p_cur, p_key, timings), parallax

@@ -84,6 +84,12 @@ def _recording_id(source: FrameSource, frames: FrameRange, config: EngineConfig)
     return str(uuid.uuid5(uuid.NAMESPACE_URL, "vslam:" + key))
 
 
+def held_reasons(run: RunResult) -> str:
+    """``: stationary 299`` — why frames were held, most frequent first (empty when none was)."""
+    ranked = sorted(run.held_reasons.items(), key=lambda item: (-item[1], item[0]))
+    return (": " + ", ".join(f"{reason} {count}" for reason, count in ranked)) if ranked else ""
+
+
 def _summary(source: FrameSource, run: RunResult, config: EngineConfig) -> None:
     import numpy as np
 
@@ -95,7 +101,7 @@ def _summary(source: FrameSource, run: RunResult, config: EngineConfig) -> None:
 
     fps = run.frames / run.seconds if run.seconds > 0 else float("nan")
     lines = [
-        f"frames      {run.frames} ({run.held_summary})",
+        f"frames      {run.frames} ({run.held_summary}" + held_reasons(run) + ")",
         f"time        {run.seconds:.1f} s, {fps:.1f} frames/s",
         f"backend     {config.backend}",
         f"scale       {config.scale}"

@@ -14,6 +14,7 @@ from vslam_core.config_ranges import range_problem
 from vslam_core.errors import ConfigError
 from vslam_core.mapping.tracking import unsupported_camera
 from vslam_core.pipeline import RunResult
+from vslam_core.results import STANDING_STILL
 from vslam_core.scale import default_camera_height
 from vslam_core.sources.base import FrameSource, source_notes
 
@@ -105,8 +106,12 @@ def _camera_warnings(source: FrameSource) -> list[str]:
 
 
 def nothing_tracked(result: RunResult) -> str | None:
-    """A run of two frames or more in which no frame's motion could be measured."""
+    """A run of two frames or more in which no frame's motion could be measured for a failure. A camera that
+    did not move (every frame `stationary` or `low_parallax`, a parked car) is a valid log: its held pose is
+    the right answer."""
     if result.frames < 2 or result.tracked > 0:
+        return None
+    if all(reason in STANDING_STILL for reason in result.held_reasons):
         return None
     why = ""
     if result.held_reasons:
