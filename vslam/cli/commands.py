@@ -312,15 +312,14 @@ def crop(
     force: Annotated[bool, typer.Option("--force", help="replace an existing output")] = False,
 ) -> None:
     """Cut a recording down to the frames that matter (static data and blueprint kept)."""
-    from vslam.rrd import crop_recording, parse_crop_frames
+    from vslam.rrd import crop_recording, format_crop, parse_crop_frames
     from vslam.runs import claimed
 
     selection = parse_crop_frames(frames)
     _existing_recording(recording)
     with claimed(_recording_path(output), force, "recording"):
         summary = crop_recording(recording, selection, output)
-    out.print(f"{output}: frames {summary.first_frame}..{summary.last_frame} ({summary.frame_count} frames), "
-              f"{summary.output_bytes / 1e6:.1f} MB (from {summary.input_bytes / 1e6:.1f} MB)", highlight=False)
+    out.print(format_crop(summary, recording))
 
 
 # extra arguments: the folders after `--merge DIR` (`--merge A B C`); refused by every other form of eval

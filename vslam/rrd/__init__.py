@@ -12,6 +12,7 @@ _HOMES = {
     "RecordingError": "read",
     "comparison_prefixes": "provenance",
     "crop_recording": "crop",
+    "format_crop": "crop",
     "first_line": "read",
     "flatten": "provenance",
     "format_repair": "repair",
@@ -33,7 +34,7 @@ _HOMES = {
 }
 
 if TYPE_CHECKING:
-    from vslam.rrd.crop import crop_recording, parse_crop_frames
+    from vslam.rrd.crop import crop_recording, format_crop, parse_crop_frames
     from vslam.rrd.crop_video import video_codecs
     from vslam.rrd.inspect import format_report, inspect_recording
     from vslam.rrd.provenance import comparison_prefixes, flatten, run_differences
@@ -62,6 +63,7 @@ __all__ = [
     "RecordingError",
     "comparison_prefixes",
     "crop_recording",
+    "format_crop",
     "first_line",
     "flatten",
     "format_repair",
