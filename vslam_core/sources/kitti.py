@@ -15,6 +15,7 @@ the base of the sources whose frames are image files (KITTI, image folders, EuRo
 
 from __future__ import annotations
 
+import zlib
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Literal
@@ -124,8 +125,15 @@ def list_images(folder: Path, what: str = "image folder") -> list[Path]:
 def read_grey_image(path: Path, size: tuple[int, int] | None = None) -> np.ndarray:
     """Decode one image as (H, W) uint8 grey (colour is converted). ``size`` = (width, height) expected.
 
-    Raises `SourceError` naming the file when it cannot be decoded or has another size."""
-    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    Raises `SourceError` naming the file when it cannot be decoded or has another size. A PNG is checked
+    (`png_problem`) before libpng sees it: libpng prints its own ``libpng error: …`` line on stderr."""
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise SourceError(f"{path}: cannot read image ({exc.strerror or exc.__class__.__name__})") from None
+    if (problem := png_problem(data)) is not None:
+        raise SourceError(f"{path}: cannot read image (corrupt PNG: {problem})")
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE) if data else None
     if image is None or image.size == 0:
         raise SourceError(f"{path}: cannot read image (missing, corrupt or not an image)")
     if size is not None and (image.shape[1], image.shape[0]) != size:
@@ -133,6 +141,30 @@ def read_grey_image(path: Path, size: tuple[int, int] | None = None) -> np.ndarr
             f"{path}: image is {image.shape[1]}x{image.shape[0]}, the first frame is {size[0]}x{size[1]}"
         )
     return image
+
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def png_problem(data: bytes) -> str | None:
+    """What is wrong with the chunks of a PNG file's bytes (a chunk's CRC-32 that does not match, a chunk cut
+    off), or None (also for data that is not a PNG). PNG spec §5.3: each chunk is length (4 bytes, big-endian),
+    type (4), data, and the CRC-32 of type and data (4)."""
+    if not data.startswith(PNG_SIGNATURE):
+        return None
+    position = len(PNG_SIGNATURE)
+    while position + 8 <= len(data):
+        length = int.from_bytes(data[position:position + 4], "big")
+        kind = data[position + 4:position + 8]
+        end = position + 8 + length
+        if end + 4 > len(data):
+            return None  # cut off: OpenCV reports it without a libpng line
+        if zlib.crc32(data[position + 4:end]) != int.from_bytes(data[end:end + 4], "big"):
+            return f"chunk {kind.decode('latin-1')} at byte {position} fails its CRC check"
+        if kind == b"IEND":
+            return None
+        position = end + 4
+    return None
 
 
 BadFramePolicy = Literal["fail", "skip"]
