@@ -110,3 +110,21 @@ def test_a_focal_length_of_one_pixel_is_warned_about(folder_with_calib_above: Pa
     fine = vslam("run", folder_with_calib_above, "--intrinsics", "718.856,718.856,607.1928,185.2157", "--detail",
                  "off", "--frames", "0:2")
     assert "warning" not in fine.stderr, fine.stderr
+
+
+def test_one_file_for_both_outputs_is_refused(tmp_path: Path) -> None:
+    result = vslam_here("run", "-o", tmp_path / "x.rrd", "--trajectory-out", tmp_path / "x.rrd")
+    assert result.returncode == 2
+    assert f"--output {tmp_path / 'x.rrd'} and --trajectory-out {tmp_path / 'x.rrd'} are the same file" in result.stderr
+    assert "another run" not in result.stderr and not (tmp_path / "x.rrd").exists()
+
+
+def test_a_config_with_a_utf8_bom_is_read(tmp_path: Path) -> None:
+    config = tmp_path / "engine.toml"
+    config.write_bytes("\ufeff# saved by a Windows editor\n[pose]\nmin_inliers = 25\n".encode())
+    result = vslam("run", "--config", config, "--frames", "0:2", "--detail", "off")
+    assert result.returncode == 0, result.stderr
+    bad = tmp_path / "bad.toml"
+    bad.write_bytes("\ufeff[pose]\nmin_inliers = -1\n".encode())
+    refused = vslam_here("run", "--config", bad, "--frames", "0:2", "--detail", "off")
+    assert refused.returncode == 2 and "pose.min_inliers" in refused.stderr and "line 1" not in refused.stderr

@@ -245,7 +245,7 @@ def load_config(path: str | Path) -> EngineConfig:
     """Read an `EngineConfig` from a TOML file; keys left out keep their defaults."""
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text())
+        data = tomllib.loads(path.read_text(encoding="utf-8-sig"))  # a BOM (Windows editors) is not TOML
     except FileNotFoundError:
         raise ConfigError(f"{path}: config file not found") from None
     except (OSError, UnicodeDecodeError) as exc:

@@ -180,6 +180,7 @@ def run(
         nothing_tracked,
         output_problem,
         record_run,
+        same_file_problem,
         with_camera_height,
     )
     from vslam_core.config import EngineConfig, load_config
@@ -200,6 +201,7 @@ def run(
         config = config.with_backend(backend.value)
 
     refuse(output_problem(output, detail == Detail.OFF))
+    refuse(same_file_problem(output if detail != Detail.OFF else None, trajectory_out))
     refuse(backend_problem(src, config))
     for warning in input_warnings(src, config):
         warn(warning)
@@ -275,10 +277,13 @@ def snapshot_command(
     = "1280x720",  # vslam.viewer.snapshot.DEFAULT_SIZE (a test keeps the two equal)
 ) -> None:
     """Render every view of the recording's blueprint at one frame to PNG, with the real viewer, headless."""
-    from vslam.viewer import parse_frame, parse_size, snapshot
+    from vslam.viewer.snapshot import parse_frame, parse_size, snapshot  # the package attribute is the module
 
     window = parse_size(size)
-    paths = snapshot(_existing_recording(recording), parse_frame(frame), out_dir, window_size=window)
+    try:
+        paths = snapshot(_existing_recording(recording), parse_frame(frame), out_dir, window_size=window)
+    except KeyboardInterrupt:
+        fail(f"snapshot interrupted: no picture written to {out_dir}", 130)
     for path in paths:
         out.print(str(path), highlight=False)
 

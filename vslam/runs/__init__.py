@@ -26,6 +26,7 @@ _HOMES = {
     "nothing_tracked": "checks",
     "output_problem": "checks",
     "record_run": "runner",
+    "same_file_problem": "checks",
     "stuck_writers": "outputs",
     "with_camera_height": "checks",
     "write_failure": "outputs",
@@ -39,6 +40,7 @@ if TYPE_CHECKING:
         input_warnings,
         nothing_tracked,
         output_problem,
+        same_file_problem,
         with_camera_height,
     )
     from vslam.runs.outputs import (
@@ -77,6 +79,7 @@ __all__ = [
     "nothing_tracked",
     "output_problem",
     "record_run",
+    "same_file_problem",
     "stuck_writers",
     "with_camera_height",
     "write_failure",

@@ -60,6 +60,16 @@ def output_problem(output: Path | None, detail_off: bool) -> str | None:
     return None
 
 
+def same_file_problem(recording: Path | None, trajectory: Path | None) -> str | None:
+    """`-o x.rrd --trajectory-out x.rrd`: one run cannot write two outputs into one file."""
+    if recording is None or trajectory is None:
+        return None
+    if recording.resolve() == trajectory.resolve():
+        return (f"--output {recording} and --trajectory-out {trajectory} are the same file: give the recording and "
+                "the trajectory two paths")
+    return None
+
+
 def backend_problem(source: FrameSource, config: EngineConfig) -> str | None:
     """A backend that cannot handle this source's camera, refused before any output is written."""
     return unsupported_camera(source.intrinsics) if config.backend == "map" else None

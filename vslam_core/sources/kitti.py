@@ -43,7 +43,7 @@ def read_p0_intrinsics(calib: Path) -> tuple[float, float, float, float]:
     cy=P[1,2] of the row-major 3x4 matrix). Raises `SourceError` naming the file when it is missing, has
     no ``P0:`` line, or the line does not hold 12 numbers."""
     try:
-        lines = calib.read_text().splitlines()
+        lines = calib.read_text(encoding="utf-8-sig").splitlines()
     except FileNotFoundError:
         raise SourceError(f"{calib}: calibration file not found") from None
     except (OSError, UnicodeDecodeError) as exc:
@@ -70,7 +70,7 @@ def read_times(path: Path, count: int) -> list[float]:
 
     Raises `SourceError` naming the file for a non-number or fewer than ``count`` lines."""
     try:
-        lines = path.read_text().splitlines()
+        lines = path.read_text(encoding="utf-8-sig").splitlines()
     except (OSError, UnicodeDecodeError) as exc:
         raise SourceError(f"{path}: cannot read timestamps ({exc.__class__.__name__})") from None
     times: list[float] = []
