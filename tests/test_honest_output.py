@@ -128,3 +128,8 @@ def test_a_config_with_a_utf8_bom_is_read(tmp_path: Path) -> None:
     bad.write_bytes("\ufeff[pose]\nmin_inliers = -1\n".encode())
     refused = vslam_here("run", "--config", bad, "--frames", "0:2", "--detail", "off")
     assert refused.returncode == 2 and "pose.min_inliers" in refused.stderr and "line 1" not in refused.stderr
+
+
+def test_a_device_is_not_called_missing() -> None:
+    result = vslam_here("inspect", "/dev/null")
+    assert result.returncode == 2 and "error: /dev/null: not a file" in result.stderr, result.stderr

@@ -248,6 +248,8 @@ def _existing_recording(path: Path) -> Path:
         fail(f"{path}: no such recording")
     if path.is_dir():
         fail(f"{path}: is a folder, not a .rrd recording")
+    if not path.is_file():
+        fail(f"{path}: not a file (a .rrd recording is a regular file)")
     return path
 
 

@@ -182,6 +182,12 @@ def eval_command(
                                           {"source_path": source or "synthetic", **({"inject": inject} if inject
                                                                                     else {})}, image_codec)
         scale_source, backend_name = config.scale, config.backend
+        if not as_json:  # how each source's ground truth was paired with its frames (by time, row by row)
+            from vslam_core.sources.base import ground_truth_matching
+
+            for src in sources:
+                if (matching := ground_truth_matching(src)) is not None:
+                    out.print((f"{src.name}: " if len(sources) > 1 else "") + f"ground truth {matching}")
     _print_evaluation(evaluation, scale_source, backend_name, report, as_json,
                       check_gates(evaluation.rows, max_t_err, max_r_err, max_ate))
 

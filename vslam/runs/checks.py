@@ -86,7 +86,7 @@ def input_warnings(source: FrameSource, config: EngineConfig) -> list[str]:
     warnings += _camera_warnings(source)
     if len(source) == 1:
         warnings.append(f"the selection holds one frame ({source.indices[0]}): a motion needs two, nothing will be "
-                        "tracked (is --frames' STEP larger than the range?)")
+                        "tracked (check --frames: END is clamped to the source's frames, STEP may skip the rest)")
     height: float | None = config.height.camera_height_m or None
     if config.scale == "height":
         try:
