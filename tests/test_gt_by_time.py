@@ -106,3 +106,28 @@ def test_row_by_row_is_said_in_the_summary(timed_folder: dict[str, Path]) -> Non
                    "--frames", "0:10", "--detail", "off")
     assert result.returncode == 0, result.stderr
     assert "ground truth row by row" in result.stdout
+
+
+def test_a_video_with_container_times_is_matched_by_time(tmp_path: Path) -> None:
+    """A 10 fps video (container times 0, 0.1, …) and a TUM ground truth at 20 Hz: each frame gets the pose
+    logged at its own time, not row i (the same rule as an image folder with times.txt)."""
+    import cv2
+
+    from vslam_core.sources.base import FrameRange
+    from vslam_core.sources.folder import PartialIntrinsics
+    from vslam_core.sources.video import VideoSource
+
+    video = tmp_path / "drive.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter.fourcc(*"MJPG"), 10.0, (160, 120), False)
+    for i in range(6):
+        writer.write(np.full((120, 160), 20 * (i + 1), np.uint8))
+    writer.release()
+    stamps = np.arange(12) * 0.05
+    poses = np.tile(np.eye(4), (12, 1, 1))
+    poses[:, 2, 3] = stamps * 10.0  # 10 m/s forward: z = 10 t
+    write_tum_poses(tmp_path / "gt.tum", stamps, poses)
+    source = VideoSource(video, PartialIntrinsics(100.0, 100.0, 80.0, 60.0), frames=FrameRange(1, 6),
+                         ground_truth=tmp_path / "gt.tum")
+    assert source.gt_matching == "matched by time, 5 of 5 frames, tolerance 10 ms"
+    assert source.ground_truth is not None
+    np.testing.assert_allclose(source.ground_truth[:, 2, 3], np.arange(5) * 1.0, atol=1e-9)  # row by row: 0.5 m
