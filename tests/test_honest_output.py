@@ -9,6 +9,8 @@ from pathlib import Path
 import pytest
 from cli_helpers import vslam, vslam_here
 
+from vslam.rrd.provenance import read_properties
+
 #: `:100:` is Rich's emoji code for 💯; `[red]` is markup
 TRICKY = ":100:[red]x"
 
@@ -87,6 +89,8 @@ def test_the_summary_says_which_calibration_and_from_where(folder_with_calib_abo
     assert f"from {kitti_calib} (KITTI calib.txt)" in kitti.stdout
     inspected = vslam("inspect", tmp_path / "k.rrd")  # the recording says so too (it said `from -`)
     assert f"from {kitti_calib} (KITTI calib.txt)" in inspected.stdout and "from -" not in inspected.stdout
+    matching = read_properties(tmp_path / "k.rrd", "/__properties/run")["gt_matching"]
+    assert matching == "row by row (line i of 00.txt is image i)" and f"ground truth {matching}" in kitti.stdout
 
 
 @pytest.mark.kitti

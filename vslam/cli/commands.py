@@ -184,7 +184,7 @@ def run(
         with_camera_height,
     )
     from vslam_core.config import EngineConfig, load_config
-    from vslam_core.sources.base import FrameRange, describe_indices
+    from vslam_core.sources.base import FrameRange, describe_indices, ground_truth_matching
     from vslam_core.sources.open import open_source
 
     frame_range = FrameRange.parse(frames)
@@ -221,6 +221,7 @@ def run(
         "scale": config.scale,
         "backend": config.backend,
         **({"inject": inject} if inject else {}),
+        **({"gt_matching": matching} if (matching := ground_truth_matching(src)) else {}),
         **version_properties(),
     }
     try:
