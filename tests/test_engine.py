@@ -96,7 +96,7 @@ def test_every_frame_gets_a_pose_and_a_frozen_frame_holds_it() -> None:
     assert len(results) == len(repeated)
     assert results[0].status == FrameStatus.INIT
     for held in results[6:9]:
-        assert held.status == FrameStatus.HELD and held.reason == Reason.LOW_PARALLAX
+        assert held.status == FrameStatus.HELD and held.reason == Reason.STATIONARY
         assert np.array_equal(held.T_world_cam, results[5].T_world_cam)
     assert results[9].status == FrameStatus.OK
     assert results[9].keyframe_position == 5  # measured from the last accepted frame

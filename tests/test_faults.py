@@ -29,7 +29,7 @@ EXPECTED = {
     "dark": (HealthStatus.FAIL, Reason.IMAGE_TOO_DARK),
     "overexposed": (HealthStatus.FAIL, Reason.IMAGE_TOO_BRIGHT),
     "blur": (HealthStatus.FAIL, Reason.IMAGE_BLURRED),
-    "frozen": (HealthStatus.WARN, Reason.LOW_PARALLAX),
+    "frozen": (HealthStatus.WARN, Reason.STATIONARY),
     "noise": (HealthStatus.WARN, Reason.IMAGE_NOISY),
 }
 

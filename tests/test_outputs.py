@@ -25,6 +25,7 @@ from cli_helpers import vslam
 from vslam.recording import Detail
 from vslam.recording import recorder as recorder_module
 from vslam.recording import stream as stream_module
+from vslam.rrd.provenance import read_properties
 from vslam.rrd.read import has_footer, read_entity, readable
 from vslam.runs import outputs
 from vslam.runs.outputs import OutputError, claim, default_recording
@@ -397,3 +398,31 @@ def test_full_disk_under_an_eval_report_is_one_line(tmp_path: Path) -> None:
     assert result.returncode == 2, result.stderr
     line = one_error_line(result.stderr)  # no traceback, no libpng line
     assert line.startswith(f"error: {report}") and f"disk full (no space left on {mount})" in line, line
+
+
+@pytest.mark.kitti
+def test_repair_and_crop_of_a_killed_recording_say_which_frames_it_holds(killed_run: tuple[Path, Path],
+                                                                         tmp_path: Path) -> None:
+    """Issue 24, item 10: the run properties of a repaired or cropped killed run say the frames it holds (with a
+    camera pose), and that it was cut short; so does what `repair` and `crop` print."""
+    rrd, _ = killed_run
+    last = max(camera_frames(rrd))
+    stopped = (f"the run of frames 0:300 was cut short after frame {last} (no footer: it was killed, crashed or ran "
+               "out of disk)")
+    repaired = tmp_path / "repaired.rrd"
+    result = vslam("repair", rrd, "-o", repaired)
+    assert result.returncode == 0, result.stderr
+    assert f"frames 0..{last} ({last + 1} frames)" in result.stdout and f"stopped: {stopped}" in result.stdout
+    properties = read_properties(repaired, "/__properties/run")
+    assert properties["frames"] == f"0:{last + 1}" and properties["frame_count"] == str(last + 1)
+    assert properties["stopped"] == stopped and "cropped_from" not in properties
+    inspected = vslam("inspect", repaired)
+    assert f"frames {last + 1}" in inspected.stdout or f"0:{last + 1}" in inspected.stdout, inspected.stdout
+
+    cropped = tmp_path / "all.rrd"  # the whole range: only the frames with a pose are reported
+    result = vslam("crop", rrd, "--frames", "0:300", "-o", cropped)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.startswith(f"{cropped}: frames 0..{last} ({last + 1} frames)"), result.stdout
+    assert stopped in result.stdout
+    properties = read_properties(cropped, "/__properties/run")
+    assert properties["frames"] == f"0:{last + 1}" and properties["stopped"] == stopped

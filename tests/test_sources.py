@@ -191,7 +191,7 @@ def test_image_folder_tum_ground_truth(kitti_root: Path, tmp_path: Path) -> None
     copy_real_frames(kitti_root, "00", folder, 4)
     poses = read_kitti_poses(kitti_root / "poses/00.txt", max_rows=30)[10:16]  # 6 rows for 4 images
     tum = tmp_path / "gt.tum"
-    write_tum_poses(tum, np.arange(6) * 0.1, poses)
+    write_tum_poses(tum, np.arange(4) * 0.1, poses[:4])  # the folder has no clock: row by row, one per image
     for fmt in ("tum", "auto"):
         intrinsics = parse_intrinsics("718.856,718.856,607.1928,185.2157")
         source = ImageFolderSource(
@@ -205,11 +205,12 @@ def test_image_folder_tum_ground_truth(kitti_root: Path, tmp_path: Path) -> None
     source = ImageFolderSource(folder, intrinsics=partial_00(), ground_truth=kitti_file)
     np.testing.assert_allclose(source.ground_truth, rebase_poses(poses[:4]), atol=1e-9)  # type: ignore[arg-type]
 
-    short = tmp_path / "short.tum"
-    write_tum_poses(short, np.arange(3) * 0.1, poses[:3])
-    with pytest.raises(SourceError, match="3 poses for 4 frames") as exc:
-        ImageFolderSource(folder, intrinsics=partial_00(), ground_truth=short, gt_format="tum")
-    assert_names(exc, short)
+    for rows in (3, 6):  # a clock on one side only and another count: the rows are not the frames
+        other = tmp_path / f"rows{rows}.tum"
+        write_tum_poses(other, np.arange(rows) * 0.1, poses[:rows])
+        with pytest.raises(SourceError, match=f"{rows} timestamped poses for 4 frames without timestamps") as exc:
+            ImageFolderSource(folder, intrinsics=partial_00(), ground_truth=other, gt_format="tum")
+        assert_names(exc, other)
 
 
 def partial_00() -> PartialIntrinsics:
@@ -272,18 +273,20 @@ def test_video_colour_frames_ground_truth_and_size_check(tmp_path: Path) -> None
         writer.write(frame)
     writer.release()
     gt_file = tmp_path / "gt.txt"
-    write_kitti_poses(gt_file, fake_poses(10))
+    write_kitti_poses(gt_file, fake_poses(4))  # the video has a clock, KITTI rows do not: one row per frame
     source = VideoSource(video, partial_00(), frames=FrameRange(2, 4), ground_truth=gt_file)
     assert all(f.image.ndim == 2 for f in source)
     np.testing.assert_allclose(source.ground_truth, rebase_poses(fake_poses(4)[2:4]), atol=1e-9)  # type: ignore[arg-type]
     with pytest.raises(SourceError, match="intrinsics are for 1241x376") as exc:
         VideoSource(video, CameraIntrinsics(**KITTI_00))  # type: ignore[arg-type]
     assert_names(exc, video)
-    short = tmp_path / "short.txt"
-    write_kitti_poses(short, fake_poses(3))
-    with pytest.raises(SourceError, match="3 poses for 4 frames") as exc:
-        VideoSource(video, partial_00(), ground_truth=short)
-    assert_names(exc, short)
+    for rows in (3, 10):
+        other = tmp_path / f"rows{rows}.txt"
+        write_kitti_poses(other, fake_poses(rows))
+        with pytest.raises(SourceError, match=f"{rows} poses without timestamps .KITTI format. for 4 timestamped"
+                           ) as exc:
+            VideoSource(video, partial_00(), ground_truth=other)
+        assert_names(exc, other)
 
 
 def test_video_that_cannot_be_opened(tmp_path: Path) -> None:

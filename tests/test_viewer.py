@@ -269,9 +269,9 @@ def test_choose_viewer() -> None:
 @pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
 def test_web_viewer_serves_on_loopback_until_stopped(recording: Path, stop: signal.Signals) -> None:
     port = viewer.free_port()
-    code = ("import signal, sys; from pathlib import Path; from vslam.viewer.web import open_recording; "
+    code = ("import signal, sys; from vslam.cli import main; "
             "signal.signal(signal.SIGINT, signal.default_int_handler); "  # as in a terminal, even under CI
-            "open_recording(Path(sys.argv[1]), web=True, web_port=int(sys.argv[2]))")
+            "sys.argv = ['vslam', 'open', sys.argv[1], '--web', '--web-port', sys.argv[2]]; main()")
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
     proc = subprocess.Popen([sys.executable, "-c", code, str(recording), str(port)], cwd=ROOT, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
@@ -286,9 +286,11 @@ def test_web_viewer_serves_on_loopback_until_stopped(recording: Path, stop: sign
         grpc_port = int(grpc.group(1))
         proc.send_signal(stop)
         _, stderr = proc.communicate(timeout=20)
-        # Ctrl-C: a normal end; SIGTERM: the server is stopped, then the process ends by the signal as usual
-        assert proc.returncode == (0 if stop == signal.SIGINT else -signal.SIGTERM), stderr
+        # Ctrl-C: exit 130 like `vslam run` (issue 24); SIGTERM: the server is stopped, then the process ends by
+        # the signal as usual
+        assert proc.returncode == (130 if stop == signal.SIGINT else -signal.SIGTERM), stderr
         assert "Traceback" not in stderr
+        assert stop != signal.SIGINT or "viewer stopped" in stderr
         assert _refused(port) and _refused(grpc_port)  # the server went with it
     finally:
         if proc.poll() is None:
@@ -544,3 +546,27 @@ def test_ports_with_the_native_viewer_are_refused(recording: Path, monkeypatch: 
     monkeypatch.setenv("DISPLAY", ":99")
     with pytest.raises(ViewerError, match="--web-port and --grpc-port set the web viewer's ports.*add --web"):
         open_recording(recording, web=False, web_port=9090)
+
+
+def test_ctrl_c_in_snapshot_says_so_and_leaves_no_empty_folder(recording: Path, vulkan: None,
+                                                               tmp_path: Path) -> None:
+    """Issue 24, item 14: Ctrl-C while the viewer renders: one line, exit 130, no folder left behind."""
+    out = tmp_path / "shots"
+    code = ("import signal, sys; from vslam.cli import main; "
+            "signal.signal(signal.SIGINT, signal.default_int_handler); "
+            "sys.argv = ['vslam', 'snapshot', sys.argv[1], '--frame', '10', '--out', sys.argv[2]]; main()")
+    proc = subprocess.Popen([sys.executable, "-c", code, str(recording), str(out)], cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not out.exists() and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.05)  # the folder is made once the recording was checked: the viewer starts next
+        proc.send_signal(signal.SIGINT)
+        _, stderr = proc.communicate(timeout=60)
+        assert proc.returncode == 130, stderr
+        assert f"error: snapshot interrupted: no picture written to {out}" in stderr and "Traceback" not in stderr
+        assert not out.exists()
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()

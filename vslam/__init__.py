@@ -14,9 +14,9 @@ os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # AV_LOG_QUIET
 
 # Rust's logger reads RUST_LOG once, when rerun is first imported; the variable is removed again so that the
 # rerun processes we start (viewer, `rerun rrd …`) log as usual. A RUST_LOG of the user's wins.
-_RERUN_WRITER_SILENT = (
-    "warn,re_log_encoding::rrd::file_sink=off,re_log_encoding::rrd::encoder=off,re_sdk::recording_stream=off"
-)
+# re_log_encoding: the reader's warnings (a file of another Rerun version, a corrupt message) precede our own
+# one-line error about the file (`vslam.rrd.read.version_problem`, `readable`)
+_RERUN_WRITER_SILENT = "warn,re_log_encoding=off,re_sdk::recording_stream=off"
 if "RUST_LOG" not in os.environ:
     os.environ["RUST_LOG"] = _RERUN_WRITER_SILENT
     try:

@@ -74,7 +74,8 @@ class PoseConfig:
     chirality_max_depth: float = 50.0  # in baselines, like cv2.recoverPose's distanceThresh
     min_tracks: int = 30  # fewer tracks from the keyframe: re-initialise
     min_inliers: int = 20
-    min_parallax_px: float = 1.0  # median flow from the keyframe below this: standing still
+    min_parallax_px: float = 1.0  # median flow from the keyframe below this: too little motion to measure
+    stationary_px: float = 0.05  # median flow below this (KLT's noise): the image did not move, a parked car
 
 
 @dataclass(frozen=True)
@@ -276,7 +277,7 @@ def load_config(path: str | Path) -> EngineConfig:
     """Read an `EngineConfig` from a TOML file; keys left out keep their defaults."""
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text())
+        data = tomllib.loads(path.read_text(encoding="utf-8-sig"))  # a BOM (Windows editors) is not TOML
     except FileNotFoundError:
         raise ConfigError(f"{path}: config file not found") from None
     except (OSError, UnicodeDecodeError) as exc:

@@ -361,6 +361,8 @@ class Odometry:
         if len(p_cur) < cfg.min_tracks:
             return Motion(reason=Reason.TOO_FEW_TRACKS), 0.0
         parallax = float(np.median(np.linalg.norm(p_cur - p_key, axis=1)))
+        if parallax < cfg.stationary_px:
+            return Motion(reason=Reason.STATIONARY), parallax
         if parallax < cfg.min_parallax_px:
             return Motion(reason=Reason.LOW_PARALLAX), parallax
         order = np.random.default_rng((self.config.pose.seed, self._position)).permutation(len(p_cur))

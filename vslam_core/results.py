@@ -40,7 +40,8 @@ class Reason(StrEnum):
     IMAGE_TOO_BRIGHT = "image_too_bright"
     IMAGE_BLURRED = "image_blurred"
     TOO_FEW_TRACKS = "too_few_tracks"
-    LOW_PARALLAX = "low_parallax"  # too little motion: standing still (or a frozen camera)
+    LOW_PARALLAX = "low_parallax"  # too little motion: creeping, or a scene too far away
+    STATIONARY = "stationary"  # the image did not move at all: a parked car (or a frozen camera)
     NO_ESSENTIAL = "no_essential_matrix"
     TOO_FEW_INLIERS = "too_few_inliers"
     CHIRALITY = "ambiguous_chirality"
@@ -63,6 +64,10 @@ class Reason(StrEnum):
     COASTED = "coasted"  # the image could not be tracked; its pose is dead-reckoned from the degraded image
 
 
+#: held for standing still, not for a failure: the pose held is the right answer (health warn, not fail)
+STANDING_STILL = frozenset({Reason.STATIONARY, Reason.LOW_PARALLAX})
+
+
 class HealthStatus(StrEnum):
     OK = "ok"
     WARN = "warn"  # used, but suspicious
@@ -77,7 +82,7 @@ class Health:
     @classmethod
     def of(cls, held: Reason | None, warnings: list[Reason]) -> Health:
         """fail when the pose was held for a failure (standing still only warns), else warn/ok."""
-        if held is not None and held != Reason.LOW_PARALLAX:
+        if held is not None and held not in STANDING_STILL:
             return cls(HealthStatus.FAIL, (held, *warnings))
         reasons = ((held,) if held is not None else ()) + tuple(warnings)
         return cls(HealthStatus.WARN if reasons else HealthStatus.OK, reasons)

@@ -103,7 +103,7 @@ def _csv_rows(path: Path) -> list[tuple[str, dict[str, str]]]:
 def _toml_rows(path: Path) -> list[tuple[str, dict[str, str]]]:
     """(label, row) of every ``[[log]]`` table; values become strings, as CSV cells are."""
     try:
-        data = tomllib.loads(path.read_text())
+        data = tomllib.loads(path.read_text(encoding="utf-8-sig"))  # a BOM (Windows editors) is not TOML
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
         raise ManifestError(f"{path}: cannot read the manifest ({exc})") from None
     extra = sorted(set(data) - {"log"})

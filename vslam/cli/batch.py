@@ -20,7 +20,6 @@ from pathlib import Path
 from typing import Any
 
 import typer
-from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
 from vslam.batch import (
@@ -56,7 +55,7 @@ from vslam.batch import (
     write_batch_report,
     write_log_result,
 )
-from vslam.cli.common import err, fail, out, warn
+from vslam.cli.common import err, fail, out, print_error, warn
 from vslam.evaluation import REPORT_FILES, check_gates, markdown_table
 from vslam.recording import Detail, ImageCodec
 from vslam.runs import eta, lock_folder
@@ -209,8 +208,7 @@ def _run(jobs: list[LogJob], executor: Executor, report: Path, fail_fast: bool
             for warning in result.warnings:
                 warn(f"{result.name}: {warning}")
             left = eta_seconds(time.monotonic() - start, len(results), len(jobs))
-            err.print(escape(progress_line(result, len(results), len(jobs), left)), highlight=False,
-                      soft_wrap=True)
+            err.print(progress_line(result, len(results), len(jobs), left), soft_wrap=True)
             advance()
 
         previous = signal.signal(signal.SIGTERM, terminate_as_interrupt)
@@ -270,8 +268,8 @@ def _finish(report: Path, results: list[LogResult], config: EngineConfig, gates:
         fail(f"interrupted by {interrupted}; the report covers the {len(results)} logs finished",
              128 + signal.Signals[interrupted].value)
     for result in failed:
-        err.print(f"[bold red]log failed:[/] {escape(result.name)}: {escape(result.error)}", highlight=False)
+        print_error(f"{result.name}: {result.error}", "log failed:")
     for message in failures:
-        err.print(f"[bold red]gate failed:[/] {escape(message)}", highlight=False)
+        print_error(message, "gate failed:")
     if failed or failures or any(note.startswith("Not run") for note in notes):
         raise typer.Exit(1)

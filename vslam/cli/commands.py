@@ -9,7 +9,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
 import typer
-from rich.markup import escape
 
 from vslam.cli.common import (
     BACKEND_HELP,
@@ -27,12 +26,12 @@ from vslam.cli.common import (
     err,
     fail,
     out,
+    print_error,
     refuse,
     warn,
 )
 from vslam.cli.entry import run as run_app
 from vslam.cli.eval import eval_command
-from vslam.evaluation import DEFAULT_TOLERANCE_MS
 from vslam.recording import Detail, ImageCodec
 
 if TYPE_CHECKING:
@@ -85,26 +84,37 @@ def _recording_id(source: FrameSource, frames: FrameRange, config: EngineConfig)
     return str(uuid.uuid5(uuid.NAMESPACE_URL, "vslam:" + key))
 
 
+def held_reasons(run: RunResult) -> str:
+    """``: stationary 299`` — why frames were held, most frequent first (empty when none was)."""
+    ranked = sorted(run.held_reasons.items(), key=lambda item: (-item[1], item[0]))
+    return (": " + ", ".join(f"{reason} {count}" for reason, count in ranked)) if ranked else ""
+
+
 def _summary(source: FrameSource, run: RunResult, config: EngineConfig, in_map: bool = False) -> None:
     import numpy as np
 
     from vslam.evaluation import scored_estimate
     from vslam_core.scale import default_camera_height
+    from vslam_core.sources.base import ground_truth_matching
+    from vslam_core.sources.calibration import camera_line
     from vslam_core.trajectory.metrics import kitti_errors, paper_rms_error, scale_errors
 
     fps = run.frames / run.seconds if run.seconds > 0 else float("nan")
     lines = [
-        f"frames      {run.frames} ({run.held_summary})",
+        f"frames      {run.frames} ({run.held_summary}" + held_reasons(run) + ")",
         f"time        {run.seconds:.1f} s, {fps:.1f} frames/s",
         f"backend     {config.backend}",
         f"scale       {config.scale}"
         + (f" (camera {default_camera_height(source.camera_height, config):.2f} m above the road; no ground truth "
            "used)" if config.scale == "height" else ""),
     ]
+    lines.append(f"camera      {camera_line(source.intrinsics)}")
     gt = source.ground_truth
     if in_map and gt is not None:  # poses in the prior map's frame, ground truth in this run's first frame's
         lines.append("accuracy    not scored here: the poses are in the prior map's frame (see README, Saving a map)")
         gt = None
+    if (matching := ground_truth_matching(source)) is not None:
+        lines.append(f"ground truth {matching}")
     if gt is not None and run.frames > 1:
         gt = gt[: run.frames]
         if config.scale == "height":
@@ -154,7 +164,7 @@ def run(
     gt: Annotated[Path | None, typer.Option(help=GT_HELP)] = None,
     topic: Annotated[str | None, typer.Option(help=TOPIC_HELP)] = None,
     gt_topic: Annotated[str | None, typer.Option(help=GT_TOPIC_HELP)] = None,
-    gt_tolerance: Annotated[float, typer.Option(min=0.0, help=GT_TOLERANCE_HELP)] = DEFAULT_TOLERANCE_MS,
+    gt_tolerance: Annotated[float | None, typer.Option(min=0.0, help=GT_TOLERANCE_HELP + " [default: 10]")] = None,
     inject: Annotated[str | None, typer.Option(help="fault injection, e.g. dark@120,blur@200:210 (kinds: dark, "
                                                "overexposed, blur, frozen, drop, brightness, noise)")] = None,
     on_bad_frame: Annotated[BadFrame, typer.Option(help="an unreadable image: fail (stop, naming the file) or "
@@ -179,17 +189,18 @@ def run(
         nothing_tracked,
         output_problem,
         record_run,
+        same_file_problem,
         with_camera_height,
     )
     from vslam_core.config import EngineConfig, load_config
-    from vslam_core.sources.base import FrameRange, describe_indices
+    from vslam_core.sources.base import FrameRange, describe_indices, ground_truth_matching
     from vslam_core.sources.open import open_source
 
     frame_range = FrameRange.parse(frames)
     config = load_config(config_file) if config_file is not None else EngineConfig()
     src = open_source(source, sequence=sequence, frames=frame_range, intrinsics=intrinsics, calib=calib,
                       ground_truth=gt, on_bad_frame=on_bad_frame.value, inject=inject, topic=topic, gt_topic=gt_topic,
-                      gt_tolerance_s=gt_tolerance / 1000.0, route=route)
+                      gt_tolerance_s=None if gt_tolerance is None else gt_tolerance / 1000.0, route=route)
     if scale is not None:
         config = config.with_scale(scale.value)
     elif config_file is None and src.ground_truth is None:
@@ -207,6 +218,7 @@ def run(
     refuse(save_map_problem(save_map, prior_map, config))
 
     refuse(output_problem(output, detail == Detail.OFF))
+    refuse(same_file_problem(output if detail != Detail.OFF else None, trajectory_out))
     refuse(backend_problem(src, config))
     for warning in input_warnings(src, config):
         warn(warning)
@@ -227,6 +239,7 @@ def run(
         "backend": config.backend,
         **({"inject": inject} if inject else {}),
         **({"prior_map": str(prior_map)} if prior_map is not None else {}),
+        **({"gt_matching": matching} if (matching := ground_truth_matching(src)) else {}),
         **version_properties(),
     }
     try:
@@ -254,6 +267,8 @@ def _existing_recording(path: Path) -> Path:
         fail(f"{path}: no such recording")
     if path.is_dir():
         fail(f"{path}: is a folder, not a .rrd recording")
+    if not path.is_file():
+        fail(f"{path}: not a file (a .rrd recording is a regular file)")
     return path
 
 
@@ -293,11 +308,13 @@ def snapshot_command(
     = "1280x720",  # vslam.viewer.headless.DEFAULT_SIZE (a test keeps the two equal)
 ) -> None:
     """Render every view of the recording's blueprint at one frame to PNG, with the real viewer, headless."""
-    # the function, not the submodule of the same name (importing `parse_frame` binds `vslam.viewer.headless`)
     from vslam.viewer import parse_frame, parse_size, snapshot
 
     window = parse_size(size)
-    paths = snapshot(_existing_recording(recording), parse_frame(frame), out_dir, window_size=window)
+    try:
+        paths = snapshot(_existing_recording(recording), parse_frame(frame), out_dir, window_size=window)
+    except KeyboardInterrupt:
+        fail(f"snapshot interrupted: no picture written to {out_dir}", 130)
     for path in paths:
         out.print(str(path), highlight=False)
 
@@ -331,15 +348,14 @@ def crop(
     force: Annotated[bool, typer.Option("--force", help="replace an existing output")] = False,
 ) -> None:
     """Cut a recording down to the frames that matter (static data and blueprint kept)."""
-    from vslam.rrd import crop_recording, parse_crop_frames
+    from vslam.rrd import crop_recording, format_crop, parse_crop_frames
     from vslam.runs import claimed
 
     selection = parse_crop_frames(frames)
     _existing_recording(recording)
     with claimed(_recording_path(output), force, "recording"):
         summary = crop_recording(recording, selection, output)
-    out.print(f"{output}: frames {summary.first_frame}..{summary.last_frame} ({summary.frame_count} frames), "
-              f"{summary.output_bytes / 1e6:.1f} MB (from {summary.input_bytes / 1e6:.1f} MB)", highlight=False)
+    out.print(format_crop(summary, recording))
 
 
 # extra arguments: the folders after `--merge DIR` (`--merge A B C`); refused by every other form of eval
@@ -426,8 +442,7 @@ def check(
 
 def main() -> None:
     """Entry point: every `VslamError` and usage error becomes one line on stderr and exit code 2."""
-    run_app(app, lambda message: err.print(f"[bold red]error:[/] {escape(message)}", highlight=False,
-                                           soft_wrap=True))
+    run_app(app, print_error)
 
 
 if __name__ == "__main__":

@@ -11,12 +11,25 @@ from typing import NoReturn
 
 import typer
 from rich.console import Console
-from rich.markup import escape
+from rich.text import Text
 
 from vslam.runs import write_failure
 
-err = Console(stderr=True, soft_wrap=True)
-out = Console(soft_wrap=True)
+#: stderr and stdout. User text (paths, --frames 0:100:2, manifest cells) is printed as it is: no Rich markup
+#: (``[red]`` in a file name), no emoji codes (``:100:`` would become an emoji), no highlighting; the coloured
+#: prefixes (`labelled`) are styled `Text`, never markup.
+err = Console(stderr=True, soft_wrap=True, markup=False, emoji=False, highlight=False)
+out = Console(soft_wrap=True, markup=False, emoji=False, highlight=False)
+
+
+def labelled(label: str, style: str, message: str) -> Text:
+    """``label message`` with the label styled (e.g. ``error:`` in bold red), the message verbatim."""
+    return Text.assemble((label, style), " ", message)
+
+
+def print_error(message: str, label: str = "error:") -> None:
+    """``error: message`` on stderr, the message verbatim."""
+    err.print(labelled(label, "bold red", message), soft_wrap=True)
 class Scale(StrEnum):
     gt = "gt"
     none = "none"
@@ -56,13 +69,13 @@ class TrajectoryFormat(StrEnum):
 
 def fail(message: str, code: int = 2) -> NoReturn:
     """One line on stderr, a non-zero exit, no traceback."""
-    err.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
+    print_error(message)
     raise typer.Exit(code)
 
 
 def warn(message: str) -> None:
     """One line on stderr; the run goes on."""
-    err.print(f"[bold yellow]warning:[/] {escape(message)}", highlight=False, soft_wrap=True)
+    err.print(labelled("warning:", "bold yellow", message), soft_wrap=True)
 
 
 def refuse(problem: str | None, code: int = 2) -> None:

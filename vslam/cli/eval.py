@@ -26,6 +26,7 @@ from vslam.cli.common import (
     err,
     fail,
     out,
+    print_error,
     refuse,
     report_writes,
     warn,
@@ -81,9 +82,9 @@ def eval_command(
                                              "times, else row by row if the files have the same length; "
                                              "timestamps; rows = row i is frame i, whatever the lengths")]
     = MatchMode.auto,
-    time_tolerance: Annotated[float, typer.Option("--time-tolerance", "--gt-tolerance", min=0.0,
-                                                  help=GT_TOLERANCE_HELP + " (--trajectory rows and SOURCE frames)")]
-    = DEFAULT_TOLERANCE_MS,
+    time_tolerance: Annotated[float | None, typer.Option("--time-tolerance", "--gt-tolerance", min=0.0,
+                                                         help=GT_TOLERANCE_HELP + " (--trajectory rows and SOURCE "
+                                                         "frames) [default: 10]")] = None,
     trajectory_format: Annotated[TrajectoryFormat | None, typer.Option("--format", help="kitti or tum "
                                                                        "[default: from the columns]")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="print the metrics as JSON (keys in docs/evaluation.md)")]
@@ -139,7 +140,8 @@ def eval_command(
         fmt = trajectory_format.value if trajectory_format is not None else None
         assert gt is not None
         evaluation = evaluate_external(trajectory, gt, fmt, report, detail,  # type: ignore[arg-type]
-                                       images, intrinsics, calib, gt_times, match, time_tolerance)
+                                       images, intrinsics, calib, gt_times, match,
+                                       DEFAULT_TOLERANCE_MS if time_tolerance is None else time_tolerance)
         scale_source = backend_name = "external"
     else:
         if gt_times is not None or match is not MatchMode.auto:
@@ -163,13 +165,14 @@ def eval_command(
                      "calib.txt and poses)")
             sources: list[FrameSource] = [
                 open_source(source, sequence=s.strip(), frames=frame_range, ground_truth=gt,
-                            on_bad_frame=on_bad_frame.value, inject=inject)
+                            on_bad_frame=on_bad_frame.value, inject=inject,
+                            gt_tolerance_s=None if time_tolerance is None else time_tolerance / 1000.0)
                 for s in sequences.split(",") if s.strip()
             ]
         else:
             sources = [open_source(source, frames=frame_range, intrinsics=intrinsics, calib=calib, ground_truth=gt,
                                    on_bad_frame=on_bad_frame.value, inject=inject, topic=topic, gt_topic=gt_topic,
-                                   gt_tolerance_s=time_tolerance / 1000.0)]
+                                   gt_tolerance_s=None if time_tolerance is None else time_tolerance / 1000.0)]
         for src in sources:
             config = with_camera_height(config, camera_height, src)
             refuse(backend_problem(src, config))
@@ -180,6 +183,12 @@ def eval_command(
                                           {"source_path": source or "synthetic", **({"inject": inject} if inject
                                                                                     else {})}, image_codec)
         scale_source, backend_name = config.scale, config.backend
+        if not as_json:  # how each source's ground truth was paired with its frames (by time, row by row)
+            from vslam_core.sources.base import ground_truth_matching
+
+            for src in sources:
+                if (matching := ground_truth_matching(src)) is not None:
+                    out.print((f"{src.name}: " if len(sources) > 1 else "") + f"ground truth {matching}")
     _print_evaluation(evaluation, scale_source, backend_name, report, as_json,
                       check_gates(evaluation.rows, max_t_err, max_r_err, max_ate))
 
@@ -193,7 +202,8 @@ def _eval_batch(options: dict[str, Any]) -> None:
     per_log = {"--sequences": o["sequences"], "--frames": o["frames"], "--camera-height": o["camera_height"],
                "--trajectory": o["trajectory"], "--gt": o["gt"], "--intrinsics": o["intrinsics"], "--calib": o["calib"],
                "--topic": o["topic"], "--gt-topic": o["gt_topic"], "--gt-times": o["gt_times"], "--inject": o["inject"],
-               "--format": o["trajectory_format"], "--json": o["as_json"] or None}
+               "--format": o["trajectory_format"], "--json": o["as_json"] or None,
+               "--gt-tolerance": o["time_tolerance"]}
     for option in (name for name, value in per_log.items() if value is not None):
         fail(f"{option} does not apply to --manifest or --merge (give it per log, as a manifest column)")
     gates = Gates(o["max_t_err"], o["max_r_err"], o["max_ate"])
@@ -253,7 +263,7 @@ def _print_evaluation(evaluation: Evaluation, scale: str, backend: str, report: 
         fail(f"interrupted by {evaluation.interrupted}; the report covers the frames processed",
              evaluation.interrupted.code)
     for message in failures:
-        err.print(f"[bold red]gate failed:[/] {message}", highlight=False)
+        print_error(message, "gate failed:")
     if failures:
         raise typer.Exit(1)
 

@@ -15,6 +15,7 @@ _HOMES = {
     "format_check": "check",
     "comparison_prefixes": "provenance",
     "crop_recording": "crop",
+    "format_crop": "crop",
     "first_line": "read",
     "flatten": "provenance",
     "format_repair": "repair",
@@ -37,7 +38,7 @@ _HOMES = {
 
 if TYPE_CHECKING:
     from vslam.rrd.check import check_recording, format_check
-    from vslam.rrd.crop import crop_recording, parse_crop_frames
+    from vslam.rrd.crop import crop_recording, format_crop, parse_crop_frames
     from vslam.rrd.crop_video import video_codecs
     from vslam.rrd.inspect import format_report, inspect_recording
     from vslam.rrd.provenance import comparison_prefixes, flatten, run_differences
@@ -67,6 +68,7 @@ __all__ = [
     "check_recording",
     "comparison_prefixes",
     "crop_recording",
+    "format_crop",
     "first_line",
     "flatten",
     "format_check",

@@ -28,6 +28,7 @@ Everything is written into a hidden temporary folder beside the output and renam
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import sys
 from dataclasses import dataclass
@@ -38,10 +39,12 @@ import pyarrow.compute as pc
 from rerun.chunk import Chunk, RrdReader, StoreEntry
 
 from vslam.rrd.crop_video import reencoded_first_gops, swap_samples
-from vslam.rrd.provenance import cropped_properties
+from vslam.rrd.provenance import PROPERTIES, cropped_properties, read_properties
 from vslam.rrd.read import RecordingError, first_line, open_store, readable, run_rerun_cli, same_file, work_dir_beside
 
 FRAME = "frame"
+#: the camera pose of a run (of each run of a comparison): the frames a recording holds are those it has one of
+CAMERA = re.compile(r"(/[a-z])?/world/camera")
 
 
 @dataclass(frozen=True)
@@ -49,11 +52,12 @@ class CropSummary:
     """What `crop_recording` kept: frames ``first_frame..last_frame`` (inclusive), file sizes in bytes."""
 
     output: Path
-    first_frame: int
-    last_frame: int
+    first_frame: int | None  # of the frames with a camera pose (None: none has one)
+    last_frame: int | None
     frame_count: int
     input_bytes: int
     output_bytes: int
+    stopped: str | None = None  # the source was cut short (or stopped early): its run properties' ``stopped``
 
 
 class _FrameFilter:
@@ -67,6 +71,7 @@ class _FrameFilter:
         self.replacements = replacements or {}  # static chunks to swap, by entity path (the run properties)
         self.replaced = set(self.replacements)
         self.kept: set[int] = set()
+        self.posed: set[int] = set()  # kept frames with a camera pose (``/world/camera``, ``/a/world/camera``…)
         self.lowest: int | None = None
         self.highest: int | None = None
         self.entities: set[str] = set()
@@ -89,7 +94,7 @@ class _FrameFilter:
         self.highest = high if self.highest is None else max(self.highest, high)
         swaps = self.video.get(chunk.entity_path, {})
         if low >= self.start and high < self.end and not swaps:  # the whole chunk is inside: pass it on unchanged
-            self.kept.update(frames.to_pylist())
+            self._keep(chunk.entity_path, frames.to_pylist())
             return [chunk]
         if high < self.start or low >= self.end:
             return []
@@ -98,11 +103,16 @@ class _FrameFilter:
         rows = batch.filter(mask)
         if rows.num_rows == 0:
             return []
-        self.kept.update(rows.column(FRAME).to_pylist())
+        self._keep(chunk.entity_path, rows.column(FRAME).to_pylist())
         if swaps and any(f in swaps for f in rows.column(FRAME).to_pylist()):
             rows = swap_samples(rows, swaps)
         # the batch still carries the chunk id and row ids: they are kept
         return Chunk.from_record_batch(rows)
+
+    def _keep(self, entity: str, frames: list[int]) -> None:
+        self.kept.update(frames)
+        if CAMERA.fullmatch(entity):
+            self.posed.update(frames)
 
 
 def parse_crop_frames(text: str) -> tuple[int, int | None]:
@@ -126,10 +136,12 @@ def parse_crop_frames(text: str) -> tuple[int, int | None]:
     return first, end
 
 
-def crop_recording(source: Path, frames: tuple[int, int | None], output: Path) -> CropSummary:
+def crop_recording(source: Path, frames: tuple[int, int | None], output: Path, mark_cropped: bool = True
+                   ) -> CropSummary:
     """Write the frames ``START <= frame < END`` of `source` to `output` (END None: to the last frame), with all
     static data (Pinhole, styles…) and the embedded blueprint; the run properties and recording name are
-    rewritten to say which frames the file holds. Raises `RecordingError`."""
+    rewritten to say which frames the file holds a camera pose of (and, for a `source` cut short, that it was:
+    ``stopped``). `mark_cropped` False (`vslam repair`): no ``cropped_from``. Raises `RecordingError`."""
     start, end = frames[0], (frames[1] if frames[1] is not None else sys.maxsize)
     if start >= end:
         raise RecordingError(f"{source}: empty frame range {start}:{end} (START must be below END; END is excluded)")
@@ -143,7 +155,8 @@ def crop_recording(source: Path, frames: tuple[int, int | None], output: Path) -
     try:
         cropped = work / "recording.rrd"
         video = reencoded_first_gops(reader, recording, start, end)
-        keep = _FrameFilter(start, end, cropped_properties(source, start, end), video)
+        cut_short = readable(source).cut_short
+        keep = _FrameFilter(start, end, cropped_properties(source, start, end, cut_short, mark_cropped), video)
         try:
             reader.stream(store=recording).flat_map(keep).write_rrd(
                 cropped, application_id=recording.application_id, recording_id=recording.recording_id)
@@ -161,9 +174,20 @@ def crop_recording(source: Path, frames: tuple[int, int | None], output: Path) -
         os.replace(result, output)
     finally:
         shutil.rmtree(work, ignore_errors=True)
-    return CropSummary(output=output, first_frame=min(keep.kept), last_frame=max(keep.kept),
-                       frame_count=len(keep.kept), input_bytes=source.stat().st_size,
-                       output_bytes=output.stat().st_size)
+    stopped = read_properties(output, f"{PROPERTIES}/run").get("stopped")
+    return CropSummary(output=output, first_frame=min(keep.posed, default=None),
+                       last_frame=max(keep.posed, default=None), frame_count=len(keep.posed),
+                       input_bytes=source.stat().st_size, output_bytes=output.stat().st_size,
+                       stopped=None if stopped is None else str(stopped))
+
+
+def format_crop(summary: CropSummary, source: Path) -> str:
+    """``out.rrd: frames 120..159 (40 frames), 3.1 MB (from 20.4 MB)`` (+ how the source run stopped)."""
+    held = (f"frames {summary.first_frame}..{summary.last_frame} ({summary.frame_count} frames)"
+            if summary.frame_count else "no camera pose in these frames")
+    line = (f"{summary.output}: {held}, {summary.output_bytes / 1e6:.1f} MB (from {summary.input_bytes / 1e6:.1f} "
+            "MB)")
+    return line + (f"; {source}: {summary.stopped}" if summary.stopped else "")
 
 
 def _add_blueprints(source: Path, reader: RrdReader, blueprints: list[StoreEntry], cropped: Path,

@@ -163,8 +163,10 @@ def _accuracy_alignment(path: Path, prefix: str = "") -> str:
 def inspect_recording(path: Path) -> dict[str, Any]:
     """Everything `vslam inspect --json` prints (see docs/recordings.md: "vslam inspect --json"). A `vslam compare`
     output gives ``comparison`` (labels, input files) and ``runs`` (``a``, ``b``, …: each run's report)."""
-    if not path.is_file():
+    if not path.exists():
         raise RecordingError(f"{path}: no such recording")
+    if not path.is_file():
+        raise RecordingError(f"{path}: not a file (a .rrd recording is a regular file)")
     comparison = read_properties(path, f"{PROPERTIES}/compare")
     if comparison and read_entity(path, "/world/camera").is_empty():
         return {

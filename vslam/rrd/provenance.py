@@ -116,10 +116,12 @@ def comparison_prefixes(path: Path) -> list[str]:
     return sorted(key.removeprefix("label_") for key in compare if key.startswith("label_"))
 
 
-def cropped_properties(path: Path, start: int, end: int) -> dict[str, Chunk]:
+def cropped_properties(path: Path, start: int, end: int, cut_short: bool = False, cropped: bool = True
+                       ) -> dict[str, Chunk]:
     """Replacement chunks (by entity path) for the run properties and recording name of `path` cut down to
-    frames ``start <= frame < end``: ``frames`` and ``frame_count`` say what the cropped file holds,
-    ``cropped_from`` the frames of the original run. Every run of a comparison is covered."""
+    frames ``start <= frame < end``: ``frames`` and ``frame_count`` say which frames the file holds a camera pose
+    of, ``cropped_from`` the frames of the original run (with `cropped`). A recording `cut_short` (no footer: the
+    run was killed) gets a ``stopped`` entry saying so, unless it has one. Every run of a comparison is covered."""
     replacements: dict[str, Chunk] = {}
     for prefix in ("", *(f"/{p}" for p in comparison_prefixes(path))):
         entity = f"{PROPERTIES}{prefix}/run"
@@ -130,14 +132,23 @@ def cropped_properties(path: Path, start: int, end: int) -> dict[str, Chunk]:
         frames = sorted({f for f in camera["frame"].to_list() if start <= f < end}) if "frame" in camera else []
         held = describe_indices(frames)
         values = {k: str(v) for k, v in props.items()}
-        values.update(frames=held, frame_count=str(len(frames)),
-                      cropped_from=values.get("cropped_from", values.get("frames", "?")))
+        if cut_short and "stopped" not in values:
+            values["stopped"] = cut_short_note(frames, values.get("frames", "?"))
+        if cropped:
+            values["cropped_from"] = values.get("cropped_from", values.get("frames", "?"))
+        values.update(frames=held, frame_count=str(len(frames)))
         if "name" in values:
             values["name"] = name_with_frames(values["name"], held)
         replacements[entity] = properties_chunk(entity, values)
         if prefix == "" and "name" in values:
             replacements[PROPERTIES] = name_chunk(values["name"])
     return replacements
+
+
+def cut_short_note(frames: list[int], planned: str) -> str:
+    """The ``stopped`` entry of a recording found cut short (no footer), `frames` those with a camera pose."""
+    held = f"after frame {frames[-1]}" if frames else "before any camera pose was written"
+    return f"the run of frames {planned} was cut short {held} (no footer: it was killed, crashed or ran out of disk)"
 
 
 def run_differences(report_a: dict[str, Any], report_b: dict[str, Any]) -> list[str]:

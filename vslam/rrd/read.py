@@ -45,6 +45,8 @@ def readable(path: Path) -> Readable:
         raise RecordingError(f"{path}: no such recording")
     if path.is_dir():
         raise RecordingError(f"{path}: is a folder, not a Rerun recording")
+    if (problem := version_problem(path)) is not None:
+        raise RecordingError(problem)
     stat = path.stat()
     key = (str(path.resolve()), stat.st_size, stat.st_mtime_ns)
     if key not in _READABLE:
@@ -55,6 +57,40 @@ def readable(path: Path) -> Readable:
             finalise(path, copy)
             _READABLE[key] = Readable(copy, cut_short=True)
     return _READABLE[key]
+
+
+#: the start of every .rrd: Rerun's ``FileHeader``, magic ``RRF2`` then the version that wrote it (major, minor,
+#: patch, suffix byte) and 4 bytes of encoding options
+RRD_MAGIC = b"RRF2"
+
+
+def written_by(path: Path) -> tuple[int, int, int] | None:
+    """The Rerun version (major, minor, patch) in `path`'s file header; None when it has no Rerun header."""
+    try:
+        with path.open("rb") as file:
+            header = file.read(8)
+    except OSError:
+        return None
+    if len(header) < 8 or header[:4] != RRD_MAGIC:
+        return None
+    return header[4], header[5], header[6]
+
+
+def version_problem(path: Path) -> str | None:
+    """A recording written by another Rerun minor version than this one's (Rerun's format changes between minor
+    versions; its reader logs a coloured warning and may fail): one line saying which wrote it, and what to do."""
+    import rerun
+
+    version = written_by(path)
+    local = tuple(int(part) for part in rerun.__version__.split(".")[:3] if part.isdigit())
+    if version is None or len(local) < 2 or version[:2] == local[:2]:
+        return None
+    wrote, here = ".".join(map(str, version)), rerun.__version__
+    if version[:2] > local[:2]:
+        return (f"{path}: written by Rerun {wrote}, newer than this vslam's Rerun {here}: open it with Rerun {wrote} "
+                "or update vslam")
+    return (f"{path}: written by Rerun {wrote}, older than this vslam's Rerun {here}: convert it with `rerun rrd "
+            f"migrate {path}` (Rerun {here})")
 
 
 def has_footer(path: Path, strict: bool = False) -> bool:

@@ -2,7 +2,9 @@
 
 A recording without its footer still holds every chunk written before the end: `vslam.rrd.read.finalise` copies
 the whole messages (`rerun rrd filter` stops cleanly at a half-written last one) into a file with a footer,
-which `rerun rrd verify` then checks. The copy is written beside the output and moved into place.
+which `rerun rrd verify` then checks. The copy is written beside the output and moved into place. Its run
+properties are rewritten to say what it holds (``frames``, ``frame_count``: the frames with a camera pose) and
+that the run was cut short (``stopped``), the way `vslam crop` rewrites them (without ``cropped_from``).
 """
 
 from __future__ import annotations
@@ -12,6 +14,8 @@ import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
+from vslam.rrd.crop import crop_recording
+from vslam.rrd.provenance import PROPERTIES, read_properties
 from vslam.rrd.read import RecordingError, read_entity, readable, run_rerun_cli, same_file, work_dir_beside
 
 
@@ -25,6 +29,7 @@ class RepairSummary:
     frame_count: int
     input_bytes: int
     output_bytes: int
+    stopped: str | None = None  # the run properties' ``stopped`` (a run cut short, or stopped early)
 
 
 def repaired_path(source: Path) -> Path:
@@ -41,7 +46,10 @@ def repair_recording(source: Path, output: Path) -> RepairSummary:
     try:
         repaired = work / "repaired.rrd"
         try:
-            shutil.copyfile(data.path, repaired)
+            if data.cut_short:  # every frame, its properties restated (and a `stopped` entry)
+                crop_recording(source, (0, None), repaired, mark_cropped=False)
+            else:
+                shutil.copyfile(data.path, repaired)
         except OSError as exc:
             raise RecordingError(f"{output}: cannot write ({exc.strerror})") from None
         run_rerun_cli(source, "rrd", "verify", str(repaired))
@@ -50,13 +58,15 @@ def repair_recording(source: Path, output: Path) -> RepairSummary:
         shutil.rmtree(work, ignore_errors=True)
     camera = read_entity(output, "/world/camera")
     frames = camera["frame"].to_list() if "frame" in camera.columns else []
+    stopped = read_properties(output, f"{PROPERTIES}/run").get("stopped")
     return RepairSummary(source, output, data.cut_short, min(frames, default=None), max(frames, default=None),
-                         len(frames), source.stat().st_size, output.stat().st_size)
+                         len(frames), source.stat().st_size, output.stat().st_size,
+                         None if stopped is None else str(stopped))
 
 
 def format_repair(summary: RepairSummary) -> str:
     held = (f"frames {summary.first_frame}..{summary.last_frame} ({summary.frame_count} frames)"
-            if summary.frame_count else "no camera frames")
+            if summary.frame_count else "no camera pose")
     state = "was cut short (no footer)" if summary.cut_short else "was complete already"
     return (f"{summary.output}: {held}, {summary.output_bytes / 1e6:.1f} MB; {summary.source} {state}, "
-            f"{summary.input_bytes / 1e6:.1f} MB")
+            f"{summary.input_bytes / 1e6:.1f} MB" + (f"; stopped: {summary.stopped}" if summary.stopped else ""))

@@ -33,6 +33,7 @@ _HOMES = {
     "nothing_tracked": "checks",
     "output_problem": "checks",
     "record_run": "runner",
+    "same_file_problem": "checks",
     "stuck_writers": "outputs",
     "with_camera_height": "checks",
     "write_failure": "outputs",
@@ -46,6 +47,7 @@ if TYPE_CHECKING:
         input_warnings,
         nothing_tracked,
         output_problem,
+        same_file_problem,
         with_camera_height,
     )
     from vslam.runs.map_files import format_map_summary, map_saver, map_summary, save_map_problem
@@ -95,6 +97,7 @@ __all__ = [
     "output_problem",
     "record_run",
     "save_map_problem",
+    "same_file_problem",
     "stuck_writers",
     "with_camera_height",
     "write_failure",

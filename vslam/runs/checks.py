@@ -6,6 +6,7 @@ Each returns a one-line message (or None); the CLI prints it and picks the exit 
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from vslam_core.config import EngineConfig
@@ -13,6 +14,7 @@ from vslam_core.config_ranges import range_problem
 from vslam_core.errors import ConfigError
 from vslam_core.mapping.tracking import unsupported_camera
 from vslam_core.pipeline import RunResult
+from vslam_core.results import STANDING_STILL
 from vslam_core.scale import default_camera_height
 from vslam_core.sources.base import FrameSource, source_notes
 
@@ -20,6 +22,10 @@ from vslam_core.sources.base import FrameSource, source_notes
 EXIT_NOTHING_TRACKED = 3
 #: a camera higher than this above the road is not on a car (warning only)
 PLAUSIBLE_CAMERA_HEIGHT_M = 10.0
+#: fields of view (degrees) beyond which a focal length is taken for a mistake (warning only): a pinhole model
+#: past 150° is unusable (fisheye lenses have their own models), under 1° is a telescope
+WIDEST_PINHOLE_DEG = 150.0
+NARROWEST_DEG = 1.0
 
 
 def camera_height_problem(metres: float | None) -> str | None:
@@ -54,6 +60,16 @@ def output_problem(output: Path | None, detail_off: bool) -> str | None:
     return None
 
 
+def same_file_problem(recording: Path | None, trajectory: Path | None) -> str | None:
+    """`-o x.rrd --trajectory-out x.rrd`: one run cannot write two outputs into one file."""
+    if recording is None or trajectory is None:
+        return None
+    if recording.resolve() == trajectory.resolve():
+        return (f"--output {recording} and --trajectory-out {trajectory} are the same file: give the recording and "
+                "the trajectory two paths")
+    return None
+
+
 def backend_problem(source: FrameSource, config: EngineConfig) -> str | None:
     """A backend that cannot handle this source's camera, refused before any output is written."""
     return unsupported_camera(source.intrinsics) if config.backend == "map" else None
@@ -67,6 +83,10 @@ def input_warnings(source: FrameSource, config: EngineConfig) -> list[str]:
     if not (0 <= k.cx < k.width and 0 <= k.cy < k.height):
         warnings.append(f"the principal point ({k.cx:g}, {k.cy:g}) lies outside the {k.width}x{k.height} image "
                         "(are the intrinsics fx,fy,cx,cy, in pixels of this image?)")
+    warnings += _camera_warnings(source)
+    if len(source) == 1:
+        warnings.append(f"the selection holds one frame ({source.indices[0]}): a motion needs two, nothing will be "
+                        "tracked (check --frames: END is clamped to the source's frames, STEP may skip the rest)")
     height: float | None = config.height.camera_height_m or None
     if config.scale == "height":
         try:
@@ -79,9 +99,29 @@ def input_warnings(source: FrameSource, config: EngineConfig) -> list[str]:
     return warnings
 
 
+def _camera_warnings(source: FrameSource) -> list[str]:
+    """A focal length no real camera has: a field of view over `WIDEST_PINHOLE_DEG` for a pinhole (e.g.
+    ``--intrinsics 1,1,607,185``: 179.8°) or under `NARROWEST_DEG` (a focal length in the wrong unit)."""
+    k = source.intrinsics
+    warnings = []
+    for name, focal, pixels in (("fx", k.fx, k.width), ("fy", k.fy, k.height)):
+        if pixels <= 0 or focal <= 0:
+            continue
+        fov = math.degrees(2.0 * math.atan(pixels / (2.0 * focal)))
+        too_wide = fov > WIDEST_PINHOLE_DEG and k.model in ("none", "plumb_bob", "rational_polynomial")
+        if too_wide or fov < NARROWEST_DEG:
+            warnings.append(f"focal length {name} {focal:g} px gives a {fov:.1f}° field of view across {pixels} px: "
+                            "implausible for this camera (are the intrinsics fx,fy,cx,cy in pixels of this image?)")
+    return warnings
+
+
 def nothing_tracked(result: RunResult) -> str | None:
-    """A run of two frames or more in which no frame's motion could be measured."""
+    """A run of two frames or more in which no frame's motion could be measured for a failure. A camera that
+    did not move (every frame `stationary` or `low_parallax`, a parked car) is a valid log: its held pose is
+    the right answer."""
     if result.frames < 2 or result.tracked > 0:
+        return None
+    if all(reason in STANDING_STILL for reason in result.held_reasons):
         return None
     why = ""
     if result.held_reasons:

@@ -66,7 +66,8 @@ class PlainProgress:
 def progress(console: Console, name: str, total: int) -> Iterator[Advance]:
     """A function to call once per frame: a Rich bar when `console` is a terminal, else plain lines on it."""
     if console.is_terminal:
-        columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
+        columns = (TextColumn("{task.description}", markup=False), BarColumn(), MofNCompleteColumn(),
+                   TimeRemainingColumn())
         with Progress(*columns, console=console, transient=True) as bar:
             task = bar.add_task(name, total=total)
             yield lambda: bar.advance(task)

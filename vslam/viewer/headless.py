@@ -9,6 +9,7 @@ so every view's PNG is about as large as the window, whatever its share of the l
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import logging
 import re
@@ -98,11 +99,22 @@ def snapshot(
         raise ViewerError(problem)
     if not viewer.vulkan_available():
         raise ViewerError(NO_VULKAN)
+    created = not out_dir.exists()
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ViewerError(f"{out_dir}: cannot create output folder ({exc.strerror})") from None
+    try:
+        return _snapshot(rrd, index, out_dir, timeout_s, whole_window, window_size)
+    except BaseException:  # Ctrl-C or a failure: no empty folder left behind
+        if created:
+            with contextlib.suppress(OSError):
+                out_dir.rmdir()  # only when empty
+        raise
 
+
+def _snapshot(rrd: Path, index: int, out_dir: Path, timeout_s: float, whole_window: bool,
+              window_size: tuple[int, int]) -> list[Path]:
     started = time.monotonic()
     deadline = started + timeout_s
     with viewer.stop_viewer_on_sigterm(), viewer.headless_viewer(deadline, window_size) as (process, client):

@@ -162,7 +162,8 @@ def watch_browser(process: viewer._Process, grpc_port: int, url: str, wait_s: fl
 
 def open_recording(rrd: Path, web: bool = False, web_port: int | None = None, grpc_port: int | None = None,
                    browser_wait_s: float = BROWSER_WAIT_S) -> None:
-    """Show `rrd` interactively until the viewer is closed or Ctrl-C is pressed.
+    """Show `rrd` interactively until the viewer is closed or Ctrl-C is pressed (KeyboardInterrupt, after saying
+    "viewer stopped").
 
     The native viewer when a display exists (DISPLAY / WAYLAND_DISPLAY) and `web` is False; otherwise the
     web viewer served on 127.0.0.1 (`web_port` and `grpc_port`, or free ones) whose URL is printed with the
@@ -188,6 +189,7 @@ def open_recording(rrd: Path, web: bool = False, web_port: int | None = None, gr
                 _run_native(rrd)
         except KeyboardInterrupt:
             print("viewer stopped", file=sys.stderr, flush=True)
+            raise  # the command exits 130, as `vslam run` does on Ctrl-C
 
 
 def _run_native(rrd: Path) -> None:

@@ -34,6 +34,7 @@ from vslam_core.mapping.local_mapping import DESCRIPTOR_PATCH, LocalMapping
 from vslam_core.mapping.map_scale import MapSpeed, for_scale, translation_parallax
 from vslam_core.mapping.pnp import PnPSolution, solve_pnp
 from vslam_core.results import (
+    STANDING_STILL,
     BundleAdjusted,
     FrameResult,
     FrameStatus,
@@ -50,8 +51,8 @@ from vslam_core.scale import ScaleProvider, TwoView
 from vslam_core.sources.base import CameraIntrinsics, Frame
 
 UNUSABLE_IMAGE = {Reason.UNREADABLE_IMAGE, Reason.IMAGE_TOO_DARK, Reason.IMAGE_TOO_BRIGHT, Reason.IMAGE_BLURRED}
-HOLD_REASONS = {Reason.TOO_FEW_TRACKS, Reason.LOW_PARALLAX, Reason.NO_ESSENTIAL, Reason.TOO_FEW_INLIERS,
-                Reason.CHIRALITY}
+HOLD_REASONS = {Reason.TOO_FEW_TRACKS, Reason.LOW_PARALLAX, Reason.STATIONARY, Reason.NO_ESSENTIAL,
+                Reason.TOO_FEW_INLIERS, Reason.CHIRALITY}
 
 
 def unsupported_camera(intrinsics: CameraIntrinsics) -> str | None:
@@ -417,7 +418,7 @@ class MapTracking:
             points_world = points_world @ moved[:3, :3].T + moved[:3, 3]
         if held or mode == TrackingMode.COASTED:  # no pose of its own measured: flagged as held
             reason = vo.reason if vo.reason is not None else Reason.TRACKING_LOST
-            if vo.reason in HOLD_REASONS and vo.reason != Reason.LOW_PARALLAX:
+            if vo.reason in HOLD_REASONS and vo.reason not in STANDING_STILL:
                 reason = Reason.TRACKING_LOST
             health = Health.of(reason, [r for r in vo.health.reasons if r != vo.reason] + warnings)
             status = FrameStatus.HELD

@@ -181,6 +181,9 @@ class SelectedSource:
     _ground_truth: np.ndarray | None
     _indices: list[int]
     _camera_height: float | None = None
+    #: how the ground truth was paired with the frames, e.g. ``matched by time, 200 of 200 frames, tolerance
+    #: 10 ms`` or ``row by row`` (None without ground truth)
+    gt_matching: str | None = None
 
     @property
     def name(self) -> str:
@@ -214,6 +217,12 @@ def source_properties(source: FrameSource) -> dict[str, str]:
     """A source's own run properties (a log's topic and stamp source, …), if it has any: a source may have a
     ``properties`` attribute (dict[str, str]); the calibration is described separately."""
     return dict(getattr(source, "properties", {}) or {})
+
+
+def ground_truth_matching(source: FrameSource) -> str | None:
+    """How a source paired its ground truth with its frames (an optional ``gt_matching`` attribute), e.g.
+    ``matched by time, 200 of 200 frames, tolerance 10 ms`` or ``row by row``; None without ground truth."""
+    return getattr(source, "gt_matching", None) if source.ground_truth is not None else None
 
 
 def source_notes(source: FrameSource) -> list[str]:

@@ -80,3 +80,11 @@ def describe_calibration(camera: CameraIntrinsics) -> dict[str, str]:
         "calibration_size": f"{camera.width}x{camera.height}",
         "calibration_origin": camera.origin or "-",
     }
+
+
+def camera_line(camera: CameraIntrinsics) -> str:
+    """The calibration and where it came from, in one line: ``fx 718.856 fy 718.856 cx 607.193 cy 185.216,
+    1241x376, lens none, from seq/calib.txt (KITTI calib.txt)``."""
+    lens = camera.model + (f" [{' '.join(f'{c:.6g}' for c in camera.coefficients)}]" if camera.distorted else "")
+    return (f"fx {camera.fx:.6g} fy {camera.fy:.6g} cx {camera.cx:.6g} cy {camera.cy:.6g}, {camera.width}x"
+            f"{camera.height}, lens {lens}, from {camera.origin or 'unknown'}")

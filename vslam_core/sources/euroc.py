@@ -32,6 +32,7 @@ from vslam_core.sources.calibration_files import load_yaml, number_list, read_ca
 from vslam_core.sources.kitti import BadFramePolicy, ImageFilesSource, first_image, select
 from vslam_core.sources.stamps import (
     DEFAULT_GT_TOLERANCE_S,
+    matched_by_time,
     read_tum_ground_truth,
     selected_ground_truth,
     stamp_problems,
@@ -245,6 +246,7 @@ class EurocSource(ImageFilesSource):
         self._intrinsics = intrinsics
 
         self._ground_truth, label = self._read_ground_truth(ground_truth, gt_tolerance_s)
+        self.gt_matching = None if self._ground_truth is None else matched_by_time(len(self._indices), gt_tolerance_s)
         sequence = mav0.resolve().parent.name if mav0.name == "mav0" else mav0.resolve().name
         self._name = f"euroc-{_safe(sequence)}-{self.camera}"
         self.properties: dict[str, str] = {"dataset": "EuRoC", "camera": self.camera, "ground_truth": label}

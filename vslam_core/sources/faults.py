@@ -26,6 +26,7 @@ from vslam_core.sources.base import (
     CameraIntrinsics,
     Frame,
     FrameSource,
+    ground_truth_matching,
     rebase_poses,
     source_notes,
     source_properties,
@@ -124,6 +125,10 @@ class FaultInjector:
     @property
     def notes(self) -> list[str]:
         return source_notes(self._source)
+
+    @property
+    def gt_matching(self) -> str | None:
+        return ground_truth_matching(self._source)
 
     @property
     def ground_truth(self) -> np.ndarray | None:

@@ -6,7 +6,8 @@ converted to grey, 16-bit images scaled by the bit depth their data use. Intrins
 fx,fy,cx,cy`` string (`parse_intrinsics`, the image size is filled from the first image), a full
 `CameraIntrinsics`, or the ``P0:`` line of a KITTI ``calib.txt`` (given, or found in the folder or its parent).
 Timestamps come from a ``times.txt`` in the folder or its parent, else None. Optional ground truth in KITTI or
-TUM format (row i = image i).
+TUM format (by time when both sides have times, else
+row i = image i).
 """
 
 from __future__ import annotations
@@ -27,12 +28,11 @@ from vslam_core.sources.kitti import (
     GroundTruthFormat,
     ImageFilesSource,
     first_image,
-    read_ground_truth,
     read_times,
     select,
-    select_ground_truth,
     sixteen_bit_property,
 )
+from vslam_core.sources.stamps import DEFAULT_GT_TOLERANCE_S, associate_ground_truth
 
 
 class PartialIntrinsics(NamedTuple):
@@ -103,9 +103,10 @@ class ImageFolderSource(ImageFilesSource):
     taken from the first selected image. calib: a calibration file instead (any `read_calibration` reads, lens
     included: ROS camera_info, Kalibr, OpenCV, KITTI calib.txt). With
     neither, a ``calib.txt`` in the folder or its parent is used if there is one; giving both is an error.
-    ground_truth: optional KITTI or TUM poses file (``gt_format`` "auto" guesses from the columns), one
-    row per image in file order (extra rows ignored, fewer is an error), re-based to the first selected
-    frame. Images are decoded lazily; one of another size than the first selected is a `SourceError`.
+    ground_truth: optional KITTI or TUM poses file (``gt_format`` "auto" guesses from the columns), re-based to
+    the first selected frame: a TUM file is matched to the frames by time (within ``gt_tolerance_s``) when the
+    folder has a ``times.txt``, else row i is image i (see `associate_ground_truth`; ``gt_matching`` says
+    which). Images are decoded lazily; one of another size than the first selected is a `SourceError`.
     """
 
     def __init__(
@@ -117,6 +118,7 @@ class ImageFolderSource(ImageFilesSource):
         gt_format: GroundTruthFormat = "auto",
         frames: FrameRange | None = None,
         on_bad_frame: BadFramePolicy = "fail",
+        gt_tolerance_s: float = DEFAULT_GT_TOLERANCE_S,
     ):
         self._on_bad_frame = on_bad_frame
         self.folder = Path(path)
@@ -129,6 +131,8 @@ class ImageFolderSource(ImageFilesSource):
 
         if intrinsics is not None and calib is not None:
             raise SourceError(f"{self.folder}: give either intrinsics or a calib file, not both")
+        #: what the user should hear about this folder (e.g. a calibration found by searching)
+        self.notes: list[str] = []
         if intrinsics is None:
             calib_file = Path(calib) if calib is not None else _beside(self.folder, "calib.txt")
             if calib_file is None:
@@ -136,17 +140,19 @@ class ImageFolderSource(ImageFilesSource):
                     f"{self.folder}: no camera intrinsics: give --intrinsics fx,fy,cx,cy or a calib file"
                 )
             intrinsics = read_calibration(calib_file)
+            if calib is None:
+                intrinsics = replace(intrinsics, origin=f"{intrinsics.origin}, found beside the images")
+                self.notes.append(f"camera calibration not given: using {calib_file}, found beside the images "
+                                  "(give --calib FILE or --intrinsics fx,fy,cx,cy to choose)")
         self._intrinsics = complete_intrinsics(intrinsics, self._size[0], self._size[1], self.folder)
 
         times_file = _beside(self.folder, "times.txt")
         self._times = None if times_file is None else read_times(times_file, len(self._files))
-        self._ground_truth = (
-            None
-            if ground_truth is None
-            else select_ground_truth(
-                read_ground_truth(Path(ground_truth), len(self._files), gt_format, self._times), self._indices
-            )
-        )
+        self._ground_truth = None
+        if ground_truth is not None:
+            self._ground_truth, self.gt_matching = associate_ground_truth(
+                Path(ground_truth), gt_format, self.file_times, len(self._files), self._indices, gt_tolerance_s,
+                self.folder)
         self._name = _short_name(self.folder)
 
     def __repr__(self) -> str:

@@ -16,6 +16,7 @@ frame (`sixteen_bit_shift`), as the ``mono16`` images of a ROS log are: 10- or 1
 from __future__ import annotations
 
 import re
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -111,9 +112,12 @@ def decode_image(path: Path) -> np.ndarray:
     """The image in `path` as (H, W) uint8 or uint16 grey, read through Python's file layer (any path the
     operating system accepts) and ``cv2.imdecode``; `SourceError` naming the file when it cannot be."""
     try:
-        data = np.frombuffer(path.read_bytes(), np.uint8)
+        raw = path.read_bytes()
     except OSError as exc:
         raise SourceError(f"{path}: cannot read image ({exc.strerror or exc.__class__.__name__})") from None
+    if (problem := png_problem(raw)) is not None:  # before libpng prints its own "libpng error: …" line
+        raise SourceError(f"{path}: cannot read image (corrupt PNG: {problem})")
+    data = np.frombuffer(raw, np.uint8)
     image = cv2.imdecode(data, cv2.IMREAD_ANYDEPTH) if data.size else None
     if image is None or image.size == 0:
         raise SourceError(f"{path}: cannot read image (missing, corrupt or not an image)")
@@ -148,3 +152,27 @@ def read_grey_image(path: Path, size: tuple[int, int] | None = None, shift: int 
             f"{path}: image is {image.shape[1]}x{image.shape[0]}, the first frame is {size[0]}x{size[1]}"
         )
     return to_eight_bit(image, shift)
+
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def png_problem(data: bytes) -> str | None:
+    """What is wrong with the chunks of a PNG file's bytes (a chunk's CRC-32 that does not match, a chunk cut
+    off), or None (also for data that is not a PNG). PNG spec §5.3: each chunk is length (4 bytes, big-endian),
+    type (4), data, and the CRC-32 of type and data (4)."""
+    if not data.startswith(PNG_SIGNATURE):
+        return None
+    position = len(PNG_SIGNATURE)
+    while position + 8 <= len(data):
+        length = int.from_bytes(data[position:position + 4], "big")
+        kind = data[position + 4:position + 8]
+        end = position + 8 + length
+        if end + 4 > len(data):
+            return None  # cut off: OpenCV reports it without a libpng line
+        if zlib.crc32(data[position + 4:end]) != int.from_bytes(data[end:end + 4], "big"):
+            return f"chunk {kind.decode('latin-1')} at byte {position} fails its CRC check"
+        if kind == b"IEND":
+            return None
+        position = end + 4
+    return None

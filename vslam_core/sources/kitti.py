@@ -45,7 +45,7 @@ def read_p0_intrinsics(calib: Path) -> tuple[float, float, float, float]:
     cy=P[1,2] of the row-major 3x4 matrix). Raises `SourceError` naming the file when it is missing, has
     no ``P0:`` line, or the line does not hold 12 numbers."""
     try:
-        lines = calib.read_text().splitlines()
+        lines = calib.read_text(encoding="utf-8-sig").splitlines()
     except FileNotFoundError:
         raise SourceError(f"{calib}: calibration file not found") from None
     except (OSError, UnicodeDecodeError) as exc:
@@ -72,7 +72,7 @@ def read_times(path: Path, count: int) -> list[float]:
 
     Raises `SourceError` naming the file for a non-number or fewer than ``count`` lines."""
     try:
-        lines = path.read_text().splitlines()
+        lines = path.read_text(encoding="utf-8-sig").splitlines()
     except (OSError, UnicodeDecodeError) as exc:
         raise SourceError(f"{path}: cannot read timestamps ({exc.__class__.__name__})") from None
     times: list[float] = []
@@ -254,7 +254,7 @@ class KittiSource(ImageFilesSource):
             self.sequence = normalise_sequence(root.resolve().name)
             poses_file = root.resolve().parent.parent / "poses" / f"{self.sequence}.txt"
         elif (root / "sequences").is_dir():
-            raise SourceError(f"{root}: a KITTI dataset root; say which sequence (e.g. sequence 00)")
+            raise SourceError(f"{root}: a KITTI dataset root; say which sequence (e.g. --sequence 00)")
         else:
             raise SourceError(f"{root}: not a KITTI sequence folder (no image_0/) nor a dataset root")
 
@@ -262,10 +262,12 @@ class KittiSource(ImageFilesSource):
         self._files = listing.files
         self.notes = [note] if (note := listing.skipped_note(self.folder / "image_0")) else []
         self._indices = select(frames, len(self._files), self.folder)
-        fx, fy, cx, cy = read_p0_intrinsics(self.folder / "calib.txt")
+        calib = self.folder / "calib.txt"
+        fx, fy, cx, cy = read_p0_intrinsics(calib)
         self._size, self._shift = first_image(self._files, self._indices, on_bad_frame, self.folder)
         self.properties = {"frame_order": listing.order_property(), **sixteen_bit_property(self._shift)}
-        self._intrinsics = CameraIntrinsics(fx, fy, cx, cy, width=self._size[0], height=self._size[1])
+        self._intrinsics = CameraIntrinsics(fx, fy, cx, cy, width=self._size[0], height=self._size[1],
+                                            origin=f"{calib} (KITTI calib.txt)")
 
         times_file = self.folder / "times.txt"
         self._times = read_times(times_file, len(self._files)) if times_file.is_file() else None
@@ -275,6 +277,7 @@ class KittiSource(ImageFilesSource):
             if self.poses_file is not None
             else None
         )
+        self.gt_matching = f"row by row (line i of {poses_file.name} is image i)" if self.poses_file else None
         self._name = f"kitti-{self.sequence}"
         self._camera_height = KITTI_CAMERA_HEIGHT_M
 

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from vslam_core.errors import SourceError
-from vslam_core.sources.base import CameraIntrinsics, FrameRange, FrameSource
+from vslam_core.sources.base import CameraIntrinsics, FrameRange, FrameSource, ground_truth_matching
 from vslam_core.sources.calibration_files import read_calibration
 from vslam_core.sources.euroc import EurocSource, is_euroc
 from vslam_core.sources.faults import FaultInjector, parse_faults
@@ -38,7 +38,7 @@ def open_source(
     inject: str | None = None,
     topic: str | None = None,
     gt_topic: str | None = None,
-    gt_tolerance_s: float = DEFAULT_GT_TOLERANCE_S,
+    gt_tolerance_s: float | None = None,
     route: str | None = None,
 ) -> FrameSource:
     """None or "synthetic": the embedded synthetic street. A ROS 1 ``.bag``, a ROS 2 bag folder or a bare
@@ -46,11 +46,26 @@ def open_source(
     ``.mcap``: `RosbagSource`. A video file: `VideoSource`. A folder with ``sequences/`` or
     ``image_0/``: KITTI; with ``mav0/``: EuRoC; with ``camera.txt``, ``times.txt`` and ``images/``: TUM
     monoVO. Any other folder: `ImageFolderSource`. `inject` wraps the source in a `FaultInjector` (e.g.
-    ``"dark@120,blur@200:210"``). `route` picks the synthetic street's route ("street" or "loop")."""
+    ``"dark@120,blur@200:210"``). `gt_tolerance_s` (None: 10 ms) applies where ground truth is matched to the
+    frames by time; given where it is not (no ground truth, or paired row by row), it is a `SourceError`.
+    `route` picks the synthetic street's route ("street" or "loop")."""
+    tolerance = DEFAULT_GT_TOLERANCE_S if gt_tolerance_s is None else gt_tolerance_s
     request = _Request(spec, sequence, frames, intrinsics, calib, ground_truth, gt_format, on_bad_frame, topic,
-                       gt_topic, gt_tolerance_s, route)
+                       gt_topic, tolerance, route)
     source = _open(request)
+    if gt_tolerance_s is not None:
+        _refuse_tolerance(source)
     return FaultInjector(source, parse_faults(inject)) if inject else source
+
+
+def _refuse_tolerance(source: FrameSource) -> None:
+    """`--gt-tolerance` where no ground truth is matched by time would be silently ignored: say why instead."""
+    how = ground_truth_matching(source)
+    if how is not None and how.startswith("matched by time"):
+        return
+    why = ("there is no ground truth" if how is None else f"the ground truth is not matched by time here ({how}; "
+           "time matching needs timestamps on both sides: a TUM file and frames with a clock)")
+    raise SourceError(f"--gt-tolerance does not apply here: {why}")
 
 
 @dataclass(frozen=True)
@@ -99,7 +114,8 @@ def _open(r: _Request) -> FrameSource:
         camera = _calibration(r)
         if camera is None:
             raise SourceError(f"{path}: a video needs its camera: --calib FILE or --intrinsics fx,fy,cx,cy")
-        return VideoSource(path, camera, frames=r.frames, ground_truth=r.ground_truth, gt_format=r.gt_format)
+        return VideoSource(path, camera, frames=r.frames, ground_truth=r.ground_truth, gt_format=r.gt_format,
+                           gt_tolerance_s=r.gt_tolerance_s)
     if (path / "sequences").is_dir() or (path / "image_0").is_dir():
         _refuse(given, ("--intrinsics", "--calib", "--gt"), "a KITTI sequence has its own calib.txt and poses/NN.txt")
         return KittiSource(path, sequence=r.sequence, frames=r.frames, on_bad_frame=r.on_bad_frame)
@@ -113,7 +129,7 @@ def _open(r: _Request) -> FrameSource:
         return TumMonoSource(path, frames=r.frames, ground_truth=r.ground_truth, gt_tolerance_s=r.gt_tolerance_s,
                              on_bad_frame=r.on_bad_frame)
     return ImageFolderSource(path, intrinsics=_calibration(r), ground_truth=r.ground_truth, gt_format=r.gt_format,
-                             frames=r.frames, on_bad_frame=r.on_bad_frame)
+                             frames=r.frames, on_bad_frame=r.on_bad_frame, gt_tolerance_s=r.gt_tolerance_s)
 
 
 def _unfinished_bag(path: Path) -> Path | None:

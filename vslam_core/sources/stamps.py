@@ -8,9 +8,16 @@ import numpy as np
 
 from vslam_core.errors import SourceError, TrajectoryFormatError
 from vslam_core.sources.base import rebase_poses
-from vslam_core.trajectory.io import check_ground_truth_steps, read_tum_poses
+from vslam_core.trajectory.io import check_ground_truth_steps, detect_format, read_kitti_poses, read_tum_poses
 
 DEFAULT_GT_TOLERANCE_S = 0.010
+#: How ground truth without a clock is paired with the frames (the run summary's ``ground truth`` line).
+ROW_BY_ROW = "row by row"
+
+
+def matched_by_time(frames: int, tolerance_s: float) -> str:
+    """``matched by time, 200 of 200 frames, tolerance 10 ms`` (every selected frame has its pose)."""
+    return f"matched by time, {frames} of {frames} frames, tolerance {tolerance_s * 1000:g} ms"
 
 
 def nearest_in_time(query: np.ndarray, reference: np.ndarray, tolerance_s: float) -> tuple[np.ndarray, np.ndarray]:
@@ -129,3 +136,52 @@ def stamp_problems(stamps: np.ndarray) -> list[str]:
 def _duplicates_out_of_order(stamps: np.ndarray, steps: np.ndarray) -> int:
     """Repeated stamps that are not next to each other in arrival order."""
     return len(stamps) - len(np.unique(stamps)) - int((steps == 0).sum())
+
+
+def associate_ground_truth(
+    path: Path, fmt: str, frame_times: np.ndarray | None, count: int, indices: list[int], tolerance_s: float,
+    where: object,
+) -> tuple[np.ndarray, str]:
+    """The ground truth of the selected frames of an image folder or a video, and how it was paired with them.
+
+    `path`: a KITTI (no clock) or TUM (a stamp per pose) file, `fmt` ``kitti``, ``tum`` or ``auto`` (from the
+    columns); `frame_times`: (count,) every frame's stamps in seconds (``times.txt``, a video's container
+    times), or None without a clock; `indices`: the selected frames. The rule of every source:
+
+    - both sides have times: each frame takes the pose nearest in time within `tolerance_s` (a TUM file at
+      another rate than the camera, or with gaps, is paired correctly); a frame without one is an error;
+    - one side only, or neither: row i is frame i, and the file must hold a pose for every frame; when one
+      side has times, it must hold exactly as many poses as there are frames (another count means the rows
+      are not the frames: pairing them would give a wrong answer without a word).
+
+    Returns ((N, 4, 4) T_w_c re-based on the first selected frame, ``matched by time, …`` or ``row by row``).
+    `SourceError` (or `TrajectoryFormatError` for a malformed file) in one line, naming the file."""
+    if not path.is_file():
+        raise SourceError(f"{path}: ground-truth file not found")
+    kind = detect_format(path) if fmt == "auto" else fmt
+    if kind == "tum":
+        gt_stamps, gt_poses = read_tum_poses(path)
+        check_ground_truth_steps(path, gt_poses, gt_stamps)
+        if frame_times is not None:
+            poses = selected_ground_truth(np.asarray(frame_times, np.float64), indices, gt_stamps, gt_poses,
+                                          tolerance_s, path.name, where)
+            return poses, matched_by_time(len(indices), tolerance_s)
+        if len(gt_poses) != count:
+            raise SourceError(
+                f"{path}: {len(gt_poses)} timestamped poses for {count} frames without timestamps ({where} has no "
+                "times.txt): they cannot be matched by time, and row by row needs one pose per frame (put the "
+                "frames' times.txt beside the images)")
+    elif kind == "kitti":
+        gt_poses = read_kitti_poses(path)
+        check_ground_truth_steps(path, gt_poses, None if frame_times is None or len(frame_times) != len(gt_poses)
+                                 else np.asarray(frame_times, np.float64))
+        if frame_times is not None and len(gt_poses) != count:
+            raise SourceError(
+                f"{path}: {len(gt_poses)} poses without timestamps (KITTI format) for {count} timestamped frames: "
+                "they cannot be matched by time, and row by row needs one pose per frame (give the ground truth "
+                "as TUM, with timestamps on the frames' clock)")
+        if len(gt_poses) < count:
+            raise SourceError(f"{path}: {len(gt_poses)} poses for {count} frames (need one pose per frame)")
+    else:
+        raise SourceError(f"{path}: unknown ground-truth format {fmt!r} (kitti, tum or auto)")
+    return rebase_poses(gt_poses[np.asarray(indices)]), ROW_BY_ROW

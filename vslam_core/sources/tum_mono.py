@@ -34,6 +34,7 @@ from vslam_core.sources.image_files import list_frame_files
 from vslam_core.sources.kitti import BadFramePolicy, ImageFilesSource, first_image, select
 from vslam_core.sources.stamps import (
     DEFAULT_GT_TOLERANCE_S,
+    matched_by_time,
     read_tum_ground_truth,
     selected_ground_truth,
     stamp_problems,
@@ -218,6 +219,7 @@ class TumMonoSource(ImageFilesSource):
             self._ground_truth = selected_ground_truth(self._times, self._indices, gt_stamps, gt_poses, gt_tolerance_s,
                                                        label, folder)
             self.properties["ground_truth"] = label
+            self.gt_matching = matched_by_time(len(self._indices), gt_tolerance_s)
         self._name = "tum-mono-" + (re.sub(r"[^A-Za-z0-9._-]+", "_", folder.resolve().name).strip("_") or "sequence")
 
     @property

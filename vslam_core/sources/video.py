@@ -25,7 +25,8 @@ import numpy as np
 from vslam_core.errors import SourceError
 from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange, SelectedSource, is_utf8_path, shown_path
 from vslam_core.sources.folder import PartialIntrinsics, complete_intrinsics
-from vslam_core.sources.kitti import GroundTruthFormat, read_ground_truth, select, select_ground_truth
+from vslam_core.sources.kitti import GroundTruthFormat, select
+from vslam_core.sources.stamps import DEFAULT_GT_TOLERANCE_S, associate_ground_truth
 
 
 def _to_grey(frame: np.ndarray) -> np.ndarray:
@@ -48,8 +49,9 @@ class VideoSource(SelectedSource):
 
     intrinsics: `CameraIntrinsics` or `PartialIntrinsics` (e.g. ``parse_intrinsics("fx,fy,cx,cy")``);
     the size comes from the video. frames: the selection (video frame numbers, default all).
-    ground_truth: optional KITTI/TUM poses file, row i = video frame i (extra rows ignored), re-based to
-    the first selected frame; without it ``ground_truth`` is None.
+    ground_truth: optional KITTI/TUM poses file, re-based to the first selected frame: a TUM file is matched by
+    time (within ``gt_tolerance_s``) to the container's frame times, else row i = video frame i (see
+    `associate_ground_truth`; ``gt_matching`` says which); without it ``ground_truth`` is None.
     """
 
     def __init__(
@@ -59,6 +61,7 @@ class VideoSource(SelectedSource):
         frames: FrameRange | None = None,
         ground_truth: str | Path | None = None,
         gt_format: GroundTruthFormat = "auto",
+        gt_tolerance_s: float = DEFAULT_GT_TOLERANCE_S,
     ):
         self.path = Path(path)
         if not self.path.is_file():
@@ -80,17 +83,16 @@ class VideoSource(SelectedSource):
         finally:
             capture.release()
         self._count = len(stamps_ms)
+        self._container_times = self._increasing(stamps_ms)
         self._times = self._timestamps(stamps_ms, fps)
         self.fps = fps if math.isfinite(fps) and fps > 0 else None
         self._indices = select(frames, self._count, self.path)
         self._intrinsics = complete_intrinsics(intrinsics, self._size[0], self._size[1], self.path)
-        self._ground_truth = (
-            None
-            if ground_truth is None
-            else select_ground_truth(
-                read_ground_truth(Path(ground_truth), self._count, gt_format, self._times), self._indices
-            )
-        )
+        self._ground_truth = None
+        if ground_truth is not None:  # by time on the container's clock (a frame rate alone is no clock)
+            clock = None if self._times is None or not self._container_times else np.asarray(self._times)
+            self._ground_truth, self.gt_matching = associate_ground_truth(
+                Path(ground_truth), gt_format, clock, self._count, self._indices, gt_tolerance_s, self.path)
         self._name = "video-" + (re.sub(r"[^A-Za-z0-9._-]+", "_", self.path.stem) or "video")
 
     def _open(self) -> cv2.VideoCapture:
@@ -101,10 +103,15 @@ class VideoSource(SelectedSource):
         return capture
 
     @staticmethod
-    def _timestamps(stamps_ms: list[float], fps: float) -> list[float] | None:
-        """Seconds per frame: the container's when they increase strictly, else frame / fps, else None."""
+    def _increasing(stamps_ms: list[float]) -> bool:
+        """The container's frame times are usable: finite, from 0 on, strictly increasing."""
         stamps = np.asarray(stamps_ms)
-        if np.all(np.isfinite(stamps)) and stamps[0] >= 0 and np.all(np.diff(stamps) > 0):
+        return bool(np.all(np.isfinite(stamps)) and stamps[0] >= 0 and np.all(np.diff(stamps) > 0))
+
+    @classmethod
+    def _timestamps(cls, stamps_ms: list[float], fps: float) -> list[float] | None:
+        """Seconds per frame: the container's when they increase strictly, else frame / fps, else None."""
+        if cls._increasing(stamps_ms):
             return [s / 1000.0 for s in stamps_ms]
         if math.isfinite(fps) and fps > 0:
             return [i / fps for i in range(len(stamps_ms))]

@@ -39,7 +39,7 @@ def _rows(
     NaN or infinity is an error, or left out with ``skip_non_finite``.
     """
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8-sig")  # a BOM (Windows editors) is no number
     except FileNotFoundError:
         raise TrajectoryFormatError(f"{path}: file not found") from None
     except (OSError, UnicodeDecodeError) as exc:
@@ -165,7 +165,7 @@ def detect_format(path: str | Path) -> TrajectoryFormat:
     """Guess a trajectory file's format from the column count of its first data line."""
     path = Path(path)
     try:
-        for line in path.read_text().splitlines():
+        for line in path.read_text(encoding="utf-8-sig").splitlines():
             stripped = line.strip()
             if stripped and not stripped.startswith("#"):
                 count = len(stripped.replace(",", " ").split())

@@ -36,7 +36,7 @@ from vslam_core.sources.ros.ground_truth import topic_ground_truth
 from vslam_core.sources.ros.images import IMAGE_TYPES, ImageDecoder
 from vslam_core.sources.ros.mcap_recovery import RecoveredMcap, is_cut_short, recover_mcap
 from vslam_core.sources.ros.messages import bag_errors, bare, field, one_line
-from vslam_core.sources.stamps import DEFAULT_GT_TOLERANCE_S, ground_truth_at, stamp_problems
+from vslam_core.sources.stamps import DEFAULT_GT_TOLERANCE_S, ground_truth_at, matched_by_time, stamp_problems
 from vslam_core.trajectory.io import check_ground_truth_steps, read_tum_poses
 
 CAMERA_INFO_TYPE = "sensor_msgs/msg/CameraInfo"
@@ -156,6 +156,8 @@ class RosbagSource(SelectedSource):
             self._size = size
             self._intrinsics = self._calibrate(reader, topics, calibration, size)
             self._ground_truth = self._load_ground_truth(reader, topics, ground_truth, gt_topic, gt_tolerance_s)
+            if self._ground_truth is not None:
+                self.gt_matching = matched_by_time(len(self._indices), gt_tolerance_s)
         finally:
             with bag_errors(self._where, "cannot close the log"):
                 reader.close()

@@ -51,7 +51,8 @@ from vslam_core.sources.synthetic.road import START_S, camera_path, make_centrel
 from vslam_core.sources.synthetic.scene import COARSE_RES, build_street, ground_layout
 from vslam_core.sources.synthetic.textures import FINE_TILE, PANO_ELEV_MAX, ground_fine_tile, mip_pyramid, panorama
 
-_INTRINSICS = CameraIntrinsics(fx=718.856, fy=718.856, cx=607.1928, cy=185.2157, width=1241, height=376)
+_INTRINSICS = CameraIntrinsics(fx=718.856, fy=718.856, cx=607.1928, cy=185.2157, width=1241, height=376,
+                              origin="the synthetic street (KITTI 00's camera)")
 _FRAME_DT = 0.1  # seconds between frames
 _LOOK_AHEAD = 130.0  # scene generated beyond the last camera position
 _FAR = 100.0  # metres; rectangles whose nearest point is farther are culled
@@ -81,6 +82,9 @@ class SyntheticStreet:
     frames: selection among them (`FrameRange.indices(n_frames)`, SourceError when out of range).
     camera_height: metres between the camera centre and the road plane.
     """
+
+    #: its ground truth is the path it was rendered from (exact), one pose per frame
+    gt_matching = "exact (the poses the street was rendered from)"
 
     def __init__(
         self, n_frames: int | None = None, frames: FrameRange | None = None, seed: int = 0,
