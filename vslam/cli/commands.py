@@ -32,6 +32,8 @@ from vslam.cli.common import (
 )
 from vslam.cli.entry import run as run_app
 from vslam.cli.eval import eval_command
+from vslam.compare.limits import ROTATION_DEG as DIVERGE_DEG
+from vslam.compare.limits import TRANSLATION_PCT as DIVERGE_PCT
 from vslam.evaluation import DEFAULT_TOLERANCE_MS
 from vslam.recording import Detail, ImageCodec
 
@@ -329,9 +331,15 @@ def compare(
     force: Annotated[bool, typer.Option("--force", help="replace an existing output")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="machine-readable output (keys in docs/recordings.md)")]
     = False,
+    diverge_deg: Annotated[float, typer.Option(min=0.0, help="first divergence: a frame whose step rotation "
+                                               "differs from the first run's by more than this (degrees)")]
+    = DIVERGE_DEG,
+    diverge_pct: Annotated[float, typer.Option(min=0.0, help="… or whose step translation differs by more than "
+                                               "this % of the first run's step")] = DIVERGE_PCT,
 ) -> None:
-    """Put two or more runs side by side in one recording (overlaid metric plots), print one summary row per
-    run and every difference from the first run."""
+    """Put two or more runs side by side in one recording (overlaid metric plots and per-frame differences),
+    print one summary row per run, every difference from the first run, and the first frame where each run
+    diverges from the first."""
     from vslam.compare import (
         PREFIXES,
         check_labels,
@@ -354,7 +362,8 @@ def compare(
     for recording in recordings:
         _existing_recording(recording)
     with claimed(_recording_path(output), force, "recording"):
-        result = compare_recordings(*recordings, output, labels=names)
+        result = compare_recordings(*recordings, output, labels=names, rotation_deg=diverge_deg,
+                                    translation_pct=diverge_pct)
     if as_json:
         print(json.dumps(json_ready(comparison_json(result)), indent=2, allow_nan=False))
     else:

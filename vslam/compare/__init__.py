@@ -12,12 +12,17 @@ _HOMES = {
     "check_labels": "comparison",
     "compare_recordings": "comparison",
     "comparison_json": "table",
+    "FirstDivergence": "frames",
+    "frame_differences": "frames",
+    "first_divergence": "frames",
+    "read_run_frames": "frames",
     "default_labels": "comparison",
     "format_differences": "comparison",
 }
 
 if TYPE_CHECKING:
     from vslam.compare.comparison import PREFIXES, check_labels, compare_recordings, default_labels, format_differences
+    from vslam.compare.frames import FirstDivergence, first_divergence, frame_differences, read_run_frames
     from vslam.compare.table import comparison_json
 
 
@@ -28,6 +33,10 @@ def __getattr__(name: str) -> Any:
 
 
 __all__ = [
+    "FirstDivergence",
+    "first_divergence",
+    "frame_differences",
+    "read_run_frames",
     "PREFIXES",
     "check_labels",
     "compare_recordings",
