@@ -190,8 +190,8 @@ def time_panel(divergence_frame: int | None) -> rrb.TimePanel:
     if divergence_frame is None:
         return rrb.TimePanel(timeline="frame", state="collapsed")
     low, high = max(divergence_frame - DIVERGENCE_WINDOW, 0), divergence_frame + DIVERGENCE_WINDOW
-    return rrb.TimePanel(timeline="frame", time_selection=rrb.components.AbsoluteTimeRange(low, high), loop_mode="selection",
-                         play_state="playing", fps=4.0)
+    return rrb.TimePanel(timeline="frame", time_selection=rrb.components.AbsoluteTimeRange(low, high),
+                         loop_mode="selection", play_state="playing", fps=4.0)
 
 
 def _top_down(bounds: tuple[np.ndarray, np.ndarray] | None) -> rrb.EyeControls3D:
