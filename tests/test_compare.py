@@ -26,6 +26,7 @@ from vslam.compare.comparison import (
     format_differences,
     plot_title,
 )
+from vslam.compare.frames import DIFFERENCE_SERIES
 from vslam.recording import METRICS
 from vslam.rrd.crop import crop_recording
 from vslam.rrd.inspect import inspect_recording
@@ -96,6 +97,10 @@ def test_every_entity_of_each_run_is_under_its_prefix(runs: tuple[Path, Path], c
     expected = {f"/{prefix}{e}" for prefix, run in zip("ab", runs, strict=True) for e in entities(run)
                 if not e.startswith("/__properties")}
     expected.add("/report")  # the comparison's own: its runs and their summary table
+    # …and B's per-frame differences from A, the event saying where (or that) they diverge, and its marker
+    expected |= {f"/compare/b/{name}" for name, _, _ in DIFFERENCE_SERIES} | {"/compare/events"}
+    if compared.divergences[0] is not None:
+        expected.add("/compare/b/divergence")
     assert {e for e in entities(compared.output) if not e.startswith("/__properties")} == expected
 
     for prefix, run in zip("ab", runs, strict=True):

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import sys
 import uuid
+from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -22,10 +24,12 @@ from vslam.cli.common import (
     TOPIC_HELP,
     Backend,
     BadFrame,
+    Live,
     Scale,
     TrajectoryFormat,
     err,
     fail,
+    live_default,
     out,
     refuse,
     warn,
@@ -38,6 +42,7 @@ from vslam.evaluation import DEFAULT_TOLERANCE_MS
 from vslam.recording import Detail, ImageCodec
 
 if TYPE_CHECKING:
+    from vslam.runs.runner import RecordedRun, RunOutputs
     from vslam_core.config import EngineConfig
     from vslam_core.pipeline import RunResult
     from vslam_core.sources.base import FrameRange, FrameSource
@@ -160,16 +165,21 @@ def run(
                                                    "skip (hold the pose, log an event)")] = BadFrame.fail,
     force: Annotated[bool, typer.Option("--force", help="replace existing output files (never one another run "
                                         "is writing)")] = False,
+    live: Annotated[Live | None, typer.Option(help="also show the run in a viewer while it goes on: native (a "
+                                              "display), web (served on 127.0.0.1 like 'open --web'; kept until "
+                                              "Ctrl-C), auto (= --live alone: native with a display, else web); "
+                                              "the .rrd is written as without it")] = None,
+    web_port: Annotated[int | None, typer.Option("--web-port", help="--live web: the web viewer (HTTP) port "
+                                                 "(default: a free one)")] = None,
+    grpc_port: Annotated[int | None, typer.Option("--grpc-port", help="--live: the viewer's gRPC port (default: "
+                                                  "a free one)")] = None,
 ) -> None:
     """Run the odometry on a source and write a Rerun recording (and optionally the trajectory)."""
     from vslam.recording import version_properties
     from vslam.runs import (
-        EXIT_NOTHING_TRACKED,
         backend_problem,
         claim_run_outputs,
-        describe_outputs,
         input_warnings,
-        nothing_tracked,
         output_problem,
         record_run,
         with_camera_height,
@@ -213,11 +223,20 @@ def run(
         **({"inject": inject} if inject else {}),
         **version_properties(),
     }
-    try:
-        recorded = record_run(src, config, rrd, properties, err, detail, jpeg_quality, outputs.trajectory,
-                              image_codec)
-    finally:
-        outputs.release()
+    with _live(live, rrd is not None, web_port, grpc_port) as live_url:
+        try:
+            recorded = record_run(src, config, rrd, properties, err, detail, jpeg_quality, outputs.trajectory,
+                                  image_codec, live_url)
+        finally:
+            outputs.release()
+        _report_run(src, recorded, config, outputs)  # with --live web: before the viewer waits for Ctrl-C
+
+
+def _report_run(src: FrameSource, recorded: RecordedRun, config: EngineConfig, outputs: RunOutputs) -> None:
+    """The run's summary and where its outputs are; exit non-zero when it failed, was interrupted or tracked
+    nothing."""
+    from vslam.runs import EXIT_NOTHING_TRACKED, describe_outputs, nothing_tracked
+
     result, interrupted = recorded.result, recorded.interrupted
     if recorded.failure is None:
         _summary(src, result, config)
@@ -231,6 +250,25 @@ def run(
              + (f" (last frame {last})" if last is not None else "") + "; outputs hold the frames processed",
              interrupted.code)
     refuse(nothing_tracked(result), EXIT_NOTHING_TRACKED)
+
+
+@contextlib.contextmanager
+def _live(live: Live | None, recording: bool, web_port: int | None, grpc_port: int | None) -> Iterator[str | None]:
+    """`vslam.viewer.live.live_viewer` for ``--live`` (its gRPC URL), else None; the ports only with --live."""
+    if live is None:
+        if web_port is not None or grpc_port is not None:
+            fail("--web-port and --grpc-port are the live viewer's ports: add --live web")
+        yield None
+        return
+    if not recording:
+        fail("--live shows the recording while it is written: it needs one (not --detail off)")
+    from vslam.viewer.live import live_viewer
+
+    def say(line: str) -> None:
+        out.print(line, highlight=False, markup=False)
+
+    with live_viewer(str(live), web_port, grpc_port, say) as view:
+        yield view.grpc_url
 
 
 def _existing_recording(path: Path) -> Path:
@@ -391,6 +429,7 @@ def repair(
 
 def main() -> None:
     """Entry point: every `VslamError` and usage error becomes one line on stderr and exit code 2."""
+    sys.argv[1:] = live_default(sys.argv[1:])
     run_app(app, lambda message: err.print(f"[bold red]error:[/] {escape(message)}", highlight=False,
                                            soft_wrap=True))
 

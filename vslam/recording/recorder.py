@@ -59,6 +59,7 @@ class Recorder:
         detail: Detail = Detail.FULL,
         jpeg_quality: int = 75,
         image_codec: ImageCodec = ImageCodec.JPEG,
+        live_url: str | None = None,
     ) -> None:
         if detail == Detail.OFF:
             raise ValueError("detail 'off' writes no recording: do not build a Recorder")
@@ -83,7 +84,8 @@ class Recorder:
         layout = blueprint(map_backend=config.backend == "map", image=detail in (Detail.FULL, Detail.STANDARD),
                            road_scale=config.scale == "height", ground_truth=source.ground_truth is not None,
                            undistorted=undistorted)
-        self._rec = open_stream(path, properties.get("recording_id"), layout, properties.get("name", source.name))
+        self._rec = open_stream(path, properties.get("recording_id"), layout, properties.get("name", source.name),
+                                live_url)
         self._columns = ColumnBuffer(self._rec)
         self._properties = {**properties, **describe_calibration(source.intrinsics), **source_properties(source),
                             "detail": str(detail)}
