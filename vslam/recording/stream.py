@@ -49,7 +49,8 @@ def log_world(rec: rr.RecordingStream, camera: CameraIntrinsics | None) -> None:
     if camera is not None:
         rec.log("/world/camera/image", pinhole(camera), static=True)
     # metres, camera frame: 1.6 m wide, roof to road under a camera 1.65 m up, 0.5 m of bonnet ahead of it
-    rec.log(CAR_ENTITY, rr.Boxes3D(centers=[[0.0, 0.75, -1.5]], half_sizes=[[0.8, 0.9, 2.0]], colors=[CAR_COLOUR]),
+    rec.log(CAR_ENTITY, rr.Boxes3D(centers=[[0.0, 0.75, -1.5]], half_sizes=[[0.8, 0.9, 2.0]], colors=[CAR_COLOUR],
+                                 radii=[0.02]),  # thin edges: the car must not hide the lines around it
             static=True)
     rec.log("/world/trajectory/estimate", rr.LineStrips3D.from_fields(colors=ESTIMATE_COLOUR, radii=0.12), static=True)
     rec.log("/world/trajectory/ground_truth", rr.LineStrips3D.from_fields(colors=GROUND_TRUTH_COLOUR, radii=0.06),
