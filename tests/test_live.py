@@ -101,6 +101,8 @@ def test_saved_recording_equals_a_run_without_live(live_run: dict[str, object]) 
         for static in (False, True):
             assert read_entity(live, entity, static).equals(read_entity(plain, entity, static)), (entity, static)
     assert len(read_entity(live, "/world/camera")) == 25
+    levels = read_entity(live, "/metrics/health_levels/warn")  # the health plot's named level, first to last frame
+    assert levels["frame"].to_list() == [0, 24] and levels["Scalars:scalars"].to_list() == [[1.0], [1.0]]
     timing = read_entity(live, "/metrics/timing_ms/track")
     assert timing["frame"].to_list() == read_entity(plain, "/metrics/timing_ms/track")["frame"].to_list()
 

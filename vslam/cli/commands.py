@@ -188,6 +188,10 @@ def run(
     from vslam_core.sources.base import FrameRange, describe_indices
     from vslam_core.sources.open import open_source
 
+    if live is None and (web_port is not None or grpc_port is not None):
+        fail("--web-port and --grpc-port are the live viewer's ports: add --live web")
+    if live is not None and detail == Detail.OFF:
+        fail("--live shows the recording while it is written: it needs one (not --detail off)")
     frame_range = FrameRange.parse(frames)
     config = load_config(config_file) if config_file is not None else EngineConfig()
     src = open_source(source, sequence=sequence, frames=frame_range, intrinsics=intrinsics, calib=calib,
@@ -256,8 +260,6 @@ def _report_run(src: FrameSource, recorded: RecordedRun, config: EngineConfig, o
 def _live(live: Live | None, recording: bool, web_port: int | None, grpc_port: int | None) -> Iterator[str | None]:
     """`vslam.viewer.live.live_viewer` for ``--live`` (its gRPC URL), else None; the ports only with --live."""
     if live is None:
-        if web_port is not None or grpc_port is not None:
-            fail("--web-port and --grpc-port are the live viewer's ports: add --live web")
         yield None
         return
     if not recording:

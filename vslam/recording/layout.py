@@ -41,7 +41,7 @@ def blueprint(map_backend: bool = False, *, image: bool = True, road_scale: bool
         frame = rrb.Spatial2DView(name="frame", origin="/world/camera/image")
         legend = rrb.TextDocumentView(name="overlays", origin=LEGEND_ENTITY)
         views = [frame, *([rrb.Spatial2DView(name="undistorted", origin=UNDISTORTED)] if undistorted else [])]
-        left.insert(0, rrb.Horizontal(*views, legend, column_shares=[*([5] * len(views)), 1]))
+        left.insert(0, rrb.Horizontal(*views, legend, column_shares=[*([3] * len(views)), 1]))
     plots = _plots(road_scale, ground_truth, engine) + (_map_plots() if map_backend else [])
     return rrb.Blueprint(
         rrb.Vertical(
