@@ -83,13 +83,16 @@ def read_run_frames(path: Path, prefix: str = "") -> RunFrames:
     camera = read_entity(path, f"{prefix}/world/camera")
     if camera.is_empty() or "Transform3D:translation" not in camera.columns:
         return RunFrames(np.zeros(0, np.int64), np.zeros((0, 4, 4)))
+    # a pose logged without a rotation (e.g. a bare trajectory from the plain SDK) has the world's orientation
+    matrices = (camera["Transform3D:mat3x3"].to_list() if "Transform3D:mat3x3" in camera.columns
+                else [None] * len(camera))
     rows = [(int(f), t, m) for f, t, m in zip(camera["frame"].to_list(), camera["Transform3D:translation"].to_list(),
-                                              camera["Transform3D:mat3x3"].to_list(), strict=True)
-            if t is not None and m is not None]
+                                              matrices, strict=True) if t is not None]
     poses = np.tile(np.eye(4), (len(rows), 1, 1))
     for k, (_, translation, matrix) in enumerate(rows):
         poses[k, :3, 3] = np.asarray(translation, np.float64).reshape(3)
-        poses[k, :3, :3] = np.asarray(matrix, np.float64).reshape(3, 3).T  # Rerun's Mat3x3 is column-major
+        if matrix is not None:
+            poses[k, :3, :3] = np.asarray(matrix, np.float64).reshape(3, 3).T  # Rerun's Mat3x3 is column-major
     health: dict[int, tuple[str, list[str]]] = {}
     table = read_entity(path, f"{prefix}/health")
     if not table.is_empty() and "status" in table.columns:

@@ -162,6 +162,9 @@ def format_differences(result: Compared) -> str:
     for label, path, report in zip(labels, result.inputs, reports, strict=True):
         lines.append(f"{label:<11} {path}: {report['recording_name']}")
     lines += ["", *format_summary(result), ""]
+    for label, divergence in zip(labels[1:], result.divergences, strict=True):
+        lines += describe_divergence(base, label, divergence, *result.thresholds)
+    lines.append("")
     for label, report in zip(labels[1:], reports[1:], strict=True):
         # how the runs were made: properties and config, baseline → run (two runs: as before, unlabelled)
         made = run_differences(reports[0], report)
@@ -182,9 +185,6 @@ def format_differences(result: Compared) -> str:
         rows.append(row)
     lines.append("")
     lines += _aligned([header, *rows], left=(0,))
-    lines.append("")
-    for label, divergence in zip(labels[1:], result.divergences, strict=True):
-        lines += describe_divergence(base, label, divergence, *result.thresholds)
     return "\n".join(lines)
 
 
