@@ -182,7 +182,7 @@ def test_embedded_blueprint_has_both_runs_and_overlaid_plots(compared: Compariso
         assert views[f"{label}: frame"]["origin"] == f"/{prefix}/world/camera/image"
         world = views[f"{label}: world"]
         assert world["class"] == "3D" and world["origin"] == f"/{prefix}/world"
-        assert world["overrides"] == {f"/{prefix}/world/trajectory/{t}" for t in ("estimate", "ground_truth")}
+        assert world["overrides"] == {f"/{prefix}/world/trajectory/{t}" for t in ("estimate", "ground_truth", "drift")}
     plotted = [group for group in METRICS if group != "road"]  # neither run used --scale height
     assert plot_title("road") not in views
     for group in plotted:

@@ -115,7 +115,8 @@ def blueprint(labels: tuple[str, ...] = ("A", "B"),
                                                tracking_entity=f"/{prefix}{CAR_ENTITY}"),  # as `vslam run`'s
                 # overrides on a parent are not inherited: one per trajectory entity
                 overrides={f"{world}/trajectory/estimate": whole_past,
-                           f"{world}/trajectory/ground_truth": whole_past},
+                           f"{world}/trajectory/ground_truth": whole_past,
+                           f"/{prefix}{DRIFT_ENTITY}": whole_past},  # one segment per frame, like the estimate
             ),
             row_shares=[1, 1],
             name=label,
