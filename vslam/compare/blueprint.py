@@ -98,7 +98,8 @@ def blueprint(labels: tuple[str, ...] = ("A", "B"),
     road scale of runs with ground-truth scale). First in the plots the per-frame differences of each further
     run from the first (`vslam.compare.frames`); `divergence_frame` (the earliest first divergence) selects
     the frames around it in the time panel and loops the playback over them (Rerun 0.41's blueprint cannot
-    place the time cursor itself)."""
+    place the time cursor itself; the 0.41 viewer was seen to play into the selection within ~4 s of opening,
+    then loop over it)."""
     prefixes = run_prefixes(len(labels))
     whole_past = rrb.VisibleTimeRanges([rr.VisibleTimeRange(
         "frame", start=rr.TimeRangeBoundary.infinite(), end=rr.TimeRangeBoundary.cursor_relative())])
