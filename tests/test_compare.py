@@ -18,6 +18,7 @@ import rerun as rr
 from cli_helpers import vslam, vslam_here
 from rerun.chunk import RrdReader
 
+from vslam.compare.blueprint import DIFFERENCE_TITLES
 from vslam.compare.comparison import (
     LIGHTEN_B,
     SERIES_WIDTHS,
@@ -26,6 +27,7 @@ from vslam.compare.comparison import (
     format_differences,
     plot_title,
 )
+from vslam.compare.frames import DIFFERENCE_SERIES
 from vslam.recording import METRICS
 from vslam.rrd.crop import crop_recording
 from vslam.rrd.inspect import inspect_recording
@@ -96,6 +98,10 @@ def test_every_entity_of_each_run_is_under_its_prefix(runs: tuple[Path, Path], c
     expected = {f"/{prefix}{e}" for prefix, run in zip("ab", runs, strict=True) for e in entities(run)
                 if not e.startswith("/__properties")}
     expected.add("/report")  # the comparison's own: its runs and their summary table
+    # …and B's per-frame differences from A, the event saying where (or that) they diverge, and its marker
+    expected |= {f"/compare/b/{name}" for name, _, _ in DIFFERENCE_SERIES} | {"/compare/events"}
+    if compared.divergences[0] is not None:
+        expected.add("/compare/b/divergence")
     assert {e for e in entities(compared.output) if not e.startswith("/__properties")} == expected
 
     for prefix, run in zip("ab", runs, strict=True):
@@ -176,7 +182,7 @@ def test_embedded_blueprint_has_both_runs_and_overlaid_plots(compared: Compariso
         assert views[f"{label}: frame"]["origin"] == f"/{prefix}/world/camera/image"
         world = views[f"{label}: world"]
         assert world["class"] == "3D" and world["origin"] == f"/{prefix}/world"
-        assert world["overrides"] == {f"/{prefix}/world/trajectory/{t}" for t in ("estimate", "ground_truth")}
+        assert world["overrides"] == {f"/{prefix}/world/trajectory/{t}" for t in ("estimate", "ground_truth", "drift")}
     plotted = [group for group in METRICS if group != "road"]  # neither run used --scale height
     assert plot_title("road") not in views
     for group in plotted:
@@ -189,8 +195,11 @@ def test_embedded_blueprint_has_both_runs_and_overlaid_plots(compared: Compariso
                                         *(f"- /{p}/world/trajectory/{e}" for p in "ab" for e in ("drift", "gt_links"))]
     assert trajectories["overrides"] == {f"/{p}/world/trajectory/{t}" for p in "ab"
                                          for t in ("estimate", "ground_truth")}
-    assert views["events"]["contents"] == ["/a/events", "/b/events"]
-    assert len(views) == 4 + len(plotted) + 2
+    assert views["events"]["contents"] == ["/compare/events", "/a/events", "/b/events"]
+    for name, _, kind in DIFFERENCE_SERIES:  # B's per-frame differences from A, the marker with the rotation
+        assert views[DIFFERENCE_TITLES[kind]]["contents"] == [f"/compare/b/{name}"] + (
+            ["/compare/b/divergence"] if kind == "rotation" else [])
+    assert len(views) == 4 + len(plotted) + len(DIFFERENCE_SERIES) + 2
 
 
 def test_differences_are_the_inspect_values(runs: tuple[Path, Path], compared: ComparisonResult) -> None:
@@ -294,6 +303,7 @@ def _columns(picture: np.ndarray, rgb: tuple[int, int, int] | list[int], toleran
 
 def test_snapshot_shows_both_runs_and_overlaid_plots(shots: dict[str, Path]) -> None:
     plots = [view_file_name(plot_title(group)) for group in METRICS if group != "road"]  # no --scale height run
+    plots += [view_file_name(title) for title in DIFFERENCE_TITLES.values()]
     expected = ["a_frame", "a_world", "b_frame", "b_world", *plots, "events",
                 "trajectories_a_red_b_blue_truth_green", "all"]
     assert sorted(shots) == sorted(expected)
@@ -404,7 +414,7 @@ def test_three_real_runs_in_one_valid_recording(kitti_runs: list[Path],
     views = _views(output)
     assert views["trajectories: base red, tracks400 blue, later orange, truth green"]["contents"][:3] == [
         f"/{p}/world/trajectory/**" for p in "abc"]
-    assert views["events"]["contents"] == ["/a/events", "/b/events", "/c/events"]
+    assert views["events"]["contents"] == ["/compare/events", "/a/events", "/b/events", "/c/events"]
     assert views[plot_title("tracks")]["contents"] == [f"/{p}/metrics/tracks/**" for p in "abc"]
     assert {f"{label}: frame" for label in labels} <= set(views)  # one tab per run
 

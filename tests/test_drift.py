@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from cli_helpers import vslam
 
-from vslam.recording.drift import DRIFT_ENTITY, DRIFT_LIFT_M, LINKS_ENTITY, drift_colours
+from vslam.recording.drift import DRIFT_ENTITY, DRIFT_LIFT_M, DRIFT_RADIUS_M, LINKS_ENTITY, drift_colours
 from vslam.rrd.inspect import format_report, inspect_recording
 from vslam.rrd.read import read_entity
 from vslam_core.sources.base import rebase_poses
@@ -133,9 +133,12 @@ def test_recording_holds_drift_series_trajectory_links_and_events(kitti_run: tup
         series = read_entity(rrd, f"/metrics/drift/{name}")
         assert series["frame"].to_list() == list(range(10, 50)), name
         assert not read_entity(rrd, f"/metrics/drift/{name}", static=True).is_empty()  # legend
+    segments = read_entity(rrd, DRIFT_ENTITY)
+    assert segments["frame"].to_list() == list(range(11, 50))  # a segment per frame after the first: the past only
+    assert all(len(row) == 1 and len(row[0]) == 2 for row in segments["LineStrips3D:strips"].to_list())
+    assert all(len(row) == 1 for row in segments["LineStrips3D:colors"].to_list())
     strips = read_entity(rrd, DRIFT_ENTITY, static=True)
-    assert len(strips["LineStrips3D:strips"].to_list()[-1]) == 39  # a segment per frame after the first
-    assert len(strips["LineStrips3D:colors"].to_list()[-1]) == 39
+    assert strips["LineStrips3D:radii"].to_list()[-1] == [pytest.approx(DRIFT_RADIUS_M)]  # a thin ribbon
     lift = [row for row in strips["Transform3D:translation"].to_list() if row is not None][-1]
     assert list(lift[0]) == pytest.approx([0.0, -DRIFT_LIFT_M, 0.0])  # above the estimate: no z-fighting
     links = read_entity(rrd, LINKS_ENTITY, static=True)
@@ -162,7 +165,7 @@ def test_no_ground_truth_no_drift(kitti_root: Path, tmp_path: Path) -> None:
     report = json.loads(vslam("inspect", rrd, "--json").stdout)
     assert report["drift"] is None
     assert "where the error comes from" not in format_report(inspect_recording(rrd))
-    assert read_entity(rrd, DRIFT_ENTITY, static=True).is_empty()
+    assert read_entity(rrd, DRIFT_ENTITY, static=True).is_empty() and read_entity(rrd, DRIFT_ENTITY).is_empty()
 
 
 @pytest.mark.kitti

@@ -202,3 +202,31 @@ def test_bad_recordings_give_one_line_errors(tmp_path: Path) -> None:
         result = vslam("inspect", path)
         assert result.returncode == 2 and "Traceback" not in result.stderr
         assert len(result.stderr.strip().splitlines()) == 1 and str(path) in result.stderr
+
+
+def test_reading_aids_overlay_legend_event_filter_health_levels(full: tuple[Path, list[FrameResult]]) -> None:
+    """The overlays' colour legend beside the frame view, the events view's level filter (INFO and above: the
+    DEBUG re-detections hidden) and the health plot's named level lines, all read back from the file."""
+    from rerun.chunk import RrdReader
+
+    from vslam.recording.layout import EVENT_LEVELS
+    from vslam.recording.styles import HEALTH_LEVELS_ROOT, LEGEND_ENTITY
+
+    path, _ = full
+    legend = read_entity(path, LEGEND_ENTITY, static=True)["TextDocument:text"].to_list()[-1][0]
+    for line in ("green: inlier", "red: RANSAC outlier", "orange: rejected by forward–backward check",
+                 "yellow dots: new corners"):
+        assert line in legend
+    assert "road points" not in legend  # scale gt: no road overlay
+    levels = {name: read_entity(path, f"{HEALTH_LEVELS_ROOT}/{name}", static=True)["SeriesLines:names"].to_list()
+              for name in ("ok", "warn", "fail")}
+    assert levels == {"ok": [["0 = ok"]], "warn": [["1 = warn"]], "fail": [["2 = fail"]]}
+    reader = RrdReader(path)
+    filters = [chunk.to_record_batch().column("TextLogRows:filter_by_log_level").to_pylist()
+               for chunk in reader.stream(store=reader.blueprints()[0]).to_chunks()
+               if "TextLogRows:filter_by_log_level" in chunk.to_record_batch().schema.names]
+    assert filters == [[list(EVENT_LEVELS)]] and "DEBUG" not in EVENT_LEVELS
+    debug = [t[0] for t, level in zip(read_entity(path, "/events")["TextLog:text"].to_list(),
+                                       read_entity(path, "/events")["TextLog:level"].to_list(), strict=True)
+             if level[0] == "DEBUG"]
+    assert debug and all(": re-detected " in t for t in debug)  # still recorded, one click away

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import sys
 import uuid
+from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -21,10 +23,12 @@ from vslam.cli.common import (
     TOPIC_HELP,
     Backend,
     BadFrame,
+    Live,
     Scale,
     TrajectoryFormat,
     err,
     fail,
+    live_default,
     out,
     print_error,
     refuse,
@@ -32,11 +36,13 @@ from vslam.cli.common import (
 )
 from vslam.cli.entry import run as run_app
 from vslam.cli.eval import eval_command
+from vslam.compare import ROTATION_DEG as DIVERGE_DEG
+from vslam.compare import TRANSLATION_PCT as DIVERGE_PCT
 from vslam.recording import Detail, ImageCodec
 
 if TYPE_CHECKING:
+    from vslam.runs import RecordedRun, RunOutputs
     from vslam_core.config import EngineConfig
-    from vslam_core.pipeline import RunResult
     from vslam_core.sources.base import FrameRange, FrameSource
 
 # Each command imports what it needs when it runs: `vslam --help`, a usage error or a bad path answers
@@ -84,54 +90,6 @@ def _recording_id(source: FrameSource, frames: FrameRange, config: EngineConfig)
     return str(uuid.uuid5(uuid.NAMESPACE_URL, "vslam:" + key))
 
 
-def held_reasons(run: RunResult) -> str:
-    """``: stationary 299`` — why frames were held, most frequent first (empty when none was)."""
-    ranked = sorted(run.held_reasons.items(), key=lambda item: (-item[1], item[0]))
-    return (": " + ", ".join(f"{reason} {count}" for reason, count in ranked)) if ranked else ""
-
-
-def _summary(source: FrameSource, run: RunResult, config: EngineConfig, in_map: bool = False) -> None:
-    import numpy as np
-
-    from vslam.evaluation import scored_estimate
-    from vslam_core.scale import default_camera_height
-    from vslam_core.sources.base import ground_truth_matching
-    from vslam_core.sources.calibration import camera_line
-    from vslam_core.trajectory.metrics import kitti_errors, paper_rms_error, scale_errors
-
-    fps = run.frames / run.seconds if run.seconds > 0 else float("nan")
-    lines = [
-        f"frames      {run.frames} ({run.held_summary}" + held_reasons(run) + ")",
-        f"time        {run.seconds:.1f} s, {fps:.1f} frames/s",
-        f"backend     {config.backend}",
-        f"scale       {config.scale}"
-        + (f" (camera {default_camera_height(source.camera_height, config):.2f} m above the road; no ground truth "
-           "used)" if config.scale == "height" else ""),
-    ]
-    lines.append(f"camera      {camera_line(source.intrinsics)}")
-    gt = source.ground_truth
-    if in_map and gt is not None:  # poses in the prior map's frame, ground truth in this run's first frame's
-        lines.append("accuracy    not scored here: the poses are in the prior map's frame (see README, Saving a map)")
-        gt = None
-    if (matching := ground_truth_matching(source)) is not None:
-        lines.append(f"ground truth {matching}")
-    if gt is not None and run.frames > 1:
-        gt = gt[: run.frames]
-        if config.scale == "height":
-            median, _, path = scale_errors(gt, run.pose_array())
-            lines.append(f"step length {median:+.1f} % median error per frame, path length {path:+.1f} % vs ground "
-                         "truth")
-        scored = scored_estimate(gt, run.pose_array(), config.scale)  # --scale none: Sim(3)-aligned, as eval
-        aligned = config.scale == "none"
-        t_err, r_err = kitti_errors(gt, scored)
-        lines.append(f"KITTI       t_err {t_err:.2f} %   r_err {r_err:.2f} °/100 m"
-                     + ("   (path < 100 m: no segment)" if np.isnan(t_err) else "")
-                     + ("   (after Sim(3) alignment: --scale none has no metric scale)" if aligned else ""))
-        lines.append(f"paper RMS   {paper_rms_error(gt, scored):.2f} m (x–z, "
-                     + ("after Sim(3) alignment)" if aligned else "no alignment)"))
-    out.print("\n".join(lines), highlight=False)
-
-
 @app.command()
 def run(
     source: Annotated[str | None, typer.Argument(help="KITTI root or sequence folder, ROS bag / MCAP "
@@ -177,16 +135,21 @@ def run(
                                                   "the run (Parquet tables + header.json)")] = None,
     prior_map: Annotated[Path | None, typer.Option("--map", help="localise each frame in this saved map (poses in "
                                                    "the map's frame; the map is not changed)")] = None,
+    live: Annotated[Live | None, typer.Option(help="also show the run in a viewer while it goes on: native (a "
+                                              "display), web (served on 127.0.0.1 like 'open --web'; kept until "
+                                              "Ctrl-C), auto (= --live alone: native with a display, else web); "
+                                              "the .rrd is written as without it")] = None,
+    web_port: Annotated[int | None, typer.Option("--web-port", help="--live web: the web viewer (HTTP) port "
+                                                 "(default: a free one)")] = None,
+    grpc_port: Annotated[int | None, typer.Option("--grpc-port", help="--live: the viewer's gRPC port (default: "
+                                                  "a free one)")] = None,
 ) -> None:
     """Run the odometry on a source and write a Rerun recording (and optionally the trajectory)."""
     from vslam.recording import version_properties
     from vslam.runs import (
-        EXIT_NOTHING_TRACKED,
         backend_problem,
         claim_run_outputs,
-        describe_outputs,
         input_warnings,
-        nothing_tracked,
         output_problem,
         record_run,
         same_file_problem,
@@ -196,6 +159,10 @@ def run(
     from vslam_core.sources.base import FrameRange, describe_indices, ground_truth_matching
     from vslam_core.sources.open import open_source
 
+    if live is None and (web_port is not None or grpc_port is not None):
+        fail("--web-port and --grpc-port are the live viewer's ports: add --live web")
+    if live is not None and detail == Detail.OFF:
+        fail("--live shows the recording while it is written: it needs one (not --detail off)")
     frame_range = FrameRange.parse(frames)
     config = load_config(config_file) if config_file is not None else EngineConfig()
     src = open_source(source, sequence=sequence, frames=frame_range, intrinsics=intrinsics, calib=calib,
@@ -242,14 +209,28 @@ def run(
         **({"gt_matching": matching} if (matching := ground_truth_matching(src)) else {}),
         **version_properties(),
     }
-    try:
-        recorded = record_run(src, config, rrd, properties, err, detail, jpeg_quality, outputs.trajectory,
-                              image_codec, stored, map_saver(save_map, src, config) if save_map else None)
-    finally:
-        outputs.release()
+    with _live(live, rrd is not None, web_port, grpc_port) as live_url:
+        try:
+            recorded = record_run(src, config, rrd, properties, err, detail, jpeg_quality, outputs.trajectory,
+                                  image_codec, stored, map_saver(save_map, src, config) if save_map else None,
+                                  live_url)
+        finally:
+            outputs.release()
+        # with --live web: before the viewer waits for Ctrl-C
+        _report_run(src, recorded, config, outputs, prior_map is not None)
+
+
+def _report_run(src: FrameSource, recorded: RecordedRun, config: EngineConfig, outputs: RunOutputs,
+                in_map: bool = False) -> None:
+    """The run's summary (`in_map`: poses in a prior map's frame) and where its outputs are; exit non-zero
+    when it failed, was interrupted or tracked nothing."""
+    from vslam.runs import EXIT_NOTHING_TRACKED, describe_outputs, nothing_tracked
+
     result, interrupted = recorded.result, recorded.interrupted
     if recorded.failure is None:
-        _summary(src, result, config, in_map=prior_map is not None)
+        from vslam.cli.summary import print_summary
+
+        print_summary(src, result, config, in_map=in_map)
     if where := describe_outputs(outputs, recorded.failure is not None):
         out.print(where, highlight=False)
     if recorded.failure is not None:
@@ -260,6 +241,23 @@ def run(
              + (f" (last frame {last})" if last is not None else "") + "; outputs hold the frames processed",
              interrupted.code)
     refuse(nothing_tracked(result), EXIT_NOTHING_TRACKED)
+
+
+@contextlib.contextmanager
+def _live(live: Live | None, recording: bool, web_port: int | None, grpc_port: int | None) -> Iterator[str | None]:
+    """`vslam.viewer.live.live_viewer` for ``--live`` (its gRPC URL), else None; the ports only with --live."""
+    if live is None:
+        yield None
+        return
+    if not recording:
+        fail("--live shows the recording while it is written: it needs one (not --detail off)")
+    from vslam.viewer import live_viewer
+
+    def say(line: str) -> None:
+        out.print(line, highlight=False, markup=False)
+
+    with live_viewer(str(live), web_port, grpc_port, say) as view:
+        yield view.grpc_url
 
 
 def _existing_recording(path: Path) -> Path:
@@ -374,9 +372,15 @@ def compare(
     force: Annotated[bool, typer.Option("--force", help="replace an existing output")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="machine-readable output (keys in docs/recordings.md)")]
     = False,
+    diverge_deg: Annotated[float, typer.Option(min=0.0, help="first divergence: a frame whose step rotation "
+                                               "differs from the first run's by more than this (degrees)")]
+    = DIVERGE_DEG,
+    diverge_pct: Annotated[float, typer.Option(min=0.0, help="… or whose step translation differs by more than "
+                                               "this % of the first run's step")] = DIVERGE_PCT,
 ) -> None:
-    """Put two or more runs side by side in one recording (overlaid metric plots), print one summary row per
-    run and every difference from the first run."""
+    """Put two or more runs side by side in one recording (overlaid metric plots and per-frame differences),
+    print one summary row per run, every difference from the first run, and the first frame where each run
+    diverges from the first."""
     from vslam.compare import (
         PREFIXES,
         check_labels,
@@ -399,7 +403,8 @@ def compare(
     for recording in recordings:
         _existing_recording(recording)
     with claimed(_recording_path(output), force, "recording"):
-        result = compare_recordings(*recordings, output, labels=names)
+        result = compare_recordings(*recordings, output, labels=names, rotation_deg=diverge_deg,
+                                    translation_pct=diverge_pct)
     if as_json:
         print(json.dumps(json_ready(comparison_json(result)), indent=2, allow_nan=False))
     else:
@@ -442,6 +447,7 @@ def check(
 
 def main() -> None:
     """Entry point: every `VslamError` and usage error becomes one line on stderr and exit code 2."""
+    sys.argv[1:] = live_default(sys.argv[1:])
     run_app(app, print_error)
 
 

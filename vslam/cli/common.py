@@ -36,6 +36,32 @@ class Scale(StrEnum):
     height = "height"
 
 
+class Live(StrEnum):
+    """``vslam run --live``: where to show the run while it goes on (`vslam.viewer.live`)."""
+
+    auto = "auto"
+    native = "native"
+    web = "web"
+
+
+#: ``--live`` alone means this (`live_default`).
+LIVE_DEFAULT = "auto"
+
+
+def live_default(args: list[str]) -> list[str]:
+    """`args` of ``vslam run`` with ``--live`` given no value (last, or followed by another option or the
+    source) completed to ``--live auto``."""
+    if not args or args[0] != "run":
+        return args
+    done: list[str] = []
+    for i, arg in enumerate(args):
+        done.append(arg)
+        following = args[i + 1] if i + 1 < len(args) else None
+        if arg == "--live" and (following is None or following not in Live.__members__):
+            done.append(LIVE_DEFAULT)
+    return done
+
+
 class Backend(StrEnum):
     vo = "vo"
     map = "map"

@@ -8,16 +8,24 @@ from typing import TYPE_CHECKING, Any
 
 #: Where each public name lives.
 _HOMES = {
+    "FirstDivergence": "frames",
     "PREFIXES": "comparison",
+    "ROTATION_DEG": "limits",
+    "TRANSLATION_PCT": "limits",
     "check_labels": "comparison",
     "compare_recordings": "comparison",
     "comparison_json": "table",
     "default_labels": "comparison",
+    "first_divergence": "frames",
     "format_differences": "comparison",
+    "frame_differences": "frames",
+    "read_run_frames": "frames",
 }
 
 if TYPE_CHECKING:
     from vslam.compare.comparison import PREFIXES, check_labels, compare_recordings, default_labels, format_differences
+    from vslam.compare.frames import FirstDivergence, first_divergence, frame_differences, read_run_frames
+    from vslam.compare.limits import ROTATION_DEG, TRANSLATION_PCT
     from vslam.compare.table import comparison_json
 
 
@@ -28,10 +36,16 @@ def __getattr__(name: str) -> Any:
 
 
 __all__ = [
+    "FirstDivergence",
     "PREFIXES",
+    "ROTATION_DEG",
+    "TRANSLATION_PCT",
     "check_labels",
     "compare_recordings",
     "comparison_json",
     "default_labels",
+    "first_divergence",
     "format_differences",
+    "frame_differences",
+    "read_run_frames",
 ]

@@ -22,6 +22,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from vslam.compare.frames import DIFFERENCE_EVENTS, DIFFERENCE_ROOT, DIFFERENCE_SERIES, DIVERGENCE_MARKER
 from vslam.recording import CAR_ENTITY, DRIFT_ENTITY, EYE_OFFSET, LINKS_ENTITY, METRICS
 from vslam.rrd import read_entity
 
@@ -51,6 +52,11 @@ GROUP_TITLES = {
     "timing_ms": "timing (ms)",
 }
 _Override = rrb.VisibleTimeRanges | rr.LineStrips3D
+#: Titles of the per-frame difference plots (`vslam.compare.frames.DIFFERENCE_SERIES` kinds).
+DIFFERENCE_TITLES = {"rotation": "step rotation vs first run (°)", "translation": "step translation vs first "
+                     "run (% of step)", "position": "position vs first run (m, first frames aligned)"}
+#: Frames either side of the first divergence selected in the time panel.
+DIVERGENCE_WINDOW = 5
 
 
 def run_prefixes(count: int) -> tuple[str, ...]:
@@ -85,11 +91,15 @@ def plot_title(group: str) -> str:
 
 def blueprint(labels: tuple[str, ...] = ("A", "B"),
               bounds: tuple[np.ndarray, np.ndarray] | None = None,
-              groups: list[str] | None = None) -> rrb.Blueprint:
+              groups: list[str] | None = None, divergence_frame: int | None = None) -> rrb.Blueprint:
     """The comparison layout of ``len(labels)`` runs (see the module docstring). `bounds` (lowest and highest
     corner of the trajectories, `trajectory_bounds`) aims the shared 3-D view down on them. `groups`: the
     `METRICS` groups to plot (default all; `compare_recordings` leaves out groups no run logged, e.g. the
-    road scale of runs with ground-truth scale)."""
+    road scale of runs with ground-truth scale). First in the plots the per-frame differences of each further
+    run from the first (`vslam.compare.frames`); `divergence_frame` (the earliest first divergence) selects
+    the frames around it in the time panel and loops the playback over them (Rerun 0.41's blueprint cannot
+    place the time cursor itself; the 0.41 viewer was seen to play into the selection within ~4 s of opening,
+    then loop over it)."""
     prefixes = run_prefixes(len(labels))
     whole_past = rrb.VisibleTimeRanges([rr.VisibleTimeRange(
         "frame", start=rr.TimeRangeBoundary.infinite(), end=rr.TimeRangeBoundary.cursor_relative())])
@@ -106,7 +116,8 @@ def blueprint(labels: tuple[str, ...] = ("A", "B"),
                                                tracking_entity=f"/{prefix}{CAR_ENTITY}"),  # as `vslam run`'s
                 # overrides on a parent are not inherited: one per trajectory entity
                 overrides={f"{world}/trajectory/estimate": whole_past,
-                           f"{world}/trajectory/ground_truth": whole_past},
+                           f"{world}/trajectory/ground_truth": whole_past,
+                           f"/{prefix}{DRIFT_ENTITY}": whole_past},  # one segment per frame, like the estimate
             ),
             row_shares=[1, 1],
             name=label,
@@ -115,6 +126,8 @@ def blueprint(labels: tuple[str, ...] = ("A", "B"),
     plots = [rrb.TimeSeriesView(name=plot_title(group), origin="/",
                                 contents=[f"/{prefix}/metrics/{group}/**" for prefix in prefixes])
              for group in (groups if groups is not None else METRICS)]
+    if len(prefixes) > 1:
+        plots[:0] = difference_plots(prefixes[1:])
 
     # The whole past on every trajectory entity (not inherited from a parent); each run's estimate in its hue.
     # Radii in UI points (negative), so a 500 m trajectory stays visible, and thinner for later runs' lines.
@@ -138,7 +151,7 @@ def blueprint(labels: tuple[str, ...] = ("A", "B"),
     # every run's events in one log, ordered by frame; the entity path tells the runs apart (no level column:
     # the body needs the room, and its text says what happened)
     events = rrb.TextLogView(
-        name="events", origin="/", contents=[f"/{prefix}/events" for prefix in prefixes],
+        name="events", origin="/", contents=[DIFFERENCE_EVENTS, *(f"/{prefix}/events" for prefix in prefixes)],
         columns=rrb.archetypes.TextLogColumns(text_log_columns=[
             rrb.encodings.TextLogColumn(rrb.encodings.TextLogColumnKind.EntityPath),
             rrb.encodings.TextLogColumn(rrb.encodings.TextLogColumnKind.Body),
@@ -156,8 +169,31 @@ def blueprint(labels: tuple[str, ...] = ("A", "B"),
                            column_shares=[4, 1.4]),
             row_shares=[1, 1],
         ),
+        time_panel(divergence_frame),
         collapse_panels=True,
     )
+
+
+def difference_plots(prefixes: tuple[str, ...]) -> list[rrb.TimeSeriesView]:
+    """One plot per `DIFFERENCE_SERIES` kind over the further runs (``prefixes``: b, c, …); the divergence
+    markers go in the step-rotation plot."""
+    views = []
+    for name, _, kind in DIFFERENCE_SERIES:
+        contents = [f"{DIFFERENCE_ROOT}/{prefix}/{name}" for prefix in prefixes]
+        if kind == "rotation":
+            contents += [f"{DIFFERENCE_ROOT}/{prefix}/{DIVERGENCE_MARKER}" for prefix in prefixes]
+        views.append(rrb.TimeSeriesView(name=DIFFERENCE_TITLES[kind], origin=DIFFERENCE_ROOT, contents=contents))
+    return views
+
+
+def time_panel(divergence_frame: int | None) -> rrb.TimePanel:
+    """The `frame` timeline; at a divergence, `DIVERGENCE_WINDOW` frames either side of it selected and played
+    in a loop, so the recording opens on the frames where the runs part."""
+    if divergence_frame is None:
+        return rrb.TimePanel(timeline="frame", state="collapsed")
+    low, high = max(divergence_frame - DIVERGENCE_WINDOW, 0), divergence_frame + DIVERGENCE_WINDOW
+    return rrb.TimePanel(timeline="frame", time_selection=rrb.components.AbsoluteTimeRange(low, high),
+                         loop_mode="selection", play_state="playing", fps=4.0)
 
 
 def _top_down(bounds: tuple[np.ndarray, np.ndarray] | None) -> rrb.EyeControls3D:

@@ -48,10 +48,22 @@ from vslam.compare.blueprint import (
     PREFIXES,
     SERIES_WIDTHS,
     blueprint,
+    estimate_colour,
     plot_title,
     run_prefixes,
     run_style,
     trajectory_bounds,
+)
+from vslam.compare.frames import (
+    ROTATION_DEG,
+    TRANSLATION_PCT,
+    FirstDivergence,
+    FrameDifferences,
+    describe_divergence,
+    difference_chunks,
+    first_divergence,
+    frame_differences,
+    read_run_frames,
 )
 from vslam.compare.table import MetricDifference, format_differences, metric_differences, summary_markdown
 from vslam.recording import APPLICATION_ID, METRICS
@@ -91,6 +103,11 @@ class ComparisonResult:
     recording_name: str
     reports: tuple[dict[str, Any], ...]
     output_bytes: int
+    #: Per further run (B, C, …): its per-frame differences from the baseline and its first divergence.
+    frame_differences: tuple[FrameDifferences, ...] = ()
+    divergences: tuple[FirstDivergence | None, ...] = ()
+    #: The thresholds of a divergence: step rotation (°) and translation (% of the step).
+    thresholds: tuple[float, float] = (ROTATION_DEG, TRANSLATION_PCT)
 
     @property
     def prefixes(self) -> tuple[str, ...]:
@@ -127,10 +144,13 @@ def check_labels(labels: Sequence[str], count: int) -> str | None:
     return None
 
 
-def compare_recordings(*paths: Path, labels: Sequence[str] | None = None) -> ComparisonResult:
+def compare_recordings(*paths: Path, labels: Sequence[str] | None = None, rotation_deg: float = ROTATION_DEG,
+                       translation_pct: float = TRANSLATION_PCT) -> ComparisonResult:
     """``compare_recordings(a, b[, c…], output)``: write `output` holding run i under ``/<PREFIXES[i]>`` and one
-    blueprint showing them all (`labels`: one per run, default A, B, C…); return the runs' reports. Raises
-    `RecordingError` (one line naming the file)."""
+    blueprint showing them all (`labels`: one per run, default A, B, C…); return the runs' reports and, per
+    further run, its per-frame differences from the first and its first divergence (a step rotation above
+    `rotation_deg` degrees or translation above `translation_pct` % of the step: `vslam.compare.frames`).
+    Raises `RecordingError` (one line naming the file)."""
     if len(paths) < 3:
         raise RecordingError("compare: give two or more recordings and the output")
     *given, output = (Path(p) for p in paths)
@@ -145,6 +165,10 @@ def compare_recordings(*paths: Path, labels: Sequence[str] | None = None) -> Com
         if same_file(path, output):
             raise RecordingError(f"{output}: the output must not be one of the compared recordings")
     reports = tuple(inspect_recording(path) for path in inputs)
+    runs = [read_run_frames(path) for path in inputs]
+    differences = tuple(frame_differences(runs[0], run) for run in runs[1:])
+    divergences = tuple(first_divergence(runs[0], run, diff, rotation_deg, translation_pct)
+                        for run, diff in zip(runs[1:], differences, strict=True))
 
     stores = [store for _, store in opened]
     application_id = comparison_application_id([store.application_id for store in stores])
@@ -167,13 +191,20 @@ def compare_recordings(*paths: Path, labels: Sequence[str] | None = None) -> Com
             logged |= rewrite.logged
         extra = work / "properties.rrd"
         summary = summary_markdown(name, inputs=inputs, labels=names, reports=reports)
-        _write(LazyChunkStream.from_iter(_comparison_properties(name, inputs, names, stores, summary)), extra, output,
-               output, application_id, recording_id)
+        marks = [chunk for index, (diff, divergence) in enumerate(zip(differences, divergences, strict=True), 1)
+                 for chunk in difference_chunks(
+                     PREFIXES[index], names[0], names[index], estimate_colour(index)[1] or (255, 80, 80), diff,
+                     divergence, describe_divergence(names[0], names[index], divergence, rotation_deg,
+                                                     translation_pct))]
+        _write(LazyChunkStream.from_iter([*_comparison_properties(name, inputs, names, stores, summary), *marks]),
+               extra, output, output, application_id, recording_id)
 
         layout = work / "blueprint.rrd"
         with rr.RecordingStream(application_id, recording_id=recording_id, send_properties=False) as rec:
             groups = [g for g in METRICS if any(path.startswith(f"/metrics/{g}/") for path in logged)]
-            rec.save(layout, default_blueprint=blueprint(names, trajectory_bounds(list(inputs)), groups))
+            first = min((d.frame for d in divergences if d is not None), default=None)
+            rec.save(layout, default_blueprint=blueprint(names, trajectory_bounds(list(inputs)), groups,
+                                                         divergence_frame=first))
         combined = work / "combined.rrd"
         run_rerun_cli(output, "rrd", "filter", "-o", str(combined), str(layout), *map(str, parts), str(extra))
         check = RrdReader(combined)
@@ -188,7 +219,8 @@ def compare_recordings(*paths: Path, labels: Sequence[str] | None = None) -> Com
         shutil.rmtree(work, ignore_errors=True)
 
     return ComparisonResult(output=output, inputs=inputs, labels=names, recording_name=name, reports=reports,
-                            output_bytes=output.stat().st_size)
+                            output_bytes=output.stat().st_size, frame_differences=differences,
+                            divergences=divergences, thresholds=(rotation_deg, translation_pct))
 
 
 def comparison_name(labels: Sequence[str], names: Sequence[str]) -> str:

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from vslam.compare.blueprint import run_prefixes
+from vslam.compare.frames import FirstDivergence, describe_divergence
 from vslam.recording import STAGES
 from vslam.rrd import run_differences
 
@@ -63,6 +64,10 @@ class Compared(Protocol):
     def labels(self) -> tuple[str, ...]: ...
     @property
     def reports(self) -> tuple[dict[str, Any], ...]: ...
+    @property
+    def divergences(self) -> tuple[FirstDivergence | None, ...]: ...
+    @property
+    def thresholds(self) -> tuple[float, float]: ...
 
 
 # ------------------------------------------------------------------------------------------ summary
@@ -157,6 +162,9 @@ def format_differences(result: Compared) -> str:
     for label, path, report in zip(labels, result.inputs, reports, strict=True):
         lines.append(f"{label:<11} {path}: {report['recording_name']}")
     lines += ["", *format_summary(result), ""]
+    for label, divergence in zip(labels[1:], result.divergences, strict=True):
+        lines += describe_divergence(base, label, divergence, *result.thresholds)
+    lines.append("")
     for label, report in zip(labels[1:], reports[1:], strict=True):
         # how the runs were made: properties and config, baseline → run (two runs: as before, unlabelled)
         made = run_differences(reports[0], report)
@@ -214,5 +222,11 @@ def comparison_json(result: Compared) -> dict[str, Any]:
     versus = {label: {d.name: {"baseline": d.a, "value": d.b, "difference": d.difference, "percent": d.percent}
                       for d in metric_differences(result.reports[0], report).values()}
               for label, report in zip(result.labels[1:], result.reports[1:], strict=True)}
+    divergence = {label: d.as_json() if d is not None else None
+                  for label, d in zip(result.labels[1:], result.divergences, strict=True)}
+    rotation_deg, translation_pct = result.thresholds
     return {"output": str(result.output), "bytes": result.output_bytes, "recording_name": result.recording_name,
-            "baseline": result.labels[0], "runs": runs, "differences": versus}
+            "baseline": result.labels[0], "runs": runs, "differences": versus,
+            # the second run against the first; `first_divergences` has every further run's
+            "first_divergence": divergence[result.labels[1]], "first_divergences": divergence,
+            "divergence_thresholds": {"rotation_deg": rotation_deg, "translation_pct": translation_pct}}

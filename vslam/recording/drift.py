@@ -7,7 +7,8 @@ after Sim(3) alignment onto the ground truth (as every other error of such a run
 
 When the run ends (`DriftRecording.finish`):
 
-    /world/trajectory/drift      static: the estimate, one segment per frame coloured by that frame's
+    /world/trajectory/drift      the estimate, one segment per frame (on the `frame` timeline, logged at the
+                                 end: the 3-D view shows the past only) coloured by that frame's
                                  translation error in % of its step (`DRIFT_SCALE_PCT`: green 0 %, yellow,
                                  red at 5 % and more; grey where the car stood still); ``frame_index``, % and ° on
                                  hover (not ``frame``: no component shares a timeline's name);
@@ -43,6 +44,9 @@ LINK_EVERY = 10
 #: `DRIFT_ENTITY` is drawn this far above the estimate (metres, −y of the world's RDF): the viewer draws lines
 #: as flat ribbons, and two at one depth flicker into each other (z-fighting).
 DRIFT_LIFT_M = 0.3
+#: Half-width (metres) of the `DRIFT_ENTITY` ribbon: thin enough that the estimate and ground-truth lines
+#: beside it stay visible in the 3-D view.
+DRIFT_RADIUS_M = 0.06
 #: How many worst frames become events (per ranking) and `vslam inspect` lists.
 WORST = 10
 
@@ -111,10 +115,15 @@ class DriftRecording:
             self._send_series(rec, errors)
         indices = np.array([f.index for f in self.frames])
         strips = np.stack([estimate[:-1], estimate[1:]], axis=1)
-        rec.log(DRIFT_ENTITY, rr.Transform3D(translation=[0.0, -DRIFT_LIFT_M, 0.0]), static=True)
-        rec.log(DRIFT_ENTITY, rr.LineStrips3D(strips, colors=drift_colours(errors.translation_pct[1:]), radii=0.3),
-                rr.AnyValues(frame_index=indices[1:], translation_pct=np.nan_to_num(errors.translation_pct[1:]),
-                             rotation_deg=errors.rotation_deg[1:]), static=True)
+        rec.log(DRIFT_ENTITY, rr.Transform3D(translation=[0.0, -DRIFT_LIFT_M, 0.0]),
+                rr.LineStrips3D.from_fields(radii=DRIFT_RADIUS_M), static=True)
+        # one segment per frame on the `frame` timeline, so the 3-D view shows the past only (as the estimate)
+        rec.send_columns(DRIFT_ENTITY, indexes=[rr.TimeColumn("frame", sequence=indices[1:])],
+                         columns=[*rr.LineStrips3D.columns(strips=list(strips),
+                                                           colors=drift_colours(errors.translation_pct[1:])),
+                                  *rr.AnyValues.columns(frame_index=indices[1:],
+                                                        translation_pct=np.nan_to_num(errors.translation_pct[1:]),
+                                                        rotation_deg=errors.rotation_deg[1:])])
         linked = np.arange(0, n, LINK_EVERY)
         rec.log(LINKS_ENTITY, rr.LineStrips3D(np.stack([estimate[linked], gt[linked, :3, 3]], axis=1),
                                               colors=LINK_COLOUR, radii=0.04),

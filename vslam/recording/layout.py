@@ -5,7 +5,9 @@ from __future__ import annotations
 import rerun as rr
 import rerun.blueprint as rrb
 
+from vslam.recording.drift import DRIFT_ENTITY
 from vslam.recording.metrics import BA_ERROR_SERIES, MAP_METRICS
+from vslam.recording.styles import HEALTH_LEVELS_ROOT, LEGEND_ENTITY
 
 #: Entities of the map backend that keep their whole past in the 3-D view (logged once each, they accumulate).
 MAP_WHOLE_PAST = ("/world/map/keyframes/retired", "/world/map/landmarks/retired")
@@ -17,6 +19,8 @@ EYE_OFFSET = (0.0, -15.0, -20.0)
 #: A distorted lens at detail full: the frame undistorted to the pinhole K, in a 2-D view of its own.
 UNDISTORTED = "/world/camera/undistorted"
 #: The drift series in two plots (units that fit together).
+#: The levels the events view shows at first: INFO and above.
+EVENT_LEVELS = ("INFO", "WARN", "ERROR", "CRITICAL")
 DRIFT_PLOTS = (("drift per frame (°, m)", ("rotation_deg", "translation_m")),
                ("drift per frame (% of step, scale ratio)", ("translation_pct", "scale_ratio")))
 
@@ -36,8 +40,9 @@ def blueprint(map_backend: bool = False, *, image: bool = True, road_scale: bool
     left: list[rrb.Spatial2DView | rrb.Spatial3DView | rrb.Horizontal] = [world_view(map_backend, frustum)]
     if image:
         frame = rrb.Spatial2DView(name="frame", origin="/world/camera/image")
-        left.insert(0, rrb.Horizontal(frame, rrb.Spatial2DView(name="undistorted", origin=UNDISTORTED))
-                    if undistorted else frame)
+        legend = rrb.TextDocumentView(name="overlays", origin=LEGEND_ENTITY)
+        views = [frame, *([rrb.Spatial2DView(name="undistorted", origin=UNDISTORTED)] if undistorted else [])]
+        left.insert(0, rrb.Horizontal(*views, legend, column_shares=[*([3] * len(views)), 1]))
     plots = _plots(road_scale, ground_truth, engine) + (_map_plots() if map_backend else [])
     if own_series:
         plots.append(rrb.TimeSeriesView(name="pipeline series", origin="/metrics/custom"))
@@ -61,7 +66,7 @@ def world_view(map_backend: bool, frustum: bool = True) -> rrb.Spatial3DView:
     whole_past = rr.VisibleTimeRange(
         "frame", start=rr.TimeRangeBoundary.infinite(), end=rr.TimeRangeBoundary.cursor_relative()
     )
-    entities = ["/world/trajectory/estimate", "/world/trajectory/ground_truth",
+    entities = ["/world/trajectory/estimate", "/world/trajectory/ground_truth", DRIFT_ENTITY,
                 *(MAP_WHOLE_PAST if map_backend else ())]
     return rrb.Spatial3DView(
         name="world",
@@ -76,10 +81,11 @@ def world_view(map_backend: bool, frustum: bool = True) -> rrb.Spatial3DView:
 
 
 def events_view() -> rrb.TextLogView:
-    """The `/events` log: frame, level and the whole message (no entity-path column: it is always /events)."""
+    """The `/events` log: frame, level and the whole message (no entity-path column: it is always /events);
+    `EVENT_LEVELS` shown (the DEBUG "re-detected" lines are one click away, in the view's level filter)."""
     kind = rrb.encodings.TextLogColumnKind
     return rrb.TextLogView(
-        name="events", origin="/events",
+        name="events", origin="/events", rows=rrb.archetypes.TextLogRows(filter_by_log_level=list(EVENT_LEVELS)),
         columns=rrb.archetypes.TextLogColumns(text_log_columns=[
             rrb.encodings.TextLogColumn(kind.LogLevel),
             rrb.encodings.TextLogColumn(kind.Body),
@@ -96,13 +102,21 @@ def _plots(road_scale: bool, ground_truth: bool, engine: bool = True) -> list[rr
         plots += [("position error (m)", "error"), ("angle errors (°)", "angle_error")]
     if engine:
         plots.append(("timing (ms)", "timing_ms"))
-    views = [rrb.TimeSeriesView(name=name, origin=f"/metrics/{group}") for name, group in plots]
+    views = [rrb.TimeSeriesView(name=name, origin=f"/metrics/{group}") if group != "health" else health_view()
+             for name, group in plots]
     if ground_truth:  # each frame's own error (drift attribution): degrees and metres | % and ratio
         at = len(views) - 1 if engine else len(views)  # before the timing plot
         views[at:at] = [
             rrb.TimeSeriesView(name=name, origin="/metrics/drift", contents=[f"/metrics/drift/{s}" for s in series])
             for name, series in DRIFT_PLOTS]
     return views
+
+
+def health_view() -> rrb.TimeSeriesView:
+    """The health status (0 ok, 1 warn, 2 fail) with a thin named line at each level, on a fixed 0..2 axis."""
+    return rrb.TimeSeriesView(name="health", origin="/metrics",
+                              contents=["/metrics/health/**", f"{HEALTH_LEVELS_ROOT}/**"],
+                              axis_y=rrb.ScalarAxis(range=(-0.2, 2.2), zoom_lock=True))
 
 
 def _map_plots() -> list[rrb.TimeSeriesView]:

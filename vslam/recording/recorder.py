@@ -26,9 +26,13 @@ from vslam.recording.styles import (
     CANDIDATE_COLOURS,
     ESTIMATE_COLOUR,
     FATE_STYLE,
+    HEALTH_LEVEL_LINES,
+    HEALTH_LEVELS_ROOT,
+    LEGEND_ENTITY,
     NEW_CORNER_COLOUR,
     ROAD_COLOUR,
     Detail,
+    overlay_legend,
 )
 from vslam.recording.video import ImageCodec, VideoEntity
 from vslam.rrd import RecordingError, flatten, has_footer
@@ -62,6 +66,7 @@ class Recorder:
         jpeg_quality: int = 75,
         image_codec: ImageCodec = ImageCodec.JPEG,
         external: bool = False,
+        live_url: str | None = None,
     ) -> None:
         """`external`: the frames come from another pipeline through the logging API (`vslam.log`), not from
         vslam's engine: no engine config is stated, and its own series (``/metrics/custom/*``) get a plot."""
@@ -89,7 +94,8 @@ class Recorder:
         layout = blueprint(map_backend=config.backend == "map", image=detail in (Detail.FULL, Detail.STANDARD),
                            road_scale=config.scale == "height", ground_truth=source.ground_truth is not None,
                            undistorted=undistorted, own_series=external)
-        self._rec = open_stream(path, properties.get("recording_id"), layout, properties.get("name", source.name))
+        self._rec = open_stream(path, properties.get("recording_id"), layout, properties.get("name", source.name),
+                                live_url)
         self._columns = ColumnBuffer(self._rec)
         self._properties = {**properties, **describe_calibration(source.intrinsics), **source_properties(source),
                             "detail": str(detail), "schema_version": str(SCHEMA_VERSION)}
@@ -166,8 +172,19 @@ class Recorder:
                     lines += ["", *self._drift.finish(self._rec, self._columns, aligned)]
             self._rec.log("/report", rr.TextDocument("\n".join(lines), media_type=rr.MediaType.MARKDOWN),
                           static=True)
+            self._log_health_levels(run)
         finally:
             self.close()
+
+    def _log_health_levels(self, run: RunResult) -> None:
+        """The health plot's levels by name: a constant line at 0 (ok), 1 (warn) and 2 (fail) from the first
+        to the last frame (`HEALTH_LEVEL_LINES`)."""
+        if not run.indices:
+            return
+        ends = [int(run.indices[0]), int(run.indices[-1])]
+        for name, _, value, _ in HEALTH_LEVEL_LINES:
+            self._rec.send_columns(f"{HEALTH_LEVELS_ROOT}/{name}", indexes=[rr.TimeColumn("frame", sequence=ends)],
+                                   columns=rr.Scalars.columns(scalars=[value, value]))
 
     def _log_aligned(self, run: RunResult) -> np.ndarray:
         """--scale none: the per-frame position error (not logged while running: unit steps against metres)
@@ -209,6 +226,12 @@ class Recorder:
         )
         rec.log("/world/camera/image/corners", rr.Points2D.from_fields(radii=2.0, colors=NEW_CORNER_COLOUR),
                 static=True)
+        if self.detail in (Detail.FULL, Detail.STANDARD):
+            rec.log(LEGEND_ENTITY, rr.TextDocument(overlay_legend(road=self._scale == "height"),
+                                                   media_type=rr.MediaType.MARKDOWN), static=True)
+        for name, legend, _, colour in HEALTH_LEVEL_LINES:
+            rec.log(f"{HEALTH_LEVELS_ROOT}/{name}", rr.SeriesLines(names=legend, colors=colour, widths=0.5),
+                    static=True)
         rec.log("/world/points", rr.Points3D.from_fields(radii=0.05, colors=(200, 200, 200)), static=True)
         rec.log("/world/road/points", rr.Points3D.from_fields(radii=0.07, colors=ROAD_COLOUR), static=True)
         rec.log("/world/road/plane", rr.LineStrips3D.from_fields(radii=0.03, colors=ROAD_COLOUR), static=True)

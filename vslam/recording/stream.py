@@ -21,8 +21,10 @@ WRITE_TIMEOUT_S = 120.0
 FLUSH_STEP_S = 1.0
 
 
-def open_stream(path: Path, recording_id: str | None, layout: rrb.Blueprint, name: str) -> rr.RecordingStream:
-    """A stream writing to `path` with the default blueprint `layout` and the recording's `name`.
+def open_stream(path: Path, recording_id: str | None, layout: rrb.Blueprint, name: str,
+                live_url: str | None = None) -> rr.RecordingStream:
+    """A stream writing to `path` with the default blueprint `layout` and the recording's `name`; with
+    `live_url` (``rerun+http://…/proxy``, `vslam.viewer.live`) also streaming to that viewer (a second sink).
 
     Reproducible: no wall-clock start time (``send_properties=False``) and no log-time column, so two runs
     of the same input compare equal. Fewer, larger chunks than Rerun's default (0.2 s / 2 MiB): each chunk
@@ -31,7 +33,10 @@ def open_stream(path: Path, recording_id: str | None, layout: rrb.Blueprint, nam
     rec = rr.RecordingStream(APPLICATION_ID, recording_id=recording_id, send_properties=False,
                              batcher_config=batcher)
     rec.set_log_time_enabled(False)
-    rec.save(path, default_blueprint=layout)
+    if live_url is None:
+        rec.save(path, default_blueprint=layout)
+    else:
+        rec.set_sinks(rr.FileSink(path), rr.GrpcSink(live_url), default_blueprint=layout)
     rec.send_recording_name(name)
     return rec
 
@@ -44,7 +49,8 @@ def log_world(rec: rr.RecordingStream, camera: CameraIntrinsics | None) -> None:
     if camera is not None:
         rec.log("/world/camera/image", pinhole(camera), static=True)
     # metres, camera frame: 1.6 m wide, roof to road under a camera 1.65 m up, 0.5 m of bonnet ahead of it
-    rec.log(CAR_ENTITY, rr.Boxes3D(centers=[[0.0, 0.75, -1.5]], half_sizes=[[0.8, 0.9, 2.0]], colors=[CAR_COLOUR]),
+    rec.log(CAR_ENTITY, rr.Boxes3D(centers=[[0.0, 0.75, -1.5]], half_sizes=[[0.8, 0.9, 2.0]], colors=[CAR_COLOUR],
+                                 radii=[0.02]),  # thin edges: the car must not hide the lines around it
             static=True)
     rec.log("/world/trajectory/estimate", rr.LineStrips3D.from_fields(colors=ESTIMATE_COLOUR, radii=0.12), static=True)
     rec.log("/world/trajectory/ground_truth", rr.LineStrips3D.from_fields(colors=GROUND_TRUTH_COLOUR, radii=0.06),

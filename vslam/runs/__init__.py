@@ -10,15 +10,13 @@ from typing import TYPE_CHECKING, Any
 
 #: Where each public name lives.
 _HOMES = {
-    "format_map_summary": "map_files",
-    "map_saver": "map_files",
-    "map_summary": "map_files",
-    "save_map_problem": "map_files",
     "ClaimedFile": "outputs",
     "EXIT_NOTHING_TRACKED": "checks",
-    "TrajectoryWriter": "trajectory_out",
     "Interrupted": "runner",
     "OutputError": "outputs",
+    "RecordedRun": "runner",
+    "RunOutputs": "runner",
+    "TrajectoryWriter": "trajectory_out",
     "backend_problem": "checks",
     "camera_height_problem": "checks",
     "claim": "outputs",
@@ -26,14 +24,18 @@ _HOMES = {
     "claimed": "outputs",
     "describe_outputs": "runner",
     "eta": "progress",
+    "format_map_summary": "map_files",
     "hold_stuck_writer": "outputs",
     "input_warnings": "checks",
     "likely_errno": "outputs",
     "lock_folder": "outputs",
+    "map_saver": "map_files",
+    "map_summary": "map_files",
     "nothing_tracked": "checks",
     "output_problem": "checks",
     "record_run": "runner",
     "same_file_problem": "checks",
+    "save_map_problem": "map_files",
     "stuck_writers": "outputs",
     "with_camera_height": "checks",
     "write_failure": "outputs",
@@ -63,7 +65,7 @@ if TYPE_CHECKING:
         write_failure,
     )
     from vslam.runs.progress import eta
-    from vslam.runs.runner import Interrupted, claim_run_outputs, describe_outputs, record_run
+    from vslam.runs.runner import Interrupted, RecordedRun, RunOutputs, claim_run_outputs, describe_outputs, record_run
     from vslam.runs.trajectory_out import TrajectoryWriter
 
 
@@ -78,6 +80,8 @@ __all__ = [
     "EXIT_NOTHING_TRACKED",
     "Interrupted",
     "OutputError",
+    "RecordedRun",
+    "RunOutputs",
     "TrajectoryWriter",
     "backend_problem",
     "camera_height_problem",
@@ -96,8 +100,8 @@ __all__ = [
     "nothing_tracked",
     "output_problem",
     "record_run",
-    "save_map_problem",
     "same_file_problem",
+    "save_map_problem",
     "stuck_writers",
     "with_camera_height",
     "write_failure",

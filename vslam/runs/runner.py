@@ -152,16 +152,18 @@ def record_run(
     image_codec: ImageCodec = ImageCodec.JPEG,
     prior_map: StoredMap | None = None,
     finish: Callable[[Engine], None] | None = None,
+    live_url: str | None = None,
 ) -> RecordedRun:
     """Run the engine over `source`, recording to `rrd` (None: no recording) and writing each frame's pose
     to `trajectory` as it goes. Ctrl-C, SIGTERM, bad input (a `VslamError` from the source) and a write
     error (full disk: `OutputError`) stop the run cleanly: the outputs keep what was written, the recording
     is finalised where the disk allows, and the frames processed so far are returned with what stopped
-    them."""
+    them. `live_url`: also stream the recording to that viewer (`vslam.viewer.live`)."""
     result = RunResult([], [], [])
     interrupted: Interrupted | None = None
     failure: VslamError | None = None
-    recorder = Recorder(rrd, source, config, properties, detail, jpeg_quality, image_codec) if rrd is not None else None
+    recorder = (Recorder(rrd, source, config, properties, detail, jpeg_quality, image_codec, live_url=live_url)
+                if rrd is not None else None)
     if recorder is not None and prior_map is not None:
         log_prior_map(recorder, prior_map)
     with progress(console, source.name, len(source)) as step, _signals_stop_between_frames() as stop:

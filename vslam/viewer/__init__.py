@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 #: Where each public name lives.
 _HOMES = {
+    "live_viewer": "live",
     "open_recording": "web",
     "parse_frame": "headless",
     "parse_size": "headless",
@@ -18,6 +19,7 @@ _HOMES = {
 
 if TYPE_CHECKING:
     from vslam.viewer.headless import parse_frame, parse_size, snapshot
+    from vslam.viewer.live import live_viewer
     from vslam.viewer.web import open_recording, port_problem
 
 
@@ -28,6 +30,7 @@ def __getattr__(name: str) -> Any:
 
 
 __all__ = [
+    "live_viewer",
     "open_recording",
     "parse_frame",
     "parse_size",
