@@ -70,6 +70,8 @@ class _FrameFilter:
         self.end = end
         self.replacements = replacements or {}  # static chunks to swap, by entity path (the run properties)
         self.replaced = set(self.replacements)
+        #: a vslam recording (it has run properties): the frames it holds are those with a camera pose
+        self.of_a_run = bool(self.replacements)
         self.kept: set[int] = set()
         self.posed: set[int] = set()  # kept frames with a camera pose (``/world/camera``, ``/a/world/camera``…)
         self.lowest: int | None = None
@@ -175,8 +177,9 @@ def crop_recording(source: Path, frames: tuple[int, int | None], output: Path, m
     finally:
         shutil.rmtree(work, ignore_errors=True)
     stopped = read_properties(output, f"{PROPERTIES}/run").get("stopped")
-    return CropSummary(output=output, first_frame=min(keep.posed, default=None),
-                       last_frame=max(keep.posed, default=None), frame_count=len(keep.posed),
+    held = keep.posed if keep.of_a_run else keep.kept  # another recording: every frame it has data at
+    return CropSummary(output=output, first_frame=min(held, default=None),
+                       last_frame=max(held, default=None), frame_count=len(held),
                        input_bytes=source.stat().st_size, output_bytes=output.stat().st_size,
                        stopped=None if stopped is None else str(stopped))
 
