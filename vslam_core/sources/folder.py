@@ -124,6 +124,7 @@ class ImageFolderSource(ImageFilesSource):
         self.folder = Path(path)
         listing = list_frame_files(self.folder)
         self._files = listing.files
+        #: what the user should hear about this folder (files skipped, a calibration found by searching)
         self.notes = [note] if (note := listing.skipped_note(self.folder)) else []
         self._indices = select(frames, len(self._files), self.folder)
         self._size, self._shift = first_image(self._files, self._indices, on_bad_frame, self.folder)
@@ -131,8 +132,6 @@ class ImageFolderSource(ImageFilesSource):
 
         if intrinsics is not None and calib is not None:
             raise SourceError(f"{self.folder}: give either intrinsics or a calib file, not both")
-        #: what the user should hear about this folder (e.g. a calibration found by searching)
-        self.notes: list[str] = []
         if intrinsics is None:
             calib_file = Path(calib) if calib is not None else _beside(self.folder, "calib.txt")
             if calib_file is None:
