@@ -149,7 +149,7 @@ def run_odometry(
             coasted = Reason.COASTED in reasons
             run.coasted += frame_result.status == FrameStatus.HELD and coasted
             run.tracked += frame_result.status == FrameStatus.OK or coasted
-            if frame_result.status == FrameStatus.HELD and reasons:
+            if frame_result.status == FrameStatus.HELD and reasons and not coasted:  # why the pose was held
                 run.held_reasons[reasons[0]] = run.held_reasons.get(reasons[0], 0) + 1
             for sink in sinks:
                 sink(frame, frame_result)
