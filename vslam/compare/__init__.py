@@ -3,8 +3,9 @@
 The names other packages use are importable from here, loaded on first use (PEP 562).
 """
 
-from importlib import import_module
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from vslam_core.lazy import lazy_names
 
 #: Where each public name lives.
 _HOMES = {
@@ -29,10 +30,7 @@ if TYPE_CHECKING:
     from vslam.compare.table import comparison_json
 
 
-def __getattr__(name: str) -> Any:
-    if name not in _HOMES:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    return getattr(import_module(f"{__name__}.{_HOMES[name]}"), name)
+__getattr__ = lazy_names(__name__, _HOMES)
 
 
 __all__ = [

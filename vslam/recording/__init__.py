@@ -42,8 +42,9 @@ system's trajectory file as a recording of the same entities, for `vslam eval --
 frames are written by the same `Recorder` through the logging API, `vslam.log`.
 """
 
-from importlib import import_module
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from vslam_core.lazy import lazy_names
 
 #: Where each name lives: imported on first use (PEP 562), so `from vslam.recording import Detail` in the CLI
 #: does not load the recorder, its video encoder and the map entities.
@@ -94,10 +95,7 @@ if TYPE_CHECKING:
     from vslam.recording.video import RERUN_CODEC, VIDEO_SETTINGS, open_encoder
 
 
-def __getattr__(name: str) -> Any:
-    if name not in _HOMES:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    return getattr(import_module(f"{__name__}.{_HOMES[name]}"), name)
+__getattr__ = lazy_names(__name__, _HOMES)
 
 __all__ = [
     "APPLICATION_ID",

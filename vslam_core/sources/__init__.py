@@ -5,8 +5,9 @@ Every source implements `FrameSource` (see base.py): name, intrinsics, ground_tr
 (e.g. `vslam_core.sources.stamps`) does not load OpenCV and every other reader.
 """
 
-from importlib import import_module
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from vslam_core.lazy import lazy_names
 
 _HOMES = {
     "CameraIntrinsics": "base", "Frame": "base", "FrameRange": "base", "FrameSource": "base", "rebase_poses": "base",
@@ -36,7 +37,4 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str) -> Any:
-    if name not in _HOMES:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    return getattr(import_module(f"{__name__}.{_HOMES[name]}"), name)
+__getattr__ = lazy_names(__name__, _HOMES)
