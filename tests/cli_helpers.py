@@ -1,11 +1,13 @@
 """Running the `vslam` CLI of this checkout from the tests.
 
-- `vslam(...)`: ``python -m vslam.cli …`` in its own process (its own session: a time-out kills it and
-  everything it started, the viewer or batch workers included). For whatever runs the engine, writes files,
-  starts processes or handles signals.
-- `vslam_here(...)`: the same entry point (`vslam.cli.main`: Typer, the one-line errors, the exit codes) in
-  this process, for input refused before any work starts; it saves the ~0.8 s a new process spends
-  importing, over ~100 such calls in the suite.
+- `vslam(...)`: the CLI's entry point (`vslam.cli.main`: Typer, the one-line errors, the exit codes) in this
+  process, with stdout and stderr captured, the environment and working folder set for the call and put back
+  after it. A new process spends ~1 s importing rerun, polars and OpenCV; over ~200 calls that was a third
+  of the suite's time.
+- `vslam(..., process=True)`: ``python -m vslam.cli …`` in its own process (its own session: a time-out kills
+  it and everything it started, the viewer or batch workers included). For what only a process shows:
+  signals, exit handlers, output written by native code to the file descriptors, a killed or stuck writer.
+- `vslam_here(...)`: the in-process call, kept as a name for input refused before any work starts.
 """
 
 from __future__ import annotations
@@ -24,10 +26,13 @@ from vslam.cli import main as cli_main
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def vslam(*args: str | Path, cwd: Path | None = None, env: dict[str, str] | None = None, timeout: float = 600,
-          **popen: Any) -> subprocess.CompletedProcess[str]:
+def vslam(*args: str | Path, cwd: Path | None = None, env: dict[str, str] | None = None, process: bool = False,
+          timeout: float = 600, **popen: Any) -> subprocess.CompletedProcess[str]:
     """Run ``vslam ARGS`` (this checkout's, not an installed one) with `env` added to the environment
-    (RAY_ADDRESS of the caller's environment left out); capture stdout and stderr as text."""
+    (RAY_ADDRESS of the caller's environment left out); capture stdout and stderr as text. In this process
+    unless `process` (or any `popen` argument) asks for a process of its own."""
+    if not process and not popen:
+        return _in_process(args, cwd, {**(env or {}), "RAY_ADDRESS": None})
     environment = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
     environment["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), environment.get("PYTHONPATH")]))
     command = [sys.executable, "-m", "vslam.cli", *map(str, args)]
@@ -44,13 +49,18 @@ def vslam(*args: str | Path, cwd: Path | None = None, env: dict[str, str] | None
 
 
 def vslam_here(*args: str | Path, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
-    """Run ``vslam ARGS`` in this process through the CLI's own entry point; only for input the CLI refuses
-    before it starts any work (no engine, no recording, no threads, no signal handlers)."""
+    """Run ``vslam ARGS`` in this process through the CLI's own entry point."""
+    return _in_process(args, cwd, {})
+
+
+def _in_process(args: tuple[str | Path, ...], cwd: Path | None,
+                env: dict[str, str | None]) -> subprocess.CompletedProcess[str]:
     argv = ["vslam", *map(str, args)]
     stdout, stderr = io.StringIO(), io.StringIO()
     code: int = 0
-    saved_argv = sys.argv
+    saved_argv, saved_env = sys.argv, {name: os.environ.get(name) for name in env}
     sys.argv = argv
+    _set_environment(env)
     try:
         with contextlib.chdir(cwd or ROOT), contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
             cli_main()
@@ -58,4 +68,13 @@ def vslam_here(*args: str | Path, cwd: Path | None = None) -> subprocess.Complet
         code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
     finally:
         sys.argv = saved_argv
+        _set_environment(saved_env)
     return subprocess.CompletedProcess(argv, code, stdout.getvalue(), stderr.getvalue())
+
+
+def _set_environment(values: dict[str, str | None]) -> None:
+    for name, value in values.items():
+        if value is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = value

@@ -31,8 +31,10 @@ source that renders a frame from them.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Iterator
-from typing import Literal
+from dataclasses import dataclass
+from typing import Any, Literal
 
 import cv2
 import numpy as np
@@ -47,7 +49,7 @@ from vslam_core.sources.synthetic.raster import (
     surface_coords,
     surface_homography,
 )
-from vslam_core.sources.synthetic.road import START_S, camera_path, make_centreline, make_loop_centreline
+from vslam_core.sources.synthetic.road import START_S, Centreline, camera_path, make_centreline, make_loop_centreline
 from vslam_core.sources.synthetic.scene import COARSE_RES, build_street, ground_layout
 from vslam_core.sources.synthetic.textures import FINE_TILE, PANO_ELEV_MAX, ground_fine_tile, mip_pyramid, panorama
 
@@ -70,6 +72,52 @@ def _scaled(intrinsics: CameraIntrinsics, factor: float) -> CameraIntrinsics:
     return CameraIntrinsics(fx=intrinsics.fx * factor, fy=intrinsics.fy * factor,
                             cx=(intrinsics.cx + 0.5) * factor - 0.5, cy=(intrinsics.cy + 0.5) * factor - 0.5,
                             width=round(intrinsics.width * factor), height=round(intrinsics.height * factor))
+
+
+@dataclass(frozen=True)
+class _World:
+    """What a street's images are rendered from, independent of the image size (arrays read-only)."""
+
+    line: Centreline
+    poses_map: np.ndarray  # (n_frames, 4, 4) T_map_cam
+    quads: Any  # the scene's rectangles (`scene.build_street`)
+    atlas: list[np.ndarray]  # mip pyramid of the texture atlas
+    ground_origin: np.ndarray
+    ground: list[np.ndarray]  # mip pyramid of the ground layout
+    fine: list[np.ndarray]  # mip pyramid of the fine ground speckle, wrapped by 2 texels
+
+
+def _streams(seed: int) -> list[np.random.Generator]:
+    """Independent streams: the road, path and buildings of a shorter run are a prefix of a longer one's."""
+    return [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(11)]
+
+
+@functools.lru_cache(maxsize=2)
+def _world(n_frames: int, seed: int, camera_height: float, route: Route) -> _World:
+    """The street's scene, built once per process for the same arguments (building it takes seconds; a
+    pure function of them, so every `SyntheticStreet` alike shares it)."""
+    rngs = _streams(seed)
+    if route == "loop":  # around a block and back past the start (~1 m per frame)
+        line = make_loop_centreline()
+    else:
+        line = make_centreline(START_S + 1.25 * n_frames + _LOOK_AHEAD, rngs[0])
+    poses_map = camera_path(line, n_frames, camera_height, rngs[1])
+    quads, atlas = build_street(line, rngs[2:8])
+    layout = ground_layout(line, rngs[8])
+    fine = [cv2.copyMakeBorder(t, 2, 2, 2, 2, cv2.BORDER_WRAP) for t in mip_pyramid(ground_fine_tile(rngs[9]), 9)]
+    world = _World(line, poses_map, quads, mip_pyramid(atlas, _MIP_LEVELS), layout.origin,
+                   mip_pyramid(layout.image, _MIP_LEVELS), fine)
+    for array in (poses_map, layout.origin, *world.atlas, *world.ground, *fine, *vars(quads).values()):
+        if isinstance(array, np.ndarray):
+            array.setflags(write=False)
+    return world
+
+
+@functools.lru_cache(maxsize=2)
+def _panorama(seed: int, fx: float) -> np.ndarray:
+    pano = panorama(_streams(seed)[10], fx)
+    pano.setflags(write=False)
+    return pano
 
 
 class SyntheticStreet:
@@ -102,23 +150,13 @@ class SyntheticStreet:
         self.route = route
         self.camera_height = float(camera_height)
         self._indices = (frames or FrameRange()).indices(n_frames)
-        # Independent streams: the road, path and buildings of a shorter run are a prefix of a longer one's.
-        rngs = [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(11)]
         self._intr = intr = _INTRINSICS if resolution == 1.0 else _scaled(_INTRINSICS, resolution)
         self._k = intr.K
-        if route == "loop":  # around a block and back past the start (~1 m per frame)
-            self._line = make_loop_centreline()
-        else:
-            self._line = make_centreline(START_S + 1.25 * n_frames + _LOOK_AHEAD, rngs[0])
-        self._poses_map = camera_path(self._line, n_frames, self.camera_height, rngs[1])
-        self._quads, atlas = build_street(self._line, rngs[2:8])
-        self._atlas = mip_pyramid(atlas, _MIP_LEVELS)
-        layout = ground_layout(self._line, rngs[8])
-        self._ground_origin = layout.origin
-        self._ground = mip_pyramid(layout.image, _MIP_LEVELS)
-        tile = mip_pyramid(ground_fine_tile(rngs[9]), 9)
-        self._fine = [cv2.copyMakeBorder(t, 2, 2, 2, 2, cv2.BORDER_WRAP) for t in tile]
-        pano = panorama(rngs[10], intr.fx)
+        world = _world(n_frames, seed, self.camera_height, route)
+        self._line, self._poses_map, self._quads = world.line, world.poses_map, world.quads
+        self._atlas, self._ground_origin, self._ground = world.atlas, world.ground_origin, world.ground
+        self._fine = world.fine
+        pano = _panorama(seed, intr.fx)
         self._pano = cv2.copyMakeBorder(pano, 0, 0, 2, 2, cv2.BORDER_WRAP)
         self._pano_width = pano.shape[1]
         v, u = np.mgrid[0 : intr.height, 0 : intr.width]
