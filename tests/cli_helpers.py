@@ -32,7 +32,7 @@ def vslam(*args: str | Path, cwd: Path | None = None, env: dict[str, str] | None
     (RAY_ADDRESS of the caller's environment left out); capture stdout and stderr as text. In this process
     unless `process` (or any `popen` argument) asks for a process of its own."""
     if not process and not popen:
-        return _in_process(args, cwd, {**(env or {}), "RAY_ADDRESS": None})
+        return _in_process(args, cwd, {"RAY_ADDRESS": None, **(env or {})})
     environment = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
     environment["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), environment.get("PYTHONPATH")]))
     command = [sys.executable, "-m", "vslam.cli", *map(str, args)]

@@ -3,13 +3,62 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 from ray_cluster import ray_cluster  # noqa: F401  (the fixture: a real one-node Ray head, see ray_cluster.py)
 
+from vslam_core.sources.synthetic import SyntheticStreet
+
 #: The real KITTI sample: the ``shared`` folder beside the repository checkout (never inside the repo).
 KITTI_ROOT = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti"
+
+
+class _RenderedFrames:
+    """The synthetic street's frames rendered once per test process: most CLI tests run `synthetic` in this
+    process (tests/cli_helpers.py), and rendering is most of a synthetic run's time (~0.15 s a frame). Keyed
+    by everything a frame depends on; each call gets its own copy. Off for `test_synthetic.py`, which tests the
+    renderer itself (`no_render_cache`)."""
+
+    LIMIT = 1500  # frames kept (~0.5 MB each at full size)
+
+    def __init__(self) -> None:
+        self.images: dict[tuple[object, ...], np.ndarray] = {}
+        self.enabled = True
+        self.render = SyntheticStreet.render
+
+    def __call__(self, street: SyntheticStreet, index: int) -> np.ndarray:
+        if not self.enabled:
+            return self.render(street, index)
+        key = (street.seed, street.route, street.n_frames, street.camera_height, street.intrinsics, index)
+        image = self.images.get(key)
+        if image is None:
+            image = self.render(street, index)
+            if len(self.images) < self.LIMIT:
+                self.images[key] = image
+        return image.copy()
+
+
+RENDERED = _RenderedFrames()
+
+
+def _render(street: SyntheticStreet, index: int) -> np.ndarray:
+    return RENDERED(street, index)
+
+
+SyntheticStreet.render = _render  # type: ignore[method-assign]
+
+
+@pytest.fixture
+def no_render_cache() -> Iterator[None]:
+    """Each frame rendered anew (for the renderer's own tests)."""
+    RENDERED.enabled = False
+    try:
+        yield
+    finally:
+        RENDERED.enabled = True
 
 
 @pytest.fixture(scope="session")

@@ -221,7 +221,8 @@ def test_bad_shard_and_missing_ray_are_one_line_errors(tmp_path: Path) -> None:
     no_ray.mkdir(parents=True)
     (no_ray / "__init__.py").write_text("raise ImportError('ray is not installed')\n")
     result = vslam("eval", "--manifest", manifest, "--report", tmp_path / "r",
-                   env={"PYTHONPATH": f"{no_ray.parent}{os.pathsep}{ROOT}", "RAY_ADDRESS": "10.0.0.1:6379"})
+                   env={"PYTHONPATH": f"{no_ray.parent}{os.pathsep}{ROOT}", "RAY_ADDRESS": "10.0.0.1:6379"},
+                   process=True)  # its own interpreter, where `import ray` finds the broken package first
     assert_clean_error(result, "--ray-address needs the cluster extra: pip install 'vslam[cluster]'")
 
 
@@ -231,10 +232,10 @@ def test_merge_refuses_different_configs(tmp_path: Path) -> None:
     config = tmp_path / "fast.toml"
     config.write_text("[detector]\ntarget_tracks = 700\n")
     first, second = tmp_path / "s1", tmp_path / "s2"
-    assert vslam("eval", "--manifest", manifest, "--report", first, "--shard", "1/2", "--detail", "off"
-                 ).returncode == 0
+    assert vslam("eval", "--manifest", manifest, "--report", first, "--shard", "1/2", "--detail", "off",
+                 "--workers", "1").returncode == 0
     assert vslam("eval", "--manifest", manifest, "--report", second, "--shard", "2/2", "--detail", "off",
-                 "--config", config).returncode == 0
+                 "--workers", "1", "--config", config).returncode == 0
     result = vslam("eval", "--merge", first, second, "--report", tmp_path / "merged")
     assert_clean_error(result, "different configs", str(first), str(second))
     assert_clean_error(vslam("eval", "--merge", first, first, "--report", tmp_path / "m2"), "in two reports")

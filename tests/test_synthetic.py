@@ -11,6 +11,9 @@ import pytest
 from vslam_core.errors import SourceError
 from vslam_core.sources.base import FrameRange, FrameSource
 from vslam_core.sources.synthetic import SyntheticStreet
+from vslam_core.sources.synthetic.street import _world
+
+pytestmark = pytest.mark.usefixtures("no_render_cache")  # the renderer itself under test: every frame rendered
 
 
 @pytest.fixture(scope="module")
@@ -73,6 +76,7 @@ def test_frames_shapes_dtypes_and_timestamps() -> None:
 
 def test_deterministic() -> None:
     a = SyntheticStreet(n_frames=40, frames=FrameRange(30, 32), seed=3)
+    _world.cache_clear()  # the scene built again, not shared
     b = SyntheticStreet(n_frames=40, frames=FrameRange(30, 32), seed=3)
     np.testing.assert_array_equal(a.ground_truth, b.ground_truth)
     for fa, fb in zip(a, b, strict=True):

@@ -79,7 +79,6 @@ class _World:
     """What a street's images are rendered from, independent of the image size (arrays read-only)."""
 
     line: Centreline
-    poses_map: np.ndarray  # (n_frames, 4, 4) T_map_cam
     quads: Any  # the scene's rectangles (`scene.build_street`)
     atlas: list[np.ndarray]  # mip pyramid of the texture atlas
     ground_origin: np.ndarray
@@ -93,7 +92,7 @@ def _streams(seed: int) -> list[np.random.Generator]:
 
 
 @functools.lru_cache(maxsize=2)
-def _world(n_frames: int, seed: int, camera_height: float, route: Route) -> _World:
+def _world(n_frames: int, seed: int, route: Route) -> _World:
     """The street's scene, built once per process for the same arguments (building it takes seconds; a
     pure function of them, so every `SyntheticStreet` alike shares it)."""
     rngs = _streams(seed)
@@ -101,13 +100,12 @@ def _world(n_frames: int, seed: int, camera_height: float, route: Route) -> _Wor
         line = make_loop_centreline()
     else:
         line = make_centreline(START_S + 1.25 * n_frames + _LOOK_AHEAD, rngs[0])
-    poses_map = camera_path(line, n_frames, camera_height, rngs[1])
     quads, atlas = build_street(line, rngs[2:8])
     layout = ground_layout(line, rngs[8])
     fine = [cv2.copyMakeBorder(t, 2, 2, 2, 2, cv2.BORDER_WRAP) for t in mip_pyramid(ground_fine_tile(rngs[9]), 9)]
-    world = _World(line, poses_map, quads, mip_pyramid(atlas, _MIP_LEVELS), layout.origin,
+    world = _World(line, quads, mip_pyramid(atlas, _MIP_LEVELS), layout.origin,
                    mip_pyramid(layout.image, _MIP_LEVELS), fine)
-    for array in (poses_map, layout.origin, *world.atlas, *world.ground, *fine, *vars(quads).values()):
+    for array in (layout.origin, *world.atlas, *world.ground, *fine, *vars(quads).values()):
         if isinstance(array, np.ndarray):
             array.setflags(write=False)
     return world
@@ -152,8 +150,9 @@ class SyntheticStreet:
         self._indices = (frames or FrameRange()).indices(n_frames)
         self._intr = intr = _INTRINSICS if resolution == 1.0 else _scaled(_INTRINSICS, resolution)
         self._k = intr.K
-        world = _world(n_frames, seed, self.camera_height, route)
-        self._line, self._poses_map, self._quads = world.line, world.poses_map, world.quads
+        world = _world(n_frames, seed, route)
+        self._line, self._quads = world.line, world.quads
+        self._poses_map = camera_path(self._line, n_frames, self.camera_height, _streams(seed)[1])
         self._atlas, self._ground_origin, self._ground = world.atlas, world.ground_origin, world.ground
         self._fine = world.fine
         pano = _panorama(seed, intr.fx)
