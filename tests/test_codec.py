@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import os
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_helpers import vslam
 from PIL import Image
 from rerun.chunk import RrdReader
 
@@ -28,9 +28,7 @@ CROP = (25, 35)  # starts mid-GOP: key frames at 0, 20
 
 
 def _run(path: Path, codec: str) -> Path:
-    done = subprocess.run([sys.executable, "-m", "vslam.cli", "run", "--frames", f"0:{FRAMES}", "--image-codec", codec,
-                           "-o", str(path)], cwd=ROOT, capture_output=True, text=True, timeout=300,
-                          env={**os.environ, "RERUN_STRICT": "1"})
+    done = vslam("run", "--frames", f"0:{FRAMES}", "--image-codec", codec, "-o", path, env={"RERUN_STRICT": "1"})
     assert done.returncode == 0, done.stderr
     return path
 
@@ -123,8 +121,7 @@ def test_h264_snapshot_without_ffmpeg_names_what_to_install(tmp_path: Path, monk
 
 def test_eval_report_recordings_take_the_codec(tmp_path: Path) -> None:
     report = tmp_path / "report"
-    done = subprocess.run([sys.executable, "-m", "vslam.cli", "eval", "synthetic", "--frames", "0:25", "--image-codec",
-                           "h264", "--report", str(report)], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    done = vslam("eval", "synthetic", "--frames", "0:25", "--image-codec", "h264", "--report", report)
     assert done.returncode == 0, done.stderr
     (recording,) = report.glob("*.rrd")
     frames, blobs, keys = samples(recording)

@@ -3,10 +3,8 @@ data and the embedded blueprint, and stays a valid file; bad inputs fail with on
 
 from __future__ import annotations
 
-import os
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +12,7 @@ import polars as pl
 import pyarrow as pa
 import pytest
 import rerun as rr
+from cli_helpers import vslam
 from polars.testing import assert_frame_equal
 from rerun.chunk import Chunk, RrdReader
 
@@ -32,9 +31,7 @@ ENTITIES = ["/world/camera", "/world/camera/image", "/world/camera/image/flow", 
 def full(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A real 30-frame recording of the synthetic street (full detail, embedded blueprint)."""
     path = tmp_path_factory.mktemp("crop") / "full.rrd"
-    done = subprocess.run([sys.executable, "-m", "vslam.cli", "run", "--frames", "0:30", "-o", str(path)],
-                          cwd=ROOT, capture_output=True, text=True, timeout=300,
-                          env={**os.environ, "RERUN_STRICT": "1"})
+    done = vslam("run", "--frames", "0:30", "-o", path, env={"RERUN_STRICT": "1"})
     assert done.returncode == 0, done.stderr
     return path
 

@@ -18,6 +18,7 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
+from cli_helpers import vslam, vslam_here
 from rerun.chunk import RrdReader
 
 from vslam.recording.layout import CAR_ENTITY
@@ -40,8 +41,7 @@ VIEWS = ["frame", "overlays", "world", "tracks", "inliers", "inlier_ratio", "hea
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
     rrd = tmp_path_factory.mktemp("viewer") / "s.rrd"
-    result = subprocess.run([sys.executable, "-m", "vslam.cli", "run", "--frames", "0:15", "-o",
-                             str(rrd)], capture_output=True, text=True, cwd=ROOT, timeout=300)
+    result = vslam("run", "--frames", "0:15", "-o", rrd)
     assert result.returncode == 0, result.stderr
     return rrd
 
@@ -353,14 +353,12 @@ def _running_threads(pid: int) -> list[str]:
 
 def test_snapshot_command_writes_pngs_and_errors_in_one_line(recording: Path, vulkan: None, tmp_path: Path) -> None:
     out = tmp_path / "shots"
-    result = subprocess.run([sys.executable, "-m", "vslam.cli", "snapshot", str(recording), "--frame", "5", "--out",
-                             str(out)], capture_output=True, text=True, cwd=ROOT, timeout=300)
+    result = vslam("snapshot", recording, "--frame", "5", "--out", out)
     assert result.returncode == 0, result.stderr
     written = {Path(line).name for line in result.stdout.split()}
     assert {"frame.png", "world.png", "all.png"} <= written
     assert all((out / name).is_file() for name in written)
-    result = subprocess.run([sys.executable, "-m", "vslam.cli", "snapshot", str(recording), "--frame", "99", "--out",
-                             str(out)], capture_output=True, text=True, cwd=ROOT, timeout=300)
+    result = vslam("snapshot", recording, "--frame", "99", "--out", out)
     assert result.returncode == 2 and "Traceback" not in result.stderr
     assert "outside the recording's frames 0..14" in result.stderr
 
@@ -402,8 +400,7 @@ def test_views_without_data_are_left_out_of_the_blueprint(
     args: list[str], present: set[str], absent: set[str], tmp_path: Path
 ) -> None:
     rrd = tmp_path / "r.rrd"
-    result = subprocess.run([sys.executable, "-m", "vslam.cli", "run", "--frames", "0:3", "-o", str(rrd), *args],
-                            capture_output=True, text=True, cwd=ROOT, timeout=300)
+    result = vslam("run", "--frames", "0:3", "-o", rrd, *args)
     assert result.returncode == 0, result.stderr
     names = _view_names(_blueprint(rrd))
     assert present <= names and not absent & names, names
@@ -436,9 +433,7 @@ def test_world_view_shows_the_car_large_near_the_centre(shots: dict[str, Path]) 
 
 def test_snapshot_cli_last_frame_and_size(recording: Path, vulkan: None, tmp_path: Path) -> None:
     out = tmp_path / "last"
-    result = subprocess.run([sys.executable, "-m", "vslam.cli", "snapshot", str(recording), "--frame", "last",
-                             "--size", "800x500", "--out", str(out)], capture_output=True, text=True, cwd=ROOT,
-                            timeout=600)
+    result = vslam("snapshot", recording, "--frame", "last", "--size", "800x500", "--out", out)
     assert result.returncode == 0, result.stderr
     assert cv2.imread(str(out / "all.png")).shape[:2] == (500, 800)
     shown = cv2.cvtColor(cv2.imread(str(out / "frame.png")), cv2.COLOR_BGR2GRAY)
@@ -452,8 +447,7 @@ def test_snapshot_cli_last_frame_and_size(recording: Path, vulkan: None, tmp_pat
     for args, fragment in ((["--frame", "lastt"], "--frame 'lastt': give a frame index or 'last'"),
                            (["--frame", "3", "--size", "10x10"], "--size '10x10': the window must be"),
                            (["--frame", "3", "--size", "big"], "--size 'big': give WIDTHxHEIGHT")):
-        bad = subprocess.run([sys.executable, "-m", "vslam.cli", "snapshot", str(recording), "--out", str(out), *args],
-                             capture_output=True, text=True, cwd=ROOT, timeout=60)
+        bad = vslam_here("snapshot", recording, "--out", out, *args)
         assert bad.returncode == 2 and fragment in bad.stderr and "Traceback" not in bad.stderr, bad.stderr
         assert len(bad.stderr.strip().splitlines()) == 1
 
@@ -474,8 +468,7 @@ def test_parse_size_and_frame() -> None:
      (["--web-port", "40000", "--grpc-port", "40000"], "--web-port and --grpc-port are both 40000")],
 )
 def test_open_web_bad_ports_are_one_line_errors(recording: Path, args: list[str], fragment: str) -> None:
-    result = subprocess.run([sys.executable, "-m", "vslam.cli", "open", str(recording), "--web", *args],
-                            capture_output=True, text=True, cwd=ROOT, timeout=60)
+    result = vslam_here("open", recording, "--web", *args)
     assert result.returncode == 2 and fragment in result.stderr and "Traceback" not in result.stderr, result.stderr
 
 
