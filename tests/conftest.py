@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import signal
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -49,6 +50,20 @@ def _render(street: SyntheticStreet, index: int) -> np.ndarray:
 
 
 SyntheticStreet.render = _render  # type: ignore[method-assign]
+
+
+def _signal_state() -> tuple[object, ...]:
+    return (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM),
+            signal.pthread_sigmask(signal.SIG_BLOCK, []))
+
+
+@pytest.fixture(autouse=True)
+def signals_left_as_found() -> Iterator[None]:
+    """The CLI runs in the test process (tests/cli_helpers.py): a command must leave the process's signal
+    handlers and mask as it found them (a process the next test starts inherits an ignored or blocked signal)."""
+    before = _signal_state()
+    yield
+    assert _signal_state() == before, "signal handlers or mask changed by the test"
 
 
 @pytest.fixture
