@@ -15,7 +15,8 @@ from rerun.chunk import RrdReader
 
 from vslam.rrd.read import read_entity
 
-FORWARD = 40  # frames driven forward; the revisit backs up over them again
+FORWARD = 50  # frames driven forward; the revisit backs up over them again (a keyframe's loop search is
+# collected two keyframes after it: the drive back needs a few keyframes after the loop is seen)
 CONFIG = "[loop]\nmin_separation_keyframes = 6\n"  # the short test drive: candidates 6 keyframes back
 
 

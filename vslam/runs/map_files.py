@@ -35,7 +35,7 @@ def map_saver(path: Path, source: FrameSource, config: EngineConfig) -> Callable
         assert isinstance(engine, MapTracking)
         if engine.loop is not None:
             engine.loop.finish(engine.mapping.map)
-        places = engine.loop.database.places if engine.loop is not None else {}
+        places = engine.loop.places if engine.loop is not None else {}
         header = {"vslam_version": __version__, "camera": camera_dict(source.intrinsics), "scale": config.scale,
                   "source": source.name, "frames": describe_indices(source.indices)}
         save_map(path, snapshot(engine.mapping.map, places, source.indices, header))
