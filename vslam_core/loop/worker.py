@@ -25,7 +25,10 @@ def _serve(connection: Connection, K: np.ndarray, config: EngineConfig) -> None:
     search = LoopSearch(K, config)
     search.warm_up()
     while True:
-        job = connection.recv()
+        try:
+            job = connection.recv()
+        except EOFError:  # the run's process is gone
+            return
         if job is None:
             return
         connection.send(search.run(job))

@@ -1,0 +1,123 @@
+"""Map reuse on real frames (issue 26): a map saved from the even frames of a KITTI window (map backend, scale
+from ground truth), the odd frames localised in it. Prints a table per sequence:
+
+    python -m benchmarks.map_reuse ../shared/data/kitti [--sequences 00,05] [--frames 0:300]
+
+- run ATE: the mapping run's poses (even frames, after the run, before the global bundle adjustment) against the
+  ground truth, no alignment (both in the first frame's camera frame, which is the map's frame); its SE(3)-aligned
+  ATE (the error left once the drive's placement is removed); map keyframes ATE: the saved keyframes' poses;
+- localised: the share of odd frames placed in the map;
+- odd ATE vs GT: the odd frames' poses against the ground truth, no alignment (the issue's figure, target
+  <= 0.3 m);
+- odd ATE vs run: the odd frames against the mapping run's trajectory at the same instants (each odd frame
+  halfway between its even neighbours: position midway, rotation on the geodesic) - localisation quality
+  apart from the map's own error;
+- vs keyframes: the same against the saved map's keyframe poses, interpolated by frame index (only what the
+  map file holds).
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from vslam.runs import map_saver
+from vslam_core.config import EngineConfig
+from vslam_core.geometry import interpolate_pose
+from vslam_core.mapping.storage import load_map
+from vslam_core.pipeline import run_odometry
+from vslam_core.sources.base import FrameRange
+from vslam_core.sources.kitti import KittiSource
+from vslam_core.trajectory.metrics import ate
+
+
+def rms(error: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.asarray(error) ** 2)))
+
+
+def position_errors(estimate: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """(N,) distances between the (N, 4, 4) poses' positions."""
+    return np.asarray(np.linalg.norm(estimate[:, :3, 3] - reference[:, :3, 3], axis=1))
+
+
+def interpolated(frames: np.ndarray, poses: np.ndarray, at: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Poses at source frames `at` from (K, 4, 4) poses at sorted source frames `frames` (geodesic rotation,
+    linear position); only the frames inside [frames[0], frames[-1]]: returns (kept mask, poses)."""
+    kept = (at >= frames[0]) & (at <= frames[-1])
+    out = []
+    for frame in at[kept]:
+        after = int(np.searchsorted(frames, frame))
+        if frames[after] == frame:
+            out.append(poses[after])
+            continue
+        before = after - 1
+        fraction = (frame - frames[before]) / (frames[after] - frames[before])
+        out.append(interpolate_pose(poses[before], poses[after], float(fraction)))
+    return kept, np.array(out).reshape(-1, 4, 4)
+
+
+def measure(root: Path, sequence: str, start: int, stop: int, config: EngineConfig, folder: Path,
+            adjust: bool) -> dict[str, float]:
+    even = KittiSource(root, sequence=sequence, frames=FrameRange(start, stop, 2))
+    odd = KittiSource(root, sequence=sequence, frames=FrameRange(start + 1, stop, 2))
+    path = folder / f"{sequence}-even"
+    mapping = run_odometry(even, config, finish=map_saver(path, even, config, adjust))
+    mapped = mapping.pose_array()
+    prior = load_map(path, odd.intrinsics)
+    localised = run_odometry(odd, config, prior_map=prior)
+    odd_poses = localised.pose_array()
+    # the ground truth in the map's frame: the first (even) frame's camera (a source's own ground truth starts at
+    # its first frame: the whole sequence's is re-based here)
+    whole = KittiSource(root, sequence=sequence).ground_truth
+    assert whole is not None
+    origin = np.linalg.inv(whole[start])
+    truth_even = origin @ whole[np.array(even.indices)]
+    truth_odd = origin @ whole[np.array(odd.indices)]
+    even_frames = np.array(even.indices)
+    odd_frames = np.array(odd.indices)
+    kept, map_at_odd = interpolated(even_frames, mapped, odd_frames)
+    order = np.argsort(prior.frame_indices)
+    kept_kf, keyframes_at_odd = interpolated(prior.frame_indices[order], prior.poses[order], odd_frames)
+    truth_keyframes = origin @ whole[prior.frame_indices]
+    return {
+        "map_ate": rms(position_errors(mapped, truth_even)),
+        "keyframe_ate": rms(position_errors(prior.poses, truth_keyframes)),
+        "map_ate_se3": ate(truth_even, mapped, "se3"),
+        "localised": 100.0 * localised.tracked / len(odd_poses),
+        "odd_ate_gt": rms(position_errors(odd_poses, truth_odd)),
+        "odd_ate_map": rms(position_errors(odd_poses[kept], map_at_odd)),
+        "odd_ate_keyframes": rms(position_errors(odd_poses[kept_kf], keyframes_at_odd)),
+        "keyframes": float(len(prior.keyframe_ids)),
+        "landmarks": float(len(prior.landmark_ids)),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("root", type=Path)
+    parser.add_argument("--sequences", default="00,05")
+    parser.add_argument("--frames", default="0:300")
+    parser.add_argument("--no-adjust", action="store_true", help="save the map without the global bundle adjustment")
+    args = parser.parse_args()
+    start, stop = (int(v) for v in args.frames.split(":")[:2])
+    config = EngineConfig(backend="map", scale="gt")
+    adjusted = "without" if args.no_adjust else "with"
+    print(f"KITTI, map from frames {start}:{stop}:2 ({adjusted} the global bundle adjustment), odd frames localised "
+          "in it (ATE in m, no alignment unless said)")
+    print("| seq | keyframes | landmarks | run ATE | run ATE (SE(3)-aligned) | map keyframes ATE | localised | "
+          "odd ATE vs GT | odd ATE vs run | odd ATE vs keyframes |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    with tempfile.TemporaryDirectory() as folder:
+        for sequence in args.sequences.split(","):
+            r = measure(args.root, sequence, start, stop, config, Path(folder), not args.no_adjust)
+            print(f"| {sequence} | {r['keyframes']:.0f} | {r['landmarks']:.0f} | {r['map_ate']:.3f} | "
+                  f"{r['map_ate_se3']:.3f} | {r['keyframe_ate']:.3f} | {r['localised']:.1f} % | "
+                  f"{r['odd_ate_gt']:.3f} | {r['odd_ate_map']:.3f} | "
+                  f"{r['odd_ate_keyframes']:.3f} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
