@@ -74,8 +74,9 @@ SYSTEMS: dict[str, tuple[str, str, int, Detail]] = {
 }
 LOOP_OFF = {"vslam --backend map, loop closing off (2 threads)"}
 # loop closing's parts, ms per keyframe: the search (worker process with 2 threads) and, in the tracking thread,
-# the wait for the search at the fixed point and applying a closed loop to the map
-LOOP_PARTS = ("describe", "query", "verify", "optimise", "wait", "apply")
+# the wait for the search at the fixed point, applying a closed loop to the map and submitting the next search
+# (the keyframe's snapshot, sent to the worker)
+LOOP_PARTS = ("describe", "query", "verify", "optimise", "wait", "apply", "submit")
 MEMORY_SYSTEMS = ("vslam, recording off (2 threads, default)", "vslam --detail full (2 threads, default)",
                   "vslam --backend map, recording off (2 threads, default)")
 
@@ -242,8 +243,8 @@ def _loop_table(table: pl.DataFrame) -> None:
     if on.is_empty() or off.is_empty():
         return
     print("\nLoop closing (map backend, 2 threads, recording off): fps on / off and ms per keyframe; describe, query,"
-          "\nverify and optimise run in the loop worker process, wait (for the worker, at the fixed point) and apply"
-          "\n(a closed loop to the map) in the tracking thread")
+          "\nverify and optimise run in the loop worker process, wait (for the worker, at the fixed point), apply"
+          "\n(a closed loop to the map) and submit (the next keyframe's snapshot) in the tracking thread")
     print("| seq | fps on | fps off | change | " + " | ".join(LOOP_PARTS) + " |")
     print("|---|---|---|---|" + "---|" * len(LOOP_PARTS))
     for row in on.join(off.select("sequence", fps_off="fps"), on="sequence").iter_rows(named=True):

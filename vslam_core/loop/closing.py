@@ -55,7 +55,10 @@ class LoopClosing:
         Returns what the collected search did and, if it closed a loop, the correction T_new·T_old⁻¹ (4, 4) of
         the newest keyframe, for the frames tracked since; None if no search was pending."""
         collected = self._collect(map_)
+        clock = time.perf_counter()
         self._start(map_)
+        if collected is not None:  # the snapshot and hand-over, in the tracking thread
+            collected[0].timings_ms["submit"] = _lap(clock)
         return collected
 
     def finish(self, map_: Map) -> tuple[LoopStep, np.ndarray | None] | None:
@@ -135,10 +138,9 @@ class LoopClosing:
             return None
         T_cam_world = invert_pose(keyframe.T_world_cam)  # noqa: N806
         points = place.points_cam.copy()
-        for n, landmark_id in enumerate(place.point_ids.tolist()):
-            landmark = map_.landmarks.get(landmark_id)
-            if landmark is not None:
-                points[n] = T_cam_world[:3, :3] @ landmark.position + T_cam_world[:3, 3]
+        present = np.array([i in map_.landmarks for i in place.point_ids.tolist()], bool)
+        world = map_.positions(place.point_ids[present])
+        points[present] = world @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
         place.points_cam = points
         return keyframe_id, points
 

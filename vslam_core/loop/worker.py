@@ -14,24 +14,26 @@ import time
 from multiprocessing.connection import Connection
 from typing import Any
 
+import cv2
 import numpy as np
 
 from vslam_core.config import EngineConfig
 from vslam_core.loop.search import LoopSearch, SearchJob, SearchResult
 
 
-def _serve(connection: Connection, K: np.ndarray, config: EngineConfig) -> None:  # noqa: N803
+def _serve(jobs: Any, connection: Connection, K: np.ndarray, config: EngineConfig) -> None:  # noqa: N803
     """The worker process: run each job received, until None arrives."""
+    cv2.setNumThreads(1)  # one core's worth: the other is tracking's
     search = LoopSearch(K, config)
     search.warm_up()
     while True:
-        try:
-            job = connection.recv()
-        except EOFError:  # the run's process is gone
-            return
+        job = jobs.get()
         if job is None:
             return
-        connection.send(search.run(job))
+        try:
+            connection.send(search.run(job))
+        except (BrokenPipeError, OSError):  # the run's process is gone
+            return
 
 
 class LoopWorker:
@@ -45,10 +47,15 @@ class LoopWorker:
         self._process: Any = None
         self._local: LoopSearch | None = None
         self.waited_ms = 0.0  # how long the last `collect` waited for the worker
+        self._jobs: Any = None
         if background:
             context = multiprocessing.get_context("spawn")
-            self._connection, child = context.Pipe()
-            self._process = context.Process(target=_serve, args=(child, K, config), name="vslam-loop", daemon=True)
+            # jobs through a queue: its feeder thread writes the keyframe's image to the pipe, so submitting does
+            # not block tracking; results come back through a pipe
+            self._jobs = context.Queue()
+            self._connection, child = context.Pipe(duplex=False)
+            self._process = context.Process(target=_serve, args=(self._jobs, child, K, config), name="vslam-loop",
+                                            daemon=True)
             self._process.start()
             child.close()
         else:
@@ -62,10 +69,10 @@ class LoopWorker:
         assert self._pending is None, "collect the previous result first"
         self._pending = job
         if self._connection is not None:
-            try:
-                self._connection.send(job)
-            except OSError:  # the worker died: this job and the next are searched here
+            if self._process is not None and not self._process.is_alive():  # it died: search here from now on
                 self._fall_back()
+            else:
+                self._jobs.put(job)
 
     def _fall_back(self) -> None:
         """The worker process is gone (e.g. killed): search in this process from now on, with an empty place
@@ -101,11 +108,15 @@ class LoopWorker:
             try:
                 if self._pending is not None:
                     self._connection.recv()
-                self._connection.send(None)
+                self._jobs.put(None)
             except (OSError, EOFError):
                 pass
             self._connection.close()
             self._connection = None
+        if self._jobs is not None:
+            self._jobs.close()
+            self._jobs.join_thread()
+            self._jobs = None
         if self._process is not None:
             self._process.join(timeout=5)
             if self._process.is_alive():
