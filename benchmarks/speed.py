@@ -185,15 +185,18 @@ def main() -> None:
     parser.add_argument("--taskset", metavar="CPU", default=None,
                         help="run every row pinned to this CPU (taskset -c CPU), e.g. 0")
     parser.add_argument("--skip-memory", action="store_true", help="leave out the peak-RSS-by-length check")
-    parser.add_argument("--rows", default=None, help="only the rows whose label contains this text, e.g. "
-                        "'backend map' (the paper configuration always runs: the ratios need it)")
+    parser.add_argument("--rows", default=None, help="only the rows whose label contains this text (or one of "
+                        "several, separated by |), e.g. 'backend map' (the paper configuration always runs: the "
+                        "ratios need it)")
     parser.add_argument("--measure", metavar="LABEL", choices=list(SYSTEMS), default=None,
                         help=argparse.SUPPRESS)  # internal: one run of LABEL in this process, as JSON on stdout
     args = parser.parse_args()
     if args.measure is not None:
         print(json.dumps(_measure(args.measure, args.root, args.sequences, args.frames)))
         return
-    labels = [label for label in SYSTEMS if args.rows is None or args.rows in label or label == next(iter(SYSTEMS))]
+    wanted = args.rows.split("|") if args.rows is not None else None
+    labels = [label for label in SYSTEMS
+              if wanted is None or any(w in label for w in wanted) or label == next(iter(SYSTEMS))]
     rows = [row for sequence in args.sequences.split(",")
             for row in _median_runs(labels, args.root, sequence, args.frames, args.repeat, args.taskset)]
     table = pl.DataFrame(rows)

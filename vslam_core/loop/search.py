@@ -189,6 +189,20 @@ class LoopSearch:
             inlier_mask=result.inlier_mask, T_candidate_query=result.T_candidate_query,
             query_image=query.thumbnail, candidate_image=place.thumbnail)
 
+    def _rescale_edges(self, index: dict[int, int], scales: np.ndarray) -> None:
+        """After a Sim(3) correction the map around node i is s_i times larger (it is applied at the fixed point,
+        always): a loop edge measured before is restated in the new units, its translation (candidate units)
+        times s_candidate and its scale times s_candidate / s_query. Without this the next optimisation, which
+        starts from the corrected poses, would apply the same scale correction again (it compounded over the 8
+        loops of the KITTI 05 revisit)."""
+        restated = []
+        for candidate, query, T, scale in self._edges:  # noqa: N806
+            if candidate in index and query in index:
+                s_candidate, s_query = float(scales[index[candidate]]), float(scales[index[query]])
+                T, scale = _rescaled(T, s_candidate), scale * s_candidate / s_query  # noqa: N806
+            restated.append((candidate, query, T, scale))
+        self._edges = restated
+
     def _optimise(self, job: SearchJob, query: KeyframePlace, candidate: int, result: Verification) -> GraphSolution:
         """The pose graph of the job's keyframes with every loop edge accepted so far."""
         assert result.T_candidate_query is not None
@@ -196,11 +210,20 @@ class LoopSearch:
         self._edges.append((candidate, query.keyframe_id, result.T_candidate_query, result.scale))
         edges = [LoopEdge(index[a], index[b], T, scale) for a, b, T, scale in self._edges if a in index and b in index]
         after, scales = optimise(job.graph_poses, edges, self._config, similarity=not self._metric)
+        if not self._metric:
+            self._rescale_edges(index, scales)
         return GraphSolution(
             query_keyframe=query.keyframe_id, candidate_keyframe=candidate, query_position=query.position,
             candidate_position=self.database.places[candidate].position, inliers=result.inliers,
             similarity=not self._metric, keyframe_ids=job.graph_ids, poses_before=job.graph_poses,
             poses_after=after, scales=scales)
+
+
+def _rescaled(T: np.ndarray, scale: float) -> np.ndarray:  # noqa: N803
+    """(4, 4) the rigid motion with its translation multiplied by `scale`."""
+    moved = T.copy()
+    moved[:3, 3] *= scale
+    return moved
 
 
 def _lap(start: float) -> float:

@@ -10,6 +10,7 @@ by the caller and depends only on the jobs submitted before it, so runs are dete
 from __future__ import annotations
 
 import multiprocessing
+import threading
 import time
 from multiprocessing.connection import Connection
 from typing import Any
@@ -25,7 +26,8 @@ def _serve(jobs: Any, connection: Connection, K: np.ndarray, config: EngineConfi
     """The worker process: run each job received, until None arrives."""
     cv2.setNumThreads(1)  # one core's worth: the other is tracking's
     search = LoopSearch(K, config)
-    search.warm_up()
+    # gtsam (a few seconds to import) is needed only when a loop is accepted: imported beside the first searches
+    threading.Thread(target=search.warm_up, name="vslam-gtsam-import", daemon=True).start()
     while True:
         job = jobs.get()
         if job is None:
