@@ -10,6 +10,7 @@ by the caller and depends only on the jobs submitted before it, so runs are dete
 from __future__ import annotations
 
 import multiprocessing
+import queue
 import threading
 import time
 from multiprocessing.connection import Connection
@@ -28,8 +29,14 @@ def _serve(jobs: Any, connection: Connection, K: np.ndarray, config: EngineConfi
     search = LoopSearch(K, config)
     # gtsam (a few seconds to import) is needed only when a loop is accepted: imported beside the first searches
     threading.Thread(target=search.warm_up, name="vslam-gtsam-import", daemon=True).start()
+    parent = multiprocessing.parent_process()
     while True:
-        job = jobs.get()
+        try:
+            job = jobs.get(timeout=1.0)
+        except queue.Empty:  # nothing to do: stop if the run's process is gone (killed: no None will come)
+            if parent is not None and not parent.is_alive():
+                return
+            continue
         if job is None:
             return
         try:
