@@ -11,13 +11,18 @@ the background, so `decode` overlaps the other stages.
 
 The `--backend map` rows (recording off, 1 and 2 threads) add: `pnp` (tracking against the map) and
 `mapping` (keyframe insertion and local mapping in the tracking thread, including the wait for the pending
-bundle adjustment) in ms per frame, keyframes per 100 frames, and bundle-adjustment solver ms per keyframe
+bundle adjustment and, with loop closing on, the wait for the loop search) in ms per frame, keyframes per 100
+frames, and bundle-adjustment solver ms per keyframe
 (gtsam's time as reported in `FrameResult.mapping.bundle_adjustment`, summed over the run and divided by
 its keyframes; the adjustment still pending at the end is applied to the output poses but reported by no
 frame, so it is not counted; with 2 threads it runs in a worker process beside tracking, with 1 thread
 inside `mapping`). Relocalisation time (`relocalise_ms`) is in the CSV only. Peak RSS is the measuring
 process's; the map backend's bundle-adjustment worker's (2 threads; 0 with 1 thread) is in the CSV as
 `worker_peak_rss_mb`.
+
+Loop closing: the map backend with 2 threads runs once with it on (the default) and once off; the table after the
+main one gives both fps and ms per keyframe of each part of loop closing (`--rows "backend map"` runs only these
+rows and the paper configuration).
 
 `--taskset CPU` runs every row under ``taskset -c CPU``: the engine, its decode thread and the map backend's
 worker all share that one core (the worker inherits the affinity), which shows what the background work
@@ -68,7 +73,10 @@ SYSTEMS: dict[str, tuple[str, str, int, Detail]] = {
     "vslam --backend map, loop closing off (2 threads)": ("vslam", "map", 2, Detail.OFF),
 }
 LOOP_OFF = {"vslam --backend map, loop closing off (2 threads)"}
-LOOP_PARTS = ("describe", "query", "verify", "optimise")  # loop closing's parts, ms per keyframe
+# loop closing's parts, ms per keyframe: the search (worker process with 2 threads) and, in the tracking thread,
+# the wait for the search at the fixed point, applying a closed loop to the map and submitting the next search
+# (the keyframe's snapshot, sent to the worker)
+LOOP_PARTS = ("describe", "query", "verify", "optimise", "wait", "apply", "submit")
 MEMORY_SYSTEMS = ("vslam, recording off (2 threads, default)", "vslam --detail full (2 threads, default)",
                   "vslam --backend map, recording off (2 threads, default)")
 
@@ -131,23 +139,34 @@ def _measure(label: str, root: str, sequence: str, frames: str) -> dict[str, obj
             **{f"loop_{part}_ms_per_keyframe": loop_ms.get(part, 0.0) / max(keyframes, 1) for part in LOOP_PARTS}}
 
 
-def _in_own_process(label: str, root: str, sequence: str, frames: str, repeat: int = 1,
-                    cpu: str | None = None) -> dict[str, object]:
-    """The run with the median fps of `repeat` runs, each in a fresh Python process (under ``taskset -c
-    CPU`` when `cpu` is given). A process of its own rather than a multiprocessing pool worker: those are
-    daemonic and may not start the map backend's bundle-adjustment worker."""
+def _in_own_process(label: str, root: str, sequence: str, frames: str, cpu: str | None = None) -> dict[str, object]:
+    """One run of `label` in a fresh Python process (under ``taskset -c CPU`` when `cpu` is given). A process
+    of its own rather than a multiprocessing pool worker: those are daemonic and may not start the map
+    backend's worker processes."""
     command = [sys.executable, "-m", "benchmarks.speed", root, "--measure", label, "--sequences", sequence,
                "--frames", frames]
     if cpu is not None:
         command = ["taskset", "-c", cpu, *command]
-    runs = []
+    done = subprocess.run(command, capture_output=True, text=True, cwd=Path(__file__).resolve().parents[1])
+    if done.returncode != 0:
+        raise RuntimeError(f"{' '.join(command)} failed ({done.returncode}):\n{done.stderr}")
+    result: dict[str, object] = json.loads(done.stdout.strip().splitlines()[-1])
+    return result
+
+
+def _median_runs(labels: list[str], root: str, sequence: str, frames: str, repeat: int = 1,
+                 cpu: str | None = None) -> list[dict[str, object]]:
+    """For each label, the run with the median fps of `repeat` runs. The labels take turns (round robin), so a
+    change in the machine's load hits every row alike and the ratios between rows stay fair."""
+    runs: dict[str, list[dict[str, object]]] = {label: [] for label in labels}
     for _ in range(repeat):
-        done = subprocess.run(command, capture_output=True, text=True, cwd=Path(__file__).resolve().parents[1])
-        if done.returncode != 0:
-            raise RuntimeError(f"{' '.join(command)} failed ({done.returncode}):\n{done.stderr}")
-        runs.append(json.loads(done.stdout.strip().splitlines()[-1]))
-    runs.sort(key=lambda r: float(r["fps"]))
-    return runs[len(runs) // 2]
+        for label in labels:
+            runs[label].append(_in_own_process(label, root, sequence, frames, cpu))
+    medians = []
+    for label in labels:
+        ordered = sorted(runs[label], key=lambda r: float(r["fps"]))  # type: ignore[arg-type]
+        medians.append(ordered[len(ordered) // 2])
+    return medians
 
 
 def _optional(value: object, fmt: str) -> str:
@@ -166,17 +185,20 @@ def main() -> None:
     parser.add_argument("--taskset", metavar="CPU", default=None,
                         help="run every row pinned to this CPU (taskset -c CPU), e.g. 0")
     parser.add_argument("--skip-memory", action="store_true", help="leave out the peak-RSS-by-length check")
-    parser.add_argument("--rows", default=None, help="only the rows whose label contains this text, e.g. "
-                        "'backend map' (the paper configuration always runs: the ratios need it)")
+    parser.add_argument("--rows", default=None, help="only the rows whose label contains this text (or one of "
+                        "several, separated by |), e.g. 'backend map' (the paper configuration always runs: the "
+                        "ratios need it)")
     parser.add_argument("--measure", metavar="LABEL", choices=list(SYSTEMS), default=None,
                         help=argparse.SUPPRESS)  # internal: one run of LABEL in this process, as JSON on stdout
     args = parser.parse_args()
     if args.measure is not None:
         print(json.dumps(_measure(args.measure, args.root, args.sequences, args.frames)))
         return
-    rows = [_in_own_process(label, args.root, sequence, args.frames, args.repeat, args.taskset)
-            for sequence in args.sequences.split(",") for label in SYSTEMS
-            if args.rows is None or args.rows in label or label == next(iter(SYSTEMS))]
+    wanted = args.rows.split("|") if args.rows is not None else None
+    labels = [label for label in SYSTEMS
+              if wanted is None or any(w in label for w in wanted) or label == next(iter(SYSTEMS))]
+    rows = [row for sequence in args.sequences.split(",")
+            for row in _median_runs(labels, args.root, sequence, args.frames, args.repeat, args.taskset)]
     table = pl.DataFrame(rows)
     paper = table.filter(pl.col("system") == next(iter(SYSTEMS))).select("sequence", paper_fps="fps")
     off = (table.filter((pl.col("detail") == str(Detail.OFF)) & pl.col("system").str.starts_with("vslam"))
@@ -189,7 +211,8 @@ def main() -> None:
         table.write_csv(args.csv)
     stages = " | ".join(STAGES)
     pinned = f"; every run pinned to CPU {args.taskset} (taskset -c {args.taskset})" if args.taskset else ""
-    print(f"KITTI {args.sequences}, frames {args.frames}; median-fps run of {args.repeat}; ms per frame per stage"
+    print(f"KITTI {args.sequences}, frames {args.frames}; median-fps run of {args.repeat} (rows measured in turn); "
+          "ms per frame per stage"
           + pinned)
     print(f"| system | seq | fps | × paper | recording cost | t_err % | r_err °/100 m | {stages} | keyframes/100 "
           "frames | BA ms/keyframe | peak RSS MB | KB/frame |")
@@ -222,7 +245,9 @@ def _loop_table(table: pl.DataFrame) -> None:
     off = table.filter(pl.col("system").is_in(list(LOOP_OFF)))
     if on.is_empty() or off.is_empty():
         return
-    print("\nLoop closing (map backend, 2 threads, recording off): fps on / off and ms per keyframe")
+    print("\nLoop closing (map backend, 2 threads, recording off): fps on / off and ms per keyframe; describe, query,"
+          "\nverify and optimise run in the loop worker process, wait (for the worker, at the fixed point), apply"
+          "\n(a closed loop to the map) and submit (the next keyframe's snapshot) in the tracking thread")
     print("| seq | fps on | fps off | change | " + " | ".join(LOOP_PARTS) + " |")
     print("|---|---|---|---|" + "---|" * len(LOOP_PARTS))
     for row in on.join(off.select("sequence", fps_off="fps"), on="sequence").iter_rows(named=True):

@@ -15,7 +15,8 @@ from rerun.chunk import RrdReader
 
 from vslam.rrd.read import read_entity
 
-FORWARD = 40  # frames driven forward; the revisit backs up over them again
+FORWARD = 50  # frames driven forward; the revisit backs up over them again (a keyframe's loop search is
+# collected two keyframes after it: the drive back needs a few keyframes after the loop is seen)
 CONFIG = "[loop]\nmin_separation_keyframes = 6\n"  # the short test drive: candidates 6 keyframes back
 
 
@@ -31,12 +32,15 @@ def _folder(kitti_root: Path, folder: Path, order: list[int]) -> Path:
     return folder
 
 
-def _run(kitti_root: Path, tmp: Path, order: list[int]) -> tuple[Path, list[int]]:
+def _run(kitti_root: Path, tmp: Path, order: list[int], threads: int = 2) -> tuple[Path, list[int]]:
+    """The run's recording (its trajectory beside it, `run.txt`). With 2 threads (the default) loop search runs
+    in a worker process; with 1, in the tracking thread when its result is due."""
     folder = _folder(kitti_root, tmp / "images", order)
-    (tmp / "loop.toml").write_text(CONFIG)
+    (tmp / "loop.toml").write_text(f"threads = {threads}\n{CONFIG}")
     rrd = tmp / "run.rrd"
     result = cli_helpers.vslam("run", folder, "--gt", folder / "gt.txt", "--backend", "map", "--scale", "gt",
-                               "--config", tmp / "loop.toml", "--detail", "standard", "-o", rrd)
+                               "--config", tmp / "loop.toml", "--detail", "standard", "-o", rrd,
+                               "--trajectory-out", tmp / "run.txt")
     assert result.returncode == 0, result.stderr
     return rrd, order
 
@@ -110,6 +114,25 @@ def test_inspect_lists_the_loops(revisit: tuple[Path, list[int]]) -> None:
     for loop in loops:
         assert set(loop) == {"frame", "matched_frame", "inliers", "correction_m", "correction_deg"}
         assert loop["inliers"] >= 40 and 0.0 <= loop["correction_m"] < 5.0 and 0.0 <= loop["correction_deg"] < 10.0
+
+
+LOOP_ENTITIES = ("/loops/closed", "/loops/candidates", "/world/trajectory/estimate")
+
+
+def test_loop_closing_is_deterministic(kitti_root: Path, revisit: tuple[Path, list[int]],
+                                       tmp_path: Path) -> None:
+    """The same revisit with the loop search in the tracking thread (1 thread) instead of the worker process: the
+    search is collected at the same keyframe either way, so the loops, the candidates, the recorded trajectory
+    and the trajectory written after the run are identical."""
+    rrd, order = revisit
+    inline, _ = _run(kitti_root, tmp_path, order, threads=1)
+    assert (tmp_path / "run.txt").read_text() == (rrd.parent / "run.txt").read_text()
+    for entity in LOOP_ENTITIES:
+        ours, theirs = read_entity(rrd, entity), read_entity(inline, entity)
+        components = sorted(c for c in ours.columns if "RowId" not in c and c != "frame")  # each run its own row ids
+        assert components, entity
+        assert ours.select(["frame", *components]).equals(theirs.select(["frame", *components])), entity
+    assert len(read_entity(rrd, "/loops/closed")) >= 1
 
 
 def test_no_loop_on_an_open_route(open_route: tuple[Path, list[int]]) -> None:

@@ -58,6 +58,11 @@ def test_map_folder_is_readable(saved: Path) -> None:
     assert set(features["keyframe_id"].to_list()) == set(keyframes["keyframe_id"].to_list())
     # the drive went ~30 m forward (KITTI 05 frames 0..58): the landmarks' extent says so
     assert header["extent_m"][2] > 30.0
+    # the global bundle adjustment before saving: every keyframe, the reprojection error no worse after it
+    adjusted = header["global_adjustment"]
+    assert adjusted["keyframes"] == header["keyframes"] and adjusted["landmarks"] >= 300
+    before, after = adjusted["mean_error_px"]
+    assert after <= before and after < 1.0
 
 
 def test_inspect_summarises_a_map(saved: Path) -> None:

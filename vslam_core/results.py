@@ -218,7 +218,8 @@ class LoopCandidate:
 @dataclass(frozen=True)
 class LoopClosed:
     """A loop closed: the pose graph over the segment's K keyframes (odometry edges + the loop edge) optimised,
-    the keyframes and their landmarks moved. Applied at a keyframe insertion (a fixed point)."""
+    the keyframes and their landmarks moved. Found by the search submitted at the keyframe after the query's and
+    applied when the one after that is inserted (a fixed point); the poses are the map's when it was applied."""
 
     query_keyframe: int
     candidate_keyframe: int
@@ -233,7 +234,7 @@ class LoopClosed:
     correction_m: np.ndarray  # (K,) distance each keyframe moved
     correction_deg: np.ndarray  # (K,) rotation applied to each
     landmarks_moved: int
-    milliseconds: float  # pose graph optimisation and map update
+    milliseconds: float  # pose graph optimisation (in the search) and map update (at the fixed point)
 
 
 @dataclass(frozen=True)
@@ -242,7 +243,8 @@ class LoopStep:
 
     candidates: tuple[LoopCandidate, ...] = ()
     closed: LoopClosed | None = None
-    timings_ms: dict[str, float] = field(default_factory=dict)  # describe, query, verify, optimise
+    timings_ms: dict[str, float] = field(default_factory=dict)  # describe, query, verify, optimise (the search);
+    # wait, apply, submit (the tracking thread)
 
 
 @dataclass(frozen=True)

@@ -9,6 +9,8 @@ from typing import Any
 
 from vslam_core import __version__
 from vslam_core.config import EngineConfig
+from vslam_core.mapping.global_adjustment import adjust_map
+from vslam_core.mapping.map_scale import for_scale
 from vslam_core.mapping.storage import camera_dict, read_header, save_map, snapshot
 from vslam_core.mapping.tracking import MapTracking
 from vslam_core.pipeline import Engine
@@ -28,16 +30,28 @@ def save_map_problem(path: Path | None, prior: Path | None, config: EngineConfig
     return None
 
 
-def map_saver(path: Path, source: FrameSource, config: EngineConfig) -> Callable[[Engine], None]:
-    """The run's `finish` step that writes the map to `path`."""
+def map_saver(path: Path, source: FrameSource, config: EngineConfig,
+              adjust: bool = True) -> Callable[[Engine], None]:
+    """The run's `finish` step that writes the map to `path`, after a global bundle adjustment of every keyframe
+    and landmark (vslam_core/mapping/global_adjustment.py) unless `adjust` is False. The run's own trajectory
+    output was taken before it."""
 
     def save(engine: Engine) -> None:
         assert isinstance(engine, MapTracking)
         if engine.loop is not None:
             engine.loop.finish(engine.mapping.map)
-        places = engine.loop.database.places if engine.loop is not None else {}
-        header = {"vslam_version": __version__, "camera": camera_dict(source.intrinsics), "scale": config.scale,
-                  "source": source.name, "frames": describe_indices(source.indices)}
+        places = engine.loop.places if engine.loop is not None else {}
+        header: dict[str, Any] = {"vslam_version": __version__, "camera": camera_dict(source.intrinsics),
+                                  "scale": config.scale, "source": source.name,
+                                  "frames": describe_indices(source.indices)}
+        adjusted = (adjust_map(engine.mapping.map, source.intrinsics.K, for_scale(config.map, config.scale),
+                               config.scale) if adjust else None)
+        if adjusted is not None:
+            header["global_adjustment"] = {
+                "keyframes": adjusted.keyframes, "landmarks": adjusted.landmarks,
+                "observations": adjusted.observations,
+                "mean_error_px": [round(adjusted.mean_error_before, 4), round(adjusted.mean_error_after, 4)],
+                "culled_observations": adjusted.culled_observations, "culled_landmarks": adjusted.culled_landmarks}
         save_map(path, snapshot(engine.mapping.map, places, source.indices, header))
 
     return save

@@ -49,7 +49,8 @@ def optimise(poses: np.ndarray, loops: list[LoopEdge], config: LoopConfig,
         loop_noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([loop_rotation] * 3 + [loop_translation] * 3 + [0.01]))
 
         def node(T: np.ndarray, s: float = 1.0) -> Any:  # noqa: N803
-            return gtsam.Similarity3(gtsam.Rot3(T[:3, :3]), np.asarray(T[:3, 3], np.float64), s)
+            # gtsam's Similarity3(R, t, s) maps x to s·(R·x + t): the map's x ↦ s·R·x + t is (R, t / s, s)
+            return gtsam.Similarity3(gtsam.Rot3(T[:3, :3]), np.asarray(T[:3, 3], np.float64) / s, s)
 
         between, equality = gtsam.BetweenFactorSimilarity3, gtsam.NonlinearEqualitySimilarity3
     else:
@@ -76,8 +77,8 @@ def optimise(poses: np.ndarray, loops: list[LoopEdge], config: LoopConfig,
         if similarity:
             value = result.atSimilarity3(X(i))
             corrected[i, :3, :3] = value.rotation().matrix()
-            corrected[i, :3, 3] = value.translation()
             scales[i] = value.scale()
+            corrected[i, :3, 3] = scales[i] * value.translation()  # the camera's centre: s·(R·0 + t)
         else:
             corrected[i] = result.atPose3(X(i)).matrix()
     return corrected, scales

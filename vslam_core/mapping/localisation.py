@@ -5,8 +5,9 @@ should be in view from the predicted pose (the last pose, moved by the last moti
 front, inside the image) matched by descriptor (mutual nearest, Lowe's ratio) → PnP in RANSAC refined on the
 inliers (vslam_core/mapping/pnp.py) in the map's frame (`MAP`). Without a prediction, or when that fails: the
 prior keyframes most alike by bag of words (vocabulary built from the map's own features) give the landmarks
-to match (`RELOCALISED`). A pose far from the prediction is rejected. A frame neither places keeps the last
-pose and is flagged held (`LOST`).
+to match (`RELOCALISED`). A pose far from the prediction is rejected. The pose found is then refined on every
+landmark in view re-found by projection (vslam_core/mapping/localisation_refine.py). A frame neither places keeps
+the last pose and is flagged held (`LOST`).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from vslam_core.geometry import invert_pose
 from vslam_core.loop.places import describe_image
 from vslam_core.loop.vocabulary import BinaryVocabulary, similarity
 from vslam_core.mapping.local_mapping import DESCRIPTOR_PATCH
+from vslam_core.mapping.localisation_refine import match_by_projection, refine_pose
 from vslam_core.mapping.pnp import project, solve_pnp
 from vslam_core.mapping.storage import StoredMap
 from vslam_core.results import FrameResult, FrameStatus, Health, MapFrame, PnPEstimate, Reason, TrackingMode
@@ -81,6 +83,8 @@ class MapLocalisation:
         found = estimate is not None and estimate.rejected is None and estimate.T_world_cam is not None
         if found:
             assert estimate is not None and estimate.T_world_cam is not None
+            estimate = self._refined(estimate, pixels, descriptors)
+            assert estimate.T_world_cam is not None
             pose = estimate.T_world_cam
             if self._last_pose is not None and self._since_localised == 1:
                 self._motion = invert_pose(self._last_pose) @ pose
@@ -103,6 +107,24 @@ class MapLocalisation:
         if jump > MAX_JUMP_M * self._since_localised:
             return replace(estimate, rejected=f"{jump:.1f} m from the predicted pose")
         return estimate
+
+    def _refined(self, estimate: PnPEstimate, pixels: np.ndarray, descriptors: np.ndarray) -> PnPEstimate:
+        """The pose refined on every landmark in view re-found by projection (localisation_refine.py); the
+        first estimate if that gives fewer inliers."""
+        assert estimate.T_world_cam is not None
+        landmarks = self._in_view(estimate.T_world_cam)
+        positions = self.prior.landmark_positions[landmarks]
+        which, feature = match_by_projection(project(positions, estimate.T_world_cam, self._K),
+                                             self.prior.landmark_descriptors[landmarks], pixels, descriptors)
+        if len(which) < self.config.map.pnp_min_inliers:
+            return estimate
+        observed = pixels[feature].astype(np.float64).reshape(-1, 2)
+        solution = refine_pose(positions[which], observed, self._K, estimate.T_world_cam,
+                               self.config.map.reloc_threshold_px)
+        if solution.T_world_cam is None or solution.inlier_mask.sum() < estimate.inlier_mask.sum():
+            return estimate
+        return PnPEstimate(self.prior.landmark_ids[landmarks[which]], observed, solution.projected,
+                           solution.inlier_mask, solution.T_world_cam)
 
     def _in_view(self, T_world_cam: np.ndarray) -> np.ndarray:  # noqa: N803
         """Indices of the prior landmarks in front of the camera, within range, projecting into the image."""

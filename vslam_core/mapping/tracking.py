@@ -87,10 +87,12 @@ class MapTracking:
         self._previous_image: np.ndarray | None = None  # the last frame's image, usable or not
         self._held: set[int] = set()  # run positions whose pose was held (no tracking, no relocalisation)
         self._segment_lost = False  # relocalisation failed: a new segment starts at the next frame with a pose
-        self.loop = LoopClosing(self._K, config, self.mapping.describer) if config.loop.enabled else None
+        self.loop = LoopClosing(self._K, config, background=config.threads > 1) if config.loop.enabled else None
 
     def close(self) -> None:
         self.mapping.close()
+        if self.loop is not None:
+            self.loop.close()
 
     def refined_poses(self, count: int) -> list[np.ndarray]:
         """(4, 4) poses of the first `count` frames after the last bundle adjustment: each frame moved with
@@ -100,6 +102,8 @@ class MapTracking:
         flagged in their results)."""
         if self.mapping.collect_bundle_adjustment() is not None:
             self._odometry.set_keyframe_pose(self.pose_of(self._odometry.key_position))
+        if self.loop is not None:
+            self.loop.finish(self.mapping.map)  # the last loop search's loop, if any, moves the keyframes too
         poses = [self.pose_of(position) for position in range(count)]
         position = 0
         while position < count:

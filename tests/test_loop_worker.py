@@ -1,0 +1,62 @@
+"""The loop search's hand-over (vslam_core/loop/worker.py): the worker process gives the same results as the
+search run in the tracking thread, and a run carries on (searching in its own process) if the worker dies."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from vslam_core.config import EngineConfig
+from vslam_core.loop.search import SearchJob
+from vslam_core.loop.worker import LoopWorker
+
+K = np.array([[700.0, 0.0, 320.0], [0.0, 700.0, 120.0], [0.0, 0.0, 1.0]])
+
+
+def _job(keyframe_id: int) -> SearchJob:
+    """A keyframe of a textured 240 x 640 image (its own random blobs), without landmarks."""
+    rng = np.random.default_rng(keyframe_id)
+    image = cv2.GaussianBlur((rng.random((240, 640)) * 255).astype(np.uint8), (5, 5), 1.5)
+    empty = np.zeros((0, 3))
+    return SearchJob(keyframe_id=keyframe_id, position=3 * keyframe_id, segment=0, image=image,
+                     point_ids=np.zeros(0, np.int64), points_cam=empty, point_pixels=np.zeros((0, 2), np.float32),
+                     point_descriptors=np.zeros((0, 32), np.uint8), graph_ids=np.arange(keyframe_id + 1),
+                     graph_positions=3 * np.arange(keyframe_id + 1),
+                     graph_poses=np.tile(np.eye(4), (keyframe_id + 1, 1, 1)))
+
+
+def test_worker_process_matches_the_search_in_this_process() -> None:
+    config = EngineConfig(backend="map")
+    inline, background = LoopWorker(K, config, background=False), LoopWorker(K, config, background=True)
+    try:
+        for keyframe_id in range(3):
+            results = []
+            for worker in (inline, background):
+                worker.submit(_job(keyframe_id))
+                assert worker.busy
+                results.append(worker.collect())
+            ours, theirs = results
+            assert ours is not None and theirs is not None
+            assert ours.keyframe_id == theirs.keyframe_id == keyframe_id
+            assert len(ours.pixels) > 100  # described: the image's FAST corners
+            np.testing.assert_array_equal(ours.pixels, theirs.pixels)
+            np.testing.assert_array_equal(ours.descriptors, theirs.descriptors)
+        assert background.collect() is None  # nothing pending
+    finally:
+        inline.close()
+        background.close()
+
+
+def test_a_dead_worker_is_replaced_by_the_search_in_this_process() -> None:
+    worker = LoopWorker(K, EngineConfig(backend="map"), background=True)
+    try:
+        worker.submit(_job(0))
+        assert worker.collect() is not None
+        process = worker._process  # the worker this test started
+        process.kill()
+        process.join(timeout=10)
+        worker.submit(_job(1))
+        result = worker.collect()
+        assert result is not None and result.keyframe_id == 1 and len(result.pixels) > 100
+    finally:
+        worker.close()

@@ -1,0 +1,133 @@
+"""Loop search beside tracking: a worker process that owns a `LoopSearch` and handles its jobs one at a time.
+
+A process, not a thread: measured on this machine, a busy Python thread kept 35 % of its speed while another
+thread ran gtsam's pose-graph optimisation and 58 % while another described a keyframe (FAST + ORB: OpenCV
+releases the GIL, but the keypoint lists around it are Python). Without `background` (one thread) the job runs
+in this process when its result is collected. Either way a job's result is collected at a fixed point chosen
+by the caller and depends only on the jobs submitted before it, so runs are deterministic.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import queue
+import threading
+import time
+from multiprocessing.connection import Connection
+from typing import Any
+
+import cv2
+import numpy as np
+
+from vslam_core.config import EngineConfig
+from vslam_core.loop.search import LoopSearch, SearchJob, SearchResult
+
+
+def _serve(jobs: Any, connection: Connection, K: np.ndarray, config: EngineConfig) -> None:  # noqa: N803
+    """The worker process: run each job received, until None arrives."""
+    cv2.setNumThreads(1)  # one core's worth: the other is tracking's
+    search = LoopSearch(K, config)
+    # gtsam (a few seconds to import) is needed only when a loop is accepted: imported beside the first searches
+    threading.Thread(target=search.warm_up, name="vslam-gtsam-import", daemon=True).start()
+    parent = multiprocessing.parent_process()
+    while True:
+        try:
+            job = jobs.get(timeout=1.0)
+        except queue.Empty:  # nothing to do: stop if the run's process is gone (killed: no None will come)
+            if parent is not None and not parent.is_alive():
+                return
+            continue
+        if job is None:
+            return
+        try:
+            connection.send(search.run(job))
+        except (BrokenPipeError, OSError):  # the run's process is gone
+            return
+
+
+class LoopWorker:
+    """Submit a job, collect its result later (waiting for it if it is not done)."""
+
+    def __init__(self, K: np.ndarray, config: EngineConfig, background: bool) -> None:  # noqa: N803
+        self._K = K
+        self._config = config
+        self._pending: SearchJob | None = None
+        self._connection: Connection | None = None
+        self._process: Any = None
+        self._local: LoopSearch | None = None
+        self.waited_ms = 0.0  # how long the last `collect` waited for the worker
+        self._jobs: Any = None
+        if background:
+            context = multiprocessing.get_context("spawn")
+            # jobs through a queue: its feeder thread writes the keyframe's image to the pipe, so submitting does
+            # not block tracking; results come back through a pipe
+            self._jobs = context.Queue()
+            self._connection, child = context.Pipe(duplex=False)
+            self._process = context.Process(target=_serve, args=(self._jobs, child, K, config), name="vslam-loop",
+                                            daemon=True)
+            self._process.start()
+            child.close()
+        else:
+            self._local = LoopSearch(K, config)
+
+    @property
+    def busy(self) -> bool:
+        return self._pending is not None
+
+    def submit(self, job: SearchJob) -> None:
+        assert self._pending is None, "collect the previous result first"
+        self._pending = job
+        if self._connection is not None:
+            if self._process is not None and not self._process.is_alive():  # it died: search here from now on
+                self._fall_back()
+            else:
+                self._jobs.put(job)
+
+    def _fall_back(self) -> None:
+        """The worker process is gone (e.g. killed): search in this process from now on, with an empty place
+        database (the keyframes before are no longer candidates)."""
+        if self._connection is not None:
+            self._connection.close()
+        self._connection = None
+        self._local = LoopSearch(self._K, self._config)
+
+    def collect(self) -> SearchResult | None:
+        """The submitted job's result (waiting for it), or None if nothing was submitted."""
+        job, self._pending = self._pending, None
+        self.waited_ms = 0.0
+        if job is None:
+            return None
+        start = time.perf_counter()
+        result = self._receive(job)
+        self.waited_ms = (time.perf_counter() - start) * 1000.0  # in one thread: the whole search
+        return result
+
+    def _receive(self, job: SearchJob) -> SearchResult:
+        if self._connection is not None:
+            try:
+                result: SearchResult = self._connection.recv()
+                return result
+            except (EOFError, OSError):
+                self._fall_back()
+        assert self._local is not None
+        return self._local.run(job)
+
+    def close(self) -> None:
+        if self._connection is not None:
+            try:
+                if self._pending is not None:
+                    self._connection.recv()
+                self._jobs.put(None)
+            except (OSError, EOFError):
+                pass
+            self._connection.close()
+            self._connection = None
+        if self._jobs is not None:
+            self._jobs.close()
+            self._jobs.join_thread()
+            self._jobs = None
+        if self._process is not None:
+            self._process.join(timeout=5)
+            if self._process.is_alive():
+                self._process.kill()
+            self._process = None

@@ -1,0 +1,107 @@
+"""Global bundle adjustment: every keyframe and landmark of the map refined together, once, before the map is
+saved (`vslam run --save-map`), so a later drive localises against a self-consistent map.
+
+The same factor graph as the windowed BA (vslam_core/mapping/bundle_adjustment.py: robust reprojection errors,
+Triggs et al. 2000, eq. 2) over the whole map instead of a window, with the scale source's priors kept: with a
+metric scale, each pair of consecutive keyframes of a segment keeps its `RangeFactorPose3` (the scale source's
+step length; sigma as in the windowed BA). The gauge: each segment's first keyframe is held fixed (its first two
+with unit scale, which also fix the scale). Afterwards observations that reproject worse than
+`cull_reprojection_px` are dropped, and landmarks left with fewer than two observations.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from vslam_core.config import MapConfig, ScaleSource
+from vslam_core.geometry import orthonormalise
+from vslam_core.mapping.bundle_adjustment import Problem, solve
+from vslam_core.mapping.map import Map
+
+GLOBAL_ITERATIONS = 20  # Levenberg–Marquardt iterations
+
+
+@dataclass(frozen=True)
+class GlobalAdjusted:
+    """What the global adjustment did."""
+
+    keyframes: int
+    landmarks: int
+    observations: int
+    mean_error_before: float  # px, over the finite reprojection errors
+    mean_error_after: float
+    culled_observations: int
+    culled_landmarks: int
+    milliseconds: float
+
+
+def adjust_map(map_: Map, K: np.ndarray, config: MapConfig, scale: ScaleSource,  # noqa: N803
+               iterations: int = GLOBAL_ITERATIONS) -> GlobalAdjusted | None:
+    """Refine every keyframe pose and landmark position of `map_` in place; None if there is nothing to adjust
+    (fewer than two keyframes, or no landmark seen twice)."""
+    gauge = 2 if scale == "none" else 1
+    by_segment: dict[int, list[int]] = {}
+    for keyframe in map_.keyframes.values():
+        by_segment.setdefault(keyframe.segment, []).append(keyframe.id)
+    free = [k for ids in by_segment.values() for k in ids[gauge:]]
+    fixed = [k for ids in by_segment.values() for k in ids[:gauge]]
+    keyframe_ids = free + fixed  # the problem's first `len(free)` poses are variables, the rest held
+    index = {k: n for n, k in enumerate(keyframe_ids)}
+    landmark_ids = [i for i, landmark in map_.landmarks.items()
+                    if sum(k in index for k in landmark.observations) >= 2]
+    if not free or not landmark_ids:
+        return None
+    pose_index, point_index, pixels = [], [], []
+    for n, landmark_id in enumerate(landmark_ids):
+        for keyframe_id, pixel in map_.landmarks[landmark_id].observations.items():
+            pose_index.append(index[keyframe_id])
+            point_index.append(n)
+            pixels.append(pixel)
+    problem = Problem(
+        K=K, poses=np.array([map_.keyframes[k].T_world_cam for k in keyframe_ids]), optimised=len(free),
+        points=map_.positions(landmark_ids), observation_pose=np.array(pose_index, np.int64),
+        observation_point=np.array(point_index, np.int64),
+        observation_pixels=np.array(pixels, np.float64).reshape(-1, 2),
+        ranges=_ranges(map_, by_segment, index, config, scale), fix_first=0, iterations=iterations,
+        huber_px=config.ba_huber_px)
+    solution = solve(problem)
+    for keyframe_id, pose in zip(free, solution.poses, strict=True):
+        map_.keyframes[keyframe_id].T_world_cam = orthonormalise(pose)
+    for landmark_id, position in zip(landmark_ids, solution.points, strict=True):
+        map_.landmarks[landmark_id].position = position
+    culled_observations, culled_landmarks = 0, 0
+    bad = ~(solution.errors_after <= config.cull_reprojection_px)
+    for pose, point in zip(problem.observation_pose[bad], problem.observation_point[bad], strict=True):
+        landmark_id = landmark_ids[point]
+        if landmark_id not in map_.landmarks:
+            continue
+        map_.remove_observation(landmark_id, keyframe_ids[pose])
+        culled_observations += 1
+        if map_.landmarks[landmark_id].observation_count < 2:
+            map_.remove_landmark(landmark_id)
+            culled_landmarks += 1
+    before, after = solution.errors_before, solution.errors_after
+    return GlobalAdjusted(
+        keyframes=len(keyframe_ids), landmarks=len(landmark_ids), observations=len(pose_index),
+        mean_error_before=float(before[np.isfinite(before)].mean()),
+        mean_error_after=float(after[np.isfinite(after)].mean()),
+        culled_observations=culled_observations, culled_landmarks=culled_landmarks,
+        milliseconds=solution.milliseconds)
+
+
+def _ranges(map_: Map, by_segment: dict[int, list[int]], index: dict[int, int], config: MapConfig,
+            scale: ScaleSource) -> np.ndarray:
+    """(R, 4) rows (pose a, pose b, distance, sigma): the scale source's step between consecutive keyframes of a
+    segment, as the windowed BA has them (none with unit scale)."""
+    rows = []
+    if scale != "none":
+        for ids in by_segment.values():
+            for previous, current in zip(ids, ids[1:], strict=False):
+                step = map_.keyframes[current].metric_step
+                if step is None:
+                    continue
+                sigma = config.scale_sigma_gt if scale == "gt" else max(config.scale_sigma_height * step, 1e-3)
+                rows.append((index[previous], index[current], step, sigma))
+    return np.array(rows, np.float64).reshape(-1, 4)
