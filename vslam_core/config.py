@@ -154,6 +154,15 @@ class MapConfig:
     reloc_threshold_px: float = 3.0
     reloc_iterations: int = 500
     reloc_min_inliers: int = 30
+    # local-map tracking by projection (vslam_core/mapping/local_map.py) and guided relocalisation
+    local_map_keyframes: int = 10  # keyframes sharing the most landmarks with the reference one (plus neighbours)
+    local_map_radius_px: float = 8.0  # search window half-size around a projection on a tracked frame
+    local_map_max_distance: int = 64  # Hamming distance (of 256 bits) of a match at most
+    local_map_ratio: float = 0.8  # Lowe's ratio test among the corners of one window
+    local_map_levels: int = 3  # pyramid levels the frame's corners are described at (multi-scale)
+    local_map_scale: float = 1.2  # scale factor between pyramid levels
+    reloc_radius_px: float = 24.0  # first search window half-size around the motion model's prediction
+    reloc_widenings: int = 4  # the window doubles this many times before the unguided search
 
 
 @dataclass(frozen=True)

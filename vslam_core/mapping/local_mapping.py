@@ -72,6 +72,8 @@ class LocalMapping:
         correction = solution.poses[submitted.optimised - 1] @ invert_pose(newest.T_world_cam)
         for keyframe_id, pose in zip(submitted.keyframe_ids[: submitted.optimised], solution.poses, strict=True):
             self.map.keyframes[keyframe_id].T_world_cam = orthonormalise(pose)
+        lifetimes = np.array([len(self.map.landmarks[int(i)].observations) if int(i) in self.map.landmarks else 0
+                              for i in submitted.landmark_ids], np.int64)  # keyframes tying each, before culling
         culled = self._apply_landmarks(problem, solution, submitted)
         finite = np.isfinite(solution.errors_before) & np.isfinite(solution.errors_after)
         before, after = solution.errors_before[finite], solution.errors_after[finite]
@@ -93,6 +95,7 @@ class LocalMapping:
             culled=culled,
             milliseconds=solution.milliseconds,
             factors=len(problem.observation_pose),
+            landmark_keyframes=lifetimes,
         ), correction
 
     def _apply_landmarks(self, problem: Problem, solution: Solution, submitted: _Submitted) -> int:

@@ -30,9 +30,11 @@ from vslam_core.features import match_descriptors
 from vslam_core.geometry import interpolate_pose, invert_pose, orthonormalise, pose_matrix, rotation_angle
 from vslam_core.lens import distort_pixels, undistort_pixels
 from vslam_core.loop.closing import LoopClosing
+from vslam_core.mapping.local_map import LocalMapSearcher
 from vslam_core.mapping.local_mapping import DESCRIPTOR_PATCH, LocalMapping
 from vslam_core.mapping.map_scale import MapSpeed, for_scale, translation_parallax
 from vslam_core.mapping.pnp import PnPSolution, solve_pnp
+from vslam_core.mapping.refinding import MapRefinding
 from vslam_core.results import (
     STANDING_STILL,
     BundleAdjusted,
@@ -88,6 +90,7 @@ class MapTracking:
         self._held: set[int] = set()  # run positions whose pose was held (no tracking, no relocalisation)
         self._segment_lost = False  # relocalisation failed: a new segment starts at the next frame with a pose
         self.loop = LoopClosing(self._K, config, self.mapping.describer) if config.loop.enabled else None
+        self.refinding = MapRefinding(self._K, self._cfg, LocalMapSearcher(self._K, self._cfg))
 
     def close(self) -> None:
         self.mapping.close()
@@ -125,6 +128,7 @@ class MapTracking:
         return keyframe.T_world_cam @ entry[1]
 
     def process(self, frame: Frame) -> FrameResult:
+        self.refinding.start_frame(frame)
         vo = self._odometry.process(frame)
         timings = vo.timings_ms
         if vo.status == FrameStatus.INIT:
@@ -139,7 +143,8 @@ class MapTracking:
         alive = vo.track_fate >= TrackFate.NOT_USED
         pnp = self._track_map(vo.position, vo.track_ids[alive], vo.track_cur[alive], two_view, vo)
         timings["pnp"] = _lap(clock)
-        lost_tracks = vo.reason == Reason.TOO_FEW_TRACKS or Reason.RECOVERED in vo.health.reasons
+        lost_tracks = (vo.reason == Reason.TOO_FEW_TRACKS or Reason.RECOVERED in vo.health.reasons
+                       or self.refinding.frames_missing())  # after missing frames the tracks cannot be trusted
         warnings: list[Reason] = []
         relocalisation = None
         pose, mode, why = None, TrackingMode.LOST, None
@@ -147,7 +152,12 @@ class MapTracking:
             pose, mode = self._metric(pnp.T_world_cam, vo), TrackingMode.MAP
         elif self._has_map() and (lost_tracks or self._gap):
             clock = time.perf_counter()
-            relocalisation, found = self.relocalise(frame.image, vo.position)
+            relocalisation, found = self.refinding.relocalise(self.mapping.map, self._reference, self._segment,
+                                                              (self.config.pose.seed, vo.position))
+            if found is not None:
+                self._link_found(found)
+            else:
+                relocalisation, found = self.relocalise(frame.image, vo.position)
             timings["relocalise"] = _lap(clock)
             if found is not None:
                 pnp, pose, mode, why = found, found.T_world_cam, TrackingMode.RELOCALISED, "relocalised"
@@ -161,6 +171,12 @@ class MapTracking:
             if pose is not None:
                 mode = TrackingMode.COASTED
                 warnings.append(Reason.COASTED)
+        if pose is not None and mode in (TrackingMode.MAP, TrackingMode.TWO_VIEW) and self._has_map():
+            clock = time.perf_counter()
+            refound = self.refinding.track(self.mapping.map, self._reference, self._segment, pose,
+                                           set(self._links.values()))
+            self._link_found(refound)
+            timings["local_map"] = _lap(clock)
         if relocalisation is not None:
             self._segment_lost = not relocalisation.success
             if self._segment_lost:
@@ -207,6 +223,13 @@ class MapTracking:
                 del self._links[track_id]
         return PnPEstimate(landmark_ids, observed, solution.projected, solution.inlier_mask, solution.T_world_cam,
                            rejected)
+
+    def _link_found(self, found: PnPEstimate) -> None:
+        """Start a track at each landmark re-found in this frame (PnP inliers when it has a pose) and link it,
+        so the landmark is tracked on and observed by the next keyframe."""
+        keep = found.inlier_mask
+        new_tracks = self._odometry.add_tracks(found.observed[keep].astype(np.float32))
+        self._links.update(zip(new_tracks.tolist(), found.landmark_ids[keep].tolist(), strict=True))
 
     def _check_pnp(self, solution: PnPSolution, two_view: np.ndarray | None, vo: FrameResult) -> str | None:
         """Why a PnP pose is not trusted, if it is not."""
@@ -391,12 +414,13 @@ class MapTracking:
         if self._speed is not None and not held:
             self._speed.observe(vo.position, pose, mode in (TrackingMode.MAP, TrackingMode.RELOCALISED))
         self._previous_image = frame.image
+        self.refinding.end_frame(None if held else pose)
         if mode in (TrackingMode.COASTED, TrackingMode.RELOCALISED) and vo.reason not in UNUSABLE_IMAGE:
             self._odometry.rebase_keyframe()  # the front end measures the next frame from this one
         self._odometry.set_keyframe_pose(self.pose_of(self._odometry.key_position))
         return self._result(vo, pose, held, mode, warnings, two_view,
                             MapFrame(mode, self._segment, two_view, self._at_raw_pixels(pnp), keyframe, bundle,
-                                     relocalisation, view, loop))
+                                     relocalisation, view, loop, self.refinding.search))
 
     def _ideal(self, raw: np.ndarray) -> np.ndarray:
         """(N, 2) raw image pixels → (N, 2) float64 ideal pinhole pixels of K (a copy when the lens has none)."""
