@@ -188,6 +188,7 @@ class LocalMapSearch:
     radius_px: np.ndarray  # (S,) half-size of each square search window (the last, widest one tried)
     found_pixels: np.ndarray  # (S, 2) the corner each was matched to; NaN where not re-found
     distance: np.ndarray  # (S,) Hamming distance of the match (-1 where not re-found)
+    accepted: np.ndarray  # (S,) bool: re-found and used (agreeing with the pose; linked to a new track)
 
     @property
     def found_mask(self) -> np.ndarray:

@@ -12,12 +12,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from vslam_core.config import MapConfig
-from vslam_core.mapping.local_map import FrameCorners, LocalMapSearcher, local_keyframes
+from vslam_core.config import MapConfig, TrackerConfig
+from vslam_core.mapping.local_map import FrameCorners, LocalMapSearcher, local_keyframes, refind_by_flow
+from vslam_core.mapping.local_mapping import LocalMapping
 from vslam_core.mapping.map import Map
 from vslam_core.mapping.relocalisation import MotionModel, bridged_prediction, relocalise_guided
 from vslam_core.results import LocalMapSearch, PnPEstimate, Relocalisation
-from vslam_core.sources.base import Frame
+from vslam_core.sources.base import CameraIntrinsics, Frame
 
 INTERVALS = 10  # frame intervals remembered
 MISSING_FACTOR = 1.5  # an interval this much longer than usual: frames are missing
@@ -26,8 +27,11 @@ MISSING_FACTOR = 1.5  # an interval this much longer than usual: frames are miss
 class MapRefinding:
     """Re-finds the map's landmarks in each frame (see the module docstring)."""
 
-    def __init__(self, K: np.ndarray, config: MapConfig, searcher: LocalMapSearcher) -> None:  # noqa: N803
+    def __init__(self, K: np.ndarray, config: MapConfig, searcher: LocalMapSearcher,  # noqa: N803
+                 tracker: TrackerConfig, lens: CameraIntrinsics) -> None:
         self._K = K
+        self._lens = lens
+        self._tracker = tracker
         self._config = config
         self._searcher = searcher
         self._motion = MotionModel()
@@ -69,17 +73,20 @@ class MapRefinding:
             self._corners = self._searcher.corners(self._image)
         return self._corners
 
-    def track(self, world: Map, reference: int, segment: int, T_world_cam: np.ndarray,  # noqa: N803
+    def track(self, mapping: LocalMapping, reference: int, segment: int, T_world_cam: np.ndarray,  # noqa: N803
               exclude: set[int]) -> PnPEstimate:
         """Landmarks of the local map around keyframe `reference` that no live track follows (`exclude`),
-        re-found near their projection with the frame's pose: (L,) ids at (L, 2) pixels (all marked inliers)."""
+        re-found near their projection with the frame's pose (local_map.refind_by_flow): (L,) ids at (L, 2)
+        ideal pixels, inliers where they agree with the pose (only those are linked to new tracks)."""
+        assert self._image is not None, "start_frame first"
+        world = mapping.map
         keyframe_ids = local_keyframes(world, reference, segment, self._config.local_map_keyframes)
-        search = self._searcher.search(world, self._frame_corners(), keyframe_ids, T_world_cam,
-                                       self._config.local_map_radius_px, exclude, "track")
+        search, agrees = refind_by_flow(world, mapping.keyframe_images, self._image, keyframe_ids, T_world_cam,
+                                        self._K, self._lens, self._config, self._tracker, mapping.describer, exclude)
         self.search = search
         found = search.found_mask
         return PnPEstimate(search.landmark_ids[found], search.found_pixels[found], search.projected[found],
-                           np.ones(int(found.sum()), bool), T_world_cam)
+                           agrees[found], T_world_cam)
 
     def relocalise(self, world: Map, reference: int, segment: int,
                    seed: tuple[int, ...]) -> tuple[Relocalisation, PnPEstimate | None]:
@@ -99,6 +106,7 @@ class MapRefinding:
         if solution is None or solution.T_world_cam is None:
             return Relocalisation(False, None, candidates, len(outcome.landmark_ids), 0), None
         inliers = set(outcome.landmark_ids[solution.inlier_mask].tolist())
+        self.search.accepted[:] = outcome.search.found_mask & np.isin(outcome.search.landmark_ids, list(inliers))
         best = max(keyframe_ids, key=lambda k: (len(world.keyframes[k].landmark_ids & inliers), k))
         return (Relocalisation(True, best, candidates, len(outcome.landmark_ids), len(inliers)),
                 PnPEstimate(outcome.landmark_ids, outcome.pixels, solution.projected, solution.inlier_mask,

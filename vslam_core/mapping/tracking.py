@@ -33,7 +33,7 @@ from vslam_core.loop.closing import LoopClosing
 from vslam_core.mapping.local_map import LocalMapSearcher
 from vslam_core.mapping.local_mapping import DESCRIPTOR_PATCH, LocalMapping
 from vslam_core.mapping.map_scale import MapSpeed, for_scale, translation_parallax
-from vslam_core.mapping.pnp import PnPSolution, solve_pnp
+from vslam_core.mapping.pnp import PnPSolution, project, solve_pnp
 from vslam_core.mapping.refinding import MapRefinding
 from vslam_core.results import (
     STANDING_STILL,
@@ -41,6 +41,7 @@ from vslam_core.results import (
     FrameResult,
     FrameStatus,
     Health,
+    LocalMapSearch,
     LoopStep,
     MapFrame,
     PnPEstimate,
@@ -80,6 +81,7 @@ class MapTracking:
         self.mapping = LocalMapping(self._K, self._cfg, config.scale, background=config.threads > 1,
                                     lens=intrinsics)
         self._links: dict[int, int] = {}  # live track id -> landmark id
+        self._suspended: dict[int, int] = {}  # tracks PnP rejected -> their landmark (observed at keyframes only)
         self._segment = 0
         self._reference = -1  # newest keyframe id
         self._relative: dict[int, tuple[int, np.ndarray]] = {}  # run position -> (keyframe id, T_key_frame)
@@ -90,7 +92,9 @@ class MapTracking:
         self._held: set[int] = set()  # run positions whose pose was held (no tracking, no relocalisation)
         self._segment_lost = False  # relocalisation failed: a new segment starts at the next frame with a pose
         self.loop = LoopClosing(self._K, config, self.mapping.describer) if config.loop.enabled else None
-        self.refinding = MapRefinding(self._K, self._cfg, LocalMapSearcher(self._K, self._cfg))
+        self._refound: dict[int, np.ndarray] = {}  # landmark id -> ideal pixel: re-found, for a keyframe now
+        self.refinding = MapRefinding(self._K, self._cfg, LocalMapSearcher(self._K, self._cfg, intrinsics),
+                                      config.tracker, intrinsics)
 
     def close(self) -> None:
         self.mapping.close()
@@ -129,6 +133,7 @@ class MapTracking:
 
     def process(self, frame: Frame) -> FrameResult:
         self.refinding.start_frame(frame)
+        self._refound = {}
         vo = self._odometry.process(frame)
         timings = vo.timings_ms
         if vo.status == FrameStatus.INIT:
@@ -173,14 +178,21 @@ class MapTracking:
                 warnings.append(Reason.COASTED)
         if pose is not None and mode in (TrackingMode.MAP, TrackingMode.TWO_VIEW) and self._has_map():
             clock = time.perf_counter()
-            refound = self.refinding.track(self.mapping.map, self._reference, self._segment, pose,
-                                           set(self._links.values()))
+            refound = self.refinding.track(self.mapping, self._reference, self._segment, pose,
+                                           set(self._links.values()) | set(self._suspended.values()))
             self._link_found(refound)
+            with np.errstate(invalid="ignore"):
+                close = np.linalg.norm(refound.observed - refound.projected, axis=1) <= self._cfg.cull_reprojection_px
+            # re-found but a little off the pose (its depth not yet refined): observed by a keyframe made
+            # now, so BA ties it to the keyframes that saw it before (not used by PnP)
+            self._refound = dict(zip(refound.landmark_ids[close & ~refound.inlier_mask].tolist(),
+                                     refound.observed[close & ~refound.inlier_mask], strict=True))
             timings["local_map"] = _lap(clock)
         if relocalisation is not None:
             self._segment_lost = not relocalisation.success
             if self._segment_lost:
                 self._links.clear()
+                self._suspended.clear()
         if self._segment_lost and pose is not None:
             # the old map cannot be reached from here: a new one starts, at a frame that has a pose (a held
             # frame keeps trying to relocalise instead, and its stale pose never becomes a keyframe)
@@ -220,15 +232,34 @@ class MapTracking:
             outliers = {int(t) for t, inlier in zip(track_ids[[n for n, _ in rows]], solution.inlier_mask, strict=True)
                         if not inlier}
             for track_id in outliers:
-                del self._links[track_id]
+                self._suspended[track_id] = self._links.pop(track_id)
         return PnPEstimate(landmark_ids, observed, solution.projected, solution.inlier_mask, solution.T_world_cam,
                            rejected)
+
+    def _suspended_at_keyframe(self, track_ids: np.ndarray, pixels: np.ndarray, pose: np.ndarray) -> dict[int, int]:
+        """Tracks PnP rejected whose (ideal) pixel in a keyframe at `pose` lies within `cull_reprojection_px`
+        of their landmark's projection: the keyframe observes the landmark there (BA refines its depth rather
+        than a duplicate landmark being triangulated); within `pnp_threshold_px` they are linked again. The
+        others are released (their track may start a new landmark). Returns track id → landmark id."""
+        landmarks = self.mapping.map.landmarks
+        rows = [(n, t) for n, t in enumerate(track_ids.tolist()) if self._suspended.get(t) in landmarks]
+        if not rows:
+            return {}
+        landmark_ids = [self._suspended[t] for _, t in rows]
+        error = np.linalg.norm(project(self.mapping.map.positions(landmark_ids), pose, self._K)
+                               - pixels[[n for n, _ in rows]], axis=1)
+        tied = {t: m for (_, t), m, e in zip(rows, landmark_ids, error, strict=True)
+                if e <= self._cfg.cull_reprojection_px}
+        self._links.update({t: m for (_, t), m, e in zip(rows, landmark_ids, error, strict=True)
+                            if e <= self._cfg.pnp_threshold_px})
+        return tied
 
     def _link_found(self, found: PnPEstimate) -> None:
         """Start a track at each landmark re-found in this frame (PnP inliers when it has a pose) and link it,
         so the landmark is tracked on and observed by the next keyframe."""
         keep = found.inlier_mask
-        new_tracks = self._odometry.add_tracks(found.observed[keep].astype(np.float32))
+        raw = distort_pixels(found.observed[keep], self._lens) if self._lens.distorted else found.observed[keep]
+        new_tracks = self._odometry.add_tracks(raw.astype(np.float32))
         self._links.update(zip(new_tracks.tolist(), found.landmark_ids[keep].tolist(), strict=True))
 
     def _check_pnp(self, solution: PnPSolution, two_view: np.ndarray | None, vo: FrameResult) -> str | None:
@@ -395,13 +426,15 @@ class MapTracking:
                 if loop_correction is not None:
                     pose = orthonormalise(loop_correction @ pose)
             track_ids, pixels = self._odometry.live_tracks()
+            tied = self._suspended_at_keyframe(track_ids, self._ideal(pixels), pose)
             keyframe, links, view = self.mapping.insert_keyframe(
                 vo.position, self._segment, pose, track_ids, self._ideal(pixels), frame.image,
                 self._metric_step(vo.position, pose),
-                why, self._links)
+                why, {**self._links, **tied}, self._refound)
             live = set(track_ids.tolist())
             landmarks = self.mapping.map.landmarks
             self._links = {t: m for t, m in {**self._links, **links}.items() if t in live and m in landmarks}
+            self._suspended = {t: m for t, m in tied.items() if t not in self._links and m in landmarks}
             self._reference = keyframe.keyframe_id
             self._since_keyframe = 0
             if self.loop is not None:
@@ -420,7 +453,7 @@ class MapTracking:
         self._odometry.set_keyframe_pose(self.pose_of(self._odometry.key_position))
         return self._result(vo, pose, held, mode, warnings, two_view,
                             MapFrame(mode, self._segment, two_view, self._at_raw_pixels(pnp), keyframe, bundle,
-                                     relocalisation, view, loop, self.refinding.search))
+                                     relocalisation, view, loop, self._search_at_raw_pixels()))
 
     def _ideal(self, raw: np.ndarray) -> np.ndarray:
         """(N, 2) raw image pixels → (N, 2) float64 ideal pinhole pixels of K (a copy when the lens has none)."""
@@ -432,6 +465,14 @@ class MapTracking:
             return pnp
         return replace(pnp, observed=distort_pixels(pnp.observed, self._lens),
                        projected=distort_pixels(pnp.projected, self._lens))
+
+    def _search_at_raw_pixels(self) -> LocalMapSearch | None:
+        """The frame's local-map search with its pixels on the raw image, where overlays are drawn."""
+        search = self.refinding.search
+        if search is None or not self._lens.distorted:
+            return search
+        return replace(search, projected=distort_pixels(search.projected, self._lens),
+                       found_pixels=distort_pixels(search.found_pixels, self._lens))
 
     def _result(self, vo: FrameResult, pose: np.ndarray, held: bool, mode: TrackingMode, warnings: list[Reason],
                 two_view: np.ndarray | None, mapping: MapFrame) -> FrameResult:
