@@ -4,6 +4,7 @@ KITTI frames, and a gap of dropped frames inside a turn bridged by relocalisatio
 
 from __future__ import annotations
 
+import itertools
 import math
 from pathlib import Path
 
@@ -72,30 +73,46 @@ def clean(kitti_root: Path) -> tuple[list[FrameResult], np.ndarray, np.ndarray]:
 
 def test_landmarks_are_refound_where_the_pose_projects_them(clean: tuple[list[FrameResult], np.ndarray, np.ndarray],
                                                             ) -> None:
-    """Every tracked frame searches the local map; tens of landmarks no track followed are re-found a
-    frame, each inside its search window around the projection with the frame's pose. (Open: only ~12 %
-    of them are PnP inliers at the next frame, median offset 4.4 px: wrong matches or landmarks a few
-    pixels off the pose, not yet told apart.)"""
+    """Every tracked frame searches the local map; landmarks no track follows are re-found by KLT from the
+    last keyframe that saw them, inside their search window around the projection with the frame's pose.
+    Only those within the PnP threshold of the projection are linked to a new track, and at the next frame
+    most of those are PnP inliers (measured 12 of 22 on 00 0:60; i23b, which snapped landmarks to FAST
+    corners and linked every match, had ~12 %)."""
     results, _, _ = clean
+    config = MapConfig()
     searches = [r.mapping.local_map for r in results if r.mapping is not None and r.mapping.local_map is not None]
     assert len(searches) > 50 and all(s.purpose == "track" for s in searches)
-    assert np.mean([int(s.found_mask.sum()) for s in searches]) > 15
-    offsets = np.concatenate([np.linalg.norm(s.found_pixels[s.found_mask] - s.projected[s.found_mask], axis=1)
+    assert np.mean([int(s.found_mask.sum()) for s in searches]) > 4
+    offsets = np.concatenate([np.abs(s.found_pixels[s.found_mask] - s.projected[s.found_mask]).max(axis=1)
                               for s in searches])
-    assert np.all(offsets <= MapConfig().local_map_radius_px * math.sqrt(2) + 1e-9)
+    assert np.all(offsets <= config.local_map_radius_px + 1e-9)
+    linked = np.concatenate([np.linalg.norm(s.found_pixels[s.accepted] - s.projected[s.accepted], axis=1)
+                             for s in searches])
+    assert np.all(linked <= config.pnp_threshold_px + 1e-9)
+    assert all(not np.any(s.accepted & ~s.found_mask) for s in searches)
+    inliers = total = 0
+    for result, following in itertools.pairwise(results):
+        search = result.mapping.local_map if result.mapping is not None else None
+        pnp = following.mapping.pnp if following.mapping is not None else None
+        if search is None or pnp is None:
+            continue
+        refound = np.isin(pnp.landmark_ids, search.landmark_ids[search.accepted])
+        inliers += int((refound & pnp.inlier_mask).sum())
+        total += int(refound.sum())
+    assert total >= 10 and inliers / total > 0.4
 
 
 def test_landmarks_tie_many_keyframes_together(clean: tuple[list[FrameResult], np.ndarray, np.ndarray]) -> None:
-    """Landmark lifetimes: with landmarks re-found, the bundle adjustments' landmarks are seen by more
-    keyframes (00 frames 0–59, measured: mean over the BAs 6.2 keyframes per landmark, a third of the last
-    BA's seen by 8 or more; before re-finding 4.7 and 22 %), and the heading stays within 2° of ground
-    truth (measured 1.54°)."""
+    """Landmark lifetimes: tracks PnP rejects stay observations of their landmark at keyframes and re-found
+    landmarks are observed again, so the bundle adjustments' landmarks are seen by many keyframes (00 frames
+    0–59, measured: mean over the BAs 7.2 keyframes per landmark, 57 % of the last BA's seen by 8 or more;
+    4.7 and 22 % without either), and the heading stays within 2° of ground truth."""
     results, poses, gt = clean
     adjustments = [r.mapping.bundle_adjustment for r in results
                    if r.mapping is not None and r.mapping.bundle_adjustment is not None]
     assert all(len(b.landmark_keyframes) == len(b.landmark_ids) for b in adjustments)
-    assert np.mean([b.landmark_keyframes.mean() for b in adjustments]) > 5.5
-    assert np.mean(adjustments[-1].landmark_keyframes >= 8) > 0.28
+    assert np.mean([b.landmark_keyframes.mean() for b in adjustments]) > 6.5
+    assert np.mean(adjustments[-1].landmark_keyframes >= 8) > 0.45
     assert _heading_error(gt[-1], poses[-1]) < 2.0
 
 

@@ -1,14 +1,17 @@
 """Entities of the map backend's local-map tracking by projection and its landmark lifetimes.
 
     /world/camera/image/local_map/projected   Points2D: the local map's landmarks projected with the
-                                        predicted pose, class re-found / not re-found (landmark_id and
+                                        predicted pose, class not re-found / re-found (off the pose: only
+                                        observed by a keyframe made now) / linked (re-found within the PnP
+                                        threshold: a new track follows it) (landmark_id and descriptor
                                         distance on hover in full detail); a row every frame of the map
                                         backend (empty without a search)
     /world/camera/image/local_map/windows     Boxes2D: the square search window around each projection
                                         (same classes)
-    /world/camera/image/local_map/refound     LineStrips2D: projection → the corner it was matched to
+    /world/camera/image/local_map/refound     LineStrips2D: projection → where the landmark was re-found
+                                        (same classes)
     /local_map                          AnyValues per frame: search ("track", "relocalise" or ""),
-                                        keyframes (of the local map), projected, refound, radius_px
+                                        keyframes (of the local map), projected, refound, linked, radius_px
     /map/landmark_lifetimes             AnyValues per bundle adjustment, one instance per bin: keyframes (how
                                         many keyframes observe a landmark) and landmarks (how many of the
                                         BA's landmarks are observed by that many): the histogram of
@@ -28,9 +31,10 @@ from vslam.recording.styles import Detail
 from vslam_core.results import BundleAdjusted, LocalMapSearch
 from vslam_core.sources.base import Frame
 
-NOT_REFOUND, REFOUND = 0, 1
+NOT_REFOUND, REFOUND, LINKED = 0, 1, 2
 LOCAL_MAP_STYLE = {NOT_REFOUND: ("projected, not re-found", (150, 150, 255)),
-                   REFOUND: ("re-found by projection", (40, 220, 60))}
+                   REFOUND: ("re-found, off the pose (keyframe observation only)", (255, 170, 40)),
+                   LINKED: ("re-found and linked to a track", (40, 220, 60))}
 IMAGE_ENTITIES = ("/world/camera/image/local_map/projected", "/world/camera/image/local_map/windows",
                   "/world/camera/image/local_map/refound")
 
@@ -53,6 +57,7 @@ def log_search(columns: ColumnBuffer, frame: Frame, search: LocalMapSearch | Non
         "keyframes": len(search.keyframe_ids) if search is not None else 0,
         "projected": len(search.landmark_ids) if search is not None else 0,
         "refound": int(found.sum()),
+        "linked": int(search.accepted.sum()) if search is not None else 0,
         "radius_px": float(search.radius_px.max()) if search is not None and len(search.radius_px) else 0.0,
     }))
     if detail == Detail.SUMMARY:
@@ -66,7 +71,8 @@ def log_search(columns: ColumnBuffer, frame: Frame, search: LocalMapSearch | Non
         radius = search.radius_px.astype(np.float32)
         pixels = search.found_pixels.astype(np.float32).reshape(-1, 2)
         ids, distance = search.landmark_ids.astype(np.uint32), search.distance.astype(np.int32)
-    classes = np.where(found, REFOUND, NOT_REFOUND).astype(np.uint16)
+    accepted = search.accepted if search is not None else np.zeros(0, bool)
+    classes = np.where(accepted, LINKED, np.where(found, REFOUND, NOT_REFOUND)).astype(np.uint16)
     points: list[Part] = [(rr.Points2D.columns, {"positions": projected, "class_ids": classes})]
     if detail == Detail.FULL:
         points.append((rr.AnyValues.columns, {"landmark_id": ids, "distance": distance}))
@@ -75,7 +81,7 @@ def log_search(columns: ColumnBuffer, frame: Frame, search: LocalMapSearch | Non
         "centers": projected, "half_sizes": np.repeat(radius[:, None], 2, axis=1), "class_ids": classes}), batch=True)
     strips = list(np.stack([projected[found], pixels[found]], axis=1))
     columns.add(IMAGE_ENTITIES[2], frame, (rr.LineStrips2D.columns, {
-        "strips": strips, "class_ids": np.full(len(strips), REFOUND, np.uint16)}), batch=True)
+        "strips": strips, "class_ids": classes[found]}), batch=True)
 
 
 def lifetime_histogram(landmark_keyframes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -125,7 +125,7 @@ MAP_METRICS: dict[str, dict[str, tuple[str, tuple[int, int, int]]]] = {
     "local_map": {
         "projected": ("local-map landmarks projected into the image", (80, 160, 255)),
         "refound": ("landmarks re-found by projection", (40, 220, 60)),
-        "refound_inliers": ("re-found landmarks kept (agreeing with the tracked pose)", (255, 220, 40)),
+        "linked": ("re-found landmarks linked to a track (agreeing with the pose)", (255, 220, 40)),
     },
 }
 # extra /metrics/timing_ms stages of the map backend (shown in the timing plot beside `STAGES`)
@@ -150,6 +150,7 @@ def map_frame_metrics(mapping: MapFrame) -> dict[str, float]:
     if mapping.local_map is not None:
         values["projected"] = len(mapping.local_map.landmark_ids)
         values["refound"] = int(mapping.local_map.found_mask.sum())
+        values["linked"] = int(mapping.local_map.accepted.sum())
     return values
 
 
