@@ -12,13 +12,14 @@ import cv2
 import numpy as np
 import pytest
 
-from vslam_core.config import EngineConfig, MapConfig
+from vslam_core.config import EngineConfig, MapConfig, TrackerConfig
 from vslam_core.geometry import pose_matrix, rotation_angle, so3_exp
 from vslam_core.mapping.local_map import LocalMapSearcher, hamming
+from vslam_core.mapping.refinding import MapRefinding
 from vslam_core.mapping.relocalisation import MotionModel
 from vslam_core.pipeline import run_odometry
 from vslam_core.results import FrameResult, TrackingMode
-from vslam_core.sources.base import FrameRange
+from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange
 from vslam_core.sources.open import open_source
 
 
@@ -130,3 +131,18 @@ def test_eight_dropped_frames_in_a_turn_are_bridged_by_relocalisation(kitti_root
     assert _heading_error(gt[after.position], poses[after.position]) < 2.0
     assert {r.mapping.segment for r in results if r.mapping is not None} == {0}
     assert _heading_error(gt[-1], poses[-1]) < 2.0
+
+
+def test_the_clock_tells_missing_frames_from_a_run_that_starts_at_time_zero() -> None:
+    """A regular 10 Hz clock starting at 0 s never looks like missing frames (the first frame has no
+    interval: taking 0 s before it once made every later frame look like a gap, so every PnP failure tried
+    relocalisation and started new map segments); 0.9 s between two frames (8 dropped) does."""
+    refinding = MapRefinding(np.eye(3), MapConfig(), LocalMapSearcher(np.eye(3), MapConfig()), TrackerConfig(),
+                             CameraIntrinsics(1.0, 1.0, 0.0, 0.0, 10, 10))
+    image = np.zeros((10, 10), np.uint8)
+    missing = []
+    for index, time in enumerate([0.0, 0.1, 0.2, 0.3, 1.2, 1.3]):
+        refinding.start_frame(Frame(index, time, image))
+        missing.append(refinding.frames_missing())
+        refinding.end_frame(np.eye(4))
+    assert missing == [False, False, False, False, True, False]

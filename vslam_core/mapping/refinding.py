@@ -37,6 +37,7 @@ class MapRefinding:
         self._motion = MotionModel()
         self._image: np.ndarray | None = None
         self._time = 0.0
+        self._started = False  # a frame has been seen (the first has no previous one)
         self._previous_time: float | None = None
         self._intervals: list[float] = []  # the last few intervals between consecutive frames
         self._corners: FrameCorners | None = None
@@ -47,14 +48,17 @@ class MapRefinding:
         """A new frame: its time is its timestamp (seconds), or its index in the source without a clock, so
         frames missing from the log lengthen the motion model's prediction."""
         self._image = frame.image
-        self._previous_time = self._time if self._image is not None else None
+        # the first frame has no interval: taking the initial 0.0 as its predecessor put a 0 s interval in the
+        # history of every run that starts at time 0, and from then on every frame looked like frames missing
+        self._previous_time = self._time if self._started else None
+        self._started = True
         self._time = float(frame.timestamp) if frame.timestamp is not None else float(frame.index)
         self._corners = None
         self.search = None
 
     def end_frame(self, T_world_cam: np.ndarray | None) -> None:  # noqa: N803
         """The frame's final pose (None for a frame whose pose was held)."""
-        if self._previous_time is not None and not self.frames_missing():
+        if self._previous_time is not None and self._time > self._previous_time and not self.frames_missing():
             self._intervals = [*self._intervals[-(INTERVALS - 1):], self._time - self._previous_time]
         if T_world_cam is not None and self._image is not None:
             self._motion.update(self._time, T_world_cam)
