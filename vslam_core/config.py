@@ -163,6 +163,9 @@ class MapConfig:
     local_map_scale: float = 1.2  # scale factor between pyramid levels
     reloc_radius_px: float = 24.0  # first search window half-size around the motion model's prediction
     reloc_widenings: int = 4  # the window doubles this many times before the unguided search
+    # a landmark re-found, or followed by a track PnP rejected, this close to its projection (px) is observed by
+    # a keyframe made then (for BA only); within pnp_threshold_px it is linked again
+    keyframe_observation_px: float = 4.0
 
 
 @dataclass(frozen=True)

@@ -167,6 +167,7 @@ RANGES: dict[str, Range] = {
     "map.local_map_scale": Range(1.0, 2.0, low_open=True),
     "map.reloc_radius_px": positive(10_000.0),
     "map.reloc_widenings": closed(0, 10),
+    "map.keyframe_observation_px": PIXEL_SIZE,
     # loop closing
     "loop.features": closed(10, 100_000),
     "loop.fast_threshold": FAST,

@@ -182,7 +182,8 @@ class MapTracking:
                                            set(self._links.values()) | set(self._suspended.values()))
             self._link_found(refound)
             with np.errstate(invalid="ignore"):
-                close = np.linalg.norm(refound.observed - refound.projected, axis=1) <= self._cfg.cull_reprojection_px
+                error = np.linalg.norm(refound.observed - refound.projected, axis=1)
+                close = error <= self._cfg.keyframe_observation_px
             # re-found but a little off the pose (its depth not yet refined): observed by a keyframe made
             # now, so BA ties it to the keyframes that saw it before (not used by PnP)
             self._refound = dict(zip(refound.landmark_ids[close & ~refound.inlier_mask].tolist(),
@@ -237,7 +238,7 @@ class MapTracking:
                            rejected)
 
     def _suspended_at_keyframe(self, track_ids: np.ndarray, pixels: np.ndarray, pose: np.ndarray) -> dict[int, int]:
-        """Tracks PnP rejected whose (ideal) pixel in a keyframe at `pose` lies within `cull_reprojection_px`
+        """Tracks PnP rejected whose (ideal) pixel in a keyframe at `pose` lies within `keyframe_observation_px`
         of their landmark's projection: the keyframe observes the landmark there (BA refines its depth rather
         than a duplicate landmark being triangulated); within `pnp_threshold_px` they are linked again. The
         others are released (their track may start a new landmark). Returns track id → landmark id."""
@@ -249,7 +250,7 @@ class MapTracking:
         error = np.linalg.norm(project(self.mapping.map.positions(landmark_ids), pose, self._K)
                                - pixels[[n for n, _ in rows]], axis=1)
         tied = {t: m for (_, t), m, e in zip(rows, landmark_ids, error, strict=True)
-                if e <= self._cfg.cull_reprojection_px}
+                if e <= self._cfg.keyframe_observation_px}
         self._links.update({t: m for (_, t), m, e in zip(rows, landmark_ids, error, strict=True)
                             if e <= self._cfg.pnp_threshold_px})
         return tied
