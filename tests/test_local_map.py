@@ -4,6 +4,7 @@ KITTI frames, and a gap of dropped frames inside a turn bridged by relocalisatio
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 from pathlib import Path
@@ -23,11 +24,14 @@ from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange
 from vslam_core.sources.open import open_source
 
 
-def _run(kitti_root: Path, frames: str, inject: str | None = None) -> tuple[list[FrameResult], np.ndarray, np.ndarray]:
+def _run(kitti_root: Path, frames: str, inject: str | None = None,
+         local_map: bool = False) -> tuple[list[FrameResult], np.ndarray, np.ndarray]:
     source = open_source(kitti_root, sequence="00", frames=FrameRange.parse(frames), inject=inject)
     assert source.ground_truth is not None
     results: list[FrameResult] = []
-    run = run_odometry(source, EngineConfig(backend="map", threads=1), sinks=(lambda _f, r: results.append(r),))
+    config = EngineConfig(backend="map", threads=1)
+    config = dataclasses.replace(config, map=dataclasses.replace(config.map, local_map_tracking=local_map))
+    run = run_odometry(source, config, sinks=(lambda _f, r: results.append(r),))
     return results, run.pose_array(), source.ground_truth
 
 
@@ -69,7 +73,7 @@ def test_descriptors_at_a_coarser_level_are_those_of_the_downscaled_image(kitti_
 
 @pytest.fixture(scope="module")
 def clean(kitti_root: Path) -> tuple[list[FrameResult], np.ndarray, np.ndarray]:
-    return _run(kitti_root, "0:60")
+    return _run(kitti_root, "0:60", local_map=True)  # local-map tracking on (off by default)
 
 
 def test_landmarks_are_refound_where_the_pose_projects_them(clean: tuple[list[FrameResult], np.ndarray, np.ndarray],

@@ -4,6 +4,7 @@ and none of it with the odometry backend."""
 
 from __future__ import annotations
 
+import dataclasses
 import subprocess
 from pathlib import Path
 from typing import Any
@@ -25,6 +26,7 @@ from vslam_core.sources.kitti import KittiSource
 
 ROOT = Path(__file__).resolve().parents[1]
 FRAMES = 40
+LOCAL_FRAMES = 30
 MAP_ENTITIES = ("/tracking", "/world/map/**", "/metrics/tracking/**", "/metrics/ba/**",
                 "/world/camera/image/landmarks", "/world/camera/image/reprojection",
                 "/local_map", "/map/landmark_lifetimes", "/metrics/local_map/**", "/world/camera/image/local_map/**",
@@ -36,10 +38,11 @@ def strict_rerun() -> None:
     rr.set_strict_mode(True)  # a malformed archetype raises instead of warning
 
 
-def record(kitti_root: Path, path: Path, backend: str, frames: int) -> list[FrameResult]:
+def record(kitti_root: Path, path: Path, backend: str, frames: int, local_map: bool = False) -> list[FrameResult]:
     """A run as `record_run` does it (the recorder's sink, then `finish`), keeping the engine's results."""
     source = KittiSource(kitti_root, sequence="00", frames=FrameRange(0, frames))
     config = EngineConfig(backend=backend)  # type: ignore[arg-type]
+    config = dataclasses.replace(config, map=dataclasses.replace(config.map, local_map_tracking=local_map))
     results: list[FrameResult] = []
     run = RunResult([], [], [])
     recorder = Recorder(path, source, config, {"name": "map test", "source": source.name}, detail=Detail.FULL)
@@ -309,17 +312,24 @@ def test_odometry_backend_writes_none_of_the_map_entities(kitti_root: Path, tmp_
     assert vo <= map_run | logged_entities(full[0], static=True)  # the map run has everything vo's has
 
 
+@pytest.fixture(scope="module")
+def local(kitti_root: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[FrameResult]]:
+    """A short run with local-map tracking on (`map.local_map_tracking`, off by default)."""
+    path = tmp_path_factory.mktemp("map") / "map-local.rrd"
+    return path, record(kitti_root, path, "map", LOCAL_FRAMES, local_map=True)
+
+
 @pytest.mark.kitti
-def test_local_map_search_and_landmark_lifetimes_read_back(full: tuple[Path, list[FrameResult]]) -> None:
+def test_local_map_search_and_landmark_lifetimes_read_back(local: tuple[Path, list[FrameResult]]) -> None:
     """Per frame: the landmarks projected with the predicted pose, their search windows and what was
     re-found (values and pixels as the engine's `LocalMapSearch`); per bundle adjustment: the histogram
     of keyframes per landmark (as `BundleAdjusted.landmark_keyframes` counts them)."""
-    path, results = full
+    path, results = local
     summary = by_frame(path, "/local_map")
     projected = by_frame(path, "/world/camera/image/local_map/projected")
     windows = by_frame(path, "/world/camera/image/local_map/windows")
     lines = by_frame(path, "/world/camera/image/local_map/refound")
-    assert sorted(summary) == sorted(projected) == sorted(windows) == sorted(lines) == list(range(FRAMES))
+    assert sorted(summary) == sorted(projected) == sorted(windows) == sorted(lines) == list(range(LOCAL_FRAMES))
     searched = linked = 0
     for r in results:
         search = mapping(r).local_map
@@ -341,7 +351,7 @@ def test_local_map_search_and_landmark_lifetimes_read_back(full: tuple[Path, lis
         strips = np.array(lines[r.index]["LineStrips2D:strips"]).reshape(-1, 2, 2)
         assert np.allclose(strips[:, 1], search.found_pixels[found], atol=1e-3)
         linked += int(search.accepted.sum())
-    assert searched >= FRAMES // 2 and linked > 0
+    assert searched >= LOCAL_FRAMES // 2 and linked > 0
     refound = by_frame(path, "/metrics/local_map/refound")
     assert sum(v["Scalars:scalars"][0] for v in refound.values()) == sum(
         int(s.found_mask.sum()) for s in (mapping(r).local_map for r in results) if s is not None) > 0

@@ -176,18 +176,15 @@ class MapTracking:
             if pose is not None:
                 mode = TrackingMode.COASTED
                 warnings.append(Reason.COASTED)
-        if pose is not None and mode in (TrackingMode.MAP, TrackingMode.TWO_VIEW) and self._has_map():
+        if (self._cfg.local_map_tracking and pose is not None and mode in (TrackingMode.MAP, TrackingMode.TWO_VIEW)
+                and self._has_map()):
             clock = time.perf_counter()
             refound = self.refinding.track(self.mapping, self._reference, self._segment, pose,
                                            set(self._links.values()) | set(self._suspended.values()))
             self._link_found(refound)
-            with np.errstate(invalid="ignore"):
-                error = np.linalg.norm(refound.observed - refound.projected, axis=1)
-                close = error <= self._cfg.keyframe_observation_px
-            # re-found but a little off the pose (its depth not yet refined): observed by a keyframe made
-            # now, so BA ties it to the keyframes that saw it before (not used by PnP)
-            self._refound = dict(zip(refound.landmark_ids[close & ~refound.inlier_mask].tolist(),
-                                     refound.observed[close & ~refound.inlier_mask], strict=True))
+            error = np.linalg.norm(refound.observed - refound.projected, axis=1)  # off the pose: a keyframe
+            close = (error <= self._cfg.keyframe_observation_px) & ~refound.inlier_mask  # made now observes it
+            self._refound = dict(zip(refound.landmark_ids[close].tolist(), refound.observed[close], strict=True))
             timings["local_map"] = _lap(clock)
         if relocalisation is not None:
             self._segment_lost = not relocalisation.success
@@ -233,7 +230,9 @@ class MapTracking:
             outliers = {int(t) for t, inlier in zip(track_ids[[n for n, _ in rows]], solution.inlier_mask, strict=True)
                         if not inlier}
             for track_id in outliers:
-                self._suspended[track_id] = self._links.pop(track_id)
+                landmark_id = self._links.pop(track_id)
+                if self._cfg.local_map_tracking:
+                    self._suspended[track_id] = landmark_id
         return PnPEstimate(landmark_ids, observed, solution.projected, solution.inlier_mask, solution.T_world_cam,
                            rejected)
 
