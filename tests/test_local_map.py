@@ -127,7 +127,7 @@ def test_eight_dropped_frames_in_a_turn_are_bridged_by_relocalisation(kitti_root
     after the gap is relocalised against the local map (the clock says frames are missing), within 2° of
     ground truth, the map goes on in the same segment, and the run ends within 2° of ground truth
     (measured 1.0° at the gap, 1.6° at the end)."""
-    results, poses, gt = _run(kitti_root, "80:140", "drop@100:107")
+    results, poses, gt = _run(kitti_root, "80:140", "drop@100:107", local_map=True)
     after = next(r for r in results if r.index == 108)
     assert after.mapping is not None and after.mapping.mode == TrackingMode.RELOCALISED
     assert after.mapping.local_map is not None and after.mapping.local_map.purpose == "relocalise"

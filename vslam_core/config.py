@@ -157,7 +157,8 @@ class MapConfig:
     # local-map tracking by projection (vslam_core/mapping/local_map.py) and guided relocalisation. Off by
     # default: re-finding landmarks every frame and keeping rejected tracks as keyframe observations did not
     # make KITTI more accurate (--scale none mean 3.32 -> 3.30 %, --scale gt ATE 0.117 -> 0.136 m) and made
-    # the synthetic street worse (0.23 -> 0.46 % after Sim(3)); guided relocalisation is always on
+    # the synthetic street worse (0.23 -> 0.46 % after Sim(3)); guided relocalisation goes with it (off, it
+    # relocalised 00 without frames 106-112 17 deg off, where the code before it passed)
     local_map_tracking: bool = False
     local_map_keyframes: int = 10  # keyframes sharing the most landmarks with the reference one (plus neighbours)
     local_map_radius_px: float = 8.0  # search window half-size around a projection on a tracked frame

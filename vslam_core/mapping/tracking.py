@@ -149,7 +149,7 @@ class MapTracking:
         pnp = self._track_map(vo.position, vo.track_ids[alive], vo.track_cur[alive], two_view, vo)
         timings["pnp"] = _lap(clock)
         lost_tracks = (vo.reason == Reason.TOO_FEW_TRACKS or Reason.RECOVERED in vo.health.reasons
-                       or self.refinding.frames_missing())  # after missing frames the tracks cannot be trusted
+                       or (self._cfg.local_map_tracking and self.refinding.frames_missing()))  # frames missing
         warnings: list[Reason] = []
         relocalisation = None
         pose, mode, why = None, TrackingMode.LOST, None
@@ -158,7 +158,8 @@ class MapTracking:
         elif self._has_map() and (lost_tracks or self._gap):
             clock = time.perf_counter()
             relocalisation, found = self.refinding.relocalise(self.mapping.map, self._reference, self._segment,
-                                                              (self.config.pose.seed, vo.position))
+                                                              (self.config.pose.seed, vo.position)) \
+                if self._cfg.local_map_tracking else (None, None)
             if found is not None:
                 self._link_found(found)
             else:
