@@ -4,6 +4,7 @@ and none of it with the odometry backend."""
 
 from __future__ import annotations
 
+import dataclasses
 import subprocess
 from pathlib import Path
 from typing import Any
@@ -25,8 +26,10 @@ from vslam_core.sources.kitti import KittiSource
 
 ROOT = Path(__file__).resolve().parents[1]
 FRAMES = 40
+LOCAL_FRAMES = 30
 MAP_ENTITIES = ("/tracking", "/world/map/**", "/metrics/tracking/**", "/metrics/ba/**",
                 "/world/camera/image/landmarks", "/world/camera/image/reprojection",
+                "/local_map", "/map/landmark_lifetimes", "/metrics/local_map/**", "/world/camera/image/local_map/**",
                 *(f"/metrics/timing_ms/{stage}" for stage in MAP_STAGES))
 
 
@@ -35,10 +38,11 @@ def strict_rerun() -> None:
     rr.set_strict_mode(True)  # a malformed archetype raises instead of warning
 
 
-def record(kitti_root: Path, path: Path, backend: str, frames: int) -> list[FrameResult]:
+def record(kitti_root: Path, path: Path, backend: str, frames: int, local_map: bool = False) -> list[FrameResult]:
     """A run as `record_run` does it (the recorder's sink, then `finish`), keeping the engine's results."""
     source = KittiSource(kitti_root, sequence="00", frames=FrameRange(0, frames))
     config = EngineConfig(backend=backend)  # type: ignore[arg-type]
+    config = dataclasses.replace(config, map=dataclasses.replace(config.map, local_map_tracking=local_map))
     results: list[FrameResult] = []
     run = RunResult([], [], [])
     recorder = Recorder(path, source, config, {"name": "map test", "source": source.name}, detail=Detail.FULL)
@@ -306,3 +310,63 @@ def test_odometry_backend_writes_none_of_the_map_entities(kitti_root: Path, tmp_
         "/metrics/tracking/mode", "/metrics/ba/iterations", "/world/camera/image/landmarks",
         "/world/camera/image/reprojection"}
     assert vo <= map_run | logged_entities(full[0], static=True)  # the map run has everything vo's has
+
+
+@pytest.fixture(scope="module")
+def local(kitti_root: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[FrameResult]]:
+    """A short run with local-map tracking on (`map.local_map_tracking`, off by default)."""
+    path = tmp_path_factory.mktemp("map") / "map-local.rrd"
+    return path, record(kitti_root, path, "map", LOCAL_FRAMES, local_map=True)
+
+
+@pytest.mark.kitti
+def test_local_map_search_and_landmark_lifetimes_read_back(local: tuple[Path, list[FrameResult]]) -> None:
+    """Per frame: the landmarks projected with the predicted pose, their search windows and what was
+    re-found (values and pixels as the engine's `LocalMapSearch`); per bundle adjustment: the histogram
+    of keyframes per landmark (as `BundleAdjusted.landmark_keyframes` counts them)."""
+    path, results = local
+    summary = by_frame(path, "/local_map")
+    projected = by_frame(path, "/world/camera/image/local_map/projected")
+    windows = by_frame(path, "/world/camera/image/local_map/windows")
+    lines = by_frame(path, "/world/camera/image/local_map/refound")
+    assert sorted(summary) == sorted(projected) == sorted(windows) == sorted(lines) == list(range(LOCAL_FRAMES))
+    searched = linked = 0
+    for r in results:
+        search = mapping(r).local_map
+        row = summary[r.index]
+        if search is None:
+            assert row["search"] == [""] and row["projected"] == [0] and not projected[r.index]["Points2D:positions"]
+            continue
+        searched += 1
+        found = search.found_mask
+        assert row["search"] == [search.purpose] and row["projected"] == [len(search.landmark_ids)]
+        assert row["refound"] == [int(found.sum())] and row["keyframes"] == [len(search.keyframe_ids)]
+        points = projected[r.index]
+        assert np.allclose(np.array(points["Points2D:positions"]).reshape(-1, 2), search.projected, atol=1e-3)
+        classes = np.where(search.accepted, 2, found.astype(int))
+        assert points["Points2D:class_ids"] == classes.tolist() and row["linked"] == [int(search.accepted.sum())]
+        assert points["landmark_id"] == search.landmark_ids.tolist()
+        boxes = windows[r.index]
+        assert np.allclose(np.array(boxes["Boxes2D:half_sizes"]).reshape(-1, 2)[:, 0], search.radius_px, atol=1e-4)
+        strips = np.array(lines[r.index]["LineStrips2D:strips"]).reshape(-1, 2, 2)
+        assert np.allclose(strips[:, 1], search.found_pixels[found], atol=1e-3)
+        linked += int(search.accepted.sum())
+    assert searched >= LOCAL_FRAMES // 2 and linked > 0
+    refound = by_frame(path, "/metrics/local_map/refound")
+    assert sum(v["Scalars:scalars"][0] for v in refound.values()) == sum(
+        int(s.found_mask.sum()) for s in (mapping(r).local_map for r in results) if s is not None) > 0
+
+    lifetimes = by_frame(path, "/map/landmark_lifetimes")
+    adjusted = [r for r in results if mapping(r).bundle_adjustment is not None]
+    assert sorted(lifetimes) == [r.index for r in adjusted] and adjusted
+    for r in adjusted:
+        ba = mapping(r).bundle_adjustment
+        assert ba is not None
+        row = lifetimes[r.index]
+        assert row["landmarks"] == np.bincount(ba.landmark_keyframes).tolist()
+        assert row["keyframes"] == list(range(len(row["landmarks"])))
+        assert sum(row["landmarks"]) == len(ba.landmark_ids)
+    mean = by_frame(path, "/metrics/ba/landmark_keyframes_mean")
+    last = adjusted[-1]
+    assert mean[last.index]["Scalars:scalars"][0] == pytest.approx(
+        float(mapping(last).bundle_adjustment.landmark_keyframes.mean()))  # type: ignore[union-attr]

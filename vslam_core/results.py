@@ -159,6 +159,8 @@ class BundleAdjusted:
     culled: int  # landmarks removed because they reprojected badly after
     milliseconds: float  # solver time (in the background worker when threads > 1)
     factors: int  # projection factors
+    # (P,) keyframes observing each landmark when the solution was applied (its lifetime in keyframes)
+    landmark_keyframes: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
 
 @dataclass(frozen=True)
@@ -170,6 +172,28 @@ class Relocalisation:
     candidates: int  # landmarks of recent keyframes that were searched
     matches: int  # descriptor matches
     inliers: int  # PnP RANSAC inliers
+
+
+@dataclass(frozen=True)
+class LocalMapSearch:
+    """Local-map tracking by projection in one frame (the idea of ORB-SLAM, Mur-Artal et al. 2015, §V-D):
+    the S landmarks of the local map that project into the image with the predicted pose, each searched
+    for among the frame's FAST corners inside a square window around its projection, by the Hamming distance
+    of upright ORB descriptors at several pyramid levels and a ratio test."""
+
+    purpose: str  # "track" (a tracked frame: unlinked landmarks re-found) or "relocalise" (after a gap)
+    keyframe_ids: np.ndarray  # (K,) the local map: keyframes covisible with the reference one, and neighbours
+    landmark_ids: np.ndarray  # (S,) int64 landmarks projected into the image
+    projected: np.ndarray  # (S, 2) their pixels with the predicted pose
+    radius_px: np.ndarray  # (S,) half-size of each square search window (the last, widest one tried)
+    found_pixels: np.ndarray  # (S, 2) the corner each was matched to; NaN where not re-found
+    distance: np.ndarray  # (S,) Hamming distance of the match (-1 where not re-found)
+    accepted: np.ndarray  # (S,) bool: re-found and used (agreeing with the pose; linked to a new track)
+
+    @property
+    def found_mask(self) -> np.ndarray:
+        """(S,) bool: re-found."""
+        return np.asarray(np.isfinite(self.found_pixels).all(axis=1))
 
 
 @dataclass(frozen=True)
@@ -260,6 +284,7 @@ class MapFrame:
     relocalisation: Relocalisation | None = None
     view: MapView | None = None  # at keyframes
     loop: LoopStep | None = None  # at keyframes, with loop closing on
+    local_map: LocalMapSearch | None = None  # landmarks projected and searched for in this frame
 
 
 @dataclass(frozen=True)

@@ -31,6 +31,7 @@
     /world/camera/image/reprojection    LineStrips2D: each landmark's projection with the pose used → its
                                         tracked pixel (the residual as a short line), same classes
     /events                             keyframes, bundle adjustments, relocalisation, new map segments
+    local-map search and landmark lifetimes: see vslam/recording/local_map.py
 
 Landmarks are coloured by the number of keyframes observing them, on a fixed ramp: 2 or fewer dark blue,
 3 cyan, 4 green, 5 yellow, 6 orange, 7 or more red (`OBSERVATION_RAMP`). Hover: landmark_id, observations.
@@ -51,6 +52,7 @@ from __future__ import annotations
 import numpy as np
 import rerun as rr
 
+from vslam.recording import local_map
 from vslam.recording.columns import ColumnBuffer, Part, add_event
 from vslam.recording.loops import LoopRecording
 from vslam.recording.metrics import MAP_METRICS, MAP_STAGES, MAP_TIMING, map_frame_metrics
@@ -104,6 +106,7 @@ class MapRecording:
                 static=True)
         rec.log("/world/map/keyframe_path", rr.LineStrips3D.from_fields(radii=0.08, colors=KEYFRAME_PATH_COLOUR),
                 static=True)
+        local_map.log_static(rec, self._detail)
         if self._detail == Detail.SUMMARY:
             return
         rec.log("/world/map/landmarks/window", rr.Points3D.from_fields(radii=0.06), static=True)
@@ -139,6 +142,9 @@ class MapRecording:
             self._log_view(frame, mapping.view)
         if self._detail != Detail.SUMMARY:
             self._log_image(frame, pnp)
+        local_map.log_search(columns, frame, mapping.local_map, self._detail)
+        if mapping.bundle_adjustment is not None:
+            local_map.log_lifetimes(columns, frame, mapping.bundle_adjustment)
         if self._detail == Detail.FULL:
             if mapping.bundle_adjustment is not None:
                 self._log_residuals(frame, mapping.bundle_adjustment)

@@ -120,6 +120,12 @@ MAP_METRICS: dict[str, dict[str, tuple[str, tuple[int, int, int]]]] = {
         "milliseconds": ("solver time (ms)", (150, 150, 150)),
         "factors": ("projection factors", (40, 120, 255)),
         "culled": ("landmarks culled", (255, 60, 60)),
+        "landmark_keyframes_mean": ("keyframes per landmark (mean)", (255, 255, 255)),
+    },
+    "local_map": {
+        "projected": ("local-map landmarks projected into the image", (80, 160, 255)),
+        "refound": ("landmarks re-found by projection", (40, 220, 60)),
+        "linked": ("re-found landmarks linked to a track (agreeing with the pose)", (255, 220, 40)),
     },
 }
 # extra /metrics/timing_ms stages of the map backend (shown in the timing plot beside `STAGES`)
@@ -127,6 +133,7 @@ MAP_TIMING: dict[str, tuple[str, tuple[int, int, int]]] = {
     "pnp": ("PnP (ms)", (120, 255, 120)),
     "relocalise": ("relocalisation (ms)", (255, 80, 80)),
     "mapping": ("keyframe insertion and mapping (ms)", (255, 160, 60)),
+    "local_map": ("local-map search by projection (ms)", (80, 160, 255)),
 }
 MAP_STAGES = tuple(MAP_TIMING)
 BA_ERROR_SERIES = ("mean_error_before_px", "mean_error_after_px", "max_error_before_px", "max_error_after_px")
@@ -140,6 +147,10 @@ def map_frame_metrics(mapping: MapFrame) -> dict[str, float]:
         values["landmarks_tracked"] = len(mapping.pnp.landmark_ids)
     if mapping.bundle_adjustment is not None:
         values.update(bundle_adjustment_metrics(mapping.bundle_adjustment))
+    if mapping.local_map is not None:
+        values["projected"] = len(mapping.local_map.landmark_ids)
+        values["refound"] = int(mapping.local_map.found_mask.sum())
+        values["linked"] = int(mapping.local_map.accepted.sum())
     return values
 
 
@@ -150,5 +161,6 @@ def bundle_adjustment_metrics(ba: BundleAdjusted) -> dict[str, float]:
         "mean_error_before_px": ba.mean_error_before, "mean_error_after_px": ba.mean_error_after,
         "max_error_before_px": ba.max_error_before, "max_error_after_px": ba.max_error_after,
         "milliseconds": ba.milliseconds, "factors": ba.factors, "culled": ba.culled,
+        "landmark_keyframes_mean": float(ba.landmark_keyframes.mean()) if len(ba.landmark_keyframes) else np.nan,
     }
     return {name: float(value) for name, value in values.items() if np.isfinite(value)}

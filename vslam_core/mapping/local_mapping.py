@@ -25,6 +25,7 @@ from vslam_core.results import BundleAdjusted, KeyframeInserted, MapView
 from vslam_core.sources.base import CameraIntrinsics
 
 DESCRIPTOR_PATCH = 31.0  # ORB's patch size: the keypoint size of a landmark's descriptor
+KEYFRAME_IMAGES = 20  # the newest keyframes keep their image: landmarks are re-found from it by KLT (local_map.py)
 
 
 @dataclass(frozen=True)
@@ -54,6 +55,7 @@ class LocalMapping:
         # upright ORB descriptors at level 0 (the car's camera hardly rolls): landmarks and relocalisation
         self.describer = cv2.ORB_create(edgeThreshold=int(DESCRIPTOR_PATCH), patchSize=int(DESCRIPTOR_PATCH))
         self._window: list[int] = []  # keyframe ids of the current BA window
+        self.keyframe_images: dict[int, np.ndarray] = {}  # the newest KEYFRAME_IMAGES keyframes' (H, W) images
 
     def close(self) -> None:
         self._adjuster.close()
@@ -72,6 +74,8 @@ class LocalMapping:
         correction = solution.poses[submitted.optimised - 1] @ invert_pose(newest.T_world_cam)
         for keyframe_id, pose in zip(submitted.keyframe_ids[: submitted.optimised], solution.poses, strict=True):
             self.map.keyframes[keyframe_id].T_world_cam = orthonormalise(pose)
+        lifetimes = np.array([len(self.map.landmarks[int(i)].observations) if int(i) in self.map.landmarks else 0
+                              for i in submitted.landmark_ids], np.int64)  # keyframes tying each, before culling
         culled = self._apply_landmarks(problem, solution, submitted)
         finite = np.isfinite(solution.errors_before) & np.isfinite(solution.errors_after)
         before, after = solution.errors_before[finite], solution.errors_after[finite]
@@ -93,6 +97,7 @@ class LocalMapping:
             culled=culled,
             milliseconds=solution.milliseconds,
             factors=len(problem.observation_pose),
+            landmark_keyframes=lifetimes,
         ), correction
 
     def _apply_landmarks(self, problem: Problem, solution: Solution, submitted: _Submitted) -> int:
@@ -178,10 +183,11 @@ class LocalMapping:
     def insert_keyframe(
         self, position: int, segment: int, T_world_cam: np.ndarray, track_ids: np.ndarray,  # noqa: N803
         pixels: np.ndarray, image: np.ndarray, metric_step: float | None, why: str,
-        track_landmarks: dict[int, int],
+        track_landmarks: dict[int, int], refound: dict[int, np.ndarray] | None = None,
     ) -> tuple[KeyframeInserted, dict[int, int], MapView]:
         """Add a keyframe seeing (N,) tracks at (N, 2) pixels; `track_landmarks` links live tracks to
-        landmarks. Returns the event, the new track → landmark links, and what to draw of the map."""
+        landmarks; `refound` maps landmarks re-found in this frame without a track to their (2,) pixel (they
+        are observed too). Returns the event, the new track → landmark links, and what to draw of the map."""
         assert self._submitted is None, "collect the pending bundle adjustment first"
         keyframe = self.map.add_keyframe(position, segment, T_world_cam, track_ids, pixels, metric_step)
         observed = []
@@ -192,11 +198,17 @@ class LocalMapping:
                 observed.append(landmark_id)
             else:
                 self._sightings.setdefault(track_id, []).append((keyframe.id, pixel))
+        for landmark_id, pixel in (refound or {}).items():
+            if landmark_id in self.map.landmarks and keyframe.id not in self.map.landmarks[landmark_id].observations:
+                self.map.observe(landmark_id, keyframe.id, pixel)
+                observed.append(landmark_id)
         alive = set(track_ids.tolist())
         self._sightings = {t: s for t, s in self._sightings.items()
                            if t in alive and self.map.keyframes[s[0][0]].segment == segment}
         links = self._triangulate(keyframe)
         self._describe(keyframe, image)
+        self.keyframe_images[keyframe.id] = image
+        self.keyframe_images.pop(keyframe.id - KEYFRAME_IMAGES, None)
         previous_window = self._window
         self._submit(segment)
         alive_landmarks = set(track_landmarks.values()) | set(links.values())

@@ -1,17 +1,13 @@
 """Tracking against the map: the `map` backend's per-frame step.
 
-Per frame: the odometry front end (vslam_core/engine.py) tracks the KLT tracks and measures the two-view
-motion from its keyframe (the 5-point essential matrix) → the landmarks the surviving tracks are linked to
-give 2-D–3-D correspondences → PnP in RANSAC, refined on the inliers (`MAP`); the step length stays the
-scale source's (gt, height), or with none the whole PnP pose is used, in the map's own scale
-(vslam_core/mapping/map_scale.py) → if PnP fails its checks, the two-view pose (`TWO_VIEW`); if the tracks
-were lost (a gap, a jump), relocalisation against the landmarks of recent keyframes (`RELOCALISED`), and
-only if that fails a new map segment. Tracks live on raw pixels; PnP, landmarks and BA use their ideal
-pinhole pixels (vslam_core/lens.py), and the result's PnP pixels are put back on the raw image. A frame
-the health checks refuse (blurred, dark) is dead-reckoned from its degraded image (`COASTED`,
-vslam_core/coasting.py); one nothing can place keeps the last pose (`LOST`). A frame becomes a keyframe on
-parallax, landmark overlap or frame count, and is handed to local mapping; the pending bundle adjustment is
-applied at that moment (a fixed point: deterministic).
+Per frame: KLT tracks and the 5-point motion from the keyframe (vslam_core/engine.py) → the landmarks linked
+to surviving tracks (and, with `map.local_map_tracking`, landmarks re-found by projection: refinding.py) →
+PnP in RANSAC refined on the inliers (`MAP`), the step length the scale source's (gt, height) or, with none,
+the map's own (map_scale.py) → else the two-view pose (`TWO_VIEW`) → tracks lost: relocalisation against
+recent keyframes (`RELOCALISED`), failing that a new map segment. Tracks live on raw pixels; PnP, landmarks
+and BA on ideal pinhole pixels (vslam_core/lens.py). A frame the health checks refuse is dead-reckoned
+(`COASTED`, vslam_core/coasting.py); one nothing can place keeps the last pose (`LOST`). Keyframes go to
+local mapping; the pending bundle adjustment and loop search are applied then (a fixed point: deterministic).
 """
 
 from __future__ import annotations
@@ -30,15 +26,18 @@ from vslam_core.features import match_descriptors
 from vslam_core.geometry import interpolate_pose, invert_pose, orthonormalise, pose_matrix, rotation_angle
 from vslam_core.lens import distort_pixels, undistort_pixels
 from vslam_core.loop.closing import LoopClosing
+from vslam_core.mapping.local_map import LocalMapSearcher
 from vslam_core.mapping.local_mapping import DESCRIPTOR_PATCH, LocalMapping
 from vslam_core.mapping.map_scale import MapSpeed, for_scale, translation_parallax
-from vslam_core.mapping.pnp import PnPSolution, solve_pnp
+from vslam_core.mapping.pnp import PnPSolution, project, solve_pnp
+from vslam_core.mapping.refinding import MapRefinding
 from vslam_core.results import (
     STANDING_STILL,
     BundleAdjusted,
     FrameResult,
     FrameStatus,
     Health,
+    LocalMapSearch,
     LoopStep,
     MapFrame,
     PnPEstimate,
@@ -78,6 +77,7 @@ class MapTracking:
         self.mapping = LocalMapping(self._K, self._cfg, config.scale, background=config.threads > 1,
                                     lens=intrinsics)
         self._links: dict[int, int] = {}  # live track id -> landmark id
+        self._suspended: dict[int, int] = {}  # tracks PnP rejected -> their landmark (observed at keyframes only)
         self._segment = 0
         self._reference = -1  # newest keyframe id
         self._relative: dict[int, tuple[int, np.ndarray]] = {}  # run position -> (keyframe id, T_key_frame)
@@ -88,6 +88,9 @@ class MapTracking:
         self._held: set[int] = set()  # run positions whose pose was held (no tracking, no relocalisation)
         self._segment_lost = False  # relocalisation failed: a new segment starts at the next frame with a pose
         self.loop = LoopClosing(self._K, config, background=config.threads > 1) if config.loop.enabled else None
+        self._refound: dict[int, np.ndarray] = {}  # landmark id -> ideal pixel: re-found, for a keyframe now
+        self.refinding = MapRefinding(self._K, self._cfg, LocalMapSearcher(self._K, self._cfg, intrinsics),
+                                      config.tracker, intrinsics)
 
     def close(self) -> None:
         self.mapping.close()
@@ -129,6 +132,8 @@ class MapTracking:
         return keyframe.T_world_cam @ entry[1]
 
     def process(self, frame: Frame) -> FrameResult:
+        self.refinding.start_frame(frame)
+        self._refound = {}
         vo = self._odometry.process(frame)
         timings = vo.timings_ms
         if vo.status == FrameStatus.INIT:
@@ -143,7 +148,8 @@ class MapTracking:
         alive = vo.track_fate >= TrackFate.NOT_USED
         pnp = self._track_map(vo.position, vo.track_ids[alive], vo.track_cur[alive], two_view, vo)
         timings["pnp"] = _lap(clock)
-        lost_tracks = vo.reason == Reason.TOO_FEW_TRACKS or Reason.RECOVERED in vo.health.reasons
+        lost_tracks = (vo.reason == Reason.TOO_FEW_TRACKS or Reason.RECOVERED in vo.health.reasons
+                       or (self._cfg.local_map_tracking and self.refinding.frames_missing()))  # frames missing
         warnings: list[Reason] = []
         relocalisation = None
         pose, mode, why = None, TrackingMode.LOST, None
@@ -151,7 +157,13 @@ class MapTracking:
             pose, mode = self._metric(pnp.T_world_cam, vo), TrackingMode.MAP
         elif self._has_map() and (lost_tracks or self._gap):
             clock = time.perf_counter()
-            relocalisation, found = self.relocalise(frame.image, vo.position)
+            relocalisation, found = self.refinding.relocalise(self.mapping.map, self._reference, self._segment,
+                                                              (self.config.pose.seed, vo.position)) \
+                if self._cfg.local_map_tracking else (None, None)
+            if found is not None:
+                self._link_found(found)
+            else:
+                relocalisation, found = self.relocalise(frame.image, vo.position)
             timings["relocalise"] = _lap(clock)
             if found is not None:
                 pnp, pose, mode, why = found, found.T_world_cam, TrackingMode.RELOCALISED, "relocalised"
@@ -165,10 +177,21 @@ class MapTracking:
             if pose is not None:
                 mode = TrackingMode.COASTED
                 warnings.append(Reason.COASTED)
+        if (self._cfg.local_map_tracking and pose is not None and mode in (TrackingMode.MAP, TrackingMode.TWO_VIEW)
+                and self._has_map()):
+            clock = time.perf_counter()
+            refound = self.refinding.track(self.mapping, self._reference, self._segment, pose,
+                                           set(self._links.values()) | set(self._suspended.values()))
+            self._link_found(refound)
+            error = np.linalg.norm(refound.observed - refound.projected, axis=1)  # off the pose: a keyframe
+            close = (error <= self._cfg.keyframe_observation_px) & ~refound.inlier_mask  # made now observes it
+            self._refound = dict(zip(refound.landmark_ids[close].tolist(), refound.observed[close], strict=True))
+            timings["local_map"] = _lap(clock)
         if relocalisation is not None:
             self._segment_lost = not relocalisation.success
             if self._segment_lost:
                 self._links.clear()
+                self._suspended.clear()
         if self._segment_lost and pose is not None:
             # the old map cannot be reached from here: a new one starts, at a frame that has a pose (a held
             # frame keeps trying to relocalise instead, and its stale pose never becomes a keyframe)
@@ -208,9 +231,37 @@ class MapTracking:
             outliers = {int(t) for t, inlier in zip(track_ids[[n for n, _ in rows]], solution.inlier_mask, strict=True)
                         if not inlier}
             for track_id in outliers:
-                del self._links[track_id]
+                landmark_id = self._links.pop(track_id)
+                if self._cfg.local_map_tracking:
+                    self._suspended[track_id] = landmark_id
         return PnPEstimate(landmark_ids, observed, solution.projected, solution.inlier_mask, solution.T_world_cam,
                            rejected)
+
+    def _suspended_at_keyframe(self, track_ids: np.ndarray, pixels: np.ndarray, pose: np.ndarray) -> dict[int, int]:
+        """Tracks PnP rejected whose (ideal) pixel in a keyframe at `pose` lies within `keyframe_observation_px`
+        of their landmark's projection: the keyframe observes the landmark there (BA refines its depth rather
+        than a duplicate landmark being triangulated); within `pnp_threshold_px` they are linked again. The
+        others are released (their track may start a new landmark). Returns track id → landmark id."""
+        landmarks = self.mapping.map.landmarks
+        rows = [(n, t) for n, t in enumerate(track_ids.tolist()) if self._suspended.get(t) in landmarks]
+        if not rows:
+            return {}
+        landmark_ids = [self._suspended[t] for _, t in rows]
+        error = np.linalg.norm(project(self.mapping.map.positions(landmark_ids), pose, self._K)
+                               - pixels[[n for n, _ in rows]], axis=1)
+        tied = {t: m for (_, t), m, e in zip(rows, landmark_ids, error, strict=True)
+                if e <= self._cfg.keyframe_observation_px}
+        self._links.update({t: m for (_, t), m, e in zip(rows, landmark_ids, error, strict=True)
+                            if e <= self._cfg.pnp_threshold_px})
+        return tied
+
+    def _link_found(self, found: PnPEstimate) -> None:
+        """Start a track at each landmark re-found in this frame (PnP inliers when it has a pose) and link it,
+        so the landmark is tracked on and observed by the next keyframe."""
+        keep = found.inlier_mask
+        raw = distort_pixels(found.observed[keep], self._lens) if self._lens.distorted else found.observed[keep]
+        new_tracks = self._odometry.add_tracks(raw.astype(np.float32))
+        self._links.update(zip(new_tracks.tolist(), found.landmark_ids[keep].tolist(), strict=True))
 
     def _check_pnp(self, solution: PnPSolution, two_view: np.ndarray | None, vo: FrameResult) -> str | None:
         """Why a PnP pose is not trusted, if it is not."""
@@ -376,13 +427,15 @@ class MapTracking:
                 if loop_correction is not None:
                     pose = orthonormalise(loop_correction @ pose)
             track_ids, pixels = self._odometry.live_tracks()
+            tied = self._suspended_at_keyframe(track_ids, self._ideal(pixels), pose)
             keyframe, links, view = self.mapping.insert_keyframe(
                 vo.position, self._segment, pose, track_ids, self._ideal(pixels), frame.image,
                 self._metric_step(vo.position, pose),
-                why, self._links)
+                why, {**self._links, **tied}, self._refound)
             live = set(track_ids.tolist())
             landmarks = self.mapping.map.landmarks
             self._links = {t: m for t, m in {**self._links, **links}.items() if t in live and m in landmarks}
+            self._suspended = {t: m for t, m in tied.items() if t not in self._links and m in landmarks}
             self._reference = keyframe.keyframe_id
             self._since_keyframe = 0
             if self.loop is not None:
@@ -395,12 +448,13 @@ class MapTracking:
         if self._speed is not None and not held:
             self._speed.observe(vo.position, pose, mode in (TrackingMode.MAP, TrackingMode.RELOCALISED))
         self._previous_image = frame.image
+        self.refinding.end_frame(None if held else pose)
         if mode in (TrackingMode.COASTED, TrackingMode.RELOCALISED) and vo.reason not in UNUSABLE_IMAGE:
             self._odometry.rebase_keyframe()  # the front end measures the next frame from this one
         self._odometry.set_keyframe_pose(self.pose_of(self._odometry.key_position))
         return self._result(vo, pose, held, mode, warnings, two_view,
                             MapFrame(mode, self._segment, two_view, self._at_raw_pixels(pnp), keyframe, bundle,
-                                     relocalisation, view, loop))
+                                     relocalisation, view, loop, self._search_at_raw_pixels()))
 
     def _ideal(self, raw: np.ndarray) -> np.ndarray:
         """(N, 2) raw image pixels → (N, 2) float64 ideal pinhole pixels of K (a copy when the lens has none)."""
@@ -412,6 +466,14 @@ class MapTracking:
             return pnp
         return replace(pnp, observed=distort_pixels(pnp.observed, self._lens),
                        projected=distort_pixels(pnp.projected, self._lens))
+
+    def _search_at_raw_pixels(self) -> LocalMapSearch | None:
+        """The frame's local-map search with its pixels on the raw image, where overlays are drawn."""
+        search = self.refinding.search
+        if search is None or not self._lens.distorted:
+            return search
+        return replace(search, projected=distort_pixels(search.projected, self._lens),
+                       found_pixels=distort_pixels(search.found_pixels, self._lens))
 
     def _result(self, vo: FrameResult, pose: np.ndarray, held: bool, mode: TrackingMode, warnings: list[Reason],
                 two_view: np.ndarray | None, mapping: MapFrame) -> FrameResult:

@@ -1,0 +1,97 @@
+"""Entities of the map backend's local-map tracking by projection and its landmark lifetimes.
+
+    /world/camera/image/local_map/projected   Points2D: the local map's landmarks projected with the
+                                        predicted pose, class not re-found / re-found (off the pose: only
+                                        observed by a keyframe made now) / linked (re-found within the PnP
+                                        threshold: a new track follows it) (landmark_id and descriptor
+                                        distance on hover in full detail); a row every frame of the map
+                                        backend (empty without a search)
+    /world/camera/image/local_map/windows     Boxes2D: the square search window around each projection
+                                        (same classes)
+    /world/camera/image/local_map/refound     LineStrips2D: projection → where the landmark was re-found
+                                        (same classes)
+    /local_map                          AnyValues per frame: search ("track", "relocalise" or ""),
+                                        keyframes (of the local map), projected, refound, linked, radius_px
+    /map/landmark_lifetimes             AnyValues per bundle adjustment, one instance per bin: keyframes (how
+                                        many keyframes observe a landmark) and landmarks (how many of the
+                                        BA's landmarks are observed by that many): the histogram of
+                                        landmark lifetimes
+
+Detail levels: summary logs `/local_map` and the lifetimes; standard adds the image overlays; full adds
+per-landmark hover values.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import rerun as rr
+
+from vslam.recording.columns import ColumnBuffer, Part
+from vslam.recording.styles import Detail
+from vslam_core.results import BundleAdjusted, LocalMapSearch
+from vslam_core.sources.base import Frame
+
+NOT_REFOUND, REFOUND, LINKED = 0, 1, 2
+LOCAL_MAP_STYLE = {NOT_REFOUND: ("projected, not re-found", (150, 150, 255)),
+                   REFOUND: ("re-found, off the pose (keyframe observation only)", (255, 170, 40)),
+                   LINKED: ("re-found and linked to a track", (40, 220, 60))}
+IMAGE_ENTITIES = ("/world/camera/image/local_map/projected", "/world/camera/image/local_map/windows",
+                  "/world/camera/image/local_map/refound")
+
+
+def log_static(rec: rr.RecordingStream, detail: Detail) -> None:
+    """Annotation classes and styles of the local-map overlays."""
+    if detail == Detail.SUMMARY:
+        return
+    classes = rr.AnnotationContext([(class_id, label, colour) for class_id, (label, colour) in LOCAL_MAP_STYLE.items()])
+    rec.log(IMAGE_ENTITIES[0], classes, rr.Points2D.from_fields(radii=2.0), static=True)
+    rec.log(IMAGE_ENTITIES[1], classes, rr.Boxes2D.from_fields(radii=0.5), static=True)
+    rec.log(IMAGE_ENTITIES[2], classes, rr.LineStrips2D.from_fields(radii=0.8), static=True)
+
+
+def log_search(columns: ColumnBuffer, frame: Frame, search: LocalMapSearch | None, detail: Detail) -> None:
+    """The frame's search (empty rows without one)."""
+    found = search.found_mask if search is not None else np.zeros(0, bool)
+    columns.add("/local_map", frame, (rr.AnyValues.columns, {
+        "search": search.purpose if search is not None else "",
+        "keyframes": len(search.keyframe_ids) if search is not None else 0,
+        "projected": len(search.landmark_ids) if search is not None else 0,
+        "refound": int(found.sum()),
+        "linked": int(search.accepted.sum()) if search is not None else 0,
+        "radius_px": float(search.radius_px.max()) if search is not None and len(search.radius_px) else 0.0,
+    }))
+    if detail == Detail.SUMMARY:
+        return
+    projected = np.zeros((0, 2), np.float32)
+    radius = np.zeros(0, np.float32)
+    pixels = np.zeros((0, 2), np.float32)
+    ids, distance = np.zeros(0, np.uint32), np.zeros(0, np.int32)
+    if search is not None:
+        projected = search.projected.astype(np.float32).reshape(-1, 2)
+        radius = search.radius_px.astype(np.float32)
+        pixels = search.found_pixels.astype(np.float32).reshape(-1, 2)
+        ids, distance = search.landmark_ids.astype(np.uint32), search.distance.astype(np.int32)
+    accepted = search.accepted if search is not None else np.zeros(0, bool)
+    classes = np.where(accepted, LINKED, np.where(found, REFOUND, NOT_REFOUND)).astype(np.uint16)
+    points: list[Part] = [(rr.Points2D.columns, {"positions": projected, "class_ids": classes})]
+    if detail == Detail.FULL:
+        points.append((rr.AnyValues.columns, {"landmark_id": ids, "distance": distance}))
+    columns.add(IMAGE_ENTITIES[0], frame, *points, batch=True)
+    columns.add(IMAGE_ENTITIES[1], frame, (rr.Boxes2D.columns, {
+        "centers": projected, "half_sizes": np.repeat(radius[:, None], 2, axis=1), "class_ids": classes}), batch=True)
+    strips = list(np.stack([projected[found], pixels[found]], axis=1))
+    columns.add(IMAGE_ENTITIES[2], frame, (rr.LineStrips2D.columns, {
+        "strips": strips, "class_ids": classes[found]}), batch=True)
+
+
+def lifetime_histogram(landmark_keyframes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(B,) keyframe counts 0..max and (B,) number of landmarks observed by each count."""
+    counts = np.bincount(np.asarray(landmark_keyframes, np.int64))
+    return np.arange(len(counts), dtype=np.uint16), counts.astype(np.uint32)
+
+
+def log_lifetimes(columns: ColumnBuffer, frame: Frame, ba: BundleAdjusted) -> None:
+    """The histogram of keyframes per landmark of one bundle adjustment."""
+    keyframes, landmarks = lifetime_histogram(ba.landmark_keyframes)
+    columns.add("/map/landmark_lifetimes", frame,
+                (rr.AnyValues.columns, {"keyframes": keyframes, "landmarks": landmarks}), batch=True)

@@ -1,0 +1,117 @@
+"""The map backend's per-frame re-finding of landmarks: local-map tracking by projection and guided relocalisation.
+
+`MapTracking` (tracking.py) calls, per frame: `start_frame` (the frame's image and time), then
+`track` on a frame with a pose (the local map's landmarks no live track follows, re-found in a small window
+around their projection: vslam_core/mapping/local_map.py) or `relocalise` on a frame whose tracks were lost
+(vslam_core/mapping/relocalisation.py), then `end_frame` with the frame's final pose (the motion model).
+The frame's FAST corners are detected once, when first needed. `search` is the frame's last search, for its
+result (`MapFrame.local_map`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from vslam_core.config import MapConfig, TrackerConfig
+from vslam_core.mapping.local_map import FrameCorners, LocalMapSearcher, local_keyframes, refind_by_flow
+from vslam_core.mapping.local_mapping import LocalMapping
+from vslam_core.mapping.map import Map
+from vslam_core.mapping.relocalisation import MotionModel, bridged_prediction, relocalise_guided
+from vslam_core.results import LocalMapSearch, PnPEstimate, Relocalisation
+from vslam_core.sources.base import CameraIntrinsics, Frame
+
+INTERVALS = 10  # frame intervals remembered
+MISSING_FACTOR = 1.5  # an interval this much longer than usual: frames are missing
+
+
+class MapRefinding:
+    """Re-finds the map's landmarks in each frame (see the module docstring)."""
+
+    def __init__(self, K: np.ndarray, config: MapConfig, searcher: LocalMapSearcher,  # noqa: N803
+                 tracker: TrackerConfig, lens: CameraIntrinsics) -> None:
+        self._K = K
+        self._lens = lens
+        self._tracker = tracker
+        self._config = config
+        self._searcher = searcher
+        self._motion = MotionModel()
+        self._image: np.ndarray | None = None
+        self._time = 0.0
+        self._started = False  # a frame has been seen (the first has no previous one)
+        self._previous_time: float | None = None
+        self._intervals: list[float] = []  # the last few intervals between consecutive frames
+        self._corners: FrameCorners | None = None
+        self._posed: tuple[np.ndarray, np.ndarray] | None = None  # the last posed frame's image and pose
+        self.search: LocalMapSearch | None = None
+
+    def start_frame(self, frame: Frame) -> None:
+        """A new frame: its time is its timestamp (seconds), or its index in the source without a clock, so
+        frames missing from the log lengthen the motion model's prediction."""
+        self._image = frame.image
+        # the first frame has no interval: taking the initial 0.0 as its predecessor put a 0 s interval in the
+        # history of every run that starts at time 0, and from then on every frame looked like frames missing
+        self._previous_time = self._time if self._started else None
+        self._started = True
+        self._time = float(frame.timestamp) if frame.timestamp is not None else float(frame.index)
+        self._corners = None
+        self.search = None
+
+    def end_frame(self, T_world_cam: np.ndarray | None) -> None:  # noqa: N803
+        """The frame's final pose (None for a frame whose pose was held)."""
+        if self._previous_time is not None and self._time > self._previous_time and not self.frames_missing():
+            self._intervals = [*self._intervals[-(INTERVALS - 1):], self._time - self._previous_time]
+        if T_world_cam is not None and self._image is not None:
+            self._motion.update(self._time, T_world_cam)
+            self._posed = (self._image, T_world_cam.copy())
+
+    def frames_missing(self) -> bool:
+        """Frames are missing before this one: the time since the previous frame is over `MISSING_FACTOR`
+        times the median of the last intervals (a log with dropped frames; the clock says so)."""
+        if self._previous_time is None or not self._intervals:
+            return False
+        return self._time - self._previous_time > MISSING_FACTOR * float(np.median(self._intervals))
+
+    def _frame_corners(self) -> FrameCorners:
+        if self._corners is None:
+            assert self._image is not None, "start_frame first"
+            self._corners = self._searcher.corners(self._image)
+        return self._corners
+
+    def track(self, mapping: LocalMapping, reference: int, segment: int, T_world_cam: np.ndarray,  # noqa: N803
+              exclude: set[int]) -> PnPEstimate:
+        """Landmarks of the local map around keyframe `reference` that no live track follows (`exclude`),
+        re-found near their projection with the frame's pose (local_map.refind_by_flow): (L,) ids at (L, 2)
+        ideal pixels, inliers where they agree with the pose (only those are linked to new tracks)."""
+        assert self._image is not None, "start_frame first"
+        world = mapping.map
+        keyframe_ids = local_keyframes(world, reference, segment, self._config.local_map_keyframes)
+        search, agrees = refind_by_flow(world, mapping.keyframe_images, self._image, keyframe_ids, T_world_cam,
+                                        self._K, self._lens, self._config, self._tracker, mapping.describer, exclude)
+        self.search = search
+        found = search.found_mask
+        return PnPEstimate(search.landmark_ids[found], search.found_pixels[found], search.projected[found],
+                           agrees[found], T_world_cam)
+
+    def relocalise(self, world: Map, reference: int, segment: int,
+                   seed: tuple[int, ...]) -> tuple[Relocalisation, PnPEstimate | None]:
+        """Guided relocalisation (relocalisation.py) against the local map around keyframe `reference`, from
+        the motion model's prediction at this frame's time. The estimate is None when it fails (or before the
+        motion model has two poses)."""
+        predicted = self._motion.predict(self._time)
+        if predicted is None or self._image is None or self._posed is None:
+            return Relocalisation(False, None, 0, 0, 0), None
+        predicted = bridged_prediction(self._posed[0], self._image, self._posed[1], predicted, self._K)
+        keyframe_ids = local_keyframes(world, reference, segment, self._config.local_map_keyframes)
+        outcome = relocalise_guided(self._searcher, world, self._frame_corners(), keyframe_ids, predicted, self._K,
+                                    self._config, seed)
+        self.search = outcome.search
+        candidates = len(outcome.search.landmark_ids)
+        solution = outcome.solution
+        if solution is None or solution.T_world_cam is None:
+            return Relocalisation(False, None, candidates, len(outcome.landmark_ids), 0), None
+        inliers = set(outcome.landmark_ids[solution.inlier_mask].tolist())
+        self.search.accepted[:] = outcome.search.found_mask & np.isin(outcome.search.landmark_ids, list(inliers))
+        best = max(keyframe_ids, key=lambda k: (len(world.keyframes[k].landmark_ids & inliers), k))
+        return (Relocalisation(True, best, candidates, len(outcome.landmark_ids), len(inliers)),
+                PnPEstimate(outcome.landmark_ids, outcome.pixels, solution.projected, solution.inlier_mask,
+                            solution.T_world_cam))

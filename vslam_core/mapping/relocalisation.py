@@ -1,0 +1,176 @@
+"""Relocalisation across a gap, guided by the motion model: the local map projected where the car should be.
+
+After frames the log does not contain (dropped), or frames nothing could be measured on (blurred, dark), the
+KLT tracks no longer reach the map. The constant-velocity motion model (`MotionModel`) extrapolates the last
+two poses to the frame's timestamp (the gap's length comes from the clock, so absent frames need not exist);
+the local map's landmarks are projected with that prediction and searched for in a window around each
+projection (vslam_core/mapping/local_map.py, descriptors at several pyramid levels), and the matches go to
+PnP in RANSAC. Across a gap the prediction's rotation and direction are first measured from the images
+(`gap_motion`: KLT from where the predicted rotation puts the last posed frame's corners, the essential
+matrix). When too few are found, or PnP finds too few inliers, the window doubles (`reloc_widenings`
+times from `reloc_radius_px`): a larger gap or a sharper turn than predicted is searched for further out.
+Once a pose is found, the local map is searched again with it in the narrow tracking window and PnP refined
+on everything re-found (ORB-SLAM's relocalisation does the same, Mur-Artal et al. 2015, §V-C).
+
+Poses are camera-to-world `T_world_cam` (4, 4); times in seconds (or frame indices without a clock).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from vslam_core.config import MapConfig
+from vslam_core.geometry import invert_pose, pose_matrix, rotation_angle, so3_exp, so3_log
+from vslam_core.mapping.local_map import FrameCorners, LocalMapSearcher
+from vslam_core.mapping.map import Map
+from vslam_core.mapping.pnp import PnPSolution, solve_pnp
+from vslam_core.results import LocalMapSearch
+
+
+class MotionModel:
+    """Constant velocity (rotation and translation per unit time) from the last two poses."""
+
+    def __init__(self) -> None:
+        self._last: list[tuple[float, np.ndarray]] = []  # up to two (time, T_world_cam), oldest first
+
+    def update(self, time: float, T_world_cam: np.ndarray) -> None:  # noqa: N803
+        """A frame's final pose at `time` (later than every earlier one)."""
+        self._last = [*self._last[-1:], (time, T_world_cam.copy())]
+
+    def predict(self, time: float) -> np.ndarray | None:
+        """(4, 4) pose at `time`: the last motion (T_a⁻¹·T_b between the last two poses) continued for
+        (time − t_b)/(t_b − t_a) of itself, on SO(3) × R³. None before two poses."""
+        if len(self._last) < 2:
+            return None
+        (time_a, pose_a), (time_b, pose_b) = self._last
+        if time_b <= time_a:
+            return pose_b.copy()
+        motion = np.linalg.inv(pose_a) @ pose_b
+        fraction = (time - time_b) / (time_b - time_a)
+        step = np.eye(4)
+        step[:3, :3] = so3_exp(fraction * so3_log(motion[:3, :3]))
+        step[:3, 3] = fraction * motion[:3, 3]
+        return np.asarray(pose_b @ step)
+
+
+GUESS_MIN_INLIERS = 12  # a first pose from a wide window: enough to search again narrowly (then reloc_min_inliers)
+# fewer inliers than reloc_min_inliers are enough when the pose agrees with the prediction measured from the
+# images (an independent check): a sharp turn leaves few of the local map's landmarks in view
+AGREEING_MIN_INLIERS = 20
+AGREEING_DEG = 5.0
+GAP_CORNERS = 500  # Shi–Tomasi corners of the last posed frame tracked across the gap
+GAP_WINDOW_PX = 31
+GAP_LEVELS = 4  # KLT pyramid levels: with the predicted rotation removed, ~100 px of error is still reached
+GAP_MIN_INLIERS = 30
+GAP_MAX_CORRECTION_DEG = 20.0  # the measured rotation may differ this much from the predicted one
+GAP_YAW_OFFSETS_DEG = (0.0, -6.0, 6.0, -12.0, 12.0, -18.0, 18.0)  # turn-rate errors tried around the prediction
+
+
+def gap_motion(previous: np.ndarray, current: np.ndarray, K: np.ndarray,  # noqa: N803
+               predicted: np.ndarray) -> np.ndarray | None:
+    """Relative motion T_prev_cur (4, 4), |t| = 1, from the last posed frame's (H, W) uint8 image to this
+    one across a gap: Shi–Tomasi corners of `previous` tracked by pyramidal KLT from where the predicted
+    motion `predicted` (T_prev_cur) puts them if they were far away (the rotation's homography K·Rᵀ·K⁻¹),
+    checked forward–backward, then the 5-point essential matrix in RANSAC (Nistér 2004, cv2.findEssentialMat)
+    and its decomposition. None when too few tracks or inliers remain, or the rotation is implausible."""
+    corners = cv2.goodFeaturesToTrack(previous, GAP_CORNERS, 0.01, 10)
+    if corners is None or len(corners) < GAP_MIN_INLIERS:
+        return None
+    p_prev = corners.reshape(-1, 2).astype(np.float32)
+    best: tuple[int, np.ndarray, np.ndarray] | None = None
+    for offset in GAP_YAW_OFFSETS_DEG:  # the turn rate may have changed during the gap: the most consistent
+        rotation = predicted[:3, :3] @ so3_exp(np.array([0.0, np.radians(offset), 0.0]))
+        p_cur, good = _track_from(previous, current, p_prev, K @ rotation.T @ np.linalg.inv(K))
+        if best is None or int(good.sum()) > best[0]:
+            best = (int(good.sum()), p_cur, good)
+    assert best is not None
+    count, p_cur, good = best
+    if count < GAP_MIN_INLIERS:
+        return None
+    essential, mask = cv2.findEssentialMat(p_cur[good], p_prev[good], K, cv2.RANSAC, 0.999, 1.0)
+    if essential is None or essential.shape != (3, 3) or mask is None or int(mask.sum()) < GAP_MIN_INLIERS:
+        return None
+    inliers, rotation, translation, _ = cv2.recoverPose(essential, p_cur[good], p_prev[good], K, mask=mask)
+    if inliers < GAP_MIN_INLIERS:
+        return None
+    if np.degrees(rotation_angle(rotation.T @ predicted[:3, :3])) > GAP_MAX_CORRECTION_DEG:
+        return None
+    return pose_matrix(rotation, translation.reshape(3) / max(float(np.linalg.norm(translation)), 1e-12))
+
+
+def _track_from(previous: np.ndarray, current: np.ndarray, p_prev: np.ndarray,
+                homography: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """KLT of (N, 2) float32 points from `previous` to `current`, starting where `homography` (3, 3) puts
+    them: (N, 2) tracked points and an (N,) mask of those consistent forward–backward within 1 px."""
+    guess = cv2.perspectiveTransform(p_prev[None], homography)[0].astype(np.float32)
+    window = (GAP_WINDOW_PX, GAP_WINDOW_PX)
+    p_cur, ok, _ = cv2.calcOpticalFlowPyrLK(previous, current, p_prev, guess, winSize=window, maxLevel=GAP_LEVELS,
+                                            flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
+    back, ok_back, _ = cv2.calcOpticalFlowPyrLK(current, previous, p_cur, p_prev.copy(), winSize=window,
+                                                maxLevel=GAP_LEVELS, flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
+    good = (ok.reshape(-1).astype(bool) & ok_back.reshape(-1).astype(bool)
+            & (np.linalg.norm(back - p_prev, axis=1) < 1.0))
+    return p_cur, good
+
+
+def bridged_prediction(previous_image: np.ndarray, image: np.ndarray, T_world_previous: np.ndarray,  # noqa: N803
+                       predicted: np.ndarray, K: np.ndarray) -> np.ndarray:  # noqa: N803
+    """The motion model's prediction (4, 4) with its rotation and direction replaced by the ones measured
+    across the gap (`gap_motion`), the step length kept; the prediction itself when nothing is measured."""
+    T_prev_pred = invert_pose(T_world_previous) @ predicted  # noqa: N806
+    measured = gap_motion(previous_image, image, K, T_prev_pred)
+    if measured is None:
+        return predicted
+    measured[:3, 3] *= float(np.linalg.norm(T_prev_pred[:3, 3]))
+    return np.asarray(T_world_previous @ measured)
+
+
+@dataclass(frozen=True)
+class GuidedRelocalisation:
+    """The outcome: the last search (the widest window tried, or the refining one), and the PnP pose."""
+
+    search: LocalMapSearch
+    solution: PnPSolution | None  # None: not found
+    landmark_ids: np.ndarray  # (L,) landmarks given to the final PnP
+    pixels: np.ndarray  # (L, 2) where they were found
+    attempts: int  # windows tried
+
+
+def relocalise_guided(searcher: LocalMapSearcher, world: Map, corners: FrameCorners, keyframe_ids: list[int],
+                      predicted: np.ndarray, K: np.ndarray, config: MapConfig,  # noqa: N803
+                      seed: tuple[int, ...]) -> GuidedRelocalisation:
+    """Search the local map around `predicted` in widening windows until PnP finds `reloc_min_inliers`
+    inliers, then search again with that pose in the tracking window and refine (module docstring)."""
+    radius = config.reloc_radius_px
+    search = searcher.search(world, corners, keyframe_ids, predicted, radius, set(), "relocalise")
+    for attempt in range(1, config.reloc_widenings + 2):
+        if attempt > 1:
+            radius *= 2.0
+            search = searcher.search(world, corners, keyframe_ids, predicted, radius, set(), "relocalise")
+        solution, _, _ = _pnp_on(search, world, K, config, seed + (attempt,), GUESS_MIN_INLIERS)
+        if solution is None or solution.T_world_cam is None:
+            continue
+        refined = searcher.search(world, corners, keyframe_ids, solution.T_world_cam, config.local_map_radius_px,
+                                  set(), "relocalise")
+        better, ids, pixels = _pnp_on(refined, world, K, config, seed + (attempt, 0), AGREEING_MIN_INLIERS)
+        if better is not None and better.T_world_cam is not None and (
+                int(better.inlier_mask.sum()) >= config.reloc_min_inliers
+                or np.degrees(rotation_angle(better.T_world_cam[:3, :3].T @ predicted[:3, :3])) <= AGREEING_DEG):
+            return GuidedRelocalisation(refined, better, ids, pixels, attempt)
+    return GuidedRelocalisation(search, None, np.zeros(0, np.int64), np.zeros((0, 2)), config.reloc_widenings + 1)
+
+
+def _pnp_on(search: LocalMapSearch, world: Map, K: np.ndarray, config: MapConfig,  # noqa: N803
+            seed: tuple[int, ...], minimum: int) -> tuple[PnPSolution | None, np.ndarray, np.ndarray]:
+    """PnP on a search's matches if there are enough; the solution only if it has `minimum` inliers."""
+    found = search.found_mask
+    ids, pixels = search.landmark_ids[found], search.found_pixels[found]
+    if len(ids) < minimum:
+        return None, ids, pixels
+    solution = solve_pnp(world.positions(ids), pixels, K, config.reloc_threshold_px, config.reloc_iterations, seed)
+    if solution.T_world_cam is None or int(solution.inlier_mask.sum()) < minimum:
+        return None, ids, pixels
+    return solution, ids, pixels
