@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
 import socket
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager, suppress
@@ -126,6 +127,21 @@ def run_on_ray(
     """
     if not jobs:
         return
+    # ray.init installs its own SIGTERM handler and leaves SIGINT ignored: the caller's come back after (a
+    # process started later would inherit the ignored SIGINT and could not be stopped by Ctrl-C)
+    handlers = {signum: signal.getsignal(signum) for signum in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        _run_connected(function, jobs, address, num_cpus, on_result, failed, fail_fast, on_error)
+    finally:
+        for signum, handler in handlers.items():
+            signal.signal(signum, handler)
+
+
+def _run_connected(
+    function: Callable[[J], R], jobs: Sequence[J], address: str, num_cpus: float,
+    on_result: Callable[[int, R], None], failed: Callable[[R], bool], fail_fast: bool,
+    on_error: Callable[[J, str], R],
+) -> None:
     connect(address)
     import ray
 
