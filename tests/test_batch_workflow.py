@@ -58,8 +58,8 @@ def test_the_example_workflow_shards_and_merges(kitti_root: Path, tmp_path: Path
     folder = tmp_path / "checkout"
     folder.mkdir()
     # Windows of KITTI 05 over 100 m (t_err exists) that pass the workflow's gates with a wide margin (t_err
-    # 0.3-0.8 %, r_err 0.2-0.5 °/100 m, ATE 0.09-0.14 m): the merge job must pass.
-    windows = ("0:150", "150:300", "75:225", "0:300:2", "40:190")
+    # 0.3-0.8 %, r_err 0.2-0.5 °/100 m, ATE 0.09-0.14 m): the merge job must pass. One per shard.
+    windows = ("0:150", "150:300", "0:300:2", "40:190")
     rows = [f"kitti-05-{k},$KITTI_ROOT,05,{frames}" for k, frames in enumerate(windows)]
     (folder / "logs.csv").write_text("name,source,sequence,frames\n" + "\n".join(rows) + "\n")
 
@@ -70,7 +70,7 @@ def test_the_example_workflow_shards_and_merges(kitti_root: Path, tmp_path: Path
     merged = pl.read_csv(folder / "merged" / "metrics.csv")
     assert merged["sequence"].to_list()[:-1] == [row.split(",")[0] for row in rows]  # manifest order, from every shard
     assert set(merged["status"].to_list()[:-1]) == {"ok"}
-    assert "kitti-05-4" in summary.read_text()  # the table went to the job summary
+    assert "kitti-05-3" in summary.read_text()  # the table went to the job summary
 
 
 def test_an_unset_variable_in_a_manifest_path_is_named(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
