@@ -38,6 +38,12 @@ def accepts_tcp(port: int) -> bool:
         return sock.connect_ex((HOST, port)) == 0
 
 
+def _sigint_default() -> None:
+    """Ctrl-C acts in the run as in a shell: the test process may have SIGINT ignored at the OS level (Ray's
+    native client, used in-process by the Ray tests, leaves it so), and an ignored signal is inherited."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 @pytest.fixture(scope="module")
 def live_run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
     """A synthetic run with --live web on two fixed free ports: the ports probed while it runs, then Ctrl-C."""
@@ -52,7 +58,8 @@ def live_run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
         process = subprocess.Popen(
             [sys.executable, "-m", "vslam.cli", "run", "--frames", FRAMES, "-o", str(output), "--live", "web",
              "--web-port", str(web_port), "--grpc-port", str(grpc_port)],
-            cwd=ROOT, env=environment, stdout=stdout, stderr=subprocess.PIPE, text=True, start_new_session=True)
+            cwd=ROOT, env=environment, stdout=stdout, stderr=subprocess.PIPE, text=True, start_new_session=True,
+            preexec_fn=_sigint_default)
     try:
         deadline = time.monotonic() + 120
         http = tcp = False
