@@ -21,6 +21,7 @@ import numpy as np
 
 from vslam_core.config import EngineConfig
 from vslam_core.loop.search import LoopSearch, SearchJob, SearchResult
+from vslam_core.mapping.worker_process import stop_worker
 
 
 def _serve(jobs: Any, connection: Connection, K: np.ndarray, config: EngineConfig) -> None:  # noqa: N803
@@ -113,21 +114,7 @@ class LoopWorker:
         return self._local.run(job)
 
     def close(self) -> None:
-        if self._connection is not None:
-            try:
-                if self._pending is not None:
-                    self._connection.recv()
-                self._jobs.put(None)
-            except (OSError, EOFError):
-                pass
-            self._connection.close()
-            self._connection = None
-        if self._jobs is not None:
-            self._jobs.close()
-            self._jobs.join_thread()
-            self._jobs = None
-        if self._process is not None:
-            self._process.join(timeout=5)
-            if self._process.is_alive():
-                self._process.kill()
-            self._process = None
+        stop_worker(self._connection, self._process, awaiting_result=self._pending is not None, jobs=self._jobs)
+        self._connection = None
+        self._jobs = None
+        self._process = None

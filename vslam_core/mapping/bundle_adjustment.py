@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from vslam_core.geometry import invert_pose
+from vslam_core.mapping.worker_process import stop_worker
 
 
 @dataclass(frozen=True)
@@ -172,17 +173,6 @@ class BundleAdjuster:
             return problem, solve(problem)
 
     def close(self) -> None:
-        if self._connection is not None:
-            try:
-                if self._pending is not None:
-                    self._connection.recv()
-                self._connection.send(None)
-            except (OSError, EOFError):
-                pass
-            self._connection.close()
-            self._connection = None
-        if self._process is not None:
-            self._process.join(timeout=5)
-            if self._process.is_alive():
-                self._process.kill()
-            self._process = None
+        stop_worker(self._connection, self._process, awaiting_result=self._pending is not None)
+        self._connection = None
+        self._process = None
