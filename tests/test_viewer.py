@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import select
@@ -296,6 +297,53 @@ def test_web_viewer_serves_on_loopback_until_stopped(recording: Path, stop: sign
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
+def test_web_server_dies_with_a_killed_open(recording: Path) -> None:
+    """SIGKILL leaves `open --web` no time to stop its server, which runs in a session of its own; the server is
+    started with PR_SET_PDEATHSIG, so the kernel kills it too (before, it outlived `open`, its stdin at its end,
+    and spun a core: see vslam.viewer.web)."""
+    code = "import sys; from vslam.cli import main; sys.argv = ['vslam', 'open', sys.argv[1], '--web']; main()"
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    proc = subprocess.Popen([sys.executable, "-c", code, str(recording)], cwd=ROOT, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    servers: list[int] = []
+    try:
+        _wait_for_url(proc, timeout_s=30)
+        servers = _children(proc.pid)
+        assert len(servers) == 1, servers  # the Rerun server, and nothing else
+        proc.kill()
+        proc.wait()
+        deadline = time.monotonic() + 5
+        while _alive(servers[0]) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not _alive(servers[0]), "the web server outlived the killed `vslam open --web`"
+    finally:
+        proc.kill()
+        proc.communicate()
+        for pid in servers:  # the old behaviour: clean up what the test found
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(pid, signal.SIGKILL)
+
+
+def _children(pid: int) -> list[int]:
+    """Pids of the processes whose parent is `pid` (from /proc/*/stat)."""
+    children = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        with contextlib.suppress(OSError):
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+            if int(fields[1]) == pid:
+                children.append(int(stat.parent.name))
+    return children
+
+
+def _alive(pid: int) -> bool:
+    """True while `pid` exists and is not a zombie (a reaper may take a moment to collect it)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
 
 
 def _wait_for_url(proc: subprocess.Popen[str], timeout_s: float) -> str:

@@ -2,7 +2,8 @@
 headless PNG snapshots, and `vslam.viewer.web`, the interactive native or web viewer).
 
 Every viewer process is started in its own session and killed by process group, on success, error or
-Ctrl-C, so no process and no port outlives the call.
+Ctrl-C, so no process and no port outlives the call. Where that cannot run (vslam SIGKILLed), Linux kills the
+viewer process with its parent (`PR_SET_PDEATHSIG`, see `die_with_parent`).
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import re
 import signal
 import socket
 import subprocess
+import sys
 import tempfile
 import threading
 import time
@@ -40,6 +42,7 @@ HOST = "127.0.0.1"
 # What the viewer prints when it finds no usable graphics adapter (wgpu/egui panics, exit code 102).
 _NO_ADAPTER_PATTERNS = ("no graphics adapter", "failed to get render context", "failed to create render state")
 _ADDRESS_IN_USE_PATTERNS = ("address already in use", "address in use", "os error 98")
+_DIE_WITH_PARENT = Path(__file__).with_name("die_with_parent.py")
 
 
 class ViewerError(VslamError):
@@ -198,7 +201,7 @@ def _start(args: Sequence[str], env: Mapping[str, str] | None = None, feed: Path
     child_env = {**os.environ, **(env or {}), "RERUN_APP_ONLY": "true"}  # no analytics prompt
     try:
         popen = subprocess.Popen(
-            [*rerun_executable(), *args],
+            _dying_with_parent([*rerun_executable(), *args]),
             stdin=subprocess.DEVNULL if feed is None else subprocess.PIPE,
             stdout=subprocess.DEVNULL,
             stderr=stderr,
@@ -214,6 +217,16 @@ def _start(args: Sequence[str], env: Mapping[str, str] | None = None, feed: Path
         process.feeder = threading.Thread(target=_feed, args=(process, feed), name="rerun-stdin-feed", daemon=True)
         process.feeder.start()
     return process
+
+
+def _dying_with_parent(command: list[str]) -> list[str]:
+    """`command` started through `die_with_parent.py`, so Linux SIGKILLs it when this process dies (even by
+    SIGKILL, when `_Process.stop` cannot run); `command` itself elsewhere, or off the main thread (the signal
+    comes when the thread that started the process ends)."""
+    if not sys.platform.startswith("linux") or not sys.executable or \
+            threading.current_thread() is not threading.main_thread():
+        return command
+    return [sys.executable, "-I", "-S", str(_DIE_WITH_PARENT), str(os.getpid()), *command]
 
 
 def _feed(process: _Process, path: Path, block_size: int = 1 << 20) -> None:

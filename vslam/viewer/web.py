@@ -16,6 +16,8 @@ to the server's stdin (`rerun … -`) and the pipe is held open until the server
 (`viewer._start(feed=…)`): the source never ends, the loop waits in a blocking read, and the server sleeps (0.0 %
 of a core, with or without an idle browser; `benchmarks/web_idle.py`). The embedded layout (blueprint) arrives as
 from the file, which pushing the recording over gRPC from the SDK (`log_file_from_path`, `send_chunks`) would lose.
+A SIGKILLed `vslam open` can neither stop the server nor hold its pipe open: Linux kills the server with it
+(`PR_SET_PDEATHSIG`, set by `vslam.viewer.die_with_parent` before the server starts).
 """
 
 from __future__ import annotations
