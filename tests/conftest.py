@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import os
+import shutil
 import signal
+import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -12,6 +14,7 @@ import pytest
 from ray_cluster import ray_cluster  # noqa: F401  (the fixture: a real one-node Ray head, see ray_cluster.py)
 
 from vslam_core.sources.synthetic import SyntheticStreet
+from vslam_core.sources.synthetic.frame_cache import ENVIRONMENT as FRAME_CACHE
 
 #: The real KITTI sample: the ``shared`` folder beside the repository checkout (never inside the repo).
 KITTI_ROOT = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti"
@@ -45,6 +48,24 @@ class _RenderedFrames:
 RENDERED = _RenderedFrames()
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    """One synthetic-frame cache on disk for the whole session (`frame_cache`): set by the controlling
+    process, so the xdist workers and every `vslam` process a test starts render each frame once."""
+    if not hasattr(config, "workerinput") and not os.environ.get(FRAME_CACHE):
+        os.environ[FRAME_CACHE] = tempfile.mkdtemp(prefix="vslam-test-frames-")
+        config.stash[_FRAME_CACHE_MADE] = os.environ[FRAME_CACHE]
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    made = config.stash.get(_FRAME_CACHE_MADE, None)
+    if made is not None:
+        shutil.rmtree(made, ignore_errors=True)
+        os.environ.pop(FRAME_CACHE, None)
+
+
+_FRAME_CACHE_MADE = pytest.StashKey[str]()
+
+
 def _render(street: SyntheticStreet, index: int) -> np.ndarray:
     return RENDERED(street, index)
 
@@ -67,8 +88,9 @@ def signals_left_as_found() -> Iterator[None]:
 
 
 @pytest.fixture
-def no_render_cache() -> Iterator[None]:
-    """Each frame rendered anew (for the renderer's own tests)."""
+def no_render_cache(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
+    """Each frame rendered anew, neither kept in memory nor read from the disk cache (the renderer's own tests)."""
+    monkeypatch.delenv(FRAME_CACHE, raising=False)
     RENDERED.enabled = False
     try:
         yield

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -10,7 +11,7 @@ import pytest
 
 from vslam_core.errors import SourceError
 from vslam_core.sources.base import FrameRange, FrameSource
-from vslam_core.sources.synthetic import SyntheticStreet
+from vslam_core.sources.synthetic import SyntheticStreet, frame_cache
 from vslam_core.sources.synthetic.street import _world
 
 pytestmark = pytest.mark.usefixtures("no_render_cache")  # the renderer itself under test: every frame rendered
@@ -76,11 +77,12 @@ def test_frames_shapes_dtypes_and_timestamps() -> None:
 
 def test_deterministic() -> None:
     a = SyntheticStreet(n_frames=40, frames=FrameRange(30, 32), seed=3)
+    first = [frame.image for frame in a]  # the scene is built on the first render
     _world.cache_clear()  # the scene built again, not shared
     b = SyntheticStreet(n_frames=40, frames=FrameRange(30, 32), seed=3)
     np.testing.assert_array_equal(a.ground_truth, b.ground_truth)
-    for fa, fb in zip(a, b, strict=True):
-        np.testing.assert_array_equal(fa.image, fb.image)
+    for image, frame in zip(first, b, strict=True):
+        np.testing.assert_array_equal(image, frame.image)
     other = SyntheticStreet(n_frames=40, frames=FrameRange(30, 32), seed=4)
     assert not np.array_equal(other.render(30), a.render(30))
 
@@ -216,3 +218,31 @@ def test_essential_matrix_recovers_true_direction(
     gt = street.ground_truth
     t_true = (np.linalg.inv(gt[0]) @ gt[1])[:3, 3]
     assert _angle_deg(t.ravel(), t_true) < 3.0
+
+
+def test_frame_cache_gives_the_rendered_frames_and_is_read_back(monkeypatch: pytest.MonkeyPatch,
+                                                                tmp_path: Path) -> None:
+    """`VSLAM_SYNTHETIC_CACHE`: a frame is written once rendered, byte for byte the uncached render; a later
+    street reads it back (a planted file is what it returns); an unreadable file is rendered again; another
+    renderer version uses another folder."""
+    uncached = SyntheticStreet(n_frames=20, frames=FrameRange(3, 5), resolution=0.25)
+    expected = [frame.image for frame in uncached]
+    monkeypatch.setenv(frame_cache.ENVIRONMENT, str(tmp_path))
+    written = [frame.image for frame in SyntheticStreet(n_frames=20, frames=FrameRange(3, 5), resolution=0.25)]
+    for image, reference in zip(written, expected, strict=True):
+        np.testing.assert_array_equal(image, reference)
+    folder = tmp_path / frame_cache.renderer_version()
+    files = sorted(p.name for p in folder.iterdir())
+    assert files == ["street-seed0-n20-h1.65-310x94-00003.npy", "street-seed0-n20-h1.65-310x94-00004.npy"]
+    planted = np.full_like(expected[0], 7)
+    np.save(folder / files[0], planted)
+    (folder / files[1]).write_bytes(b"cut")  # unreadable: rendered again and rewritten
+    again = SyntheticStreet(n_frames=20, frames=FrameRange(3, 5), resolution=0.25)
+    np.testing.assert_array_equal(again.render(3), planted)
+    np.testing.assert_array_equal(again.render(4), expected[1])
+    np.testing.assert_array_equal(np.load(folder / files[1]), expected[1])
+    assert not list(folder.glob(".frame-*"))  # no temporary file left
+    monkeypatch.setattr(frame_cache, "renderer_version", lambda: "another")
+    np.testing.assert_array_equal(SyntheticStreet(n_frames=20, frames=FrameRange(3, 4), resolution=0.25).render(3),
+                                  expected[0])
+    assert (tmp_path / "another" / files[0]).exists()

@@ -41,6 +41,7 @@ import numpy as np
 
 from vslam_core.errors import SourceError
 from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange, rebase_poses
+from vslam_core.sources.synthetic import frame_cache
 from vslam_core.sources.synthetic.raster import (
     NEAR,
     pixel_boxes,
@@ -92,14 +93,19 @@ def _streams(seed: int) -> list[np.random.Generator]:
 
 
 @functools.lru_cache(maxsize=2)
+def _centreline(n_frames: int, seed: int, route: Route) -> Centreline:
+    """The road the camera drives along (cheap; the scene around it is `_world`)."""
+    if route == "loop":  # around a block and back past the start (~1 m per frame)
+        return make_loop_centreline()
+    return make_centreline(START_S + 1.25 * n_frames + _LOOK_AHEAD, _streams(seed)[0])
+
+
+@functools.lru_cache(maxsize=2)
 def _world(n_frames: int, seed: int, route: Route) -> _World:
     """The street's scene, built once per process for the same arguments (building it takes seconds; a
     pure function of them, so every `SyntheticStreet` alike shares it)."""
     rngs = _streams(seed)
-    if route == "loop":  # around a block and back past the start (~1 m per frame)
-        line = make_loop_centreline()
-    else:
-        line = make_centreline(START_S + 1.25 * n_frames + _LOOK_AHEAD, rngs[0])
+    line = _centreline(n_frames, seed, route)
     quads, atlas = build_street(line, rngs[2:8])
     layout = ground_layout(line, rngs[8])
     fine = [cv2.copyMakeBorder(t, 2, 2, 2, 2, cv2.BORDER_WRAP) for t in mip_pyramid(ground_fine_tile(rngs[9]), 9)]
@@ -150,18 +156,24 @@ class SyntheticStreet:
         self._indices = (frames or FrameRange()).indices(n_frames)
         self._intr = intr = _INTRINSICS if resolution == 1.0 else _scaled(_INTRINSICS, resolution)
         self._k = intr.K
-        world = _world(n_frames, seed, route)
-        self._line, self._quads = world.line, world.quads
-        self._poses_map = camera_path(self._line, n_frames, self.camera_height, _streams(seed)[1])
+        self._poses_map = camera_path(_centreline(n_frames, seed, route), n_frames, self.camera_height,
+                                      _streams(seed)[1])
+        self._ground_truth = rebase_poses(self._poses_map[self._indices])
+        self._prepared = False  # the scene is built on the first frame not found in the frame cache
+
+    def _prepare(self) -> None:
+        """Build (or share) the scene and the per-pixel arrays rendering needs."""
+        world = _world(self.n_frames, self.seed, self.route)
+        self._quads = world.quads
         self._atlas, self._ground_origin, self._ground = world.atlas, world.ground_origin, world.ground
         self._fine = world.fine
-        pano = _panorama(seed, intr.fx)
+        pano = _panorama(self.seed, self._intr.fx)
         self._pano = cv2.copyMakeBorder(pano, 0, 0, 2, 2, cv2.BORDER_WRAP)
         self._pano_width = pano.shape[1]
-        v, u = np.mgrid[0 : intr.height, 0 : intr.width]
+        v, u = np.mgrid[0 : self._intr.height, 0 : self._intr.width]
         self._u = u.ravel().astype(np.float32)  # (H*W,) pixel column of each flat index
         self._v = v.ravel().astype(np.float32)
-        self._ground_truth = rebase_poses(self._poses_map[self._indices])
+        self._prepared = True
 
     @property
     def name(self) -> str:
@@ -199,9 +211,25 @@ class SyntheticStreet:
             yield Frame(index=index, timestamp=index * _FRAME_DT, image=self.render(index))
 
     def render(self, index: int) -> np.ndarray:
-        """(H, W) uint8 grey image of source frame `index` (0 <= index < n_frames)."""
+        """(H, W) uint8 grey image of source frame `index` (0 <= index < n_frames); read from, or written
+        to, the frame cache when ``VSLAM_SYNTHETIC_CACHE`` names one (`frame_cache`)."""
         if not 0 <= index < self.n_frames:
             raise IndexError(f"frame {index} out of range 0..{self.n_frames - 1}")
+        folder = frame_cache.cache_folder()
+        if folder is None:
+            return self._render(index)
+        intr = self._intr
+        key = (self.route, self.seed, self.n_frames, self.camera_height, intr.width, intr.height)
+        path = frame_cache.frame_path(folder, key, index)
+        image = frame_cache.load_frame(path, (intr.height, intr.width))
+        if image is None:
+            image = self._render(index)
+            frame_cache.store_frame(path, image)
+        return image
+
+    def _render(self, index: int) -> np.ndarray:
+        if not self._prepared:
+            self._prepare()
         intr = self._intr
         pose = self._poses_map[index]
         r_cm = pose[:3, :3].T
