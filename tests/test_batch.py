@@ -44,11 +44,11 @@ def manifest(kitti_root: Path, tmp_path_factory: pytest.TempPathFactory) -> Path
     path = folder / "logs.csv"
     path.write_text(
         "name,source,sequence,frames,calib,gt\n"
-        f"kitti-00-a,{kitti_root},00,0:40,,\n"
-        f"kitti-00-b,{kitti_root},00,40:80,,\n"
+        f"kitti-00-a,{kitti_root},00,0:20,,\n"
+        f"kitti-00-b,{kitti_root},00,20:40,,\n"
         "broken,broken/images,,,broken/calib.txt,broken/gt.txt\n"  # relative to the manifest
-        f"kitti-05-a,{kitti_root},05,0:40,,\n"
-        f"kitti-05-b,{kitti_root},05,40:80,,\n"
+        f"kitti-05-a,{kitti_root},05,0:20,,\n"
+        f"kitti-05-b,{kitti_root},05,20:40,,\n"
     )
     return path
 
@@ -76,10 +76,10 @@ def test_serial_batch_fails_the_broken_log_alone(serial: tuple[Path, subprocess.
     error = failed["error"][0]
     assert "000005.png" in error and "\n" not in error
     assert set(table.filter(pl.col("sequence") != "mean")["status"]) == {"ok", "failed"}
-    assert table.filter(pl.col("sequence") == "mean")["frames"][0] == 160  # over the ok logs
+    assert table.filter(pl.col("sequence") == "mean")["frames"][0] == 80  # over the ok logs
     for name in ("kitti-00-a", "kitti-05-b"):
         assert (report / f"{name}.rrd").exists() and (report / f"{name}_top.png").exists()
-        assert len(read_kitti_poses(report / f"{name}.txt")) == 40
+        assert len(read_kitti_poses(report / f"{name}.txt")) == 20
     markdown = (report / "report.md").read_text()
     assert "### Failed logs" in markdown and "| broken |" in markdown
     lines = [line for line in result.stderr.splitlines() if line.startswith("[")]
@@ -136,14 +136,14 @@ def test_resume_runs_only_missing_changed_and_failed_logs(serial: tuple[Path, su
     shutil.copytree(serial[0], report)
     (report / "logs" / "kitti-05-a.json").unlink()
     changed = manifest.parent / "changed.csv"  # kitti-00-b's row now selects other frames
-    changed.write_text(manifest.read_text().replace(",00,40:80,", ",00,40:79,"))
+    changed.write_text(manifest.read_text().replace(",00,20:40,", ",00,20:39,"))
     result = vslam("eval", "--manifest", changed, "--report", report, "--resume", "--workers", "1", "--detail",
                    "off")
     assert result.returncode == 1, result.stderr  # the broken log, run again, fails again
     lines = [line for line in result.stderr.splitlines() if line.startswith("[")]
     assert [line.split("  ")[0] for line in lines] == ["[1/3] kitti-00-b", "[2/3] broken", "[3/3] kitti-05-a"]
     table = pl.read_csv(report / "metrics.csv")
-    assert table.filter(pl.col("sequence") == "kitti-00-b")["frames"][0] == 39
+    assert table.filter(pl.col("sequence") == "kitti-00-b")["frames"][0] == 19
     unchanged = pl.col("sequence").is_in(["kitti-00-b", "mean"]).not_()
     expected = pl.read_csv(serial[0] / "metrics.csv").filter(unchanged).drop(WALL_CLOCK).write_csv()
     assert table.filter(unchanged).drop(WALL_CLOCK).write_csv() == expected
