@@ -234,7 +234,7 @@ def test_calib_yaml_gives_an_image_folder_its_lens(logs: dict[str, LensLog], tmp
     log = logs["sqlite3-plumb_bob"]
     folder = tmp_path / "frames"
     folder.mkdir()
-    source = RosbagSource(log.path, frames=FrameRange(0, 60))
+    source = RosbagSource(log.path, frames=FrameRange(0, 30))
     for frame in source:
         cv2.imwrite(str(folder / f"{frame.index:06d}.png"), frame.image)
     lens = log.camera
@@ -249,7 +249,7 @@ def test_calib_yaml_gives_an_image_folder_its_lens(logs: dict[str, LensLog], tmp
     trajectory_folder, trajectory_log = tmp_path / "folder.txt", tmp_path / "log.txt"
     first = vslam("run", folder, "--calib", calib, "--detail", "off", "--scale", "none", "--trajectory-out",
                   trajectory_folder)
-    second = vslam("run", log.path, "--frames", "0:60", "--detail", "off", "--scale", "none", "--trajectory-out",
+    second = vslam("run", log.path, "--frames", "0:30", "--detail", "off", "--scale", "none", "--trajectory-out",
                    trajectory_log)
     assert first.returncode == 0 and second.returncode == 0, first.stderr + second.stderr
     # lossless frames, the same lens: the same trajectory (deterministic engine)
