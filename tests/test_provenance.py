@@ -79,12 +79,12 @@ def test_interrupted_run_says_what_the_recording_holds(kitti_root: Path, tmp_pat
 
 
 def test_report_md_states_injected_faults(tmp_path: Path) -> None:
-    result = vslam("eval", "synthetic", "--frames", "0:8", "--inject", "dark@3", "--report", tmp_path, "--detail",
+    result = vslam("eval", "synthetic", "--frames", "0:5", "--inject", "dark@3", "--report", tmp_path, "--detail",
                    "off")
     assert result.returncode == 0, result.stderr
     assert "Faults injected into every sequence: `dark@3` (`--inject`)." in (tmp_path / "report.md").read_text()
     clean = tmp_path / "clean"
-    assert vslam("eval", "synthetic", "--frames", "0:8", "--report", clean, "--detail", "off").returncode == 0
+    assert vslam("eval", "synthetic", "--frames", "0:5", "--report", clean, "--detail", "off").returncode == 0
     assert "No faults injected." in (clean / "report.md").read_text()
 
 
