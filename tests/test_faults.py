@@ -21,7 +21,8 @@ from vslam_core.sources.faults import Fault, parse_faults
 from vslam_core.sources.open import open_source
 from vslam_core.trajectory.metrics import kitti_errors, rpe
 
-FRAMES = FrameRange(0, 90)  # KITTI 00: straight road, no turn before frame 90
+N_FRAMES = 70
+FRAMES = FrameRange(0, N_FRAMES)  # KITTI 00: straight road, no turn before frame 90; 27 frames after the faults
 FAULT_AT = (40, 42)
 
 # kind -> (status on the faulty frames, a reason among them)
@@ -66,7 +67,7 @@ def test_fault_is_flagged_at_its_frames_and_tracking_recovers(
     kind: str, kitti_root: Path, clean: tuple[list[FrameResult], np.ndarray]
 ) -> None:
     results, gt = run(kitti_root, f"{kind}@{FAULT_AT[0]}:{FAULT_AT[1]}")
-    assert len(results) == 90  # one pose per frame, the run went on
+    assert len(results) == N_FRAMES  # one pose per frame, the run went on
     status, reason = EXPECTED[kind]
     for r in results:
         if FAULT_AT[0] <= r.index <= FAULT_AT[1]:
@@ -74,7 +75,7 @@ def test_fault_is_flagged_at_its_frames_and_tracking_recovers(
         elif r.index > 0 and r.index not in range(FAULT_AT[0], FAULT_AT[1] + 4):
             assert r.health.status == HealthStatus.OK, (r.index, r.health)  # nothing else is flagged
     clean_results, _ = clean
-    after = (FAULT_AT[1] + 3, 90)
+    after = (FAULT_AT[1] + 3, N_FRAMES)
     trans, rot = step_error(results, gt, *after)
     clean_trans, clean_rot = step_error(clean_results, gt, *after)
     assert trans < 2 * clean_trans + 0.01 and rot < 2 * clean_rot + 0.02  # per-frame accuracy is back
@@ -129,11 +130,12 @@ def test_no_dead_reckoning_before_the_first_usable_frame(kitti_root: Path) -> No
 @pytest.mark.kitti
 def test_dropped_frames_are_flagged_as_a_jump_and_skipped(kitti_root: Path) -> None:
     results, gt = run(kitti_root, "drop@40:42")
-    assert len(results) == 87 and len(gt) == 87
+    assert len(results) == N_FRAMES - 3 and len(gt) == N_FRAMES - 3
     assert [r.index for r in results][38:42] == [38, 39, 43, 44]
     after_gap = next(r for r in results if r.index == 43)
     assert after_gap.health.status == HealthStatus.WARN and Reason.SCALE_JUMP in after_gap.health.reasons
-    assert np.linalg.norm(results[-1].T_world_cam[:3, 3] - gt[-1, :3, 3]) < 2.2  # clean run: 1.9 m
+    # measured on 0:70: 1.47 m (clean run: 1.46 m; on 0:90 the bound was 2.2 m for a clean 1.9 m)
+    assert np.linalg.norm(results[-1].T_world_cam[:3, 3] - gt[-1, :3, 3]) < 1.8
 
 
 @pytest.mark.kitti

@@ -119,9 +119,19 @@ def _map_run(kitti_root: Path, frames: FrameRange, threads: int = 1,
     return results, run.pose_array(), source.ground_truth
 
 
+MapRun = tuple[list[FrameResult], np.ndarray, np.ndarray]
+
+
+@pytest.fixture(scope="module")
+def clean_00(kitti_root: Path) -> MapRun:
+    """The clean reference: the map backend over KITTI 00 0:150, one thread (results, poses, ground truth),
+    shared by the tests that compare against an uninterrupted run."""
+    return _map_run(kitti_root, FrameRange(0, 150))
+
+
 @pytest.mark.kitti
-def test_map_backend_tracks_real_kitti_against_its_map(kitti_root: Path) -> None:
-    results, poses, gt = _map_run(kitti_root, FrameRange(0, 150))
+def test_map_backend_tracks_real_kitti_against_its_map(clean_00: MapRun) -> None:
+    results, poses, gt = clean_00
     modes = [r.mapping.mode for r in results if r.mapping is not None]
     assert len(modes) == 150
     assert modes.count(TrackingMode.MAP) > 0.9 * 150
@@ -146,14 +156,14 @@ def test_map_backend_is_deterministic_with_and_without_the_worker(kitti_root: Pa
 
 
 @pytest.mark.kitti
-def test_relocalisation_finds_a_frame_in_the_map_of_real_kitti(kitti_root: Path) -> None:
+def test_relocalisation_finds_a_frame_in_the_map_of_real_kitti(kitti_root: Path, clean_00: MapRun) -> None:
     """Build the map over frames 0–119 of 00, then relocalise frames 121 and 122 from their images alone
     (descriptors against the landmarks of recent keyframes): the pose agrees with the one tracking gives
-    those frames in an uninterrupted run. (Inliers fall from ~190 at the next frame to ~30 four frames on:
-    single-scale upright descriptors; a wider reach is open work.)"""
+    those frames in an uninterrupted run (the clean 0:150 run). (Inliers fall from ~190 at the next frame to
+    ~30 four frames on: single-scale upright descriptors; a wider reach is open work.)"""
     source = KittiSource(kitti_root, sequence="00", frames=FrameRange(0, 124))
     assert source.ground_truth is not None
-    tracked = run_odometry(source, EngineConfig(backend="map", threads=1)).pose_array()
+    _, tracked, _ = clean_00
     engine = MapTracking(source.intrinsics, EngineConfig(backend="map", threads=1),
                          GroundTruthScale(source.ground_truth))
     try:
@@ -234,16 +244,17 @@ def test_interpolate_pose_follows_the_geodesic() -> None:
 
 
 @pytest.mark.kitti
-def test_dark_frames_are_coasted_through_and_flagged(kitti_root: Path) -> None:
-    """dark@40:47 on real KITTI 00: the dark frames are flagged (image_too_dark, coasted, held status) but
-    dead-reckoned from their contrast-normalised images, within 0.5 m and 0.5° of where the clean run puts
-    them; the run's accuracy stays close to the clean run's."""
-    clean = KittiSource(kitti_root, sequence="00", frames=FrameRange(0, 180))
+def test_dark_frames_are_coasted_through_and_flagged(kitti_root: Path, clean_00: MapRun) -> None:
+    """dark@40:47 on real KITTI 00 0:150: the dark frames are flagged (image_too_dark, coasted, held status)
+    but dead-reckoned from their contrast-normalised images, within 0.5 m and 0.5° of where the clean run
+    puts them (measured 0.03 m, 0.14°); the run's accuracy stays close to the clean run's (t_err measured
+    1.83 % against the clean 1.82 %; on 0:180 it was 1.33 % clean)."""
+    clean = KittiSource(kitti_root, sequence="00", frames=FrameRange(0, 150))
     faulty = FaultInjector(clean, parse_faults("dark@40:47"))
     results: list[FrameResult] = []
     config = EngineConfig(backend="map", threads=1)
     poses = run_odometry(faulty, config, (lambda _frame, result: results.append(result),)).pose_array()
-    clean_poses = run_odometry(clean, config).pose_array()
+    _, clean_poses, _ = clean_00
     for position in range(40, 48):
         result = results[position]
         assert result.mapping is not None and result.mapping.mode == TrackingMode.COASTED
@@ -275,15 +286,16 @@ class _Unreadable:
 
 
 @pytest.mark.kitti
-def test_a_gap_nothing_can_place_is_held_then_filled_in_the_output(kitti_root: Path) -> None:
+def test_a_gap_nothing_can_place_is_held_then_filled_in_the_output(kitti_root: Path, clean_00: MapRun) -> None:
     """Unreadable frames 40–47 (nothing to coast on): held and flagged in their results; once tracking
-    resumes, the output trajectory fills them between the poses before and after."""
-    clean = KittiSource(kitti_root, sequence="00", frames=FrameRange(0, 120))
+    resumes, the output trajectory fills them between the poses before and after. (The clean run's poses
+    40–47 are the same in its 0:150 and a 0:120 run: bit-identical, measured.)"""
+    clean = KittiSource(kitti_root, sequence="00", frames=FrameRange(0, 90))
     results: list[FrameResult] = []
     config = EngineConfig(backend="map", threads=1)
     poses = run_odometry(_Unreadable(clean, range(40, 48)), config,
                          (lambda _frame, result: results.append(result),)).pose_array()
-    clean_poses = run_odometry(clean, config).pose_array()
+    _, clean_poses, _ = clean_00
     for position in range(40, 48):
         assert results[position].mapping is not None and results[position].mapping.mode == TrackingMode.LOST
         assert Reason.UNREADABLE_IMAGE in results[position].health.reasons
