@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
+from vslam_core.features import match_descriptors
 from vslam_core.loop.places import describe_image
 from vslam_core.loop.vocabulary import BinaryVocabulary, nearest
 from vslam_core.mapping.local_mapping import DESCRIPTOR_PATCH
@@ -53,3 +54,28 @@ def test_nearest_word_is_the_matchers(described: tuple[np.ndarray, np.ndarray, n
     for n in range(0, len(descriptors), 37):
         start, stop = int(vocabulary.offsets[branch[n]]), int(vocabulary.offsets[branch[n] + 1])
         assert words[n] == start + nearest(descriptors[n:n + 1], vocabulary.words[start:stop])[0]
+
+
+def _matched_both_ways(query: np.ndarray, train: np.ndarray, ratio: float) -> list[tuple[int, int]]:
+    """Mutual ratio-test matches the plain way: OpenCV's matcher, query to train (2 nearest) and train to query."""
+    matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
+    backward = {p[0].queryIdx: p[0].trainIdx for p in matcher.knnMatch(train, query, k=1) if p}
+    return [(m.queryIdx, m.trainIdx) for m, n in matcher.knnMatch(query, train, k=2)
+            if m.distance < ratio * n.distance and backward.get(m.trainIdx) == m.queryIdx]
+
+
+def test_mutual_matches_are_the_matchers(kitti_root: Path,
+                                         described: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
+    """`match_descriptors` (one pass, then back only from the chosen train descriptors) gives the matches of the
+    matcher run both ways in full: a frame 3 frames on, the same frame (ties: each descriptor twice), none."""
+    _, _, descriptors = described
+    image = cv2.imread(str(kitti_root / "sequences" / "05" / "image_0" / "000103.png"), cv2.IMREAD_GRAYSCALE)
+    describer = cv2.ORB_create(edgeThreshold=int(DESCRIPTOR_PATCH), patchSize=int(DESCRIPTOR_PATCH))
+    _, later = describe_image(image, 1000, 15, describer)
+    for train in (later, later[:300], np.repeat(descriptors[:400], 2, axis=0), descriptors[::-1]):
+        for ratio in (0.8, 0.95):
+            query_index, train_index = match_descriptors(descriptors, train, ratio)
+            expected = _matched_both_ways(descriptors, train, ratio)
+            assert list(zip(query_index.tolist(), train_index.tolist(), strict=True)) == expected
+    assert len(match_descriptors(descriptors, later, 0.8)[0]) > 100
+    assert len(match_descriptors(descriptors[:1], later, 0.8)[0]) == 0
