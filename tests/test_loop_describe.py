@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from vslam_core.features import match_descriptors
-from vslam_core.loop.places import describe_image
+from vslam_core.loop.places import _strongest, describe_image
 from vslam_core.loop.vocabulary import BinaryVocabulary, nearest
 from vslam_core.mapping.local_mapping import DESCRIPTOR_PATCH
 
@@ -79,3 +79,15 @@ def test_mutual_matches_are_the_matchers(kitti_root: Path,
             assert list(zip(query_index.tolist(), train_index.tolist(), strict=True)) == expected
     assert len(match_descriptors(descriptors, later, 0.8)[0]) > 100
     assert len(match_descriptors(descriptors[:1], later, 0.8)[0]) == 0
+
+
+def test_strongest_corners_ties_in_row_major_order() -> None:
+    """The strongest corners, equal responses taken row by row, whatever order the corners come in."""
+    rng = np.random.default_rng(0)
+    points = np.array([(x, y) for y in range(30) for x in range(40)], np.float32)  # row-major, as FAST gives
+    response = rng.integers(10, 20, len(points)).astype(np.float32)  # many ties
+    expected = np.lexsort((points[:, 0], points[:, 1], -response))[:100]
+    np.testing.assert_array_equal(_strongest(points, response, 100), expected)
+    shuffled = rng.permutation(len(points))
+    chosen = _strongest(points[shuffled], response[shuffled], 100)
+    np.testing.assert_array_equal(shuffled[chosen], expected)

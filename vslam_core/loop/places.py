@@ -48,11 +48,21 @@ def describe_image(image: np.ndarray, count: int, fast_threshold: int,
         return np.zeros((0, 2), np.float32), EMPTY_DESCRIPTORS
     response = np.array([c.response for c in corners], np.float32)
     points = cv2.KeyPoint_convert(corners)  # (N, 2)
-    order = np.lexsort((points[:, 0], points[:, 1], -response))[:count]  # strongest; ties: row-major
+    order = _strongest(points, response, count)
     keypoints, descriptors = describer.compute(image, cv2.KeyPoint_convert(points[order], DESCRIPTOR_PATCH))
     if descriptors is None:
         return np.zeros((0, 2), np.float32), EMPTY_DESCRIPTORS
     return cv2.KeyPoint_convert(keypoints).astype(np.float32).reshape(-1, 2), descriptors
+
+
+def _strongest(points: np.ndarray, response: np.ndarray, count: int) -> np.ndarray:
+    """Indices of the `count` largest of (N,) responses at (N, 2) pixels, ties in row-major order: FAST gives
+    its corners row by row, so a stable sort of the responses alone does it (a quarter of the time of sorting by
+    response, row and column); corners in another order are put in row-major order first."""
+    step = np.diff(points, axis=0)
+    row_major = bool(np.all((step[:, 1] > 0) | ((step[:, 1] == 0) & (step[:, 0] > 0))))
+    by_position = np.arange(len(points)) if row_major else np.lexsort((points[:, 0], points[:, 1]))
+    return by_position[np.argsort(-response[by_position], kind="stable")[:count]]
 
 
 class PlaceDatabase:
