@@ -160,15 +160,20 @@ def match_features(
 
 def match_descriptors(query: np.ndarray, train: np.ndarray, ratio: float) -> tuple[np.ndarray, np.ndarray]:
     """Mutual nearest Hamming matches between (Q, 32) and (T, 32) uint8 ORB descriptors that pass Lowe's
-    ratio test. Returns (matched query indices, matched train indices), each (M,) int64."""
+    ratio test. Returns (matched query indices, matched train indices), each (M,) int64, by query.
+
+    Each query's two nearest train descriptors, then, only for the train descriptors some query chose and passed
+    the ratio test with, their nearest query (ties: the first, both ways, as OpenCV's brute-force matcher): the
+    same matches as matching both ways in full, in about half the time."""
+    none = np.zeros(0, np.int64), np.zeros(0, np.int64)
     if len(query) < 2 or len(train) < 2:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
-    forward = matcher.knnMatch(query, train, k=2)
-    backward = {p[0].queryIdx: p[0].trainIdx for p in matcher.knnMatch(train, query, k=1) if p}
-    pairs = [(m.queryIdx, m.trainIdx) for m, n in (p for p in forward if len(p) == 2)
-             if m.distance < ratio * n.distance and backward.get(m.trainIdx) == m.queryIdx]
-    if not pairs:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    matched = np.array(pairs, np.int64)
-    return matched[:, 0], matched[:, 1]
+        return none
+    distance, nearest = cv2.batchDistance(query, train, cv2.CV_32S, normType=cv2.NORM_HAMMING, K=2)  # (Q, 2)
+    rows = np.flatnonzero(distance[:, 0] < ratio * distance[:, 1])
+    chosen = nearest[rows, 0]
+    columns = np.unique(chosen)
+    if not len(columns):
+        return none
+    _, back = cv2.batchDistance(train[columns], query, cv2.CV_32S, normType=cv2.NORM_HAMMING, K=1)  # (C, 1)
+    mutual = back[np.searchsorted(columns, chosen), 0] == rows
+    return rows[mutual].astype(np.int64), chosen[mutual].astype(np.int64)

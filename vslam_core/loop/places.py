@@ -40,19 +40,29 @@ class KeyframePlace:
 def describe_image(image: np.ndarray, count: int, fast_threshold: int,
                    describer: cv2.ORB) -> tuple[np.ndarray, np.ndarray]:
     """The `count` strongest FAST corners of a (H, W) uint8 image (ties: row-major order) with upright ORB
-    descriptors: ((F, 2) float32 pixels, (F, 32) uint8)."""
+    descriptors: ((F, 2) float32 pixels, (F, 32) uint8). The keypoints are made by `cv2.KeyPoint_convert`, whose
+    angle is -1: ORB describes it as upright, the same bits as angle 0 (tests/test_loop_describe.py), without a
+    Python object built per corner."""
     corners = cv2.FastFeatureDetector_create(threshold=fast_threshold).detect(image, None)
     if not corners:
         return np.zeros((0, 2), np.float32), EMPTY_DESCRIPTORS
     response = np.array([c.response for c in corners], np.float32)
     points = cv2.KeyPoint_convert(corners)  # (N, 2)
-    order = np.lexsort((points[:, 0], points[:, 1], -response))[:count]  # strongest; ties: row-major
-    keypoints = [cv2.KeyPoint(float(points[i, 0]), float(points[i, 1]), DESCRIPTOR_PATCH, 0.0, float(response[i]), 0)
-                 for i in order.tolist()]
-    keypoints, descriptors = describer.compute(image, keypoints)
+    order = _strongest(points, response, count)
+    keypoints, descriptors = describer.compute(image, cv2.KeyPoint_convert(points[order], DESCRIPTOR_PATCH))
     if descriptors is None:
         return np.zeros((0, 2), np.float32), EMPTY_DESCRIPTORS
-    return np.array([k.pt for k in keypoints], np.float32).reshape(-1, 2), descriptors
+    return cv2.KeyPoint_convert(keypoints).astype(np.float32).reshape(-1, 2), descriptors
+
+
+def _strongest(points: np.ndarray, response: np.ndarray, count: int) -> np.ndarray:
+    """Indices of the `count` largest of (N,) responses at (N, 2) pixels, ties in row-major order: FAST gives
+    its corners row by row, so a stable sort of the responses alone does it (a quarter of the time of sorting by
+    response, row and column); corners in another order are put in row-major order first."""
+    step = np.diff(points, axis=0)
+    row_major = bool(np.all((step[:, 1] > 0) | ((step[:, 1] == 0) & (step[:, 0] > 0))))
+    by_position = np.arange(len(points)) if row_major else np.lexsort((points[:, 0], points[:, 1]))
+    return by_position[np.argsort(-response[by_position], kind="stable")[:count]]
 
 
 class PlaceDatabase:

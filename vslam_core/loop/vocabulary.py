@@ -13,7 +13,6 @@ s = 1 − ½‖v₁ − v₂‖₁ ∈ [0, 1] (ibid., eq. 2).
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
 KMAJORITY_ITERATIONS = 3
@@ -21,24 +20,34 @@ MAX_TRAINING = 4000  # descriptors the centres are refined on (a deterministic s
 BRANCHES = 32  # clusters of the tree's first level
 
 
-def nearest(descriptors: np.ndarray, centres: np.ndarray, matcher: cv2.BFMatcher) -> np.ndarray:
-    """(N,) index of the nearest (Hamming) of the (C, 32) centres for each (N, 32) descriptor."""
-    found = np.zeros(len(descriptors), np.int64)
+def hamming(descriptors: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """(N, C) int32 Hamming distances between (N, 32) and (C, 32) uint8 descriptors, or (N, C, 32) centres of
+    each descriptor's own: popcount of the XOR of their four 64-bit words."""
+    words = np.ascontiguousarray(descriptors).view(np.uint64)  # (N, 4)
+    against = np.ascontiguousarray(centres).view(np.uint64)
+    against = against[None] if against.ndim == 2 else against  # (1 or N, C, 4)
+    distances = np.bitwise_count(words[:, None, 0] ^ against[..., 0]).astype(np.int32)
+    for word in range(1, 4):  # word by word: 5x faster than a sum over the last axis of (N, C, 4) counts
+        distances += np.bitwise_count(words[:, None, word] ^ against[..., word])
+    return distances
+
+
+def nearest(descriptors: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """(N,) index of the nearest (Hamming) of the (C, 32) centres for each (N, 32) descriptor; ties: the first
+    (as OpenCV's brute-force matcher, which this replaces: the same words, without its per-match objects)."""
     if len(descriptors) == 0 or len(centres) == 0:
-        return found
-    for match in matcher.match(descriptors, centres):
-        found[match.queryIdx] = match.trainIdx
-    return found
+        return np.zeros(len(descriptors), np.int64)
+    return np.asarray(np.argmin(hamming(descriptors, centres), axis=1), np.int64)
 
 
-def kmajority(pool: np.ndarray, count: int, rng: np.random.Generator, matcher: cv2.BFMatcher) -> np.ndarray:
+def kmajority(pool: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
     """(min(count, N), 32) uint8 centres of the (N, 32) descriptors: drawn from them, then `KMAJORITY_ITERATIONS`
     times each centre replaced by the bitwise majority of the descriptors nearest to it (an empty one stays)."""
     count = min(count, len(pool))
     centres = pool[np.sort(rng.choice(len(pool), count, replace=False))]
     bits = np.unpackbits(pool, axis=1).astype(np.int32)
     for _ in range(KMAJORITY_ITERATIONS):
-        assigned = nearest(pool, centres, matcher)
+        assigned = nearest(pool, centres)
         order = np.argsort(assigned, kind="stable")
         used, starts, members = np.unique(assigned[order], return_index=True, return_counts=True)
         sums = np.add.reduceat(bits[order], starts, axis=0)  # (used, 256) bit counts
@@ -56,7 +65,11 @@ class BinaryVocabulary:
         self.idf = idf
         self.branches = branches
         self.offsets = offsets
-        self._matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
+        # (B, W, 32) each branch's words padded to the widest branch (W words), and (B, W) which are real
+        width = int(np.diff(offsets).max())
+        slots = offsets[:-1, None] + np.arange(width)  # (B, W)
+        self._real = slots < offsets[1:, None]
+        self._branch_words = words[np.where(self._real, slots, 0)]
 
     @classmethod
     def build(cls, documents: list[np.ndarray], words: int, seed: int) -> BinaryVocabulary:
@@ -66,11 +79,10 @@ class BinaryVocabulary:
         rng = np.random.default_rng(seed)
         if len(pool) > MAX_TRAINING:
             pool = pool[np.sort(rng.choice(len(pool), MAX_TRAINING, replace=False))]
-        matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
-        branches = kmajority(pool, min(BRANCHES, words), rng, matcher)
-        assigned = nearest(pool, branches, matcher)
+        branches = kmajority(pool, min(BRANCHES, words), rng)
+        assigned = nearest(pool, branches)
         per_branch = max(words // len(branches), 1)
-        leaves = [kmajority(pool[assigned == b], per_branch, rng, matcher) if (assigned == b).any()
+        leaves = [kmajority(pool[assigned == b], per_branch, rng) if (assigned == b).any()
                   else branches[b:b + 1] for b in range(len(branches))]
         offsets = np.concatenate(([0], np.cumsum([len(leaf) for leaf in leaves])))
         vocabulary = cls(np.concatenate(leaves), np.ones(int(offsets[-1])), branches, offsets)
@@ -81,14 +93,14 @@ class BinaryVocabulary:
         return vocabulary
 
     def assign(self, descriptors: np.ndarray) -> np.ndarray:
-        """(N,) word index of each (N, 32) descriptor: its nearest branch, then that branch's nearest word."""
-        branch = nearest(descriptors, self.branches, self._matcher)
-        word = np.zeros(len(descriptors), np.int64)
-        for b in np.unique(branch).tolist():
-            rows = np.flatnonzero(branch == b)
-            start, stop = int(self.offsets[b]), int(self.offsets[b + 1])
-            word[rows] = start + nearest(descriptors[rows], self.words[start:stop], self._matcher)
-        return word
+        """(N,) word index of each (N, 32) descriptor: its nearest branch, then that branch's nearest word (ties:
+        the first), all descriptors at once."""
+        if len(descriptors) == 0:
+            return np.zeros(0, np.int64)
+        branch = nearest(descriptors, self.branches)
+        distances = hamming(descriptors, self._branch_words[branch])  # (N, W)
+        distances[~self._real[branch]] = np.iinfo(np.int32).max  # the padding is never nearest
+        return np.asarray(self.offsets[branch] + np.argmin(distances, axis=1), np.int64)
 
     def vector(self, descriptors: np.ndarray) -> np.ndarray:
         """(V,) float64 tf-idf bag of words, L1-normalised (zeros without descriptors)."""

@@ -9,10 +9,14 @@ by the caller and depends only on the jobs submitted before it, so runs are dete
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import queue
+import sys
 import threading
 import time
+import types
+from collections.abc import Iterator
 from multiprocessing.connection import Connection
 from typing import Any
 
@@ -46,6 +50,22 @@ def _serve(jobs: Any, connection: Connection, K: np.ndarray, config: EngineConfi
             return
 
 
+@contextlib.contextmanager
+def _without_main() -> Iterator[None]:
+    """Start a spawned process without running the parent's main module in it. Spawn imports the parent's
+    `__main__` in the child (so that what was pickled from it resolves): the `vslam` script (the whole CLI) or
+    `benchmarks.speed` (polars, rerun), 1.1–1.4 s of CPU measured in the loop worker, more than all its searches
+    on KITTI 05 0:300 together, taken from tracking on 2 cores. The worker's target and arguments all come from
+    vslam_core, so the child needs no main module: multiprocessing sends none while `__main__` has no spec or
+    file (multiprocessing.spawn.get_preparation_data)."""
+    main = sys.modules["__main__"]
+    sys.modules["__main__"] = types.ModuleType("__main__")
+    try:
+        yield
+    finally:
+        sys.modules["__main__"] = main
+
+
 class LoopWorker:
     """Submit a job, collect its result later (waiting for it if it is not done)."""
 
@@ -66,7 +86,8 @@ class LoopWorker:
             self._connection, child = context.Pipe(duplex=False)
             self._process = context.Process(target=_serve, args=(self._jobs, child, K, config), name="vslam-loop",
                                             daemon=True)
-            self._process.start()
+            with _without_main():
+                self._process.start()
             child.close()
         else:
             self._local = LoopSearch(K, config)
