@@ -3,6 +3,11 @@ search run in the tracking thread, and a run carries on (searching in its own pr
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+from pathlib import Path
+
 import cv2
 import numpy as np
 
@@ -10,6 +15,7 @@ from vslam_core.config import EngineConfig
 from vslam_core.loop.search import SearchJob
 from vslam_core.loop.worker import LoopWorker
 
+ROOT = Path(__file__).resolve().parents[1]
 K = np.array([[700.0, 0.0, 320.0], [0.0, 700.0, 120.0], [0.0, 0.0, 1.0]])
 
 
@@ -60,3 +66,25 @@ def test_a_dead_worker_is_replaced_by_the_search_in_this_process() -> None:
         assert result is not None and result.keyframe_id == 1 and len(result.pixels) > 100
     finally:
         worker.close()
+
+
+def test_worker_processes_start_without_the_callers_main_module(kitti_root: Path, tmp_path: Path) -> None:
+    """A user's script without the `if __name__ == "__main__"` guard runs the map backend with its worker
+    processes (bundle adjustment, loop search): they are spawned without the script, which would otherwise
+    run again in each of them (before: a RuntimeError in the worker, and the CLI's imports paid in each)."""
+    script = tmp_path / "my_pipeline.py"
+    script.write_text(
+        "from pathlib import Path\n"
+        "from vslam_core.config import EngineConfig\n"
+        "from vslam_core.pipeline import run_odometry\n"
+        "from vslam_core.sources.base import FrameRange\n"
+        "from vslam_core.sources.kitti import KittiSource\n"
+        "print('script body ran')\n"
+        f"source = KittiSource(Path({str(kitti_root)!r}), sequence='05', frames=FrameRange(0, 12))\n"
+        "poses = run_odometry(source, EngineConfig(backend='map', threads=2)).pose_array()\n"
+        "print('poses', len(poses))\n")
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.splitlines() == ["script body ran", "poses 12"]  # the body ran once, in the script alone
+    assert "Traceback" not in done.stderr

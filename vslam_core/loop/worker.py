@@ -9,14 +9,10 @@ by the caller and depends only on the jobs submitted before it, so runs are dete
 
 from __future__ import annotations
 
-import contextlib
 import multiprocessing
 import queue
-import sys
 import threading
 import time
-import types
-from collections.abc import Iterator
 from multiprocessing.connection import Connection
 from typing import Any
 
@@ -25,7 +21,7 @@ import numpy as np
 
 from vslam_core.config import EngineConfig
 from vslam_core.loop.search import LoopSearch, SearchJob, SearchResult
-from vslam_core.mapping.worker_process import stop_worker
+from vslam_core.mapping.worker_process import stop_worker, without_main
 
 
 def _serve(jobs: Any, connection: Connection, K: np.ndarray, config: EngineConfig) -> None:  # noqa: N803
@@ -50,22 +46,6 @@ def _serve(jobs: Any, connection: Connection, K: np.ndarray, config: EngineConfi
             return
 
 
-@contextlib.contextmanager
-def _without_main() -> Iterator[None]:
-    """Start a spawned process without running the parent's main module in it. Spawn imports the parent's
-    `__main__` in the child (so that what was pickled from it resolves): the `vslam` script (the whole CLI) or
-    `benchmarks.speed` (polars, rerun), 1.1–1.4 s of CPU measured in the loop worker, more than all its searches
-    on KITTI 05 0:300 together, taken from tracking on 2 cores. The worker's target and arguments all come from
-    vslam_core, so the child needs no main module: multiprocessing sends none while `__main__` has no spec or
-    file (multiprocessing.spawn.get_preparation_data)."""
-    main = sys.modules["__main__"]
-    sys.modules["__main__"] = types.ModuleType("__main__")
-    try:
-        yield
-    finally:
-        sys.modules["__main__"] = main
-
-
 class LoopWorker:
     """Submit a job, collect its result later (waiting for it if it is not done)."""
 
@@ -86,7 +66,7 @@ class LoopWorker:
             self._connection, child = context.Pipe(duplex=False)
             self._process = context.Process(target=_serve, args=(self._jobs, child, K, config), name="vslam-loop",
                                             daemon=True)
-            with _without_main():
+            with without_main():
                 self._process.start()
             child.close()
         else:

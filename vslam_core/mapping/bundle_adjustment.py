@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from vslam_core.geometry import invert_pose
-from vslam_core.mapping.worker_process import stop_worker
+from vslam_core.mapping.worker_process import stop_worker, without_main
 
 
 @dataclass(frozen=True)
@@ -146,7 +146,8 @@ class BundleAdjuster:
             context = multiprocessing.get_context("spawn")
             self._connection, child = context.Pipe()
             self._process = context.Process(target=_serve, args=(child,), name="vslam-ba", daemon=True)
-            self._process.start()
+            with without_main():
+                self._process.start()
             child.close()
 
     @property
