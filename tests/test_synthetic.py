@@ -233,7 +233,7 @@ def test_frame_cache_gives_the_rendered_frames_and_is_read_back(monkeypatch: pyt
         np.testing.assert_array_equal(image, reference)
     folder = tmp_path / frame_cache.renderer_version()
     files = sorted(p.name for p in folder.iterdir())
-    assert files == ["street-seed0-n20-h1.65-310x94-00003.npy", "street-seed0-n20-h1.65-310x94-00004.npy"]
+    assert files == [f"street-seed0-n20-h1.65-310x94-f179.714-{index:05d}.npy" for index in (3, 4)]
     planted = np.full_like(expected[0], 7)
     np.save(folder / files[0], planted)
     (folder / files[1]).write_bytes(b"cut")  # unreadable: rendered again and rewritten

@@ -41,10 +41,11 @@ def cache_folder() -> Path | None:
     return Path(root) / renderer_version() if root else None
 
 
-def frame_path(folder: Path, key: tuple[str, int, int, float, int, int], index: int) -> Path:
-    """File of frame `index` of the street `key` = (route, seed, n_frames, camera height, width, height)."""
-    route, seed, n_frames, camera_height, width, height = key
-    return folder / f"{route}-seed{seed}-n{n_frames}-h{camera_height!r}-{width}x{height}-{index:05d}.npy"
+def frame_path(folder: Path, key: tuple[str, int, int, float, int, int, float], index: int) -> Path:
+    """File of frame `index` of the street `key` = (route, seed, n_frames, camera height, width, height, fx):
+    fx too, as two resolutions can round to the same image size."""
+    route, seed, n_frames, camera_height, width, height, fx = key
+    return folder / f"{route}-seed{seed}-n{n_frames}-h{camera_height!r}-{width}x{height}-f{fx!r}-{index:05d}.npy"
 
 
 def load_frame(path: Path, shape: tuple[int, int]) -> np.ndarray | None:

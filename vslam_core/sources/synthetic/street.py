@@ -219,7 +219,7 @@ class SyntheticStreet:
         if folder is None:
             return self._render(index)
         intr = self._intr
-        key = (self.route, self.seed, self.n_frames, self.camera_height, intr.width, intr.height)
+        key = (self.route, self.seed, self.n_frames, self.camera_height, intr.width, intr.height, intr.fx)
         path = frame_cache.frame_path(folder, key, index)
         image = frame_cache.load_frame(path, (intr.height, intr.width))
         if image is None:
