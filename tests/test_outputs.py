@@ -95,12 +95,15 @@ def test_two_runs_racing_for_one_output_exactly_one_wins(tmp_path: Path, force: 
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for _ in range(2)]
     outputs = [run.communicate(timeout=300) for run in runs]
     codes = sorted(run.returncode for run in runs)
-    if force and codes == [0, 0]:  # the second started after the first had finished: it replaced it, fine
-        pytest.skip("the runs did not overlap")
-    assert codes == [0, 2], outputs
-    loser = next(err for run, (_, err) in zip(runs, outputs, strict=True) if run.returncode == 2)
-    line = one_error_line(loser)
-    assert str(rrd) in line and ("another run is writing" in line or "exists already" in line)
+    if force and codes == [0, 0]:
+        # the second claimed the outputs after the first had finished (frames come from the session's frame
+        # cache, so a run can end within the other's start-up): it replaced them, whole
+        assert all("Traceback" not in err for _, err in outputs), outputs
+    else:
+        assert codes == [0, 2], outputs
+        loser = next(err for run, (_, err) in zip(runs, outputs, strict=True) if run.returncode == 2)
+        line = one_error_line(loser)
+        assert str(rrd) in line and ("another run is writing" in line or "exists already" in line)
     verify(rrd)
     assert camera_frames(rrd) == list(range(8))
     assert len(read_kitti_poses(trajectory)) == 8
