@@ -4,7 +4,13 @@ public names only, and no module or folder grows past what one reader takes in."
 from __future__ import annotations
 
 import ast
+import re
+import sys
+import tomllib
+from importlib.metadata import packages_distributions
 from pathlib import Path
+
+from packaging.utils import canonicalize_name as canonical
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("vslam", "vslam_core")
@@ -44,3 +50,37 @@ def test_only_the_projects_own_names_are_installed() -> None:
     assert 'include = ["vslam*", "vslam_core*"]' in text
     assert 'vslam = "vslam.cli:main"' in text
     assert not any((ROOT / "app").rglob("*.py"))
+
+
+def _imported_top_level_names() -> dict[str, str]:
+    """Every top-level module name the packages import (at module level or inside a function) -> one place."""
+    names: dict[str, str] = {}
+    for path in _modules():
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                found = [alias.name for alias in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                found = [node.module]
+            else:
+                continue
+            for name in found:
+                names.setdefault(name.split(".")[0], f"{path.relative_to(ROOT)}:{node.lineno}")
+    return names
+
+
+def test_every_imported_package_is_a_declared_dependency() -> None:
+    """A plain `pip install` (no extras) must give every third-party package the code imports: a package that
+    only arrives with the test tools (e.g. scipy, through evo) makes `vslam run` fail for users. The `cluster`
+    extra's packages are allowed (imported only where `--ray-address` is used)."""
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    requirements = [*project["dependencies"], *project["optional-dependencies"]["cluster"]]
+    declared = {canonical(re.split(r"[<>=!~; \[]", requirement, maxsplit=1)[0]) for requirement in requirements}
+    distributions = packages_distributions()
+    undeclared = []
+    for name, where in sorted(_imported_top_level_names().items()):
+        if name in sys.stdlib_module_names or name in PACKAGES or name == "__future__":
+            continue
+        owners = {canonical(d) for d in distributions.get(name, [name])}
+        if not owners & declared:
+            undeclared.append(f"{name} ({where}; distribution {', '.join(sorted(owners))})")
+    assert undeclared == []

@@ -28,10 +28,10 @@ vslam_core/lens.py). Descriptors are (32,) uint8 (256 bits).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
-from scipy.spatial import cKDTree
 
 from vslam_core.config import MapConfig, TrackerConfig
 from vslam_core.lens import distort_pixels, undistort_pixels
@@ -40,6 +40,9 @@ from vslam_core.mapping.map import Map
 from vslam_core.mapping.pnp import project
 from vslam_core.results import LocalMapSearch
 from vslam_core.sources.base import CameraIntrinsics
+
+if TYPE_CHECKING:
+    from scipy.spatial import cKDTree
 
 
 @dataclass
@@ -98,6 +101,8 @@ class LocalMapSearcher:
     def corners(self, image: np.ndarray) -> FrameCorners:
         """The frame's FAST corners (the detector tracks and landmarks are born from, at the relocalisation
         threshold)."""
+        from scipy.spatial import cKDTree  # here: scipy takes ~0.5 s to import, and only map runs need it
+
         raw = cv2.KeyPoint_convert(self._fast.detect(image, None)).astype(np.float64).reshape(-1, 2)
         pixels = undistort_pixels(raw, self._lens) if self._lens is not None else raw.copy()
         return FrameCorners(image, pixels, raw, cKDTree(pixels if len(pixels) else np.zeros((1, 2)) - 1e9))

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from scipy.spatial import cKDTree
 
 from vslam_core.geometry import invert_pose, pose_matrix
 from vslam_core.mapping.pnp import PnPSolution, project
@@ -32,6 +31,8 @@ def match_by_projection(projected: np.ndarray, landmark_descriptors: np.ndarray,
     visible = np.flatnonzero(np.all(np.isfinite(projected), axis=1))
     if not len(visible) or not len(pixels):
         return empty, empty
+    from scipy.spatial import cKDTree  # here: scipy takes ~0.5 s to import, and only map runs need it
+
     near = cKDTree(pixels).query_ball_point(projected[visible], radius_px)
     pairs = [(landmark, feature) for landmark, features in zip(visible.tolist(), near, strict=True)
              for feature in features]
