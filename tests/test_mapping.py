@@ -148,9 +148,11 @@ def test_map_backend_tracks_real_kitti_against_its_map(clean_00: MapRun) -> None
 
 @pytest.mark.kitti
 def test_map_backend_is_deterministic_with_and_without_the_worker(kitti_root: Path) -> None:
-    _, inline, _ = _map_run(kitti_root, FrameRange(0, 60), threads=1)
-    _, background, _ = _map_run(kitti_root, FrameRange(0, 60), threads=2)
-    _, again, _ = _map_run(kitti_root, FrameRange(0, 60), threads=2)
+    results, inline, _ = _map_run(kitti_root, FrameRange(0, 40), threads=1)
+    _, background, _ = _map_run(kitti_root, FrameRange(0, 40), threads=2)
+    _, again, _ = _map_run(kitti_root, FrameRange(0, 40), threads=2)
+    adjusted = sum(r.mapping is not None and r.mapping.bundle_adjustment is not None for r in results)
+    assert adjusted >= 8  # many adjustments to compare (measured: 12 in the 14 keyframes)
     np.testing.assert_array_equal(inline, background)
     np.testing.assert_array_equal(background, again)
 

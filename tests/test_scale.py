@@ -107,7 +107,9 @@ def test_height_scale_needs_a_camera_height() -> None:
 
 @pytest.mark.parametrize("camera_height", [1.65, 1.3])
 def test_synthetic_street_metric_from_the_camera_height(camera_height: float) -> None:
-    source = SyntheticStreet(camera_height=camera_height, frames=FrameRange(0, 150))
+    """117 m of the street (t_err exists from 100 m): measured t_err 0.77 / 0.29 %, median and path-length scale
+    errors −0.4 / −1.0 % and −1.0 / −0.6 %, camera heights 1.650 / 1.290 m (1.65 / 1.3)."""
+    source = SyntheticStreet(camera_height=camera_height, frames=FrameRange(0, 120))
     results: list[FrameResult] = []
     run = run_odometry(source, EngineConfig(scale="height"), sinks=(lambda _f, r: results.append(r),))
     gt = source.ground_truth
