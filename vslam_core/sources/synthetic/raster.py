@@ -46,22 +46,44 @@ def surface_coords(g: np.ndarray, u: np.ndarray, v: np.ndarray) -> _Footprints:
     """Surface coordinates and pixel footprints of pixels (u, v) (n,) float32.
 
     g: (9, n) or (9, 1) float32 row-major homographies, pixel -> surface coordinates (see
-    `surface_homography`); the derivatives are exact for the homography.
+    `surface_homography`); the derivatives are exact for the homography. Computed in place in a few (n,)
+    float32 buffers, every value with the same float32 operations in the same order as the formulas say.
     """
-    inv_c = 1.0 / (g[6] * u + g[7] * v + g[8])
-    a = (g[0] * u + g[1] * v + g[2]) * inv_c
-    b = (g[3] * u + g[4] * v + g[5]) * inv_c
-    a_u, b_u = (g[0] - a * g[6]) * inv_c, (g[3] - b * g[6]) * inv_c
-    a_v, b_v = (g[1] - a * g[7]) * inv_c, (g[4] - b * g[7]) * inv_c
-    len_u, len_v = a_u * a_u + b_u * b_u, a_v * a_v + b_v * b_v
-    u_major = len_u > len_v
-    return _Footprints(
-        x=a,
-        y=b,
-        major_x=np.where(u_major, a_u, a_v),
-        major_y=np.where(u_major, b_u, b_v),
-        minor=np.sqrt(np.minimum(len_u, len_v)),
-    )
+    g0, g1, g2, g3, g4, g5, g6, g7, g8 = g
+    tmp = np.multiply(g7, v)
+    inv_c = np.multiply(g6, u)
+    inv_c += tmp
+    inv_c += g8
+    np.divide(1.0, inv_c, out=inv_c)  # 1 / (g6 u + g7 v + g8)
+    a = np.multiply(g0, u)
+    np.multiply(g1, v, out=tmp)
+    a += tmp
+    a += g2
+    a *= inv_c  # (g0 u + g1 v + g2) / c
+    b = np.multiply(g3, u)
+    np.multiply(g4, v, out=tmp)
+    b += tmp
+    b += g5
+    b *= inv_c  # (g3 u + g4 v + g5) / c
+    derivatives = []  # a_u, b_u, a_v, b_v: (g_i - x g_j) / c
+    for x, gi, gj in ((a, g0, g6), (b, g3, g6), (a, g1, g7), (b, g4, g7)):
+        d = np.multiply(x, gj)
+        np.subtract(gi, d, out=d)
+        d *= inv_c
+        derivatives.append(d)
+    a_u, b_u, a_v, b_v = derivatives
+    len_u = np.multiply(a_u, a_u, out=inv_c)  # inv_c no longer needed
+    np.multiply(b_u, b_u, out=tmp)
+    len_u += tmp
+    len_v = np.multiply(a_v, a_v)
+    np.multiply(b_v, b_v, out=tmp)
+    len_v += tmp
+    u_major = np.greater(len_u, len_v)
+    np.copyto(a_v, a_u, where=u_major)  # major_x
+    np.copyto(b_v, b_u, where=u_major)  # major_y
+    minor = np.minimum(len_u, len_v, out=len_u)
+    np.sqrt(minor, out=minor)
+    return _Footprints(x=a, y=b, major_x=a_v, major_y=b_v, minor=minor)
 
 
 def remap_points(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -86,6 +108,37 @@ def remap_points(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return np.concatenate(parts) if len(parts) > 1 else parts[0] if parts else np.zeros(0, image.dtype)
 
 
+def _wrap_into_tile(x: np.ndarray, wrap: int) -> None:
+    """x (n,) float32 -> np.mod(x, wrap), in place and bit for bit (wrap a power of two: x - floor(x / wrap)
+    wrap is then exact, as is np.mod's fmod; the result is rounded once either way). Other sizes: np.mod."""
+    if wrap & (wrap - 1):
+        np.mod(x, wrap, out=x)
+        return
+    k = np.multiply(x, np.float32(1.0 / wrap))
+    np.floor(k, out=k)
+    k *= np.float32(wrap)
+    np.subtract(x, k, out=x)
+    np.add(x, np.float32(wrap), out=x, where=x < 0)  # only a negative subnormal x, whose quotient underflows
+
+
+def _level_groups(lam: np.ndarray, top: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Group pixels by the lower of the two mip levels they blend, lo = min(floor(lam), top - 1).
+
+    lam: (n,) float32 level of detail in [0, top]. Returns the stable order (n,) that sorts the pixels by lo,
+    the bounds (top + 1,) of each group in it (group k: bounds[k]:bounds[k + 1]) and the blend weight of the
+    upper level, frac = lam - lo (n,) float64 in that order.
+    """
+    lo = lam.astype(np.uint8)  # 0..top: a one-byte key, which numpy's stable sort radix-sorts
+    np.minimum(lo, top - 1, out=lo)
+    order = np.argsort(lo, kind="stable")
+    bounds = np.zeros(top + 1, np.int64)
+    np.cumsum(np.bincount(lo, minlength=top)[:top], out=bounds[1:])
+    frac = lam[order].astype(np.float64)
+    for k in range(1, top):
+        frac[bounds[k] : bounds[k + 1]] -= k
+    return order, bounds, frac
+
+
 def sample_aniso(
     pyramid: list[np.ndarray], fp: _Footprints, scale: float, offset: tuple[float, float], wrap: int = 0
 ) -> np.ndarray:
@@ -97,30 +150,63 @@ def sample_aniso(
     wrap > 0: the texture is a tile of that size and every level is padded with 2 texels of wrapped border.
     """
     top = len(pyramid) - 1
-    major_x, major_y = fp.major_x * scale, fp.major_y * scale
-    footprint = np.maximum(fp.minor * scale, np.hypot(major_x, major_y) * (1.0 / _ANISO_TAPS))
-    lam = np.clip(np.log2(np.maximum(footprint, 1e-6)), 0.0, float(top))
-    lo = np.minimum(lam.astype(np.int32), top - 1)  # blend levels lo and lo + 1
-    order = np.argsort(lo, kind="stable")  # group the pixels by level: contiguous slices below
-    bounds = np.searchsorted(lo[order], np.arange(top + 1))  # group k (lo == k): bounds[k]:bounds[k + 1]
-    frac = (lam - lo)[order]
-    x, y = fp.x * scale + float(offset[0]), fp.y * scale + float(offset[1])  # float32 level-0 texels
-    taps = []  # per tap: level-0 coordinates in level order
-    for k in range(_ANISO_TAPS):
-        t = (k + 0.5) / _ANISO_TAPS - 0.5
-        xt, yt = (x + t * major_x)[order], (y + t * major_y)[order]
-        taps.append((np.mod(xt, wrap), np.mod(yt, wrap)) if wrap else (xt, yt))
+    if scale == 1.0:  # x * 1.0 is x: skip the products
+        major_x, major_y, minor = fp.major_x, fp.major_y, fp.minor
+    else:
+        major_x, major_y, minor = fp.major_x * scale, fp.major_y * scale, fp.minor * scale
+    lam = np.hypot(major_x, major_y)
+    lam *= 1.0 / _ANISO_TAPS
+    np.maximum(minor, lam, out=lam)  # the footprint of one tap
+    np.maximum(lam, 1e-6, out=lam)
+    np.log2(lam, out=lam)
+    np.clip(lam, 0.0, float(top), out=lam)
+    order, bounds, frac = _level_groups(lam, top)
+    n = lam.size
+    taps = []  # per tap: level-0 coordinates (x + t major) in level order
+    for axis, major, shift in ((fp.x, major_x, offset[0]), (fp.y, major_y, offset[1])):
+        c = np.multiply(axis, scale) if scale != 1.0 else axis.copy()
+        c += float(shift)  # float32 level-0 texels
+        c_sorted, major_sorted = c[order], major[order]
+        for k in range(_ANISO_TAPS):
+            t = (k + 0.5) / _ANISO_TAPS - 0.5
+            tap = np.multiply(major_sorted, t, out=c if k == 0 else None)
+            tap += c_sorted  # x + t major (addition commutes bit for bit)
+            if wrap:
+                _wrap_into_tile(tap, wrap)
+            taps.append(tap)
     pad = 2.0 if wrap else 0.0
-    acc = np.zeros(x.shape, np.float32)
+    acc = np.zeros(n, np.float32)
+    weight = np.empty(n, np.float64)
+    product = np.empty(_ANISO_TAPS * n, np.float64)
+    map_x = np.empty(_ANISO_TAPS * n + 1024, np.float32)
+    map_y = np.empty_like(map_x)
     for level in range(top + 1):  # level l serves group l - 1 (weight frac) and group l (weight 1 - frac)
         start, mid, stop = bounds[max(level - 1, 0)], bounds[level], bounds[min(level + 1, top)]
-        if start == stop:
+        m = stop - start
+        if m == 0:
             continue
-        weight = np.concatenate([frac[start:mid], 1.0 - frac[mid:stop]]) * (1.0 / _ANISO_TAPS)
-        s = 0.5**level
-        for xt, yt in taps:
-            xl, yl = xt[start:stop] * s + (0.5 * s - 0.5 + pad), yt[start:stop] * s + (0.5 * s - 0.5 + pad)
-            acc[start:stop] += weight * remap_points(pyramid[level], xl, yl)
+        w = weight[:m]
+        w[: mid - start] = frac[start:mid]
+        np.subtract(1.0, frac[mid:stop], out=w[mid - start :])
+        w *= 1.0 / _ANISO_TAPS
+        s, shift = 0.5**level, 0.5 * 0.5**level - 0.5 + pad
+        rows = -(-_ANISO_TAPS * m // 1024)  # all taps in one remap, rows of 1024 points (cv2's 32767 limit)
+        for maps, coords in ((map_x, taps[:_ANISO_TAPS]), (map_y, taps[_ANISO_TAPS:])):
+            for k, tap in enumerate(coords):
+                part = maps[k * m : (k + 1) * m]
+                np.multiply(tap[start:stop], s, out=part)
+                part += shift
+            maps[_ANISO_TAPS * m : rows * 1024] = 0.0
+        samples = cv2.remap(
+            pyramid[level],
+            map_x[: rows * 1024].reshape(rows, 1024),
+            map_y[: rows * 1024].reshape(rows, 1024),
+            cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_REPLICATE,
+        ).reshape(-1)
+        for k in range(_ANISO_TAPS):
+            p = np.multiply(w, samples[k * m : (k + 1) * m], out=product[:m])
+            np.add(acc[start:stop], p, out=acc[start:stop])  # in float64, rounded to float32
     out = np.empty_like(acc)
     out[order] = acc
     return out

@@ -349,5 +349,14 @@ class SyntheticStreet:
         if idx.size == 0:
             return
         ids = flat_ids[idx]
-        fp = surface_coords(facade_g[:, ids], self._u[idx], self._v[idx])
-        out[idx] = sample_aniso(self._atlas, fp, 1.0, (-0.5, -0.5)) * self._quads.shade.astype(np.float32)[ids - 1]
+        # Runs of pixels on one rectangle (along image rows): per-pixel homographies and shades by repetition,
+        # contiguous (a column gather facade_g[:, ids] is strided, which makes every later step slower).
+        starts = np.flatnonzero(ids[1:] != ids[:-1])
+        starts += 1
+        starts = np.concatenate([[0], starts])
+        lengths = np.diff(starts, append=ids.size)
+        run_ids = ids[starts]
+        g = np.repeat(facade_g[:, run_ids], lengths, axis=1)  # (9, n) float32
+        shade = np.repeat(self._quads.shade.astype(np.float32)[run_ids - 1], lengths)
+        fp = surface_coords(g, self._u[idx], self._v[idx])
+        out[idx] = sample_aniso(self._atlas, fp, 1.0, (-0.5, -0.5)) * shade
