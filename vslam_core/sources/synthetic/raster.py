@@ -122,20 +122,24 @@ def _wrap_into_tile(x: np.ndarray, wrap: int) -> None:
 
 
 def _level_groups(lam: np.ndarray, top: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Group pixels by the lower of the two mip levels they blend, lo = min(floor(lam), top - 1).
+    """Group pixels by the lower of the two mip levels they blend, lo = min(floor(lam), top - 1), each group
+    split into the pixels with lam == lo (no weight on level lo + 1) and the others.
 
-    lam: (n,) float32 level of detail in [0, top]. Returns the stable order (n,) that sorts the pixels by lo,
-    the bounds (top + 1,) of each group in it (group k: bounds[k]:bounds[k + 1]) and the blend weight of the
-    upper level, frac = lam - lo (n,) float64 in that order.
+    lam: (n,) float32 level of detail in [0, top]. Returns the stable order (n,) that sorts the pixels by
+    2 lo + (lam > lo); the bounds (2 top + 1,) of those keys in it (key j: bounds[j]:bounds[j + 1]); and
+    frac = lam - lo (n,) float64 in that order, the weight of level lo + 1.
     """
-    lo = lam.astype(np.uint8)  # 0..top: a one-byte key, which numpy's stable sort radix-sorts
+    lo = lam.astype(np.uint8)  # 0..top
     np.minimum(lo, top - 1, out=lo)
-    order = np.argsort(lo, kind="stable")
-    bounds = np.zeros(top + 1, np.int64)
-    np.cumsum(np.bincount(lo, minlength=top)[:top], out=bounds[1:])
+    key = np.greater(lam, lo).view(np.uint8)
+    key += lo
+    key += lo  # a one-byte key, which numpy's stable sort radix-sorts
+    order = np.argsort(key, kind="stable")
+    bounds = np.zeros(2 * top + 1, np.int64)
+    np.cumsum(np.bincount(key, minlength=2 * top)[: 2 * top], out=bounds[1:])
     frac = lam[order].astype(np.float64)
     for k in range(1, top):
-        frac[bounds[k] : bounds[k + 1]] -= k
+        frac[bounds[2 * k] : bounds[2 * k + 2]] -= k
     return order, bounds, frac
 
 
@@ -181,7 +185,9 @@ def sample_aniso(
     map_x = np.empty(_ANISO_TAPS * n + 1024, np.float32)
     map_y = np.empty_like(map_x)
     for level in range(top + 1):  # level l serves group l - 1 (weight frac) and group l (weight 1 - frac)
-        start, mid, stop = bounds[max(level - 1, 0)], bounds[level], bounds[min(level + 1, top)]
+        # (not the pixels of group l - 1 with frac = 0: acc + 0 * sample is acc)
+        start, mid = bounds[max(2 * level - 1, 0)], bounds[2 * level]
+        stop = bounds[2 * level + 2] if level < top else mid
         m = stop - start
         if m == 0:
             continue
