@@ -8,6 +8,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from vslam_core.sources.synthetic.scratch import Scratch
+
 NEAR = 0.05  # metres; rectangles are clipped at this camera depth
 _ANISO_TAPS = 2  # texture taps along a pixel's longer footprint axis (anisotropic filtering)
 
@@ -42,32 +44,31 @@ class _Footprints:
     minor: np.ndarray
 
 
-def surface_coords(g: np.ndarray, u: np.ndarray, v: np.ndarray) -> _Footprints:
+def surface_coords(g: np.ndarray, u: np.ndarray, v: np.ndarray, scratch: Scratch) -> _Footprints:
     """Surface coordinates and pixel footprints of pixels (u, v) (n,) float32.
 
     g: (9, n) or (9, 1) float32 row-major homographies, pixel -> surface coordinates (see
-    `surface_homography`); the derivatives are exact for the homography. Computed in place in a few (n,)
-    float32 buffers, every value with the same float32 operations in the same order as the formulas say.
+    `surface_homography`); the derivatives are exact for the homography. Computed in place in (n,) float32
+    buffers of `scratch` (the footprints live there too), every value with the same float32 operations in
+    the same order as the formulas say.
     """
+    n = u.size
     g0, g1, g2, g3, g4, g5, g6, g7, g8 = g
-    tmp = np.multiply(g7, v)
-    inv_c = np.multiply(g6, u)
+    tmp, inv_c, a, b = (scratch.empty(n, np.float32) for _ in range(4))
+    np.multiply(g7, v, out=tmp)
+    np.multiply(g6, u, out=inv_c)
     inv_c += tmp
     inv_c += g8
     np.divide(1.0, inv_c, out=inv_c)  # 1 / (g6 u + g7 v + g8)
-    a = np.multiply(g0, u)
-    np.multiply(g1, v, out=tmp)
-    a += tmp
-    a += g2
-    a *= inv_c  # (g0 u + g1 v + g2) / c
-    b = np.multiply(g3, u)
-    np.multiply(g4, v, out=tmp)
-    b += tmp
-    b += g5
-    b *= inv_c  # (g3 u + g4 v + g5) / c
+    for x, gu, gv, gc in ((a, g0, g1, g2), (b, g3, g4, g5)):  # (g0 u + g1 v + g2) / c, (g3 u + g4 v + g5) / c
+        np.multiply(gu, u, out=x)
+        np.multiply(gv, v, out=tmp)
+        x += tmp
+        x += gc
+        x *= inv_c
     derivatives = []  # a_u, b_u, a_v, b_v: (g_i - x g_j) / c
     for x, gi, gj in ((a, g0, g6), (b, g3, g6), (a, g1, g7), (b, g4, g7)):
-        d = np.multiply(x, gj)
+        d = np.multiply(x, gj, out=scratch.empty(n, np.float32))
         np.subtract(gi, d, out=d)
         d *= inv_c
         derivatives.append(d)
@@ -75,10 +76,10 @@ def surface_coords(g: np.ndarray, u: np.ndarray, v: np.ndarray) -> _Footprints:
     len_u = np.multiply(a_u, a_u, out=inv_c)  # inv_c no longer needed
     np.multiply(b_u, b_u, out=tmp)
     len_u += tmp
-    len_v = np.multiply(a_v, a_v)
+    len_v = np.multiply(a_v, a_v, out=scratch.empty(n, np.float32))
     np.multiply(b_v, b_v, out=tmp)
     len_v += tmp
-    u_major = np.greater(len_u, len_v)
+    u_major = np.greater(len_u, len_v, out=scratch.empty(n, np.bool_))
     np.copyto(a_v, a_u, where=u_major)  # major_x
     np.copyto(b_v, b_u, where=u_major)  # major_y
     minor = np.minimum(len_u, len_v, out=len_u)
@@ -108,20 +109,21 @@ def remap_points(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return np.concatenate(parts) if len(parts) > 1 else parts[0] if parts else np.zeros(0, image.dtype)
 
 
-def _wrap_into_tile(x: np.ndarray, wrap: int) -> None:
+def _wrap_into_tile(x: np.ndarray, wrap: int, scratch: Scratch) -> None:
     """x (n,) float32 -> np.mod(x, wrap), in place and bit for bit (wrap a power of two: x - floor(x / wrap)
     wrap is then exact, as is np.mod's fmod; the result is rounded once either way). Other sizes: np.mod."""
     if wrap & (wrap - 1):
         np.mod(x, wrap, out=x)
         return
-    k = np.multiply(x, np.float32(1.0 / wrap))
+    k = np.multiply(x, np.float32(1.0 / wrap), out=scratch.empty(x.size, np.float32))
     np.floor(k, out=k)
     k *= np.float32(wrap)
     np.subtract(x, k, out=x)
-    np.add(x, np.float32(wrap), out=x, where=x < 0)  # only a negative subnormal x, whose quotient underflows
+    negative = np.less(x, 0, out=scratch.empty(x.size, np.bool_))
+    np.add(x, np.float32(wrap), out=x, where=negative)  # only a negative subnormal x, whose quotient underflows
 
 
-def _level_groups(lam: np.ndarray, top: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _level_groups(lam: np.ndarray, top: int, scratch: Scratch) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Group pixels by the lower of the two mip levels they blend, lo = min(floor(lam), top - 1), each group
     split into the pixels with lam == lo (no weight on level lo + 1) and the others.
 
@@ -129,22 +131,26 @@ def _level_groups(lam: np.ndarray, top: int) -> tuple[np.ndarray, np.ndarray, np
     2 lo + (lam > lo); the bounds (2 top + 1,) of those keys in it (key j: bounds[j]:bounds[j + 1]); and
     frac = lam - lo (n,) float64 in that order, the weight of level lo + 1.
     """
-    lo = lam.astype(np.uint8)  # 0..top
+    n = lam.size
+    lo = scratch.empty(n, np.uint8)
+    np.copyto(lo, lam, casting="unsafe")  # 0..top, truncated (as astype)
     np.minimum(lo, top - 1, out=lo)
-    key = np.greater(lam, lo).view(np.uint8)
+    key = np.greater(lam, lo, out=scratch.empty(n, np.bool_)).view(np.uint8)
     key += lo
     key += lo  # a one-byte key, which numpy's stable sort radix-sorts
     order = np.argsort(key, kind="stable")
     bounds = np.zeros(2 * top + 1, np.int64)
     np.cumsum(np.bincount(key, minlength=2 * top)[: 2 * top], out=bounds[1:])
-    frac = lam[order].astype(np.float64)
+    frac = scratch.empty(n, np.float64)
+    np.copyto(frac, np.take(lam, order, out=scratch.empty(n, np.float32), mode="wrap"))
     for k in range(1, top):
         frac[bounds[2 * k] : bounds[2 * k + 2]] -= k
     return order, bounds, frac
 
 
 def sample_aniso(
-    pyramid: list[np.ndarray], fp: _Footprints, scale: float, offset: tuple[float, float], wrap: int = 0
+    pyramid: list[np.ndarray], fp: _Footprints, scale: float, offset: tuple[float, float], scratch: Scratch,
+    wrap: int = 0,
 ) -> np.ndarray:
     """Anisotropic trilinear sample (n,) float32 of a texture at texel coordinates fp.{x, y} * scale + offset.
 
@@ -152,38 +158,46 @@ def sample_aniso(
     each pixel's longer footprint axis are averaged, each filtered over its share of the footprint (the mip
     level, blended between the two nearest): sharp and alias-free on surfaces seen at grazing angles.
     wrap > 0: the texture is a tile of that size and every level is padded with 2 texels of wrapped border.
+    Temporaries and the result are `scratch` arrays.
     """
-    top = len(pyramid) - 1
+    top, n = len(pyramid) - 1, fp.x.size
     if scale == 1.0:  # x * 1.0 is x: skip the products
         major_x, major_y, minor = fp.major_x, fp.major_y, fp.minor
     else:
-        major_x, major_y, minor = fp.major_x * scale, fp.major_y * scale, fp.minor * scale
-    lam = np.hypot(major_x, major_y)
+        major_x, major_y, minor = (np.multiply(a, scale, out=scratch.empty(n, np.float32))
+                                   for a in (fp.major_x, fp.major_y, fp.minor))
+    lam = np.hypot(major_x, major_y, out=scratch.empty(n, np.float32))
     lam *= 1.0 / _ANISO_TAPS
     np.maximum(minor, lam, out=lam)  # the footprint of one tap
     np.maximum(lam, 1e-6, out=lam)
     np.log2(lam, out=lam)
     np.clip(lam, 0.0, float(top), out=lam)
-    order, bounds, frac = _level_groups(lam, top)
-    n = lam.size
+    order, bounds, frac = _level_groups(lam, top, scratch)
     taps = []  # per tap: level-0 coordinates (x + t major) in level order
+    c, c_sorted, major_sorted = (scratch.empty(n, np.float32) for _ in range(3))
     for axis, major, shift in ((fp.x, major_x, offset[0]), (fp.y, major_y, offset[1])):
-        c = np.multiply(axis, scale) if scale != 1.0 else axis.copy()
+        if scale != 1.0:
+            np.multiply(axis, scale, out=c)
+        else:
+            c[:] = axis
         c += float(shift)  # float32 level-0 texels
-        c_sorted, major_sorted = c[order], major[order]
+        np.take(c, order, out=c_sorted, mode="wrap")
+        np.take(major, order, out=major_sorted, mode="wrap")
         for k in range(_ANISO_TAPS):
             t = (k + 0.5) / _ANISO_TAPS - 0.5
-            tap = np.multiply(major_sorted, t, out=c if k == 0 else None)
+            tap = np.multiply(major_sorted, t, out=scratch.empty(n, np.float32))
             tap += c_sorted  # x + t major (addition commutes bit for bit)
             if wrap:
-                _wrap_into_tile(tap, wrap)
+                _wrap_into_tile(tap, wrap, scratch)
             taps.append(tap)
     pad = 2.0 if wrap else 0.0
-    acc = np.zeros(n, np.float32)
-    weight = np.empty(n, np.float64)
-    product = np.empty(_ANISO_TAPS * n, np.float64)
-    map_x = np.empty(_ANISO_TAPS * n + 1024, np.float32)
-    map_y = np.empty_like(map_x)
+    acc = scratch.empty(n, np.float32)
+    acc[:] = 0.0
+    weight = scratch.empty(n, np.float64)
+    product = scratch.empty(n, np.float64)
+    rows_max = -(-_ANISO_TAPS * n // 1024)
+    map_x, map_y = (scratch.empty(rows_max * 1024, np.float32) for _ in range(2))
+    samples_all = scratch.empty(rows_max * 1024, np.uint8)
     for level in range(top + 1):  # level l serves group l - 1 (weight frac) and group l (weight 1 - frac)
         # (not the pixels of group l - 1 with frac = 0: acc + 0 * sample is acc)
         start, mid = bounds[max(2 * level - 1, 0)], bounds[2 * level]
@@ -208,12 +222,13 @@ def sample_aniso(
             map_x[: rows * 1024].reshape(rows, 1024),
             map_y[: rows * 1024].reshape(rows, 1024),
             cv2.INTER_LINEAR,
+            dst=samples_all[: rows * 1024].reshape(rows, 1024),
             borderMode=cv2.BORDER_REPLICATE,
         ).reshape(-1)
         for k in range(_ANISO_TAPS):
             p = np.multiply(w, samples[k * m : (k + 1) * m], out=product[:m])
             np.add(acc[start:stop], p, out=acc[start:stop])  # in float64, rounded to float32
-    out = np.empty_like(acc)
+    out = scratch.empty(n, np.float32)
     out[order] = acc
     return out
 

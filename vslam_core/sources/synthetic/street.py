@@ -32,6 +32,7 @@ source that renders a frame from them.
 from __future__ import annotations
 
 import functools
+import threading
 from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any, Literal
@@ -52,6 +53,7 @@ from vslam_core.sources.synthetic.raster import (
 )
 from vslam_core.sources.synthetic.road import START_S, Centreline, camera_path, make_centreline, make_loop_centreline
 from vslam_core.sources.synthetic.scene import COARSE_RES, build_street, ground_layout
+from vslam_core.sources.synthetic.scratch import Scratch
 from vslam_core.sources.synthetic.textures import FINE_TILE, PANO_ELEV_MAX, ground_fine_tile, mip_pyramid, panorama
 
 _INTRINSICS = CameraIntrinsics(fx=718.856, fy=718.856, cx=607.1928, cy=185.2157, width=1241, height=376,
@@ -160,6 +162,7 @@ class SyntheticStreet:
                                       _streams(seed)[1])
         self._ground_truth = rebase_poses(self._poses_map[self._indices])
         self._prepared = False  # the scene is built on the first frame not found in the frame cache
+        self._scratch = threading.local()  # per rendering thread: .memory, a `Scratch`
 
     def _prepare(self) -> None:
         """Build (or share) the scene and the per-pixel arrays rendering needs."""
@@ -235,12 +238,17 @@ class SyntheticStreet:
         r_cm = pose[:3, :3].T
         position = pose[:3, 3]
         t_cm = -r_cm @ position
+        scratch = getattr(self._scratch, "memory", None)
+        if scratch is None:
+            scratch = self._scratch.memory = Scratch()
+        scratch.reset()
         ids, ground_g, facade_g = self._visibility(r_cm, t_cm, position)
         out = np.empty(intr.height * intr.width, np.float32)
         flat_ids = ids.ravel()
-        self._shade_ground(out, np.flatnonzero(flat_ids == 0), ground_g, position)
+        self._shade_ground(out, np.flatnonzero(flat_ids == 0), ground_g, position, scratch)
         self._shade_sky(out, np.flatnonzero(flat_ids < 0), r_cm)
-        self._shade_facades(out, flat_ids, facade_g)
+        scratch.reset()  # the ground's arrays are no longer needed
+        self._shade_facades(out, flat_ids, facade_g, scratch)
         image = cv2.GaussianBlur(out.reshape(intr.height, intr.width), (0, 0), 0.5)  # soften silhouettes
         return np.clip(image + 0.5, 0, 255).astype(np.uint8)
 
@@ -308,15 +316,19 @@ class SyntheticStreet:
             np.copyto(iview, q + 1, where=hit)
         return ids, ground_g, facade_g
 
-    def _shade_ground(self, out: np.ndarray, idx: np.ndarray, g: np.ndarray, position: np.ndarray) -> None:
+    def _shade_ground(
+        self, out: np.ndarray, idx: np.ndarray, g: np.ndarray, position: np.ndarray, scratch: Scratch
+    ) -> None:
         """Write the ground's grey values into out (H*W,) at flat pixel indices idx (layout + speckle)."""
-        fp = surface_coords(g.astype(np.float32).reshape(9, 1), self._u[idx], self._v[idx])
+        u, v = (np.take(a, idx, out=scratch.empty(idx.size, np.float32), mode="wrap") for a in (self._u, self._v))
+        fp = surface_coords(g.astype(np.float32).reshape(9, 1), u, v, scratch)
         res = COARSE_RES
         layout = sample_aniso(
             self._ground,
             fp,
             1.0 / res,
             ((position[0] - self._ground_origin[0]) / res - 0.5, (position[1] - self._ground_origin[1]) / res - 0.5),
+            scratch,
         )
         fres = _FINE_RES
         fine = sample_aniso(
@@ -324,6 +336,7 @@ class SyntheticStreet:
             fp,
             1.0 / fres,
             ((position[0] / fres) % FINE_TILE, (position[1] / fres) % FINE_TILE),
+            scratch,
             wrap=FINE_TILE,
         )
         out[idx] = layout + _SPECKLE_CONTRAST * (fine - 128.0)
@@ -343,7 +356,7 @@ class SyntheticStreet:
         py = (PANO_ELEV_MAX - el) * intr.fx - 0.5
         out[idx] = remap_points(self._pano, px.astype(np.float32), py.astype(np.float32))
 
-    def _shade_facades(self, out: np.ndarray, flat_ids: np.ndarray, facade_g: np.ndarray) -> None:
+    def _shade_facades(self, out: np.ndarray, flat_ids: np.ndarray, facade_g: np.ndarray, scratch: Scratch) -> None:
         """Write the rectangles' textures into out (H*W,) where flat_ids (H*W,) > 0 (see `_visibility`)."""
         idx = np.flatnonzero(flat_ids > 0)
         if idx.size == 0:
@@ -358,5 +371,8 @@ class SyntheticStreet:
         run_ids = ids[starts]
         g = np.repeat(facade_g[:, run_ids], lengths, axis=1)  # (9, n) float32
         shade = np.repeat(self._quads.shade.astype(np.float32)[run_ids - 1], lengths)
-        fp = surface_coords(g, self._u[idx], self._v[idx])
-        out[idx] = sample_aniso(self._atlas, fp, 1.0, (-0.5, -0.5)) * shade
+        u, v = (np.take(a, idx, out=scratch.empty(idx.size, np.float32), mode="wrap") for a in (self._u, self._v))
+        fp = surface_coords(g, u, v, scratch)
+        shaded = sample_aniso(self._atlas, fp, 1.0, (-0.5, -0.5), scratch)
+        shaded *= shade
+        out[idx] = shaded
