@@ -66,6 +66,7 @@ _FINE_RES = 0.015  # ground speckle tile
 _SPECKLE_CONTRAST = 0.45  # ground speckle amplitude, about +-55 grey levels
 _MIP_LEVELS = 7
 _MAX_FRAMES = 2000  # textures must stay under cv2.remap's 32767-texel limit (and memory reasonable)
+_SCRATCH = threading.local()  # .memory: the `Scratch` of this thread's renderings (~50 MB at full size)
 Route = Literal["street", "loop"]
 ROUTES: dict[str, int] = {"street": 300, "loop": 660}  # route -> default number of frames
 
@@ -162,7 +163,6 @@ class SyntheticStreet:
                                       _streams(seed)[1])
         self._ground_truth = rebase_poses(self._poses_map[self._indices])
         self._prepared = False  # the scene is built on the first frame not found in the frame cache
-        self._scratch = threading.local()  # per rendering thread: .memory, a `Scratch`
 
     def _prepare(self) -> None:
         """Build (or share) the scene and the per-pixel arrays rendering needs."""
@@ -238,9 +238,9 @@ class SyntheticStreet:
         r_cm = pose[:3, :3].T
         position = pose[:3, 3]
         t_cm = -r_cm @ position
-        scratch = getattr(self._scratch, "memory", None)
+        scratch = getattr(_SCRATCH, "memory", None)
         if scratch is None:
-            scratch = self._scratch.memory = Scratch()
+            scratch = _SCRATCH.memory = Scratch()
         scratch.reset()
         ids, ground_g, facade_g = self._visibility(r_cm, t_cm, position)
         out = np.empty(intr.height * intr.width, np.float32)
