@@ -8,6 +8,8 @@ starts again at its beginning. Nothing handed out may be used after the next `re
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 _ALIGN = 64  # bytes: every array starts on a cache line
@@ -31,7 +33,7 @@ class Scratch:
         """An uninitialised C-contiguous array of that shape and dtype, valid until the next `reset`."""
         dt = np.dtype(dtype)
         shape = (shape,) if isinstance(shape, int) else shape
-        nbytes = int(np.prod(shape, dtype=np.int64)) * dt.itemsize
+        nbytes = math.prod(shape) * dt.itemsize
         start = -(-self._used // _ALIGN) * _ALIGN
         if start + nbytes > self._pool.size:
             self._overflow += nbytes + _ALIGN

@@ -242,7 +242,7 @@ class SyntheticStreet:
         if scratch is None:
             scratch = _SCRATCH.memory = Scratch()
         scratch.reset()
-        ids, ground_g, facade_g = self._visibility(r_cm, t_cm, position)
+        ids, ground_g, facade_g = self._visibility(r_cm, t_cm, position, scratch)
         out = np.empty(intr.height * intr.width, np.float32)
         flat_ids = ids.ravel()
         self._shade_ground(out, np.flatnonzero(flat_ids == 0), ground_g, position, scratch)
@@ -255,7 +255,7 @@ class SyntheticStreet:
     # -- rendering steps --------------------------------------------------------------------------
 
     def _visibility(
-        self, r_cm: np.ndarray, t_cm: np.ndarray, position: np.ndarray
+        self, r_cm: np.ndarray, t_cm: np.ndarray, position: np.ndarray, scratch: Scratch
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Z-buffer pass for the camera with map -> camera transform (r_cm, t_cm) at map `position` (3,).
 
@@ -297,21 +297,31 @@ class SyntheticStreet:
         facade_g = np.zeros((9, len(quads.size) + 1), np.float32)
         facade_g[:, candidates + 1] = (quads.to_atlas[candidates] @ g_all).reshape(-1, 9).T
         boxes = pixel_boxes(corners_c[candidates], self._k, w, h)
+        # Per rectangle, its box's inverse depth c and numerators na, nb of (a, b) = (na, nb) / c: views of
+        # image-sized scratch buffers, written in place.
+        planes = [scratch.empty(h * w, np.float32) for _ in range(4)]
+        masks = [scratch.empty(h * w, np.bool_) for _ in range(2)]
+        near, size = np.float32(-1e-3), (quads.size + 1e-3).astype(np.float32)
         for q, g, (u0, v0, u1, v1) in zip(candidates, g_all.astype(np.float32), boxes, strict=True):
             if u0 >= u1 or v0 >= v1:
                 continue
             uu, vv = u[:, u0:u1], v[v0:v1]
-            c = g[2, 0] * uu + (g[2, 1] * vv + g[2, 2])
-            na = g[0, 0] * uu + (g[0, 1] * vv + g[0, 2])
-            nb = g[1, 0] * uu + (g[1, 1] * vv + g[1, 2])
+            c, na, nb, product = (x[: (v1 - v0) * (u1 - u0)].reshape(v1 - v0, u1 - u0) for x in planes)
+            hit, test = (x[: (v1 - v0) * (u1 - u0)].reshape(v1 - v0, u1 - u0) for x in masks)
             zview, iview = zbuf[v0:v1, u0:u1], ids[v0:v1, u0:u1]
+            np.add(g[2, 0] * uu, g[2, 1] * vv + g[2, 2], out=c)
+            np.greater(c, zview, out=hit)
+            if not hit.any():  # hidden behind what is drawn already
+                continue
+            np.add(g[0, 0] * uu, g[0, 1] * vv + g[0, 2], out=na)
+            np.add(g[1, 0] * uu, g[1, 1] * vv + g[1, 2], out=nb)
             # Inside test a in [0, length], b in [0, height] (times c > 0), widened by 1 mm so that rounding
             # never leaves a crack between adjacent rectangles.
-            hit = c > zview
-            hit &= na >= np.float32(-1e-3) * c
-            hit &= na <= np.float32(quads.size[q, 0] + 1e-3) * c
-            hit &= nb >= np.float32(-1e-3) * c
-            hit &= nb <= np.float32(quads.size[q, 1] + 1e-3) * c
+            for numerator, bound, above in ((na, near, True), (na, size[q, 0], False), (nb, near, True),
+                                            (nb, size[q, 1], False)):
+                np.multiply(bound, c, out=product)
+                (np.greater_equal if above else np.less_equal)(numerator, product, out=test)
+                hit &= test
             np.copyto(zview, c, where=hit)
             np.copyto(iview, q + 1, where=hit)
         return ids, ground_g, facade_g
