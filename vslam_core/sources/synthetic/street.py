@@ -26,7 +26,7 @@ Ground truth is the exact poses used for rendering.
 
 The package follows those steps: `road` (centreline, camera path), `textures` (procedural images, atlas,
 mip-maps), `scene` (rectangles and the ground layout), `raster` (ray-casting helpers) and this module, the
-source that renders a frame from them.
+source that renders a frame from them (its temporary arrays in a reused `scratch.Scratch`).
 """
 
 from __future__ import annotations
@@ -262,7 +262,7 @@ class SyntheticStreet:
         Returns the id of the surface seen per pixel (H, W) int32 (-1 sky, 0 ground, q + 1 rectangle q);
         the ground homography (3, 3): pixel -> map (x, y) relative to the camera position, third row =
         inverse depth; and per id the homography pixel -> atlas texel coordinates, (9, Q + 1) float32
-        row-major (zero for rectangles not drawn).
+        row-major (zero for rectangles not drawn). `scratch` holds the per-rectangle (box) work arrays.
         """
         intr = self._intr
         w, h = intr.width, intr.height
