@@ -8,6 +8,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from vslam_core.sources.synthetic.scratch import Scratch
+
 NEAR = 0.05  # metres; rectangles are clipped at this camera depth
 _ANISO_TAPS = 2  # texture taps along a pixel's longer footprint axis (anisotropic filtering)
 
@@ -42,26 +44,47 @@ class _Footprints:
     minor: np.ndarray
 
 
-def surface_coords(g: np.ndarray, u: np.ndarray, v: np.ndarray) -> _Footprints:
+def surface_coords(g: np.ndarray, u: np.ndarray, v: np.ndarray, scratch: Scratch) -> _Footprints:
     """Surface coordinates and pixel footprints of pixels (u, v) (n,) float32.
 
     g: (9, n) or (9, 1) float32 row-major homographies, pixel -> surface coordinates (see
-    `surface_homography`); the derivatives are exact for the homography.
+    `surface_homography`); the derivatives are exact for the homography. Computed in place in (n,) float32
+    buffers of `scratch` (the footprints live there too), every value with the same float32 operations in
+    the same order as the formulas say.
     """
-    inv_c = 1.0 / (g[6] * u + g[7] * v + g[8])
-    a = (g[0] * u + g[1] * v + g[2]) * inv_c
-    b = (g[3] * u + g[4] * v + g[5]) * inv_c
-    a_u, b_u = (g[0] - a * g[6]) * inv_c, (g[3] - b * g[6]) * inv_c
-    a_v, b_v = (g[1] - a * g[7]) * inv_c, (g[4] - b * g[7]) * inv_c
-    len_u, len_v = a_u * a_u + b_u * b_u, a_v * a_v + b_v * b_v
-    u_major = len_u > len_v
-    return _Footprints(
-        x=a,
-        y=b,
-        major_x=np.where(u_major, a_u, a_v),
-        major_y=np.where(u_major, b_u, b_v),
-        minor=np.sqrt(np.minimum(len_u, len_v)),
-    )
+    n = u.size
+    g0, g1, g2, g3, g4, g5, g6, g7, g8 = g
+    tmp, inv_c, a, b = (scratch.empty(n, np.float32) for _ in range(4))
+    np.multiply(g7, v, out=tmp)
+    np.multiply(g6, u, out=inv_c)
+    inv_c += tmp
+    inv_c += g8
+    np.divide(1.0, inv_c, out=inv_c)  # 1 / (g6 u + g7 v + g8)
+    for x, gu, gv, gc in ((a, g0, g1, g2), (b, g3, g4, g5)):  # (g0 u + g1 v + g2) / c, (g3 u + g4 v + g5) / c
+        np.multiply(gu, u, out=x)
+        np.multiply(gv, v, out=tmp)
+        x += tmp
+        x += gc
+        x *= inv_c
+    derivatives = []  # a_u, b_u, a_v, b_v: (g_i - x g_j) / c
+    for x, gi, gj in ((a, g0, g6), (b, g3, g6), (a, g1, g7), (b, g4, g7)):
+        d = np.multiply(x, gj, out=scratch.empty(n, np.float32))
+        np.subtract(gi, d, out=d)
+        d *= inv_c
+        derivatives.append(d)
+    a_u, b_u, a_v, b_v = derivatives
+    len_u = np.multiply(a_u, a_u, out=inv_c)  # inv_c no longer needed
+    np.multiply(b_u, b_u, out=tmp)
+    len_u += tmp
+    len_v = np.multiply(a_v, a_v, out=scratch.empty(n, np.float32))
+    np.multiply(b_v, b_v, out=tmp)
+    len_v += tmp
+    u_major = np.greater(len_u, len_v, out=scratch.empty(n, np.bool_))
+    np.copyto(a_v, a_u, where=u_major)  # major_x
+    np.copyto(b_v, b_u, where=u_major)  # major_y
+    minor = np.minimum(len_u, len_v, out=len_u)
+    np.sqrt(minor, out=minor)
+    return _Footprints(x=a, y=b, major_x=a_v, major_y=b_v, minor=minor)
 
 
 def remap_points(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -86,8 +109,48 @@ def remap_points(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return np.concatenate(parts) if len(parts) > 1 else parts[0] if parts else np.zeros(0, image.dtype)
 
 
+def _wrap_into_tile(x: np.ndarray, wrap: int, scratch: Scratch) -> None:
+    """x (n,) float32 -> np.mod(x, wrap), in place and bit for bit (wrap a power of two: x - floor(x / wrap)
+    wrap is then exact, as is np.mod's fmod; the result is rounded once either way). Other sizes: np.mod."""
+    if wrap & (wrap - 1):
+        np.mod(x, wrap, out=x)
+        return
+    k = np.multiply(x, np.float32(1.0 / wrap), out=scratch.empty(x.size, np.float32))
+    np.floor(k, out=k)
+    k *= np.float32(wrap)
+    np.subtract(x, k, out=x)
+    negative = np.less(x, 0, out=scratch.empty(x.size, np.bool_))
+    np.add(x, np.float32(wrap), out=x, where=negative)  # only a negative subnormal x, whose quotient underflows
+
+
+def _level_groups(lam: np.ndarray, top: int, scratch: Scratch) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Group pixels by the lower of the two mip levels they blend, lo = min(floor(lam), top - 1), each group
+    split into the pixels with lam == lo (no weight on level lo + 1) and the others.
+
+    lam: (n,) float32 level of detail in [0, top]. Returns the stable order (n,) that sorts the pixels by
+    2 lo + (lam > lo); the bounds (2 top + 1,) of those keys in it (key j: bounds[j]:bounds[j + 1]); and
+    frac = lam - lo (n,) float64 in that order, the weight of level lo + 1.
+    """
+    n = lam.size
+    lo = scratch.empty(n, np.uint8)
+    np.copyto(lo, lam, casting="unsafe")  # 0..top, truncated (as astype)
+    np.minimum(lo, top - 1, out=lo)
+    key = np.greater(lam, lo, out=scratch.empty(n, np.bool_)).view(np.uint8)
+    key += lo
+    key += lo  # a one-byte key, which numpy's stable sort radix-sorts
+    order = np.argsort(key, kind="stable")
+    bounds = np.zeros(2 * top + 1, np.int64)
+    np.cumsum(np.bincount(key, minlength=2 * top)[: 2 * top], out=bounds[1:])
+    frac = scratch.empty(n, np.float64)
+    np.copyto(frac, np.take(lam, order, out=scratch.empty(n, np.float32), mode="wrap"))
+    for k in range(1, top):
+        frac[bounds[2 * k] : bounds[2 * k + 2]] -= k
+    return order, bounds, frac
+
+
 def sample_aniso(
-    pyramid: list[np.ndarray], fp: _Footprints, scale: float, offset: tuple[float, float], wrap: int = 0
+    pyramid: list[np.ndarray], fp: _Footprints, scale: float, offset: tuple[float, float], scratch: Scratch,
+    wrap: int = 0,
 ) -> np.ndarray:
     """Anisotropic trilinear sample (n,) float32 of a texture at texel coordinates fp.{x, y} * scale + offset.
 
@@ -95,33 +158,77 @@ def sample_aniso(
     each pixel's longer footprint axis are averaged, each filtered over its share of the footprint (the mip
     level, blended between the two nearest): sharp and alias-free on surfaces seen at grazing angles.
     wrap > 0: the texture is a tile of that size and every level is padded with 2 texels of wrapped border.
+    Temporaries and the result are `scratch` arrays.
     """
-    top = len(pyramid) - 1
-    major_x, major_y = fp.major_x * scale, fp.major_y * scale
-    footprint = np.maximum(fp.minor * scale, np.hypot(major_x, major_y) * (1.0 / _ANISO_TAPS))
-    lam = np.clip(np.log2(np.maximum(footprint, 1e-6)), 0.0, float(top))
-    lo = np.minimum(lam.astype(np.int32), top - 1)  # blend levels lo and lo + 1
-    order = np.argsort(lo, kind="stable")  # group the pixels by level: contiguous slices below
-    bounds = np.searchsorted(lo[order], np.arange(top + 1))  # group k (lo == k): bounds[k]:bounds[k + 1]
-    frac = (lam - lo)[order]
-    x, y = fp.x * scale + float(offset[0]), fp.y * scale + float(offset[1])  # float32 level-0 texels
-    taps = []  # per tap: level-0 coordinates in level order
-    for k in range(_ANISO_TAPS):
-        t = (k + 0.5) / _ANISO_TAPS - 0.5
-        xt, yt = (x + t * major_x)[order], (y + t * major_y)[order]
-        taps.append((np.mod(xt, wrap), np.mod(yt, wrap)) if wrap else (xt, yt))
+    top, n = len(pyramid) - 1, fp.x.size
+    if scale == 1.0:  # x * 1.0 is x: skip the products
+        major_x, major_y, minor = fp.major_x, fp.major_y, fp.minor
+    else:
+        major_x, major_y, minor = (np.multiply(a, scale, out=scratch.empty(n, np.float32))
+                                   for a in (fp.major_x, fp.major_y, fp.minor))
+    lam = np.hypot(major_x, major_y, out=scratch.empty(n, np.float32))
+    lam *= 1.0 / _ANISO_TAPS
+    np.maximum(minor, lam, out=lam)  # the footprint of one tap
+    np.maximum(lam, 1e-6, out=lam)
+    np.log2(lam, out=lam)
+    np.clip(lam, 0.0, float(top), out=lam)
+    order, bounds, frac = _level_groups(lam, top, scratch)
+    taps = []  # per tap: level-0 coordinates (x + t major) in level order
+    c, c_sorted, major_sorted = (scratch.empty(n, np.float32) for _ in range(3))
+    for axis, major, shift in ((fp.x, major_x, offset[0]), (fp.y, major_y, offset[1])):
+        if scale != 1.0:
+            np.multiply(axis, scale, out=c)
+        else:
+            c[:] = axis
+        c += float(shift)  # float32 level-0 texels
+        np.take(c, order, out=c_sorted, mode="wrap")
+        np.take(major, order, out=major_sorted, mode="wrap")
+        for k in range(_ANISO_TAPS):
+            t = (k + 0.5) / _ANISO_TAPS - 0.5
+            tap = np.multiply(major_sorted, t, out=scratch.empty(n, np.float32))
+            tap += c_sorted  # x + t major (addition commutes bit for bit)
+            if wrap:
+                _wrap_into_tile(tap, wrap, scratch)
+            taps.append(tap)
     pad = 2.0 if wrap else 0.0
-    acc = np.zeros(x.shape, np.float32)
+    acc = scratch.empty(n, np.float32)
+    acc[:] = 0.0
+    weight = scratch.empty(n, np.float64)
+    product = scratch.empty(n, np.float64)
+    rows_max = -(-_ANISO_TAPS * n // 1024)
+    map_x, map_y = (scratch.empty(rows_max * 1024, np.float32) for _ in range(2))
+    samples_all = scratch.empty(rows_max * 1024, np.uint8)
     for level in range(top + 1):  # level l serves group l - 1 (weight frac) and group l (weight 1 - frac)
-        start, mid, stop = bounds[max(level - 1, 0)], bounds[level], bounds[min(level + 1, top)]
-        if start == stop:
+        # (not the pixels of group l - 1 with frac = 0: acc + 0 * sample is acc)
+        start, mid = bounds[max(2 * level - 1, 0)], bounds[2 * level]
+        stop = bounds[2 * level + 2] if level < top else mid
+        m = stop - start
+        if m == 0:
             continue
-        weight = np.concatenate([frac[start:mid], 1.0 - frac[mid:stop]]) * (1.0 / _ANISO_TAPS)
-        s = 0.5**level
-        for xt, yt in taps:
-            xl, yl = xt[start:stop] * s + (0.5 * s - 0.5 + pad), yt[start:stop] * s + (0.5 * s - 0.5 + pad)
-            acc[start:stop] += weight * remap_points(pyramid[level], xl, yl)
-    out = np.empty_like(acc)
+        w = weight[:m]
+        w[: mid - start] = frac[start:mid]
+        np.subtract(1.0, frac[mid:stop], out=w[mid - start :])
+        w *= 1.0 / _ANISO_TAPS
+        s, shift = 0.5**level, 0.5 * 0.5**level - 0.5 + pad
+        rows = -(-_ANISO_TAPS * m // 1024)  # all taps in one remap, rows of 1024 points (cv2's 32767 limit)
+        for maps, coords in ((map_x, taps[:_ANISO_TAPS]), (map_y, taps[_ANISO_TAPS:])):
+            for k, tap in enumerate(coords):
+                part = maps[k * m : (k + 1) * m]
+                np.multiply(tap[start:stop], s, out=part)
+                part += shift
+            maps[_ANISO_TAPS * m : rows * 1024] = 0.0
+        samples = cv2.remap(
+            pyramid[level],
+            map_x[: rows * 1024].reshape(rows, 1024),
+            map_y[: rows * 1024].reshape(rows, 1024),
+            cv2.INTER_LINEAR,
+            dst=samples_all[: rows * 1024].reshape(rows, 1024),
+            borderMode=cv2.BORDER_REPLICATE,
+        ).reshape(-1)
+        for k in range(_ANISO_TAPS):
+            p = np.multiply(w, samples[k * m : (k + 1) * m], out=product[:m])
+            np.add(acc[start:stop], p, out=acc[start:stop])  # in float64, rounded to float32
+    out = scratch.empty(n, np.float32)
     out[order] = acc
     return out
 

@@ -26,12 +26,13 @@ Ground truth is the exact poses used for rendering.
 
 The package follows those steps: `road` (centreline, camera path), `textures` (procedural images, atlas,
 mip-maps), `scene` (rectangles and the ground layout), `raster` (ray-casting helpers) and this module, the
-source that renders a frame from them.
+source that renders a frame from them (its temporary arrays in a reused `scratch.Scratch`).
 """
 
 from __future__ import annotations
 
 import functools
+import threading
 from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any, Literal
@@ -52,6 +53,7 @@ from vslam_core.sources.synthetic.raster import (
 )
 from vslam_core.sources.synthetic.road import START_S, Centreline, camera_path, make_centreline, make_loop_centreline
 from vslam_core.sources.synthetic.scene import COARSE_RES, build_street, ground_layout
+from vslam_core.sources.synthetic.scratch import Scratch
 from vslam_core.sources.synthetic.textures import FINE_TILE, PANO_ELEV_MAX, ground_fine_tile, mip_pyramid, panorama
 
 _INTRINSICS = CameraIntrinsics(fx=718.856, fy=718.856, cx=607.1928, cy=185.2157, width=1241, height=376,
@@ -64,6 +66,7 @@ _FINE_RES = 0.015  # ground speckle tile
 _SPECKLE_CONTRAST = 0.45  # ground speckle amplitude, about +-55 grey levels
 _MIP_LEVELS = 7
 _MAX_FRAMES = 2000  # textures must stay under cv2.remap's 32767-texel limit (and memory reasonable)
+_SCRATCH = threading.local()  # .memory: the `Scratch` of this thread's renderings (~50 MB at full size)
 Route = Literal["street", "loop"]
 ROUTES: dict[str, int] = {"street": 300, "loop": 660}  # route -> default number of frames
 
@@ -235,26 +238,31 @@ class SyntheticStreet:
         r_cm = pose[:3, :3].T
         position = pose[:3, 3]
         t_cm = -r_cm @ position
-        ids, ground_g, facade_g = self._visibility(r_cm, t_cm, position)
+        scratch = getattr(_SCRATCH, "memory", None)
+        if scratch is None:
+            scratch = _SCRATCH.memory = Scratch()
+        scratch.reset()
+        ids, ground_g, facade_g = self._visibility(r_cm, t_cm, position, scratch)
         out = np.empty(intr.height * intr.width, np.float32)
         flat_ids = ids.ravel()
-        self._shade_ground(out, np.flatnonzero(flat_ids == 0), ground_g, position)
+        self._shade_ground(out, np.flatnonzero(flat_ids == 0), ground_g, position, scratch)
         self._shade_sky(out, np.flatnonzero(flat_ids < 0), r_cm)
-        self._shade_facades(out, flat_ids, facade_g)
+        scratch.reset()  # the ground's arrays are no longer needed
+        self._shade_facades(out, flat_ids, facade_g, scratch)
         image = cv2.GaussianBlur(out.reshape(intr.height, intr.width), (0, 0), 0.5)  # soften silhouettes
         return np.clip(image + 0.5, 0, 255).astype(np.uint8)
 
     # -- rendering steps --------------------------------------------------------------------------
 
     def _visibility(
-        self, r_cm: np.ndarray, t_cm: np.ndarray, position: np.ndarray
+        self, r_cm: np.ndarray, t_cm: np.ndarray, position: np.ndarray, scratch: Scratch
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Z-buffer pass for the camera with map -> camera transform (r_cm, t_cm) at map `position` (3,).
 
         Returns the id of the surface seen per pixel (H, W) int32 (-1 sky, 0 ground, q + 1 rectangle q);
         the ground homography (3, 3): pixel -> map (x, y) relative to the camera position, third row =
         inverse depth; and per id the homography pixel -> atlas texel coordinates, (9, Q + 1) float32
-        row-major (zero for rectangles not drawn).
+        row-major (zero for rectangles not drawn). `scratch` holds the per-rectangle (box) work arrays.
         """
         intr = self._intr
         w, h = intr.width, intr.height
@@ -289,34 +297,48 @@ class SyntheticStreet:
         facade_g = np.zeros((9, len(quads.size) + 1), np.float32)
         facade_g[:, candidates + 1] = (quads.to_atlas[candidates] @ g_all).reshape(-1, 9).T
         boxes = pixel_boxes(corners_c[candidates], self._k, w, h)
+        # Per rectangle, its box's inverse depth c and numerators na, nb of (a, b) = (na, nb) / c: views of
+        # image-sized scratch buffers, written in place.
+        planes = [scratch.empty(h * w, np.float32) for _ in range(4)]
+        masks = [scratch.empty(h * w, np.bool_) for _ in range(2)]
+        near, size = np.float32(-1e-3), (quads.size + 1e-3).astype(np.float32)
         for q, g, (u0, v0, u1, v1) in zip(candidates, g_all.astype(np.float32), boxes, strict=True):
             if u0 >= u1 or v0 >= v1:
                 continue
             uu, vv = u[:, u0:u1], v[v0:v1]
-            c = g[2, 0] * uu + (g[2, 1] * vv + g[2, 2])
-            na = g[0, 0] * uu + (g[0, 1] * vv + g[0, 2])
-            nb = g[1, 0] * uu + (g[1, 1] * vv + g[1, 2])
+            c, na, nb, product = (x[: (v1 - v0) * (u1 - u0)].reshape(v1 - v0, u1 - u0) for x in planes)
+            hit, test = (x[: (v1 - v0) * (u1 - u0)].reshape(v1 - v0, u1 - u0) for x in masks)
             zview, iview = zbuf[v0:v1, u0:u1], ids[v0:v1, u0:u1]
+            np.add(g[2, 0] * uu, g[2, 1] * vv + g[2, 2], out=c)
+            np.greater(c, zview, out=hit)
+            if not hit.any():  # hidden behind what is drawn already
+                continue
+            np.add(g[0, 0] * uu, g[0, 1] * vv + g[0, 2], out=na)
+            np.add(g[1, 0] * uu, g[1, 1] * vv + g[1, 2], out=nb)
             # Inside test a in [0, length], b in [0, height] (times c > 0), widened by 1 mm so that rounding
             # never leaves a crack between adjacent rectangles.
-            hit = c > zview
-            hit &= na >= np.float32(-1e-3) * c
-            hit &= na <= np.float32(quads.size[q, 0] + 1e-3) * c
-            hit &= nb >= np.float32(-1e-3) * c
-            hit &= nb <= np.float32(quads.size[q, 1] + 1e-3) * c
+            for numerator, bound, above in ((na, near, True), (na, size[q, 0], False), (nb, near, True),
+                                            (nb, size[q, 1], False)):
+                np.multiply(bound, c, out=product)
+                (np.greater_equal if above else np.less_equal)(numerator, product, out=test)
+                hit &= test
             np.copyto(zview, c, where=hit)
             np.copyto(iview, q + 1, where=hit)
         return ids, ground_g, facade_g
 
-    def _shade_ground(self, out: np.ndarray, idx: np.ndarray, g: np.ndarray, position: np.ndarray) -> None:
+    def _shade_ground(
+        self, out: np.ndarray, idx: np.ndarray, g: np.ndarray, position: np.ndarray, scratch: Scratch
+    ) -> None:
         """Write the ground's grey values into out (H*W,) at flat pixel indices idx (layout + speckle)."""
-        fp = surface_coords(g.astype(np.float32).reshape(9, 1), self._u[idx], self._v[idx])
+        u, v = (np.take(a, idx, out=scratch.empty(idx.size, np.float32), mode="wrap") for a in (self._u, self._v))
+        fp = surface_coords(g.astype(np.float32).reshape(9, 1), u, v, scratch)
         res = COARSE_RES
         layout = sample_aniso(
             self._ground,
             fp,
             1.0 / res,
             ((position[0] - self._ground_origin[0]) / res - 0.5, (position[1] - self._ground_origin[1]) / res - 0.5),
+            scratch,
         )
         fres = _FINE_RES
         fine = sample_aniso(
@@ -324,6 +346,7 @@ class SyntheticStreet:
             fp,
             1.0 / fres,
             ((position[0] / fres) % FINE_TILE, (position[1] / fres) % FINE_TILE),
+            scratch,
             wrap=FINE_TILE,
         )
         out[idx] = layout + _SPECKLE_CONTRAST * (fine - 128.0)
@@ -343,11 +366,23 @@ class SyntheticStreet:
         py = (PANO_ELEV_MAX - el) * intr.fx - 0.5
         out[idx] = remap_points(self._pano, px.astype(np.float32), py.astype(np.float32))
 
-    def _shade_facades(self, out: np.ndarray, flat_ids: np.ndarray, facade_g: np.ndarray) -> None:
+    def _shade_facades(self, out: np.ndarray, flat_ids: np.ndarray, facade_g: np.ndarray, scratch: Scratch) -> None:
         """Write the rectangles' textures into out (H*W,) where flat_ids (H*W,) > 0 (see `_visibility`)."""
         idx = np.flatnonzero(flat_ids > 0)
         if idx.size == 0:
             return
         ids = flat_ids[idx]
-        fp = surface_coords(facade_g[:, ids], self._u[idx], self._v[idx])
-        out[idx] = sample_aniso(self._atlas, fp, 1.0, (-0.5, -0.5)) * self._quads.shade.astype(np.float32)[ids - 1]
+        # Runs of pixels on one rectangle (along image rows): per-pixel homographies and shades by repetition,
+        # contiguous (a column gather facade_g[:, ids] is strided, which makes every later step slower).
+        starts = np.flatnonzero(ids[1:] != ids[:-1])
+        starts += 1
+        starts = np.concatenate([[0], starts])
+        lengths = np.diff(starts, append=ids.size)
+        run_ids = ids[starts]
+        g = np.repeat(facade_g[:, run_ids], lengths, axis=1)  # (9, n) float32
+        shade = np.repeat(self._quads.shade.astype(np.float32)[run_ids - 1], lengths)
+        u, v = (np.take(a, idx, out=scratch.empty(idx.size, np.float32), mode="wrap") for a in (self._u, self._v))
+        fp = surface_coords(g, u, v, scratch)
+        shaded = sample_aniso(self._atlas, fp, 1.0, (-0.5, -0.5), scratch)
+        shaded *= shade
+        out[idx] = shaded
