@@ -22,7 +22,7 @@ KITTI_ROOT = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti"
 
 class _RenderedFrames:
     """The synthetic street's frames rendered once per test process: most CLI tests run `synthetic` in this
-    process (tests/cli_helpers.py), and rendering is most of a synthetic run's time (~0.15 s a frame). Keyed
+    process (tests/cli_helpers.py), and rendering is most of a synthetic run's time (~0.08 s a frame). Keyed
     by everything a frame depends on; each call gets its own copy. Off for `test_synthetic.py`, which tests the
     renderer itself (`no_render_cache`)."""
 

@@ -1,6 +1,6 @@
 """Rendered frames of the synthetic street kept on disk, for repeated runs (`VSLAM_SYNTHETIC_CACHE=DIR`).
 
-Rendering costs ~0.15 s a full-size frame, about ten times what tracking it costs, so running the embedded
+Rendering costs ~0.08 s a full-size frame, several times what tracking it costs, so running the embedded
 default again (a demo, a CI job, a test suite with many short runs in many processes) is mostly rendering
 the same frames again. With the environment variable ``VSLAM_SYNTHETIC_CACHE`` naming a folder, each frame is
 read from there when present and written there once rendered; without it nothing is written.
