@@ -28,7 +28,7 @@ from vslam_core.lens import distort_pixels, undistort_pixels
 from vslam_core.loop.closing import LoopClosing
 from vslam_core.mapping.local_map import LocalMapSearcher
 from vslam_core.mapping.local_mapping import DESCRIPTOR_PATCH, LocalMapping
-from vslam_core.mapping.map_scale import MapSpeed, for_scale, translation_parallax
+from vslam_core.mapping.map_scale import MapSpeed, for_scale, initialisation_reason, translation_parallax
 from vslam_core.mapping.pnp import PnPSolution, project, solve_pnp
 from vslam_core.mapping.refinding import MapRefinding
 from vslam_core.results import (
@@ -85,6 +85,7 @@ class MapTracking:
         self._since_keyframe = 0
         self._gap = False  # unusable frames since the last one with a pose
         self._previous_image: np.ndarray | None = None  # the last frame's image, usable or not
+        self._posed_position = -1  # run position of the last frame with a pose
         self._held: set[int] = set()  # run positions whose pose was held (no tracking, no relocalisation)
         self._segment_lost = False  # relocalisation failed: a new segment starts at the next frame with a pose
         self.loop = LoopClosing(self._K, config, background=config.threads > 1) if config.loop.enabled else None
@@ -148,8 +149,8 @@ class MapTracking:
         alive = vo.track_fate >= TrackFate.NOT_USED
         pnp = self._track_map(vo.position, vo.track_ids[alive], vo.track_cur[alive], two_view, vo)
         timings["pnp"] = _lap(clock)
-        lost_tracks = (vo.reason == Reason.TOO_FEW_TRACKS or Reason.RECOVERED in vo.health.reasons
-                       or (self._cfg.local_map_tracking and self.refinding.frames_missing()))  # frames missing
+        missing = self.refinding.frames_missing()  # the clock says frames are absent from the log
+        lost_tracks = vo.reason == Reason.TOO_FEW_TRACKS or Reason.RECOVERED in vo.health.reasons or missing
         warnings: list[Reason] = []
         relocalisation = None
         pose, mode, why = None, TrackingMode.LOST, None
@@ -172,8 +173,8 @@ class MapTracking:
             pose, mode = two_view, TrackingMode.TWO_VIEW
             if pnp is not None and self._has_map():
                 warnings.append(Reason.PNP_REJECTED)
-        if pose is None and self._gap:  # the first frame after a gap that nothing else could place
-            pose = self._coast(frame.image, vo.position)
+        if pose is None and (self._gap or missing):  # the first frame after a gap that nothing else could place
+            pose = self._coast(frame.image, vo.position) if self._gap else self._bridge(vo.position)
             if pose is not None:
                 mode = TrackingMode.COASTED
                 warnings.append(Reason.COASTED)
@@ -340,6 +341,14 @@ class MapTracking:
         step, _ = self._scale.step_length(TwoView(position - 1, position, empty, empty[:, :2]))
         return self._last_pose @ pose_matrix(motion[0], step * motion[1])
 
+    def _bridge(self, position: int) -> np.ndarray | None:
+        """Dead reckoning across frames missing from the log (refinding.bridge); with `--scale gt` the step from
+        the last frame with a pose has the ground truth's length (other sources: the motion model's)."""
+        empty = np.zeros((0, 3))
+        known = self.config.scale == "gt" and self._posed_position >= 0
+        return self.refinding.bridge(self._scale.step_length(TwoView(self._posed_position, position, empty,
+                                                                     empty[:, :2]))[0] if known else None)
+
     # -- keyframes and the result ---------------------------------------------------------------------------
 
     def _keyframe_reason(self, vo: FrameResult, pnp: PnPEstimate | None, pose: np.ndarray) -> str | None:
@@ -350,8 +359,9 @@ class MapTracking:
         _, in_reference, in_frame = np.intersect1d(reference.track_ids, vo.track_ids[alive], assume_unique=True,
                                                    return_indices=True)
         if self._speed is not None and not self._has_map():
-            return self._initialisation_reason(vo, pose, reference.T_world_cam, in_frame,
-                                               reference.pixels[in_reference])
+            return initialisation_reason(cfg, self._K, reference.T_world_cam, pose,
+                                         self._ideal(vo.track_cur[alive][in_frame]), reference.pixels[in_reference],
+                                         Reason.CLOSE_CHIRALITY in vo.health.reasons)
         if self._since_keyframe >= cfg.keyframe_max_frames:
             return f"{self._since_keyframe} frames"
         if len(in_frame):
@@ -369,23 +379,6 @@ class MapTracking:
             if overlap < cfg.keyframe_overlap:
                 return f"overlap {overlap:.2f}"
         return None
-
-    def _initialisation_reason(self, vo: FrameResult, pose: np.ndarray, T_world_key: np.ndarray,  # noqa: N803
-                               in_frame: np.ndarray, key_pixels: np.ndarray) -> str | None:
-        """--scale none, before the map has landmarks: the next keyframe's baseline sets the map's scale, so it
-        waits for a well-conditioned two-view reconstruction from the last keyframe: translation parallax
-        (rotation removed) of `init_parallax_px` and an unambiguous chirality: pure rotation and too short a
-        baseline leave the translation, and so the scale, undetermined (Mur-Artal et al., "ORB-SLAM", 2015,
-        sec. IV, which likewise waits for parallax before it initialises).
-        If the keyframe's tracks are lost first, initialisation starts again from this frame."""
-        if len(in_frame) < self._cfg.pnp_min_landmarks:
-            return "re-initialisation: tracks lost"
-        alive = vo.track_fate >= TrackFate.NOT_USED
-        parallax = translation_parallax(T_world_key, pose, self._ideal(vo.track_cur[alive][in_frame]), key_pixels,
-                                        self._K)
-        if parallax < self._cfg.init_parallax_px or Reason.CLOSE_CHIRALITY in vo.health.reasons:
-            return None
-        return f"initialisation: parallax {parallax:.0f} px"
 
     def _metric_step(self, position: int, pose: np.ndarray) -> float | None:
         """Distance from the previous keyframe by the scale source (the BA's range prior); None for unit scale."""
@@ -445,6 +438,7 @@ class MapTracking:
             self._relative[vo.position] = (self._reference,
                                            invert_pose(self.mapping.map.keyframes[self._reference].T_world_cam) @ pose)
         self._last_pose = pose
+        self._posed_position = self._posed_position if held else vo.position
         if self._speed is not None and not held:
             self._speed.observe(vo.position, pose, mode in (TrackingMode.MAP, TrackingMode.RELOCALISED))
         self._previous_image = frame.image
