@@ -71,6 +71,10 @@ class MapRefinding:
             return False
         return self._time - self._previous_time > MISSING_FACTOR * float(np.median(self._intervals))
 
+    def predict(self) -> np.ndarray | None:
+        """(4, 4) pose the motion model predicts at this frame's time (None before two poses)."""
+        return self._motion.predict(self._time)
+
     def bridge(self, length: float | None) -> np.ndarray | None:
         """(4, 4) pose of a frame after frames missing from the log that nothing else could place: the motion
         model's prediction at this frame's time (relocalisation.MotionModel: the turn rate's trend over the

@@ -50,6 +50,7 @@ from vslam_core.scale import ScaleProvider, TwoView
 from vslam_core.sources.base import CameraIntrinsics, Frame
 
 UNUSABLE_IMAGE = {Reason.UNREADABLE_IMAGE, Reason.IMAGE_TOO_DARK, Reason.IMAGE_TOO_BRIGHT, Reason.IMAGE_BLURRED}
+COAST_DISAGREEMENT_DEG = 1.5  # a dead-reckoned rotation this far from the motion model's is not trusted
 HOLD_REASONS = {Reason.TOO_FEW_TRACKS, Reason.LOW_PARALLAX, Reason.STATIONARY, Reason.NO_ESSENTIAL,
                 Reason.TOO_FEW_INLIERS, Reason.CHIRALITY}
 
@@ -331,15 +332,20 @@ class MapTracking:
 
     def _coast(self, image: np.ndarray, position: int) -> np.ndarray | None:
         """Dead reckoning from the previous frame: the rotation and direction the degraded images still give
-        (vslam_core/coasting.py), the step length from the scale source. None if they give none."""
+        (vslam_core/coasting.py), the step length from the scale source; None if they give none. A rotation over
+        `COAST_DISAGREEMENT_DEG` from the motion model's prediction is replaced by the prediction's motion."""
         if self._previous_image is None or self._reference < 0 or self._lens.distorted:
             return None  # dead reckoning works on pinhole images only (as in vo)
         motion = degraded_motion(self._previous_image, image, self._K)
         if motion is None:
             return None
+        rotation, direction = motion
+        if (predicted := self.refinding.predict()) is not None and np.degrees(rotation_angle(
+                (expected := invert_pose(self._last_pose) @ predicted)[:3, :3].T @ rotation)) > COAST_DISAGREEMENT_DEG:
+            rotation, direction = expected[:3, :3], expected[:3, 3] / max(float(np.linalg.norm(expected[:3, 3])), 1e-12)
         empty = np.zeros((0, 3))
         step, _ = self._scale.step_length(TwoView(position - 1, position, empty, empty[:, :2]))
-        return self._last_pose @ pose_matrix(motion[0], step * motion[1])
+        return self._last_pose @ pose_matrix(rotation, step * direction)
 
     def _bridge(self, position: int) -> np.ndarray | None:
         """Dead reckoning across frames missing from the log (refinding.bridge); with `--scale gt` the step from
