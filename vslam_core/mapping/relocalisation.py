@@ -1,14 +1,16 @@
 """Relocalisation across a gap, guided by the motion model: the local map projected where the car should be.
 
 After frames the log does not contain (dropped), or frames nothing could be measured on (blurred, dark), the
-KLT tracks no longer reach the map. The constant-velocity motion model (`MotionModel`) extrapolates the last
-two poses to the frame's timestamp (the gap's length comes from the clock, so absent frames need not exist);
+KLT tracks no longer reach the map. The motion model (`MotionModel`: constant velocity, the turn rate's trend)
+extrapolates the last poses to the frame's timestamp (the gap's length comes from the clock, so absent frames
+need not exist);
 the local map's landmarks are projected with that prediction and searched for in a window around each
 projection (vslam_core/mapping/local_map.py, descriptors at several pyramid levels), and the matches go to
 PnP in RANSAC. Across a gap the prediction's rotation and direction are first measured from the images
-(`gap_motion`: KLT from where the predicted rotation puts the last posed frame's corners, the essential
-matrix). When too few are found, or PnP finds too few inliers, the window doubles (`reloc_widenings`
-times from `reloc_radius_px`): a larger gap or a sharper turn than predicted is searched for further out.
+(`gap_motion`: KLT from where the predicted rotation puts the last posed frame's corners, or multi-scale
+ORB matches, and the essential matrix). When too few are found, or PnP finds too few inliers, the window
+doubles (`reloc_widenings` times from `reloc_radius_px`): a larger gap or a sharper turn than predicted is
+searched for further out.
 Once a pose is found, the local map is searched again with it in the narrow tracking window and PnP refined
 on everything re-found (ORB-SLAM's relocalisation does the same, Mur-Artal et al. 2015, §V-C).
 
