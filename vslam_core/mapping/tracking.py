@@ -141,8 +141,7 @@ class MapTracking:
         if vo.status == FrameStatus.INIT:
             return self._finish(frame, vo, np.eye(4), TrackingMode.INIT, None, None, [], "initialisation")
         if vo.reason in UNUSABLE_IMAGE:
-            self._gap = True
-            coasted = self._coast(frame.image, vo.position)
+            coasted, self._gap = self._coast(frame.image, vo.position, checked=not self._gap), True
             return self._finish(frame, vo, coasted, TrackingMode.COASTED if coasted is not None else TrackingMode.LOST,
                                 None, None, [Reason.COASTED] if coasted is not None else [], None)
         clock = time.perf_counter()
@@ -330,17 +329,18 @@ class MapTracking:
         return (Relocalisation(True, best.id, len(candidates), len(query_index), inliers),
                 PnPEstimate(landmark_ids, pixels, solution.projected, solution.inlier_mask, solution.T_world_cam))
 
-    def _coast(self, image: np.ndarray, position: int) -> np.ndarray | None:
+    def _coast(self, image: np.ndarray, position: int, checked: bool = False) -> np.ndarray | None:
         """Dead reckoning from the previous frame: the rotation and direction the degraded images still give
-        (vslam_core/coasting.py), the step length from the scale source; None if they give none. A rotation over
-        `COAST_DISAGREEMENT_DEG` from the motion model's prediction is replaced by the prediction's motion."""
+        (vslam_core/coasting.py), the step length from the scale source; None if they give none. `checked` (the
+        first frame of a gap: the model's last poses are measured ones, never dead-reckoned ones, which fed back
+        into its trend): a rotation over `COAST_DISAGREEMENT_DEG` from its prediction gives way to the prediction."""
         if self._previous_image is None or self._reference < 0 or self._lens.distorted:
             return None  # dead reckoning works on pinhole images only (as in vo)
         motion = degraded_motion(self._previous_image, image, self._K)
         if motion is None:
             return None
         rotation, direction = motion
-        if (predicted := self.refinding.predict()) is not None and np.degrees(rotation_angle(
+        if checked and (predicted := self.refinding.predict()) is not None and np.degrees(rotation_angle(
                 (expected := invert_pose(self._last_pose) @ predicted)[:3, :3].T @ rotation)) > COAST_DISAGREEMENT_DEG:
             rotation, direction = expected[:3, :3], expected[:3, 3] / max(float(np.linalg.norm(expected[:3, 3])), 1e-12)
         empty = np.zeros((0, 3))
