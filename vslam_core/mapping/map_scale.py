@@ -80,3 +80,21 @@ def translation_parallax(T_world_key: np.ndarray, T_world_cur: np.ndarray, pixel
     homogeneous = np.column_stack((pixels_cur, np.ones(len(pixels_cur))))
     moved = homogeneous @ (K @ rotation @ np.linalg.inv(K)).T
     return float(np.median(np.linalg.norm(moved[:, :2] / moved[:, 2:3] - pixels_key, axis=1)))
+
+
+def initialisation_reason(config: MapConfig, K: np.ndarray, T_world_key: np.ndarray,  # noqa: N803
+                          T_world_cam: np.ndarray, pixels: np.ndarray, key_pixels: np.ndarray,  # noqa: N803
+                          close_chirality: bool) -> str | None:
+    """--scale none, before the map has landmarks: the next keyframe's baseline sets the map's scale, so it
+    waits for a well-conditioned two-view reconstruction from the last keyframe: translation parallax
+    (rotation removed) of `init_parallax_px` between the (N, 2) ideal `pixels` of the keyframe's tracks now
+    and their `key_pixels`, and an unambiguous chirality: pure rotation and too short a baseline leave the
+    translation, and so the scale, undetermined (Mur-Artal et al., "ORB-SLAM", 2015, sec. IV, which likewise
+    waits for parallax before it initialises). If the keyframe's tracks are lost first, initialisation
+    starts again from this frame."""
+    if len(pixels) < config.pnp_min_landmarks:
+        return "re-initialisation: tracks lost"
+    parallax = translation_parallax(T_world_key, T_world_cam, pixels, key_pixels, K)
+    if parallax < config.init_parallax_px or close_chirality:
+        return None
+    return f"initialisation: parallax {parallax:.0f} px"

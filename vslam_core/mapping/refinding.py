@@ -71,6 +71,26 @@ class MapRefinding:
             return False
         return self._time - self._previous_time > MISSING_FACTOR * float(np.median(self._intervals))
 
+    def predict(self) -> np.ndarray | None:
+        """(4, 4) pose the motion model predicts at this frame's time (None before two poses)."""
+        return self._motion.predict(self._time)
+
+    def bridge(self, length: float | None) -> np.ndarray | None:
+        """(4, 4) pose of a frame after frames missing from the log that nothing else could place: the motion
+        model's prediction at this frame's time (relocalisation.MotionModel: the turn rate's trend over the
+        gap) with its rotation and direction measured from the last posed frame's image when they can be
+        (relocalisation.bridged_prediction: KLT from where the predicted rotation puts its corners, the
+        essential matrix); the step from that frame `length` long (None: the model's). None before the
+        motion model has two poses."""
+        predicted = self._motion.predict(self._time)
+        if predicted is None or self._image is None or self._posed is None:
+            return None
+        bridged = bridged_prediction(self._posed[0], self._image, self._posed[1], predicted, self._K)
+        step = np.linalg.inv(self._posed[1]) @ bridged
+        if length is not None:
+            step[:3, 3] *= length / max(float(np.linalg.norm(step[:3, 3])), 1e-12)
+        return np.asarray(self._posed[1] @ step)
+
     def _frame_corners(self) -> FrameCorners:
         if self._corners is None:
             assert self._image is not None, "start_frame first"

@@ -28,7 +28,7 @@ from vslam_core.lens import distort_pixels, undistort_pixels
 from vslam_core.loop.closing import LoopClosing
 from vslam_core.mapping.local_map import LocalMapSearcher
 from vslam_core.mapping.local_mapping import DESCRIPTOR_PATCH, LocalMapping
-from vslam_core.mapping.map_scale import MapSpeed, for_scale, translation_parallax
+from vslam_core.mapping.map_scale import MapSpeed, for_scale, initialisation_reason, translation_parallax
 from vslam_core.mapping.pnp import PnPSolution, project, solve_pnp
 from vslam_core.mapping.refinding import MapRefinding
 from vslam_core.results import (
@@ -50,6 +50,7 @@ from vslam_core.scale import ScaleProvider, TwoView
 from vslam_core.sources.base import CameraIntrinsics, Frame
 
 UNUSABLE_IMAGE = {Reason.UNREADABLE_IMAGE, Reason.IMAGE_TOO_DARK, Reason.IMAGE_TOO_BRIGHT, Reason.IMAGE_BLURRED}
+COAST_DISAGREEMENT_DEG = 1.5  # a dead-reckoned rotation this far from the motion model's is not trusted
 HOLD_REASONS = {Reason.TOO_FEW_TRACKS, Reason.LOW_PARALLAX, Reason.STATIONARY, Reason.NO_ESSENTIAL,
                 Reason.TOO_FEW_INLIERS, Reason.CHIRALITY}
 
@@ -85,6 +86,7 @@ class MapTracking:
         self._since_keyframe = 0
         self._gap = False  # unusable frames since the last one with a pose
         self._previous_image: np.ndarray | None = None  # the last frame's image, usable or not
+        self._posed_position = -1  # run position of the last frame with a pose
         self._held: set[int] = set()  # run positions whose pose was held (no tracking, no relocalisation)
         self._segment_lost = False  # relocalisation failed: a new segment starts at the next frame with a pose
         self.loop = LoopClosing(self._K, config, background=config.threads > 1) if config.loop.enabled else None
@@ -139,8 +141,7 @@ class MapTracking:
         if vo.status == FrameStatus.INIT:
             return self._finish(frame, vo, np.eye(4), TrackingMode.INIT, None, None, [], "initialisation")
         if vo.reason in UNUSABLE_IMAGE:
-            self._gap = True
-            coasted = self._coast(frame.image, vo.position)
+            coasted, self._gap = self._coast(frame.image, vo.position, checked=not self._gap), True
             return self._finish(frame, vo, coasted, TrackingMode.COASTED if coasted is not None else TrackingMode.LOST,
                                 None, None, [Reason.COASTED] if coasted is not None else [], None)
         clock = time.perf_counter()
@@ -148,8 +149,8 @@ class MapTracking:
         alive = vo.track_fate >= TrackFate.NOT_USED
         pnp = self._track_map(vo.position, vo.track_ids[alive], vo.track_cur[alive], two_view, vo)
         timings["pnp"] = _lap(clock)
-        lost_tracks = (vo.reason == Reason.TOO_FEW_TRACKS or Reason.RECOVERED in vo.health.reasons
-                       or (self._cfg.local_map_tracking and self.refinding.frames_missing()))  # frames missing
+        missing = self.refinding.frames_missing()  # the clock says frames are absent from the log
+        lost_tracks = vo.reason == Reason.TOO_FEW_TRACKS or Reason.RECOVERED in vo.health.reasons or missing
         warnings: list[Reason] = []
         relocalisation = None
         pose, mode, why = None, TrackingMode.LOST, None
@@ -172,8 +173,8 @@ class MapTracking:
             pose, mode = two_view, TrackingMode.TWO_VIEW
             if pnp is not None and self._has_map():
                 warnings.append(Reason.PNP_REJECTED)
-        if pose is None and self._gap:  # the first frame after a gap that nothing else could place
-            pose = self._coast(frame.image, vo.position)
+        if pose is None and (self._gap or missing):  # the first frame after a gap that nothing else could place
+            pose = self._coast(frame.image, vo.position) if self._gap else self._bridge(vo.position)
             if pose is not None:
                 mode = TrackingMode.COASTED
                 warnings.append(Reason.COASTED)
@@ -328,17 +329,31 @@ class MapTracking:
         return (Relocalisation(True, best.id, len(candidates), len(query_index), inliers),
                 PnPEstimate(landmark_ids, pixels, solution.projected, solution.inlier_mask, solution.T_world_cam))
 
-    def _coast(self, image: np.ndarray, position: int) -> np.ndarray | None:
+    def _coast(self, image: np.ndarray, position: int, checked: bool = False) -> np.ndarray | None:
         """Dead reckoning from the previous frame: the rotation and direction the degraded images still give
-        (vslam_core/coasting.py), the step length from the scale source. None if they give none."""
+        (vslam_core/coasting.py), the step length from the scale source; None if they give none. `checked` (the
+        first frame of a gap: the model's last poses are measured ones, never dead-reckoned ones, which fed back
+        into its trend): a rotation over `COAST_DISAGREEMENT_DEG` from its prediction gives way to the prediction."""
         if self._previous_image is None or self._reference < 0 or self._lens.distorted:
             return None  # dead reckoning works on pinhole images only (as in vo)
         motion = degraded_motion(self._previous_image, image, self._K)
         if motion is None:
             return None
+        rotation, direction = motion
+        if checked and (predicted := self.refinding.predict()) is not None and np.degrees(rotation_angle(
+                (expected := invert_pose(self._last_pose) @ predicted)[:3, :3].T @ rotation)) > COAST_DISAGREEMENT_DEG:
+            rotation, direction = expected[:3, :3], expected[:3, 3] / max(float(np.linalg.norm(expected[:3, 3])), 1e-12)
         empty = np.zeros((0, 3))
         step, _ = self._scale.step_length(TwoView(position - 1, position, empty, empty[:, :2]))
-        return self._last_pose @ pose_matrix(motion[0], step * motion[1])
+        return self._last_pose @ pose_matrix(rotation, step * direction)
+
+    def _bridge(self, position: int) -> np.ndarray | None:
+        """Dead reckoning across frames missing from the log (refinding.bridge); with `--scale gt` the step from
+        the last frame with a pose has the ground truth's length (other sources: the motion model's)."""
+        empty = np.zeros((0, 3))
+        known = self.config.scale == "gt" and self._posed_position >= 0
+        return self.refinding.bridge(self._scale.step_length(TwoView(self._posed_position, position, empty,
+                                                                     empty[:, :2]))[0] if known else None)
 
     # -- keyframes and the result ---------------------------------------------------------------------------
 
@@ -350,8 +365,9 @@ class MapTracking:
         _, in_reference, in_frame = np.intersect1d(reference.track_ids, vo.track_ids[alive], assume_unique=True,
                                                    return_indices=True)
         if self._speed is not None and not self._has_map():
-            return self._initialisation_reason(vo, pose, reference.T_world_cam, in_frame,
-                                               reference.pixels[in_reference])
+            return initialisation_reason(cfg, self._K, reference.T_world_cam, pose,
+                                         self._ideal(vo.track_cur[alive][in_frame]), reference.pixels[in_reference],
+                                         Reason.CLOSE_CHIRALITY in vo.health.reasons)
         if self._since_keyframe >= cfg.keyframe_max_frames:
             return f"{self._since_keyframe} frames"
         if len(in_frame):
@@ -369,23 +385,6 @@ class MapTracking:
             if overlap < cfg.keyframe_overlap:
                 return f"overlap {overlap:.2f}"
         return None
-
-    def _initialisation_reason(self, vo: FrameResult, pose: np.ndarray, T_world_key: np.ndarray,  # noqa: N803
-                               in_frame: np.ndarray, key_pixels: np.ndarray) -> str | None:
-        """--scale none, before the map has landmarks: the next keyframe's baseline sets the map's scale, so it
-        waits for a well-conditioned two-view reconstruction from the last keyframe: translation parallax
-        (rotation removed) of `init_parallax_px` and an unambiguous chirality: pure rotation and too short a
-        baseline leave the translation, and so the scale, undetermined (Mur-Artal et al., "ORB-SLAM", 2015,
-        sec. IV, which likewise waits for parallax before it initialises).
-        If the keyframe's tracks are lost first, initialisation starts again from this frame."""
-        if len(in_frame) < self._cfg.pnp_min_landmarks:
-            return "re-initialisation: tracks lost"
-        alive = vo.track_fate >= TrackFate.NOT_USED
-        parallax = translation_parallax(T_world_key, pose, self._ideal(vo.track_cur[alive][in_frame]), key_pixels,
-                                        self._K)
-        if parallax < self._cfg.init_parallax_px or Reason.CLOSE_CHIRALITY in vo.health.reasons:
-            return None
-        return f"initialisation: parallax {parallax:.0f} px"
 
     def _metric_step(self, position: int, pose: np.ndarray) -> float | None:
         """Distance from the previous keyframe by the scale source (the BA's range prior); None for unit scale."""
@@ -445,6 +444,7 @@ class MapTracking:
             self._relative[vo.position] = (self._reference,
                                            invert_pose(self.mapping.map.keyframes[self._reference].T_world_cam) @ pose)
         self._last_pose = pose
+        self._posed_position = self._posed_position if held else vo.position
         if self._speed is not None and not held:
             self._speed.observe(vo.position, pose, mode in (TrackingMode.MAP, TrackingMode.RELOCALISED))
         self._previous_image = frame.image
