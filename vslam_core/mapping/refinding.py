@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from vslam_core.config import MapConfig, TrackerConfig
+from vslam_core.geometry import invert_pose, rotation_angle
 from vslam_core.mapping.local_map import FrameCorners, LocalMapSearcher, local_keyframes, refind_by_flow
 from vslam_core.mapping.local_mapping import LocalMapping
 from vslam_core.mapping.map import Map
@@ -71,9 +72,18 @@ class MapRefinding:
             return False
         return self._time - self._previous_time > MISSING_FACTOR * float(np.median(self._intervals))
 
-    def predict(self) -> np.ndarray | None:
-        """(4, 4) pose the motion model predicts at this frame's time (None before two poses)."""
-        return self._motion.predict(self._time)
+    def trusted_motion(self, T_world_last: np.ndarray, rotation: np.ndarray, direction: np.ndarray,  # noqa: N803
+                       max_disagreement_deg: float) -> tuple[np.ndarray, np.ndarray]:
+        """A dead-reckoned motion from the last posed frame (T_world_last (4, 4)): (3, 3) `rotation` and unit (3,)
+        `direction`, or the motion model's own for this frame's time instead when its rotation is over
+        `max_disagreement_deg` from the prediction's (the measured one then comes from degraded images)."""
+        predicted = self._motion.predict(self._time)
+        if predicted is None:
+            return rotation, direction
+        expected = invert_pose(T_world_last) @ predicted
+        if np.degrees(rotation_angle(expected[:3, :3].T @ rotation)) <= max_disagreement_deg:
+            return rotation, direction
+        return expected[:3, :3], expected[:3, 3] / max(float(np.linalg.norm(expected[:3, 3])), 1e-12)
 
     def bridge(self, length: float | None) -> np.ndarray | None:
         """(4, 4) pose of a frame after frames missing from the log that nothing else could place: the motion

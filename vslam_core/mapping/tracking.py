@@ -340,9 +340,9 @@ class MapTracking:
         if motion is None:
             return None
         rotation, direction = motion
-        if checked and (predicted := self.refinding.predict()) is not None and np.degrees(rotation_angle(
-                (expected := invert_pose(self._last_pose) @ predicted)[:3, :3].T @ rotation)) > COAST_DISAGREEMENT_DEG:
-            rotation, direction = expected[:3, :3], expected[:3, 3] / max(float(np.linalg.norm(expected[:3, 3])), 1e-12)
+        if checked:
+            rotation, direction = self.refinding.trusted_motion(self._last_pose, rotation, direction,
+                                                                COAST_DISAGREEMENT_DEG)
         empty = np.zeros((0, 3))
         step, _ = self._scale.step_length(TwoView(position - 1, position, empty, empty[:, :2]))
         return self._last_pose @ pose_matrix(rotation, step * direction)
