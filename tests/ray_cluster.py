@@ -27,16 +27,10 @@ ROOT = TESTS.parent
 #: Seconds the head may take to accept drivers (a loaded 2-core CI machine: ~5-10 s).
 START_TIMEOUT_S = 90.0
 
-#: Runs ``COMMAND...`` (argv after the parent's pid) so that it gets SIGTERM when the process that started it dies,
-#: even by SIGKILL (PR_SET_PDEATHSIG; the signal survives exec): `ray start --block` then stops its daemons, so a
-#: test session killed by a signal leaves no cluster behind (one was found still running 70 minutes after such a kill).
-_TERM_WITH_PARENT = (
-    "import ctypes, os, signal, sys\n"
-    "ctypes.CDLL(None).prctl(1, int(signal.SIGTERM), 0, 0, 0)\n"
-    "if os.getppid() != int(sys.argv[1]):\n"  # the parent died before the signal was set: none would come
-    "    sys.exit(1)\n"
-    "os.execv(sys.argv[2], sys.argv[2:])\n"
-)
+#: `ray start --block` runs through this (PR_SET_PDEATHSIG, as the viewer processes): it gets SIGTERM, on which it stops
+#: its daemons, when the process that started it dies, even by SIGKILL, so a test session killed by a signal leaves no
+#: cluster behind (one was found still running 70 minutes after such a kill).
+DIE_WITH_PARENT = ROOT / "vslam" / "viewer" / "die_with_parent.py"
 
 #: Measured by the last `start_cluster` call (reported by the tests and the benchmark).
 last_start_seconds: float = float("nan")
@@ -83,7 +77,7 @@ def start_cluster(num_cpus: int = 2) -> tuple[subprocess.Popen[bytes], str, Path
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), str(TESTS), os.environ.get("PYTHONPATH")]))
     started = time.perf_counter()
     process = subprocess.Popen(
-        [sys.executable, "-I", "-S", "-c", _TERM_WITH_PARENT, str(os.getpid()),
+        [sys.executable, "-I", "-S", str(DIE_WITH_PARENT), "--signal", "TERM", str(os.getpid()),
          ray, "start", "--head", "--block", "--node-ip-address", "127.0.0.1", "--port", str(port),
          "--num-cpus", str(num_cpus), "--disable-usage-stats", "--include-dashboard", "false",
          "--temp-dir", str(temp_dir),
