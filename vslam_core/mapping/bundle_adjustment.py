@@ -100,14 +100,16 @@ def solve(problem: Problem) -> Solution:
     params.setLinearSolverType("SEQUENTIAL_CHOLESKY")
     params.setOrderingType("COLAMD")
     optimizer = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
-    cost_before = graph.error(initial)
+    cost_before = optimizer.error()  # the graph's error at `initial`, computed by the optimizer's constructor
     try:
         result = optimizer.optimize()
         iterations = optimizer.iterations()
+        cost_after = optimizer.error()  # the graph's error at `result`, computed when LM accepted it
     except RuntimeError:  # an indeterminate system (e.g. a landmark seen along one ray): keep the input
-        result, iterations = initial, 0
+        result, iterations, cost_after = initial, 0, cost_before
     poses = np.array([result.atPose3(X(i)).matrix() for i in range(problem.optimised)]).reshape(-1, 4, 4)
-    points = np.array([result.atPoint3(L(j)) for j in range(len(problem.points))]).reshape(-1, 3)
+    # the landmarks in key order: L(0), L(1), ... (the only Point3 values), copied in one call
+    points = np.asarray(gtsam.utilities.extractPoint3(result), np.float64).reshape(-1, 3)
     all_poses = np.concatenate((poses, problem.poses[problem.optimised:]))
     args = (problem.observation_pose, problem.observation_point, problem.observation_pixels)
     return Solution(
@@ -117,7 +119,7 @@ def solve(problem: Problem) -> Solution:
         errors_after=reprojection_errors(K, all_poses, points, *args),
         iterations=int(iterations),
         cost_before=float(cost_before),
-        cost_after=float(graph.error(result)),
+        cost_after=float(cost_after),
         milliseconds=(time.perf_counter() - start) * 1000.0,
     )
 
