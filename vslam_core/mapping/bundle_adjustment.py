@@ -22,7 +22,13 @@ from typing import Any
 import numpy as np
 
 from vslam_core.geometry import invert_pose
-from vslam_core.mapping.worker_process import stop_worker, without_main
+from vslam_core.mapping.worker_process import (
+    IdleWorker,
+    keep_idle_worker,
+    stop_worker,
+    take_idle_worker,
+    without_main,
+)
 
 
 @dataclass(frozen=True)
@@ -144,7 +150,9 @@ class BundleAdjuster:
         self._pending: Problem | None = None
         self._connection: Connection | None = None
         self._process: Any = None
-        if background:
+        if background and (idle := take_idle_worker("bundle-adjustment")) is not None:
+            self._connection, self._process = idle.connection, idle.process  # it solves each problem afresh
+        elif background:
             context = multiprocessing.get_context("spawn")
             self._connection, child = context.Pipe()
             self._process = context.Process(target=_serve, args=(child,), name="vslam-ba", daemon=True)
@@ -176,6 +184,16 @@ class BundleAdjuster:
             return problem, solve(problem)
 
     def close(self) -> None:
+        if self._connection is not None and self._process is not None:
+            try:
+                if self._pending is not None:  # the answer in flight is received (and dropped) first
+                    self._connection.recv()
+                    self._pending = None
+                if keep_idle_worker("bundle-adjustment", IdleWorker(self._process, self._connection)):
+                    self._connection = self._process = None
+                    return
+            except (OSError, EOFError):  # the worker is gone: stopped below
+                self._pending = None
         stop_worker(self._connection, self._process, awaiting_result=self._pending is not None)
         self._connection = None
         self._process = None
