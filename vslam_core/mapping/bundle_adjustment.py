@@ -135,7 +135,10 @@ def _serve(connection: Connection) -> None:
     import gtsam  # noqa: F401 - import before the first problem, while the engine starts up
 
     while True:
-        problem = connection.recv()
+        try:
+            problem = connection.recv()
+        except EOFError:  # this side's process is gone (killed, or exited with this worker kept idle)
+            return
         if problem is None:
             return
         connection.send(solve(problem))
