@@ -13,6 +13,7 @@ import multiprocessing
 import queue
 import threading
 import time
+from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from typing import Any
 
@@ -21,13 +22,29 @@ import numpy as np
 
 from vslam_core.config import EngineConfig
 from vslam_core.loop.search import LoopSearch, SearchJob, SearchResult
-from vslam_core.mapping.worker_process import stop_worker, without_main
+from vslam_core.mapping.worker_process import (
+    IdleWorker,
+    keep_idle_worker,
+    stop_worker,
+    take_idle_worker,
+    without_main,
+)
+
+
+@dataclass(frozen=True)
+class _Restart:
+    """To a kept worker: forget the last run's search and start a new one for this camera and config (None: a
+    run closed; the worker stays idle, holding nothing, until a new run takes it)."""
+
+    K: np.ndarray | None  # noqa: N815
+    config: EngineConfig | None
 
 
 def _serve(jobs: Any, connection: Connection, K: np.ndarray, config: EngineConfig) -> None:  # noqa: N803
-    """The worker process: run each job received, until None arrives."""
+    """The worker process: run each job received, until None arrives; a `_Restart` starts a new run's search."""
     cv2.setNumThreads(1)  # one core's worth: the other is tracking's
-    search = LoopSearch(K, config)
+    search: LoopSearch | None = LoopSearch(K, config)
+    assert search is not None
     # gtsam (a few seconds to import) is needed only when a loop is accepted: imported beside the first searches
     threading.Thread(target=search.warm_up, name="vslam-gtsam-import", daemon=True).start()
     parent = multiprocessing.parent_process()
@@ -40,6 +57,10 @@ def _serve(jobs: Any, connection: Connection, K: np.ndarray, config: EngineConfi
             continue
         if job is None:
             return
+        if isinstance(job, _Restart):
+            search = LoopSearch(job.K, job.config) if job.K is not None and job.config is not None else None
+            continue
+        assert search is not None, "a job before its run's restart"
         try:
             connection.send(search.run(job))
         except (BrokenPipeError, OSError):  # the run's process is gone
@@ -58,7 +79,10 @@ class LoopWorker:
         self._local: LoopSearch | None = None
         self.waited_ms = 0.0  # how long the last `collect` waited for the worker
         self._jobs: Any = None
-        if background:
+        if background and (idle := take_idle_worker("loop-search")) is not None:
+            self._jobs, self._connection, self._process = idle.jobs, idle.connection, idle.process
+            self._jobs.put(_Restart(K, config))  # a fresh search: the same results as a new worker's
+        elif background:
             context = multiprocessing.get_context("spawn")
             # jobs through a queue: its feeder thread writes the keyframe's image to the pipe, so submitting does
             # not block tracking; results come back through a pipe
@@ -115,6 +139,17 @@ class LoopWorker:
         return self._local.run(job)
 
     def close(self) -> None:
+        if self._connection is not None and self._process is not None and self._jobs is not None:
+            try:
+                if self._pending is not None:  # the answer in flight is received (and dropped) first
+                    self._connection.recv()
+                    self._pending = None
+                self._jobs.put(_Restart(None, None))  # the worker lets go of this run's places
+                if keep_idle_worker("loop-search", IdleWorker(self._process, self._connection, self._jobs)):
+                    self._connection = self._jobs = self._process = None
+                    return
+            except (OSError, EOFError):  # the worker is gone: stopped below
+                self._pending = None
         stop_worker(self._connection, self._process, awaiting_result=self._pending is not None, jobs=self._jobs)
         self._connection = None
         self._jobs = None

@@ -22,7 +22,13 @@ from typing import Any
 import numpy as np
 
 from vslam_core.geometry import invert_pose
-from vslam_core.mapping.worker_process import stop_worker, without_main
+from vslam_core.mapping.worker_process import (
+    IdleWorker,
+    keep_idle_worker,
+    stop_worker,
+    take_idle_worker,
+    without_main,
+)
 
 
 @dataclass(frozen=True)
@@ -100,14 +106,16 @@ def solve(problem: Problem) -> Solution:
     params.setLinearSolverType("SEQUENTIAL_CHOLESKY")
     params.setOrderingType("COLAMD")
     optimizer = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
-    cost_before = graph.error(initial)
+    cost_before = optimizer.error()  # the graph's error at `initial`, computed by the optimizer's constructor
     try:
         result = optimizer.optimize()
         iterations = optimizer.iterations()
+        cost_after = optimizer.error()  # the graph's error at `result`, computed when LM accepted it
     except RuntimeError:  # an indeterminate system (e.g. a landmark seen along one ray): keep the input
-        result, iterations = initial, 0
+        result, iterations, cost_after = initial, 0, cost_before
     poses = np.array([result.atPose3(X(i)).matrix() for i in range(problem.optimised)]).reshape(-1, 4, 4)
-    points = np.array([result.atPoint3(L(j)) for j in range(len(problem.points))]).reshape(-1, 3)
+    # the landmarks in key order: L(0), L(1), ... (the only Point3 values), copied in one call
+    points = np.asarray(gtsam.utilities.extractPoint3(result), np.float64).reshape(-1, 3)
     all_poses = np.concatenate((poses, problem.poses[problem.optimised:]))
     args = (problem.observation_pose, problem.observation_point, problem.observation_pixels)
     return Solution(
@@ -117,7 +125,7 @@ def solve(problem: Problem) -> Solution:
         errors_after=reprojection_errors(K, all_poses, points, *args),
         iterations=int(iterations),
         cost_before=float(cost_before),
-        cost_after=float(graph.error(result)),
+        cost_after=float(cost_after),
         milliseconds=(time.perf_counter() - start) * 1000.0,
     )
 
@@ -127,7 +135,10 @@ def _serve(connection: Connection) -> None:
     import gtsam  # noqa: F401 - import before the first problem, while the engine starts up
 
     while True:
-        problem = connection.recv()
+        try:
+            problem = connection.recv()
+        except EOFError:  # this side's process is gone (killed, or exited with this worker kept idle)
+            return
         if problem is None:
             return
         connection.send(solve(problem))
@@ -142,7 +153,9 @@ class BundleAdjuster:
         self._pending: Problem | None = None
         self._connection: Connection | None = None
         self._process: Any = None
-        if background:
+        if background and (idle := take_idle_worker("bundle-adjustment")) is not None:
+            self._connection, self._process = idle.connection, idle.process  # it solves each problem afresh
+        elif background:
             context = multiprocessing.get_context("spawn")
             self._connection, child = context.Pipe()
             self._process = context.Process(target=_serve, args=(child,), name="vslam-ba", daemon=True)
@@ -174,6 +187,16 @@ class BundleAdjuster:
             return problem, solve(problem)
 
     def close(self) -> None:
+        if self._connection is not None and self._process is not None:
+            try:
+                if self._pending is not None:  # the answer in flight is received (and dropped) first
+                    self._connection.recv()
+                    self._pending = None
+                if keep_idle_worker("bundle-adjustment", IdleWorker(self._process, self._connection)):
+                    self._connection = self._process = None
+                    return
+            except (OSError, EOFError):  # the worker is gone: stopped below
+                self._pending = None
         stop_worker(self._connection, self._process, awaiting_result=self._pending is not None)
         self._connection = None
         self._process = None

@@ -126,32 +126,22 @@ class LocalMapping:
         self._window = [k.id for k in window]
         if len(window) < 2:
             return
+        landmarks = self.map.landmarks
         landmark_ids = self.map.landmarks_seen_by(window)
         if len(landmark_ids) > cfg.ba_max_landmarks:  # the best-observed ones (ties: the older)
-            counts = np.array([self.map.landmarks[i].observation_count for i in landmark_ids])
+            counts = np.array([len(landmarks[i].observations) for i in landmark_ids])
             keep = np.sort(np.argsort(-counts, kind="stable")[: cfg.ba_max_landmarks])
             landmark_ids = [landmark_ids[i] for i in keep]
-        in_window = set(self._window)
-        older = sorted({k for i in landmark_ids for k in self.map.landmarks[i].observations} - in_window)
+        observations = [landmarks[i].observations for i in landmark_ids]
+        older = sorted(set().union(*observations) - set(self._window))
         fixed = older[-cfg.ba_max_fixed:] if cfg.ba_max_fixed > 0 else []
         keyframe_ids = self._window + fixed
         index = {k: n for n, k in enumerate(keyframe_ids)}
-        pose_index: list[int] = []
-        point_index: list[int] = []
-        pixels: list[np.ndarray] = []
-        kept: list[int] = []
-        for landmark_id in landmark_ids:
-            observations = self.map.landmarks[landmark_id].observations
-            seen = [(index[k], pixel) for k, pixel in observations.items() if k in index]
-            if len(seen) < 2:
-                continue
-            for pose, pixel in seen:
-                pose_index.append(pose)
-                point_index.append(len(kept))
-                pixels.append(pixel)
-            kept.append(landmark_id)
-        if not kept:
+        pose_index, point_index, kept = _window_observations(observations, keyframe_ids)
+        if not len(kept):
             return
+        pixels = np.array([pixel for seen in observations for pixel in seen.values()], np.float64).reshape(-1, 2)
+        kept_ids = [landmark_ids[i] for i in kept.tolist()]
         ranges = []
         if self._scale != "none":
             sigma = cfg.scale_sigma_gt if self._scale == "gt" else None
@@ -166,16 +156,16 @@ class LocalMapping:
             K=self._K,
             poses=np.array([self.map.keyframes[k].T_world_cam for k in keyframe_ids]),
             optimised=len(self._window),
-            points=self.map.positions(kept),
-            observation_pose=np.array(pose_index, np.int64),
-            observation_point=np.array(point_index, np.int64),
-            observation_pixels=np.array(pixels, np.float64).reshape(-1, 2),
+            points=self.map.positions(kept_ids),
+            observation_pose=pose_index[pose_index >= 0],
+            observation_point=point_index[pose_index >= 0],
+            observation_pixels=pixels[pose_index >= 0],
             ranges=np.array(ranges, np.float64).reshape(-1, 4),
             fix_first=max(gauge - len(fixed), 0),
             iterations=cfg.ba_iterations,
             huber_px=cfg.ba_huber_px,
         )
-        self._submitted = _Submitted(keyframe_ids, len(self._window), np.array(kept, np.int64))
+        self._submitted = _Submitted(keyframe_ids, len(self._window), np.array(kept_ids, np.int64))
         self._adjuster.submit(problem)
 
     # -- keyframes and landmarks ---------------------------------------------------------------------------
@@ -338,6 +328,25 @@ class LocalMapping:
             keyframe_path=np.array([k.T_world_cam[:3, 3] for k in keyframes.values() if k.segment == segment]),
             landmarks_total=len(self.map.landmarks),
         )
+
+
+def _window_observations(observations: list[dict[int, np.ndarray]], keyframe_ids: list[int],
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The BA problem's observations among every observation of L landmarks (`observations`, landmark by
+    landmark in dict order: O in all): (O,) index in `keyframe_ids` of each observation's keyframe (−1: not in
+    the problem, or its landmark is seen by fewer than two of the problem's keyframes and is left out), (O,) its
+    landmark's index among the landmarks kept, and the (P,) indices of the kept landmarks in `observations`."""
+    counts = np.array([len(seen) for seen in observations], np.int64)
+    seen_by = np.fromiter((k for seen in observations for k in seen), np.int64, int(counts.sum()))
+    slot = np.full(max(int(seen_by.max(initial=0)), max(keyframe_ids)) + 1, -1, np.int64)
+    slot[keyframe_ids] = np.arange(len(keyframe_ids))
+    pose_index = slot[seen_by]
+    landmark = np.repeat(np.arange(len(observations)), counts)
+    in_problem = np.bincount(landmark[pose_index >= 0], minlength=len(observations))
+    kept = np.flatnonzero(in_problem >= 2)
+    point = np.cumsum(in_problem >= 2) - 1
+    pose_index[in_problem[landmark] < 2] = -1
+    return pose_index, point[landmark], kept
 
 
 def _project_error(points: np.ndarray, pixels: np.ndarray, K: np.ndarray) -> np.ndarray:  # noqa: N803

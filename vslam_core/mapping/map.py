@@ -103,4 +103,6 @@ class Map:
 
     def positions(self, landmark_ids: list[int] | np.ndarray) -> np.ndarray:
         """(P, 3) positions of the landmarks."""
-        return np.array([self.landmarks[int(i)].position for i in landmark_ids], np.float64).reshape(-1, 3)
+        landmarks = self.landmarks
+        positions = [landmarks[i].position for i in np.asarray(landmark_ids, np.int64).tolist()]
+        return np.concatenate(positions, dtype=np.float64).reshape(-1, 3) if positions else np.zeros((0, 3))

@@ -1,12 +1,15 @@
 """Starting and stopping a background worker process (the bundle adjuster's, the loop search's) the same way
-each time."""
+each time, and keeping idle ones for the next run when asked to (`reuse_workers`)."""
 
 from __future__ import annotations
 
 import contextlib
+import os
 import sys
+import threading
 import types
 from collections.abc import Iterator
+from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from multiprocessing.process import BaseProcess
 from multiprocessing.queues import Queue
@@ -56,3 +59,63 @@ def stop_worker(connection: Connection | None, process: BaseProcess | None, *, a
         process.join(timeout=timeout_s)
         if process.is_alive():
             process.kill()
+
+
+@dataclass(frozen=True)
+class IdleWorker:
+    """A worker process whose run closed, with this side of its channels: `connection` (results, or both ways)
+    and `jobs` (a queue of jobs, for workers that take them from one)."""
+
+    process: BaseProcess
+    connection: Connection
+    jobs: Queue[Any] | None = None
+
+
+MAX_IDLE = 2  # idle workers kept per kind
+_pool: dict[str, list[IdleWorker]] = {}
+_pool_lock = threading.Lock()
+_pool_owner = os.getpid()
+_reuse = False
+
+
+def reuse_workers(enabled: bool = True) -> None:
+    """Keep the map backend's worker processes when a run closes, for the next run of this process (a test
+    session, a batch worker running many short windows): starting one costs ~0.7 s of CPU (Python, numpy and
+    gtsam imports), as much as a short run's work. A reused worker starts each run from a fresh state, so results
+    are the same. Off by default: a run then stops its workers when it closes (so their CPU time and peak RSS
+    count as this process's finished children, which `benchmarks/speed.py` reads). Turning it off stops the idle
+    ones."""
+    global _reuse
+    with _pool_lock:
+        _reuse = enabled
+        stopping = [] if enabled else [w for workers in _pool.values() for w in workers]
+        if not enabled:
+            _pool.clear()
+    for worker in stopping:
+        stop_worker(worker.connection, worker.process, awaiting_result=False, jobs=worker.jobs)
+
+
+def take_idle_worker(kind: str) -> IdleWorker | None:
+    """A live idle worker of this kind kept by an earlier run of this process, or None."""
+    global _pool_owner
+    with _pool_lock:
+        if os.getpid() != _pool_owner:  # a forked child: the workers and their channels are its parent's
+            _pool.clear()
+            _pool_owner = os.getpid()
+        workers = _pool.get(kind, [])
+        while workers:
+            worker = workers.pop()
+            if worker.process.is_alive():
+                return worker
+    return None
+
+
+def keep_idle_worker(kind: str, worker: IdleWorker) -> bool:
+    """Keep a worker that finished its run (nothing in flight) for the next one, if `reuse_workers` is on and it
+    is alive; False if it was not kept (the caller stops it)."""
+    with _pool_lock:
+        workers = _pool.setdefault(kind, [])
+        if not _reuse or os.getpid() != _pool_owner or len(workers) >= MAX_IDLE or not worker.process.is_alive():
+            return False
+        workers.append(worker)
+        return True
