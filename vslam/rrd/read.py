@@ -14,12 +14,15 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import polars as pl
 from rerun.chunk import RrdReader, StoreEntry
 from rerun.error_utils import RerunWarning
 
 from vslam_core.errors import VslamError
+
+if TYPE_CHECKING:
+    import polars as pl
 
 
 class RecordingError(VslamError):
@@ -146,6 +149,8 @@ def _reading(path: Path) -> Iterator[RrdReader]:
 def read_entity(path: Path, entity: str, static: bool = False) -> pl.DataFrame:
     """All rows logged to `entity` (``/a`` exactly, ``/a/**`` a subtree) as one polars frame: the
     timelines (``frame``, ``time``) and one column per ``Archetype:component``."""
+    import polars as pl  # here: writing a recording (`has_footer`, `RecordingError`) never needs it
+
     with _reading(path) as reader:
         chunks = reader.stream().filter(content=entity, is_static=static).to_chunks()
     frames = [pl.from_arrow(chunk.to_record_batch()) for chunk in chunks]
