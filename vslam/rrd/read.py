@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from rerun.chunk import RrdReader, StoreEntry
+from rerun.chunk import LazyStore, RrdReader, StoreEntry
 from rerun.error_utils import RerunWarning
 
 from vslam_core.errors import VslamError
@@ -151,13 +151,38 @@ def read_entity(path: Path, entity: str, static: bool = False) -> pl.DataFrame:
     timelines (``frame``, ``time``) and one column per ``Archetype:component``."""
     import polars as pl  # here: writing a recording (`has_footer`, `RecordingError`) never needs it
 
-    with _reading(path) as reader:
-        chunks = reader.stream().filter(content=entity, is_static=static).to_chunks()
+    data = readable(path).path
+    stat = data.stat()
+    try:
+        store = _recording_store(str(data.resolve()), stat.st_size, stat.st_mtime_ns)
+        if store is not None:
+            chunks = store.stream().filter(content=entity, is_static=static).to_chunks()
+        else:  # not one recording store (e.g. a file of the Rerun SDK's): every store, scanned
+            with _reading(path) as reader:
+                chunks = reader.stream().filter(content=entity, is_static=static).to_chunks()
+    except RecordingError:
+        raise
+    except Exception as exc:  # the reader raises plain exceptions for every kind of bad file
+        raise RecordingError(f"{path}: not a readable Rerun recording ({first_line(exc)})") from None
     frames = [pl.from_arrow(chunk.to_record_batch()) for chunk in chunks]
     if not frames:
         return pl.DataFrame()
     table = pl.concat([f for f in frames if isinstance(f, pl.DataFrame)], how="diagonal_relaxed")
     return table.sort("frame") if "frame" in table.columns else table
+
+
+@functools.lru_cache(maxsize=16)
+def _recording_store(data: str, _size: int, _mtime_ns: int) -> LazyStore | None:
+    """The recording store of a finalised `.rrd` (keyed by its size and time too: a file written again is read
+    again). Its manifest indexes the chunks by entity, so `read_entity` reads only that entity's chunks (~0.1 ms
+    for a few series, against ~20 ms for a scan of a 12 MB file with `RrdReader.stream`), and it is read once
+    per file rather than once per entity (`vslam inspect` reads ~30). None for a file without exactly one
+    recording store."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RerunWarning)
+        reader = RrdReader(data)
+    recordings = reader.recordings()
+    return reader.store(store=recordings[0]) if len(recordings) == 1 else None
 
 
 def first_line(exc: BaseException) -> str:
