@@ -10,18 +10,20 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from typing import TypeVar
+from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 
 from vslam_core.config import EngineConfig
 from vslam_core.engine import Odometry
 from vslam_core.mapping.localisation import MapLocalisation
-from vslam_core.mapping.storage import StoredMap
 from vslam_core.mapping.tracking import MapTracking
 from vslam_core.results import FrameResult, FrameStatus, Reason
 from vslam_core.scale import make_scale_provider
 from vslam_core.sources.base import Frame, FrameSource
+
+if TYPE_CHECKING:
+    from vslam_core.mapping.storage import StoredMap
 
 FrameSink = Callable[[Frame, FrameResult], None]
 Engine = Odometry | MapTracking | MapLocalisation

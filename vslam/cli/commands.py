@@ -145,13 +145,11 @@ def run(
                                                   "a free one)")] = None,
 ) -> None:
     """Run the odometry on a source and write a Rerun recording (and optionally the trajectory)."""
-    from vslam.recording import version_properties
     from vslam.runs import (
         backend_problem,
         claim_run_outputs,
         input_warnings,
         output_problem,
-        record_run,
         same_file_problem,
         with_camera_height,
     )
@@ -176,10 +174,11 @@ def run(
     if backend is not None:
         config = config.with_backend(backend.value)
     from vslam.runs import map_saver, save_map_problem
-    from vslam_core.mapping.storage import load_map
 
     stored = None
     if prior_map is not None:
+        from vslam_core.mapping.storage import load_map
+
         stored = load_map(prior_map, src.intrinsics)  # a MapFileError is one line
         config = config.with_backend("map").with_scale(stored.header.get("scale", config.scale))
     refuse(save_map_problem(save_map, prior_map, config))
@@ -195,6 +194,8 @@ def run(
     outputs = claim_run_outputs(recording, detail != Detail.OFF, src.name, selected, trajectory_out,
                                 trajectory_format.value, force)
     rrd = outputs.recording.path if outputs.recording is not None else None
+    from vslam.runs import record_run  # here: it loads the engine
+
     properties = {
         "name": f"vslam {src.name} frames {selected} scale {config.scale}",
         "recording_id": _recording_id(src, frame_range, config),
@@ -207,8 +208,11 @@ def run(
         **({"inject": inject} if inject else {}),
         **({"prior_map": str(prior_map)} if prior_map is not None else {}),
         **({"gt_matching": matching} if (matching := ground_truth_matching(src)) else {}),
-        **version_properties(),
     }
+    if rrd is not None:  # the recording's (--detail off has none, and then never loads the recorder and rerun)
+        from vslam.recording import version_properties
+
+        properties.update(version_properties())
     with _live(live, rrd is not None, web_port, grpc_port) as live_url:
         try:
             recorded = record_run(src, config, rrd, properties, err, detail, jpeg_quality, outputs.trajectory,

@@ -13,8 +13,6 @@ import typer
 from rich.console import Console
 from rich.text import Text
 
-from vslam.runs import write_failure
-
 #: stderr and stdout. User text (paths, --frames 0:100:2, manifest cells) is printed as it is: no Rich markup
 #: (``[red]`` in a file name), no emoji codes (``:100:`` would become an emoji), no highlighting; the coloured
 #: prefixes (`labelled`) are styled `Text`, never markup.
@@ -121,6 +119,8 @@ def report_writes(report: Path | None) -> Iterator[None]:
     except OSError as exc:
         if report is None:
             raise
+        from vslam.runs import write_failure
+
         path = Path(exc.filename) if exc.filename else report  # a write() error names no file
         # EIO (cv2 gives no reason): the file system tells whether it is full
         fail(write_failure(path, None if exc.errno in (None, errno.EIO) else exc))

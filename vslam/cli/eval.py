@@ -108,7 +108,6 @@ def eval_command(
     merge: Annotated[list[Path] | None, typer.Option(metavar="DIR", help=MERGE_HELP)] = None,
 ) -> None:
     """Score the engine (or any trajectory file) against ground truth; gates make it a CI check."""
-    from vslam.evaluation import check_gates  # here, not at the top: see vslam.cli
     if manifest is not None or merge:
         _eval_batch({**locals(), "extra": list(ctx.args)})
         return
@@ -146,7 +145,6 @@ def eval_command(
     else:
         if gt_times is not None or match is not MatchMode.auto:
             fail("--gt-times and --match apply to --trajectory files only")
-        from vslam.evaluation import evaluate_sources
         from vslam.runs import backend_problem, input_warnings, with_camera_height
         from vslam_core.config import EngineConfig, load_config
         from vslam_core.sources.base import FrameRange
@@ -178,6 +176,8 @@ def eval_command(
             refuse(backend_problem(src, config))
         for warning in dict.fromkeys(w for src in sources for w in input_warnings(src, config)):
             warn(warning)
+        from vslam.evaluation import evaluate_sources  # here: it loads the engine, the recorder and polars
+
         with report_writes(report):
             evaluation = evaluate_sources(sources, config, report, err, detail if report is not None else Detail.OFF,
                                           {"source_path": source or "synthetic", **({"inject": inject} if inject
@@ -189,6 +189,8 @@ def eval_command(
             for src in sources:
                 if (matching := ground_truth_matching(src)) is not None:
                     out.print((f"{src.name}: " if len(sources) > 1 else "") + f"ground truth {matching}")
+    from vslam.evaluation import check_gates  # here, not at the top: see vslam.cli
+
     _print_evaluation(evaluation, scale_source, backend_name, report, as_json,
                       check_gates(evaluation.rows, max_t_err, max_r_err, max_ate))
 

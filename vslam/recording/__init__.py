@@ -36,10 +36,10 @@ each (~25 a frame). Styles that never change are logged once, static.
 
 Modules: `recorder` (the `Recorder` and the front end's entities), `map` (the map backend's entities),
 `columns` (the column buffer), `metrics` (the series), `drift` (each frame's own error against the ground
-truth), `layout` (the default blueprint), `styles` (detail levels, colours, legends), `external` (another
-system's trajectory file as a recording of the same entities, for `vslam eval --trajectory --report`),
-`schema` (all of the above as data, versioned: docs/recording-schema.md, `vslam check`). Another pipeline's
-frames are written by the same `Recorder` through the logging API, `vslam.log`.
+truth), `layout` (the default blueprint), `levels` (detail levels, image codecs), `styles` (colours, legends),
+`external` (another system's trajectory file as a recording of the same entities, for `vslam eval --trajectory
+--report`), `schema` (all of the above as data, versioned: docs/recording-schema.md, `vslam check`). Another
+pipeline's frames are written by the same `Recorder` through the logging API, `vslam.log`.
 """
 
 from typing import TYPE_CHECKING
@@ -55,7 +55,7 @@ _HOMES = {
     "HEALTH_LEVELS": "metrics", "MAP_METRICS": "metrics", "MAP_STAGES": "metrics", "METRICS": "metrics",
     "MODE_LEVELS": "metrics", "STAGES": "metrics", "frame_metrics": "metrics", "map_frame_metrics": "metrics",
     "Recorder": "recorder", "road_outline": "recorder", "version_properties": "recorder",
-    "APPLICATION_ID": "styles", "FATE_STYLE": "styles", "Detail": "styles", "ImageCodec": "styles",
+    "APPLICATION_ID": "styles", "FATE_STYLE": "styles", "Detail": "levels", "ImageCodec": "levels",
     "CAR_ENTITY": "layout", "EYE_OFFSET": "layout",
     "DRIFT_ENTITY": "drift", "LINKS_ENTITY": "drift", "WORST": "drift",
     "ExternalRun": "external", "RunFrames": "external", "record_external": "external",
@@ -69,6 +69,7 @@ if TYPE_CHECKING:
     from vslam.recording.drift import DRIFT_ENTITY, LINKS_ENTITY, WORST
     from vslam.recording.external import ExternalRun, RunFrames, record_external
     from vslam.recording.layout import CAR_ENTITY, EYE_OFFSET, blueprint
+    from vslam.recording.levels import Detail, ImageCodec
     from vslam.recording.map import MapRecording
     from vslam.recording.metrics import (
         HEALTH_LEVELS,
@@ -91,7 +92,7 @@ if TYPE_CHECKING:
         TIMELINES,
         EntitySpec,
     )
-    from vslam.recording.styles import APPLICATION_ID, FATE_STYLE, Detail, ImageCodec
+    from vslam.recording.styles import APPLICATION_ID, FATE_STYLE
     from vslam.recording.video import RERUN_CODEC, VIDEO_SETTINGS, open_encoder
 
 

@@ -25,10 +25,10 @@ from vslam.evaluation import TrajectoryImages
 from vslam.recording.columns import FLUSH_FRAMES, ColumnBuffer
 from vslam.recording.drift import DriftRecording
 from vslam.recording.layout import blueprint
+from vslam.recording.levels import Detail
 from vslam.recording.metrics import METRICS
 from vslam.recording.schema import SCHEMA_VERSION
 from vslam.recording.stream import StreamStopped, close_stream, flush_or_stop, log_world, open_stream
-from vslam.recording.styles import Detail
 from vslam.rrd import RecordingError, has_footer
 from vslam.runs import OutputError, write_failure
 from vslam_core.geometry import rotation_angle

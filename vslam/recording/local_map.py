@@ -27,7 +27,7 @@ import numpy as np
 import rerun as rr
 
 from vslam.recording.columns import ColumnBuffer, Part
-from vslam.recording.styles import Detail
+from vslam.recording.levels import Detail
 from vslam_core.results import BundleAdjusted, LocalMapSearch
 from vslam_core.sources.base import Frame
 

@@ -23,7 +23,7 @@ import numpy as np
 import rerun as rr
 
 from vslam.recording.columns import UNIX_STAMPS_AFTER_S, ColumnBuffer, add_event
-from vslam.recording.styles import Detail
+from vslam.recording.levels import Detail
 from vslam_core.results import LoopCandidate, LoopStep
 from vslam_core.sources.base import Frame
 

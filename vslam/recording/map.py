@@ -54,9 +54,9 @@ import rerun as rr
 
 from vslam.recording import local_map
 from vslam.recording.columns import ColumnBuffer, Part, add_event
+from vslam.recording.levels import Detail
 from vslam.recording.loops import LoopRecording
 from vslam.recording.metrics import MAP_METRICS, MAP_STAGES, MAP_TIMING, map_frame_metrics
-from vslam.recording.styles import Detail
 from vslam_core.results import BundleAdjusted, FrameResult, MapFrame, MapView, PnPEstimate, TrackingMode
 from vslam_core.sources.base import CameraIntrinsics, Frame
 

@@ -6,7 +6,7 @@ import re
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
@@ -17,6 +17,7 @@ from vslam.evaluation import markdown_table, metrics_row, scored_estimate
 from vslam.recording.columns import FLUSH_FRAMES, ColumnBuffer, Part, add_event
 from vslam.recording.drift import DriftRecording
 from vslam.recording.layout import UNDISTORTED, blueprint
+from vslam.recording.levels import Detail, ImageCodec
 from vslam.recording.map import MapRecording
 from vslam.recording.metrics import METRICS, STAGES, frame_metrics
 from vslam.recording.schema import SCHEMA_VERSION
@@ -31,10 +32,8 @@ from vslam.recording.styles import (
     LEGEND_ENTITY,
     NEW_CORNER_COLOUR,
     ROAD_COLOUR,
-    Detail,
     overlay_legend,
 )
-from vslam.recording.video import ImageCodec, VideoEntity
 from vslam.rrd import RecordingError, flatten, has_footer
 from vslam.runs import OutputError, write_failure
 from vslam_core.config import EngineConfig
@@ -44,6 +43,9 @@ from vslam_core.pipeline import RunResult
 from vslam_core.results import FrameResult, FrameStatus, HealthStatus, Reason, TrackFate
 from vslam_core.sources.base import Frame, FrameSource, describe_indices, shown_path, source_properties
 from vslam_core.sources.calibration import describe_calibration
+
+if TYPE_CHECKING:
+    from vslam.recording.video import VideoEntity
 
 #: --scale none: the position error and the estimate after Sim(3) alignment (logged when the run ends).
 ALIGNED_ERROR = "/metrics/error/position_m"
@@ -111,6 +113,8 @@ class Recorder:
         # --image-codec av1/h264: the frames as video streams (encoded beside the engine with a second core)
         self._videos: dict[str, VideoEntity] = {}
         if image_codec != ImageCodec.JPEG and detail in (Detail.FULL, Detail.STANDARD):
+            from vslam.recording.video import VideoEntity  # here: a JPEG run never loads the encoder's module
+
             entities = ["/world/camera/image"] + ([UNDISTORTED] if self._undistort is not None else [])
             self._videos = {e: VideoEntity(self._rec, e, image_codec, self._encoder) for e in entities}
         # the map backend's entities (statics logged here; nothing at all is logged with the odometry backend)

@@ -1,27 +1,10 @@
-"""Detail levels, and the colours and legends shared by the entities, the plots and the blueprint."""
+"""The colours and legends shared by the entities, the plots and the blueprint (the detail levels: `levels`)."""
 
 from __future__ import annotations
-
-from enum import StrEnum
 
 from vslam_core.results import TrackFate
 
 APPLICATION_ID = "vslam"
-
-
-class Detail(StrEnum):
-    FULL = "full"
-    STANDARD = "standard"
-    SUMMARY = "summary"
-    OFF = "off"
-
-
-class ImageCodec(StrEnum):
-    """How the camera frames are recorded: JPEG images, or an AV1 / H.264 video stream (`vslam.recording.video`)."""
-
-    JPEG = "jpeg"
-    AV1 = "av1"
-    H264 = "h264"
 
 
 # Legend of the flow arrows: one annotation context, so the viewer explains the colours.

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 import rerun as rr
 
-from vslam.recording.styles import ImageCodec
+from vslam.recording.levels import ImageCodec
 from vslam.rrd import RecordingError
 from vslam_core.sources.base import Frame
 

@@ -1,6 +1,6 @@
 """One run of the engine and its files: running a source through the engine into its outputs (`runner`), claiming
-output files (`outputs`), the trajectory written as the run goes (`trajectory_out`), progress lines (`progress`)
-and the checks on what a user asked for (`checks`).
+output files (`outputs`, and a run's set of them: `run_outputs`), the trajectory written as the run goes
+(`trajectory_out`), progress lines (`progress`) and the checks on what a user asked for (`checks`).
 
 The names other packages use are importable from here, loaded on first use (PEP 562).
 """
@@ -16,14 +16,14 @@ _HOMES = {
     "Interrupted": "runner",
     "OutputError": "outputs",
     "RecordedRun": "runner",
-    "RunOutputs": "runner",
+    "RunOutputs": "run_outputs",
     "TrajectoryWriter": "trajectory_out",
     "backend_problem": "checks",
     "camera_height_problem": "checks",
     "claim": "outputs",
-    "claim_run_outputs": "runner",
+    "claim_run_outputs": "run_outputs",
     "claimed": "outputs",
-    "describe_outputs": "runner",
+    "describe_outputs": "run_outputs",
     "eta": "progress",
     "format_map_summary": "map_files",
     "hold_stuck_writer": "outputs",
@@ -66,7 +66,8 @@ if TYPE_CHECKING:
         write_failure,
     )
     from vslam.runs.progress import eta
-    from vslam.runs.runner import Interrupted, RecordedRun, RunOutputs, claim_run_outputs, describe_outputs, record_run
+    from vslam.runs.run_outputs import RunOutputs, claim_run_outputs, describe_outputs
+    from vslam.runs.runner import Interrupted, RecordedRun, record_run
     from vslam.runs.trajectory_out import TrajectoryWriter
 
 

@@ -8,15 +8,17 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from vslam_core.config import EngineConfig
 from vslam_core.config_ranges import range_problem
 from vslam_core.errors import ConfigError
-from vslam_core.mapping.tracking import unsupported_camera
-from vslam_core.pipeline import RunResult
 from vslam_core.results import STANDING_STILL
 from vslam_core.scale import default_camera_height
 from vslam_core.sources.base import FrameSource, source_notes
+
+if TYPE_CHECKING:
+    from vslam_core.pipeline import RunResult
 
 #: exit code of a run in which no frame could be tracked (the recording and trajectory are still written)
 EXIT_NOTHING_TRACKED = 3
@@ -72,7 +74,11 @@ def same_file_problem(recording: Path | None, trajectory: Path | None) -> str | 
 
 def backend_problem(source: FrameSource, config: EngineConfig) -> str | None:
     """A backend that cannot handle this source's camera, refused before any output is written."""
-    return unsupported_camera(source.intrinsics) if config.backend == "map" else None
+    if config.backend != "map":
+        return None
+    from vslam_core.mapping.tracking import unsupported_camera  # here: the vo backend never loads the map's
+
+    return unsupported_camera(source.intrinsics)
 
 
 def input_warnings(source: FrameSource, config: EngineConfig) -> list[str]:

@@ -5,16 +5,15 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from vslam_core import __version__
-from vslam_core.config import EngineConfig
-from vslam_core.mapping.global_adjustment import adjust_map
-from vslam_core.mapping.map_scale import for_scale
-from vslam_core.mapping.storage import camera_dict, read_header, save_map, snapshot
-from vslam_core.mapping.tracking import MapTracking
-from vslam_core.pipeline import Engine
-from vslam_core.sources.base import FrameSource, describe_indices
+if TYPE_CHECKING:
+    from vslam_core.config import EngineConfig
+    from vslam_core.pipeline import Engine
+    from vslam_core.sources.base import FrameSource
+
+# The map backend, its bundle adjustment and the map's files (polars) are imported by the functions that use them:
+# `save_map_problem` is checked on every `vslam run`, which a refused run should not pay for.
 
 
 def save_map_problem(path: Path | None, prior: Path | None, config: EngineConfig) -> str | None:
@@ -35,6 +34,12 @@ def map_saver(path: Path, source: FrameSource, config: EngineConfig,
     """The run's `finish` step that writes the map to `path`, after a global bundle adjustment of every keyframe
     and landmark (vslam_core/mapping/global_adjustment.py) unless `adjust` is False. The run's own trajectory
     output was taken before it."""
+    from vslam_core import __version__
+    from vslam_core.mapping.global_adjustment import adjust_map
+    from vslam_core.mapping.map_scale import for_scale
+    from vslam_core.mapping.storage import camera_dict, save_map, snapshot
+    from vslam_core.mapping.tracking import MapTracking
+    from vslam_core.sources.base import describe_indices
 
     def save(engine: Engine) -> None:
         assert isinstance(engine, MapTracking)
@@ -59,6 +64,8 @@ def map_saver(path: Path, source: FrameSource, config: EngineConfig,
 
 def map_summary(path: Path) -> dict[str, Any]:
     """The header of a saved map (keyframes, landmarks, extent, the drive it came from)."""
+    from vslam_core.mapping.storage import read_header
+
     return read_header(path)
 
 

@@ -9,21 +9,24 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType
+from typing import TYPE_CHECKING
 
 import numpy as np
 from rich.console import Console
 
-from vslam.recording import Detail, ImageCodec, Recorder
-from vslam.rrd import has_footer
-from vslam.runs.outputs import ClaimedFile, OutputError, claim, default_recording
+from vslam.recording import Detail, ImageCodec
+from vslam.runs.outputs import OutputError
 from vslam.runs.progress import progress
-from vslam.runs.trajectory_out import Format, TrajectoryWriter
+from vslam.runs.trajectory_out import TrajectoryWriter
 from vslam_core.config import EngineConfig
 from vslam_core.errors import VslamError
-from vslam_core.mapping.storage import StoredMap
 from vslam_core.pipeline import Engine, FrameSink, RunResult, run_odometry
 from vslam_core.results import FrameResult
 from vslam_core.sources.base import Frame, FrameSource
+
+if TYPE_CHECKING:
+    from vslam.recording import Recorder
+    from vslam_core.mapping.storage import StoredMap
 
 
 class Interrupted(Exception):
@@ -75,61 +78,6 @@ def _signals_stop_between_frames() -> Iterator[_StopRequest]:
             signal.signal(signum, handler)
 
 
-@dataclass
-class RunOutputs:
-    """The files one run writes, claimed for it alone (see `vslam.runs.outputs`)."""
-
-    recording: ClaimedFile | None
-    trajectory_file: ClaimedFile | None
-    trajectory: TrajectoryWriter | None
-
-    def release(self) -> None:
-        for claimed in (self.recording, self.trajectory_file):
-            if claimed is not None:
-                claimed.release(keep=claimed is self.recording or bool(self.trajectory and self.trajectory.lines))
-
-
-def claim_run_outputs(output: Path | None, record: bool, source_name: str, frames: str, trajectory: Path | None,
-                      trajectory_format: Format, force: bool) -> RunOutputs:
-    """Claim the recording (`output`, or a fresh default name when `record`) and the trajectory file before
-    the run starts; `OutputError` in one line if one is taken."""
-    recording: ClaimedFile | None = None
-    if output is not None:
-        recording = claim(output, force, "recording")
-    elif record:
-        for attempt in range(3):  # a default name is new by construction; a clash means another id
-            try:
-                recording = claim(default_recording(source_name, frames), False, "recording")
-                break
-            except OutputError:
-                if attempt == 2:
-                    raise
-    if trajectory is None:
-        return RunOutputs(recording, None, None)
-    try:
-        trajectory_file = claim(trajectory, force, "trajectory")
-    except OutputError:
-        if recording is not None:
-            recording.release(keep=False)
-        raise
-    return RunOutputs(recording, trajectory_file, TrajectoryWriter(trajectory_file, trajectory_format))
-
-
-def describe_outputs(outputs: RunOutputs, failed: bool) -> str:
-    """Where the outputs are (also, and above all, after a failure): one line each."""
-    lines = []
-    if outputs.recording is not None:
-        path = outputs.recording.path
-        complete = has_footer(path)
-        lines.append(f"recording   {path}" + ("" if complete else
-                                              f" (cut short: finalise with `vslam repair {path}`)"))
-    if outputs.trajectory is not None and outputs.trajectory_file is not None:
-        writer = outputs.trajectory
-        if writer.lines or not failed:
-            lines.append(f"trajectory  {writer.path} ({writer.format}, {writer.lines} poses)")
-    return "\n".join(lines)
-
-
 def log_prior_map(recorder: Recorder, prior: StoredMap) -> None:
     """`vslam run --map`: the map localised in, static: its landmarks (grey) and keyframe path (white)."""
     import rerun as rr
@@ -162,8 +110,11 @@ def record_run(
     result = RunResult([], [], [])
     interrupted: Interrupted | None = None
     failure: VslamError | None = None
-    recorder = (Recorder(rrd, source, config, properties, detail, jpeg_quality, image_codec, live_url=live_url)
-                if rrd is not None else None)
+    recorder: Recorder | None = None
+    if rrd is not None:  # `--detail off` never loads the recorder (nor rerun: ~0.7 s of CPU)
+        from vslam.recording import Recorder
+
+        recorder = Recorder(rrd, source, config, properties, detail, jpeg_quality, image_codec, live_url=live_url)
     if recorder is not None and prior_map is not None:
         log_prior_map(recorder, prior_map)
     with progress(console, source.name, len(source)) as step, _signals_stop_between_frames() as stop:

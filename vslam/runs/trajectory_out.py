@@ -7,15 +7,17 @@ import contextlib
 import os
 import tempfile
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
 from vslam.runs.outputs import ClaimedFile, OutputError, write_failure
-from vslam_core.pipeline import RunResult
-from vslam_core.results import FrameResult
-from vslam_core.sources.base import Frame
 from vslam_core.trajectory.io import kitti_line, tum_line
+
+if TYPE_CHECKING:
+    from vslam_core.pipeline import RunResult
+    from vslam_core.results import FrameResult
+    from vslam_core.sources.base import Frame
 
 Format = Literal["kitti", "tum"]
 

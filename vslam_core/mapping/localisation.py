@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -26,9 +27,11 @@ from vslam_core.loop.vocabulary import BinaryVocabulary, similarity
 from vslam_core.mapping.local_mapping import DESCRIPTOR_PATCH
 from vslam_core.mapping.localisation_refine import match_by_projection, refine_pose
 from vslam_core.mapping.pnp import project, solve_pnp
-from vslam_core.mapping.storage import StoredMap
 from vslam_core.results import FrameResult, FrameStatus, Health, MapFrame, PnPEstimate, Reason, TrackingMode
 from vslam_core.sources.base import CameraIntrinsics, Frame
+
+if TYPE_CHECKING:
+    from vslam_core.mapping.storage import StoredMap
 
 FEATURES = 2000  # strongest FAST corners described per frame
 VIEW_RANGE_M = 80.0  # landmarks farther than this from the predicted camera are not searched

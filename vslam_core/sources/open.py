@@ -5,20 +5,18 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from vslam_core.errors import SourceError
 from vslam_core.sources.base import CameraIntrinsics, FrameRange, FrameSource, ground_truth_matching
-from vslam_core.sources.calibration_files import read_calibration
-from vslam_core.sources.euroc import EurocSource, is_euroc
-from vslam_core.sources.faults import FaultInjector, parse_faults
-from vslam_core.sources.folder import ImageFolderSource, parse_intrinsics
 from vslam_core.sources.image_files import IMAGE_EXTENSIONS
-from vslam_core.sources.kitti import BadFramePolicy, GroundTruthFormat, KittiSource
-from vslam_core.sources.ros.bag import RosbagSource
 from vslam_core.sources.stamps import DEFAULT_GT_TOLERANCE_S
-from vslam_core.sources.synthetic import SyntheticStreet
-from vslam_core.sources.tum_mono import TumMonoSource, is_tum_mono
-from vslam_core.sources.video import VideoSource
+
+if TYPE_CHECKING:
+    from vslam_core.sources.kitti import BadFramePolicy, GroundTruthFormat
+
+# Each kind of source is imported when it is the one opened: the ROS reader, the synthetic street's renderer and
+# the YAML parser of calibration files cost a process that opens a KITTI folder ~0.3 s of CPU.
 
 VIDEO_SUFFIXES = {".mp4", ".avi", ".mkv", ".mov", ".webm", ".m4v", ".mpg", ".mpeg"}
 LOG_SUFFIXES = {".bag", ".mcap", ".db3"}
@@ -55,7 +53,11 @@ def open_source(
     source = _open(request)
     if gt_tolerance_s is not None:
         _refuse_tolerance(source)
-    return FaultInjector(source, parse_faults(inject)) if inject else source
+    if not inject:
+        return source
+    from vslam_core.sources.faults import FaultInjector, parse_faults
+
+    return FaultInjector(source, parse_faults(inject))
 
 
 def _refuse_tolerance(source: FrameSource) -> None:
@@ -93,6 +95,8 @@ def _open(r: _Request) -> FrameSource:
     if r.spec is None or r.spec == SYNTHETIC:
         _refuse(given, tuple(given), "the synthetic street has its own camera and exact ground truth, and no "
                 "sequences or topics")
+        from vslam_core.sources.synthetic import SyntheticStreet
+
         return SyntheticStreet(frames=r.frames, route=r.route or "street")  # type: ignore[arg-type]
     if r.route is not None:
         raise SourceError(f"--route is for the synthetic street, not {r.spec}")
@@ -102,6 +106,8 @@ def _open(r: _Request) -> FrameSource:
     path = _unfinished_bag(path) or path
     if path.suffix.lower() in LOG_SUFFIXES or (path / "metadata.yaml").is_file():
         _refuse(given, ("--sequence",), f"{path} is a ROS log, not a KITTI dataset root")
+        from vslam_core.sources.ros.bag import RosbagSource
+
         return RosbagSource(path, topic=r.topic, frames=r.frames, calibration=_calibration(r),
                             ground_truth=r.ground_truth, gt_topic=r.gt_topic, gt_tolerance_s=r.gt_tolerance_s,
                             on_bad_frame=r.on_bad_frame)
@@ -114,12 +120,20 @@ def _open(r: _Request) -> FrameSource:
         camera = _calibration(r)
         if camera is None:
             raise SourceError(f"{path}: a video needs its camera: --calib FILE or --intrinsics fx,fy,cx,cy")
+        from vslam_core.sources.video import VideoSource
+
         return VideoSource(path, camera, frames=r.frames, ground_truth=r.ground_truth, gt_format=r.gt_format,
                            gt_tolerance_s=r.gt_tolerance_s)
     if (path / "sequences").is_dir() or (path / "image_0").is_dir():
         _refuse(given, ("--intrinsics", "--calib", "--gt"), "a KITTI sequence has its own calib.txt and poses/NN.txt")
+        from vslam_core.sources.kitti import KittiSource
+
         return KittiSource(path, sequence=r.sequence, frames=r.frames, on_bad_frame=r.on_bad_frame)
     _refuse(given, ("--sequence",), f"{path} is not a KITTI dataset root")
+    from vslam_core.sources.euroc import EurocSource, is_euroc
+    from vslam_core.sources.folder import ImageFolderSource
+    from vslam_core.sources.tum_mono import TumMonoSource, is_tum_mono
+
     if is_euroc(path):
         _refuse(given, ("--intrinsics", "--calib"), "an EuRoC sequence has its own sensor.yaml")
         return EurocSource(path, frames=r.frames, ground_truth=r.ground_truth, gt_tolerance_s=r.gt_tolerance_s,
@@ -157,6 +171,12 @@ def _calibration(r: _Request) -> CameraIntrinsics | None:
     if r.intrinsics is not None and r.calib is not None:
         raise SourceError("--intrinsics and --calib both describe the camera: give one of them")
     if r.intrinsics is not None:
+        from vslam_core.sources.folder import parse_intrinsics
+
         fx, fy, cx, cy = parse_intrinsics(r.intrinsics)
         return CameraIntrinsics(fx, fy, cx, cy, 0, 0, origin="--intrinsics")
-    return read_calibration(r.calib) if r.calib is not None else None
+    if r.calib is None:
+        return None
+    from vslam_core.sources.calibration_files import read_calibration
+
+    return read_calibration(r.calib)
