@@ -135,14 +135,25 @@ def _reading(path: Path) -> Iterator[RrdReader]:
     """An `RrdReader` of the recording (of its finalised copy when it was cut short); every way the file can
     be bad becomes one `RecordingError`."""
     data = readable(path).path
+    with _bad_file_is_one_error(path):
+        yield _open_reader(data)
+
+
+def _open_reader(data: Path | str) -> RrdReader:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RerunWarning)
+        return RrdReader(data)
+
+
+@contextmanager
+def _bad_file_is_one_error(path: Path) -> Iterator[None]:
+    """Whatever the reader raises while reading `path` becomes one `RecordingError` naming it (the reader raises
+    plain exceptions for every kind of bad file)."""
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RerunWarning)
-            reader = RrdReader(data)
-        yield reader
+        yield
     except RecordingError:
         raise
-    except Exception as exc:  # the reader raises plain exceptions for every kind of bad file
+    except Exception as exc:  # noqa: BLE001 - see above
         raise RecordingError(f"{path}: not a readable Rerun recording ({first_line(exc)})") from None
 
 
@@ -153,17 +164,11 @@ def read_entity(path: Path, entity: str, static: bool = False) -> pl.DataFrame:
 
     data = readable(path).path
     stat = data.stat()
-    try:
+    with _bad_file_is_one_error(path):
         store = _recording_store(str(data.resolve()), stat.st_size, stat.st_mtime_ns)
-        if store is not None:
-            chunks = store.stream().filter(content=entity, is_static=static).to_chunks()
-        else:  # not one recording store (e.g. a file of the Rerun SDK's): every store, scanned
-            with _reading(path) as reader:
-                chunks = reader.stream().filter(content=entity, is_static=static).to_chunks()
-    except RecordingError:
-        raise
-    except Exception as exc:  # the reader raises plain exceptions for every kind of bad file
-        raise RecordingError(f"{path}: not a readable Rerun recording ({first_line(exc)})") from None
+        # not one recording store (e.g. a file of the Rerun SDK's): every store, scanned
+        source = store if store is not None else _open_reader(data)
+        chunks = source.stream().filter(content=entity, is_static=static).to_chunks()
     frames = [pl.from_arrow(chunk.to_record_batch()) for chunk in chunks]
     if not frames:
         return pl.DataFrame()
@@ -178,9 +183,7 @@ def _recording_store(data: str, _size: int, _mtime_ns: int) -> LazyStore | None:
     for a few series, against ~20 ms for a scan of a 12 MB file with `RrdReader.stream`), and it is read once
     per file rather than once per entity (`vslam inspect` reads ~30). None for a file without exactly one
     recording store."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RerunWarning)
-        reader = RrdReader(data)
+    reader = _open_reader(data)
     recordings = reader.recordings()
     return reader.store(store=recordings[0]) if len(recordings) == 1 else None
 

@@ -129,7 +129,7 @@ class LocalMapping:
         landmarks = self.map.landmarks
         landmark_ids = self.map.landmarks_seen_by(window)
         if len(landmark_ids) > cfg.ba_max_landmarks:  # the best-observed ones (ties: the older)
-            counts = np.array([len(landmarks[i].observations) for i in landmark_ids])
+            counts = np.array([landmarks[i].observation_count for i in landmark_ids])
             keep = np.sort(np.argsort(-counts, kind="stable")[: cfg.ba_max_landmarks])
             landmark_ids = [landmark_ids[i] for i in keep]
         observations = [landmarks[i].observations for i in landmark_ids]
@@ -140,6 +140,7 @@ class LocalMapping:
         pose_index, point_index, kept = _window_observations(observations, keyframe_ids)
         if not len(kept):
             return
+        in_problem = pose_index >= 0
         pixels = np.array([pixel for seen in observations for pixel in seen.values()], np.float64).reshape(-1, 2)
         kept_ids = [landmark_ids[i] for i in kept.tolist()]
         ranges = []
@@ -157,9 +158,9 @@ class LocalMapping:
             poses=np.array([self.map.keyframes[k].T_world_cam for k in keyframe_ids]),
             optimised=len(self._window),
             points=self.map.positions(kept_ids),
-            observation_pose=pose_index[pose_index >= 0],
-            observation_point=point_index[pose_index >= 0],
-            observation_pixels=pixels[pose_index >= 0],
+            observation_pose=pose_index[in_problem],
+            observation_point=point_index[in_problem],
+            observation_pixels=pixels[in_problem],
             ranges=np.array(ranges, np.float64).reshape(-1, 4),
             fix_first=max(gauge - len(fixed), 0),
             iterations=cfg.ba_iterations,
