@@ -20,10 +20,20 @@ ROOT = Path(__file__).resolve().parents[1]
 WORKFLOW = ROOT / "docs" / "github-actions-shards.yml"
 
 
+def _one_core() -> None:
+    """In the step's process before it runs: only the first of the cores this process may use."""
+    if hasattr(os, "sched_setaffinity"):
+        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+
+
 def run_steps(job: dict[str, Any], folder: Path, env: dict[str, str], matrix: dict[str, object]) -> list[int]:
     """Each `run:` step of `job` in bash (-e, as GitHub runs them) with `${{ matrix.X }}` filled in; the
     install step is skipped (this checkout is used). Returns the exit codes, stopping at the first failure
-    unless the step runs `if: always()`."""
+    unless the step runs `if: always()`.
+
+    The steps run on one core: `--workers` then defaults to 1 and a shard runs its one log in its own process
+    instead of starting a pool worker for it (~4 s of CPU per shard); what the workflow writes is the same
+    either way (tests/test_batch.py: workers and shards give identical rows)."""
     codes: list[int] = []
     for step in job["steps"]:
         if "run" not in step or "pip install" in step["run"]:
@@ -32,7 +42,7 @@ def run_steps(job: dict[str, Any], folder: Path, env: dict[str, str], matrix: di
             continue
         script = re.sub(r"\$\{\{\s*matrix\.(\w+)\s*\}\}", lambda m: str(matrix[m.group(1)]), step["run"])
         completed = subprocess.run(["bash", "-e", "-c", script], cwd=folder, env=env, capture_output=True,
-                                   text=True, timeout=600)
+                                   text=True, timeout=600, preexec_fn=_one_core)
         codes.append(completed.returncode)
         assert "Traceback" not in completed.stderr, completed.stderr
     return codes
