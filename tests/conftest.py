@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import shutil
 import signal
+import sys
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -52,8 +53,13 @@ RENDERED = _RenderedFrames()
 def pytest_configure(config: pytest.Config) -> None:
     """One synthetic-frame cache on disk for the whole session (`frame_cache`): set by the controlling
     process, so the xdist workers and every `vslam` process a test starts render each frame once. The map
-    backend's worker processes are kept between the runs of a test process (~0.7 s of CPU each to start)."""
+    backend's worker processes are kept between the runs of a test process (~0.7 s of CPU each to start).
+    Compiled modules are written and reused even where PYTHONDONTWRITEBYTECODE is set (as here):
+    the tests start dozens of Python processes (`vslam` commands, batch and map workers), each of which would compile
+    the checkout's modules anew (~0.3 s of CPU); the __pycache__ folders are git-ignored."""
     reuse_workers(True)
+    os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+    sys.dont_write_bytecode = False
     if not hasattr(config, "workerinput") and not os.environ.get(FRAME_CACHE):
         os.environ[FRAME_CACHE] = tempfile.mkdtemp(prefix="vslam-test-frames-")
         config.stash[_FRAME_CACHE_MADE] = os.environ[FRAME_CACHE]
