@@ -31,9 +31,12 @@ class Kitti00:
         self.K = KittiSource(root, "00").intrinsics.K
         self.gt = read_kitti_poses(root / "poses" / "00.txt")  # (N, 4, 4), indexed by frame
         self._images = root / "sequences" / "00" / "image_0"
+        self._read: dict[int, np.ndarray] = {}  # each frame decoded once per module (~60 frames, 0.5 MB each)
 
     def image(self, index: int) -> np.ndarray:
-        return cv2.imread(str(self._images / f"{index:06d}.png"), cv2.IMREAD_GRAYSCALE)
+        if index not in self._read:
+            self._read[index] = cv2.imread(str(self._images / f"{index:06d}.png"), cv2.IMREAD_GRAYSCALE)
+        return self._read[index].copy()
 
 
 @pytest.fixture(scope="module")
