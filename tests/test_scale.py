@@ -181,7 +181,7 @@ def test_cli_records_the_road_plane_and_reports_the_scale_source(kitti_root: Pat
     properties = read_entity(rrd, "/__properties/config", static=True)
     assert properties["scale"].to_list() == [["height"]]
 
-    evaluated = vslam("eval", kitti_root, "--sequences", "05", "--frames", "0:120", "--scale", "height",
+    evaluated = vslam("eval", kitti_root, "--sequences", "05", "--frames", "0:60", "--scale", "height",
                       "--camera-height", "1.65", "--json")
     assert evaluated.returncode == 0, evaluated.stderr
     assert '"scale": "height"' in evaluated.stdout and '"alignment": "none"' in evaluated.stdout
