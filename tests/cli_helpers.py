@@ -18,6 +18,7 @@ import os
 import signal
 import subprocess
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -46,6 +47,17 @@ def vslam(*args: str | Path, cwd: Path | None = None, env: dict[str, str] | None
             process.communicate()
             raise
     return subprocess.CompletedProcess(command, process.returncode, stdout, stderr)
+
+
+@dataclass(frozen=True)
+class InterruptedRun:
+    """`vslam run KITTI --sequence 00 -o RECORDING --trajectory-out TRAJECTORY` in its own process, sent SIGINT
+    once the recording holds ~2 MB (some frames written): tests/conftest.py `interrupted_kitti_run`."""
+
+    recording: Path
+    trajectory: Path
+    returncode: int
+    stderr: str
 
 
 def vslam_here(*args: str | Path, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:

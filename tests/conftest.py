@@ -5,19 +5,28 @@ from __future__ import annotations
 import os
 import shutil
 import signal
+import subprocess
 import sys
 import tempfile
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_helpers import InterruptedRun
 from ray_cluster import ray_cluster  # noqa: F401  (the fixture: a real one-node Ray head, see ray_cluster.py)
 
+from vslam_core.config import EngineConfig
 from vslam_core.mapping.worker_process import reuse_workers
+from vslam_core.pipeline import run_odometry
+from vslam_core.results import FrameResult
+from vslam_core.sources.base import FrameRange
+from vslam_core.sources.kitti import KittiSource
 from vslam_core.sources.synthetic import SyntheticStreet
 from vslam_core.sources.synthetic.frame_cache import ENVIRONMENT as FRAME_CACHE
 
+ROOT = Path(__file__).resolve().parents[1]
 #: The real KITTI sample: the ``shared`` folder beside the repository checkout (never inside the repo).
 KITTI_ROOT = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti"
 
@@ -66,8 +75,8 @@ def pytest_configure(config: pytest.Config) -> None:
 
 
 #: Test files by cost, most expensive first (seconds in a full run; refresh from `--durations=0` when they change).
-#: Files are handed to the xdist workers whole (`--dist loadfile`) in this order (`--no-loadscope-reorder`;
-#: xdist's own order is by number of tests): the longest jobs first, so the two workers finish together.
+#: Files are handed to the xdist workers whole in this order (`--no-loadscope-reorder`; xdist's own order is by
+#: number of tests): the longest jobs first, so the two workers finish together.
 SLOWEST_FILES = (
     "test_mapping.py", "test_compare.py", "test_logs_cli.py", "test_scale.py", "test_batch.py", "test_outputs.py",
     "test_faults.py", "test_viewer.py", "test_loop_recording.py", "test_eval_external.py", "test_batch_ray.py",
@@ -76,9 +85,21 @@ SLOWEST_FILES = (
 )
 
 
+#: Files whose tests share a session fixture below (one engine run or one process serving tests of both): each
+#: group goes to one xdist worker, so the fixture is made once. Every other file is a group of its own: the
+#: workers get whole files (`--dist loadgroup` with these `xdist_group` marks, as `--dist loadfile` would).
+SAME_WORKER = {
+    "test_mapping.py": "kitti-00-map", "test_logs_cli.py": "kitti-00-map",  # kitti_00_map_run
+    "test_cli.py": "interrupted-run", "test_provenance.py": "interrupted-run",  # interrupted_kitti_run
+}
+
+
+@pytest.hookimpl(tryfirst=True)  # the marks before xdist's own hook reads them
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     rank = {name: position for position, name in enumerate(SLOWEST_FILES)}
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: file order kept within a file
+    for item in items:
+        item.add_marker(pytest.mark.xdist_group(SAME_WORKER.get(item.path.name, item.path.name)))
 
 
 def pytest_unconfigure(config: pytest.Config) -> None:
@@ -136,3 +157,36 @@ def kitti_root() -> Path:
             pytest.fail(f"{message} (CI is set: tests that need the real data must not be skipped)")
         pytest.skip(message)
     return KITTI_ROOT
+
+
+MapRun = tuple[list[FrameResult], np.ndarray, np.ndarray]
+
+
+@pytest.fixture(scope="session")
+def kitti_00_map_run(kitti_root: Path) -> MapRun:
+    """The map backend over KITTI 00 0:150, one thread, ground-truth scale: (results, poses, ground truth). The
+    clean reference of test_mapping.py and the rectified frames' run of test_logs_cli.py (~9 s of CPU)."""
+    source = KittiSource(kitti_root, sequence="00", frames=FrameRange(0, 150))
+    results: list[FrameResult] = []
+    run = run_odometry(source, EngineConfig(backend="map", threads=1), (lambda _frame, result: results.append(result),))
+    assert source.ground_truth is not None
+    return results, run.pose_array(), source.ground_truth
+
+
+@pytest.fixture(scope="session")
+def interrupted_kitti_run(kitti_root: Path, tmp_path_factory: pytest.TempPathFactory) -> InterruptedRun:
+    """One interrupted run read by test_cli.py (its exit, message and files) and test_provenance.py (what its
+    recording says it holds)."""
+    folder = tmp_path_factory.mktemp("interrupted")
+    rrd, trajectory = folder / "i.rrd", folder / "i.txt"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "vslam.cli", "run", str(kitti_root), "--sequence", "00", "-o", str(rrd),
+         "--trajectory-out", str(trajectory)],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    deadline = time.monotonic() + 60
+    while (not rrd.exists() or rrd.stat().st_size < 2_000_000) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    process.send_signal(signal.SIGINT)
+    _, stderr = process.communicate(timeout=60)
+    return InterruptedRun(rrd, trajectory, process.returncode, stderr)

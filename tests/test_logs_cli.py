@@ -143,12 +143,17 @@ def map_run(source: FrameSource) -> tuple[float, float, list[FrameResult]]:
 
 
 @pytest.mark.kitti
-def test_the_map_backend_tracks_a_log_through_a_lens(kitti_root: Path, logs: dict[str, LensLog]) -> None:
+def test_the_map_backend_tracks_a_log_through_a_lens(
+    logs: dict[str, LensLog], kitti_00_map_run: tuple[list[FrameResult], np.ndarray, np.ndarray]
+) -> None:
     """Strong radial–tangential lens: PnP, landmarks and BA on ideal pixels track as well as on the rectified
-    frames, and the PnP overlays are drawn where the tracks are, on the raw image."""
+    frames (the map backend over KITTI 00 0:150, shared with test_mapping.py), and the PnP overlays are drawn
+    where the tracks are, on the raw image."""
     log = logs["sqlite3-plumb_bob"]
     t_lens, r_lens, results = map_run(RosbagSource(log.path, ground_truth=log.gt_path))
-    t_rect, r_rect, _ = map_run(KittiSource(kitti_root, sequence="00", frames=FrameRange(FRAMES.start, FRAMES.stop)))
+    _, rectified_poses, rectified_gt = kitti_00_map_run
+    assert len(rectified_poses) == len(FRAMES)
+    t_rect, r_rect = kitti_errors(rectified_gt, rectified_poses)
     assert t_lens <= 1.5 * t_rect + 0.5, (t_lens, t_rect)
     assert r_lens <= 1.5 * r_rect + 0.5, (r_lens, r_rect)
     mapped = [r for r in results if r.mapping is not None and r.mapping.mode == TrackingMode.MAP]

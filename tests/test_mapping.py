@@ -123,10 +123,10 @@ MapRun = tuple[list[FrameResult], np.ndarray, np.ndarray]
 
 
 @pytest.fixture(scope="module")
-def clean_00(kitti_root: Path) -> MapRun:
+def clean_00(kitti_00_map_run: MapRun) -> MapRun:
     """The clean reference: the map backend over KITTI 00 0:150, one thread (results, poses, ground truth),
-    shared by the tests that compare against an uninterrupted run."""
-    return _map_run(kitti_root, FrameRange(0, 150))
+    shared by the tests that compare against an uninterrupted run (and with test_logs_cli.py: conftest.py)."""
+    return kitti_00_map_run
 
 
 @pytest.mark.kitti
