@@ -91,10 +91,12 @@ def test_fault_is_flagged_at_its_frames_and_tracking_recovers(
 
 @pytest.mark.kitti
 def test_a_turn_taken_while_blind_is_not_lost(kitti_root: Path) -> None:
-    """blur@200:210 on KITTI 00 0:300: the car turns ~43° in those 11 frames and the frame after them cannot be
-    tracked from the last sharp one. Dead reckoning keeps the heading (holding the pose lost the turn: t_err
-    16.4 %, final heading error 44°)."""
-    source = open_source(str(kitti_root), sequence="00", frames=FrameRange(0, 300), inject="blur@200:210")
+    """blur@200:210 on KITTI 00 100:300: the car turns ~43° in those 11 frames and the frame after them cannot be
+    tracked from the last sharp one. Dead reckoning keeps the heading: measured t_err 2.10 % (the clean run of
+    100:300: 1.78 %), final heading error 1.1°; holding the pose lost the turn: t_err 32.1 %, heading 44.8°.
+    (Over 0:300 the bound was 2.0 %: 1.15 % measured, 1.10 % clean, 16.4 % holding; the 100 frames more only
+    cost time.)"""
+    source = open_source(str(kitti_root), sequence="00", frames=FrameRange(100, 300), inject="blur@200:210")
     results: list[FrameResult] = []
     run = run_odometry(source, EngineConfig(), sinks=(lambda _f, r: results.append(r),))
     gt = source.ground_truth
@@ -104,7 +106,7 @@ def test_a_turn_taken_while_blind_is_not_lost(kitti_root: Path) -> None:
     assert (run.held, run.coasted) == (12, 12) and "12 dead-reckoned" in run.held_summary
     t_err, _ = kitti_errors(gt, run.pose_array())
     heading = np.degrees(rotation_angle(gt[-1, :3, :3].T @ run.poses[-1][:3, :3]))
-    assert t_err < 2.0 and heading < 2.5, (t_err, heading)  # %, degrees
+    assert t_err < 2.5 and heading < 2.5, (t_err, heading)  # %, degrees
 
 
 @pytest.mark.kitti
