@@ -15,7 +15,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 from cli_helpers import InterruptedRun
-from ray_cluster import ray_cluster  # noqa: F401  (the fixture: a real one-node Ray head, see ray_cluster.py)
+from ray_cluster import (
+    note_next_test,
+    ray_cluster,  # noqa: F401  (the fixture: a real one-node Ray head, see ray_cluster.py)
+)
 
 from vslam_core.config import EngineConfig
 from vslam_core.mapping.worker_process import reuse_workers
@@ -78,8 +81,8 @@ def pytest_configure(config: pytest.Config) -> None:
 #: Files are handed to the xdist workers whole in this order (`--no-loadscope-reorder`; xdist's own order is by
 #: number of tests): the longest jobs first, so the two workers finish together.
 SLOWEST_FILES = (
-    "test_mapping.py", "test_compare.py", "test_logs_cli.py", "test_scale.py", "test_batch.py", "test_outputs.py",
-    "test_faults.py", "test_viewer.py", "test_loop_recording.py", "test_eval_external.py", "test_batch_ray.py",
+    "test_mapping.py", "test_compare.py", "test_logs_cli.py", "test_scale.py", "test_batch.py", "test_batch_ray.py",
+    "test_outputs.py", "test_faults.py", "test_viewer.py", "test_loop_recording.py", "test_eval_external.py",
     "test_batch_workflow.py", "test_local_map.py", "test_engine.py", "test_codec.py", "test_recording_map.py",
     "test_example_orb_vo.py", "test_eval.py", "test_cli.py", "test_map_scale.py", "test_synthetic.py",
 )
@@ -91,7 +94,13 @@ SLOWEST_FILES = (
 SAME_WORKER = {
     "test_mapping.py": "kitti-00-map", "test_logs_cli.py": "kitti-00-map",  # kitti_00_map_run
     "test_cli.py": "interrupted-run", "test_provenance.py": "interrupted-run",  # interrupted_kitti_run
+    "test_batch.py": "ray-cluster", "test_batch_ray.py": "ray-cluster",  # ray_cluster.py: one Ray head for both
 }
+
+
+@pytest.hookimpl(tryfirst=True)  # before the runner tears the fixtures down
+def pytest_runtest_teardown(item: pytest.Item, nextitem: pytest.Item | None) -> None:
+    note_next_test(nextitem)
 
 
 @pytest.hookimpl(tryfirst=True)  # the marks before xdist's own hook reads them

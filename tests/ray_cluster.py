@@ -123,11 +123,31 @@ def stop_cluster(process: subprocess.Popen[bytes], temp_dir: Path) -> None:
     shutil.rmtree(temp_dir, ignore_errors=True)
 
 
+#: The cluster of this test process while a module that uses it runs, kept for the next module when that one
+#: uses it too (test_batch.py, then test_batch_ray.py on the same worker: tests/conftest.py SAME_WORKER): a Ray
+#: head costs ~6.5 s of CPU to start, in daemons the tests' own CPU figures never see.
+_running: tuple[subprocess.Popen[bytes], str, Path] | None = None
+#: The test that runs after the current one (None: the last of this process), set by `note_next_test`.
+_next_test: pytest.Item | None = None
+
+
+def note_next_test(nextitem: pytest.Item | None) -> None:
+    """Called (tests/conftest.py) before a test's fixtures are torn down, with the test that runs next."""
+    global _next_test
+    _next_test = nextitem
+
+
 @pytest.fixture(scope="module")
 def ray_cluster() -> Iterator[str]:
-    """Address ("127.0.0.1:PORT") of a fresh 2-CPU Ray head; stopped after the module, even on failure."""
-    process, address, temp_dir = start_cluster(num_cpus=2)
+    """Address ("127.0.0.1:PORT") of a 2-CPU Ray head started for this module, or kept running from the module
+    before when it used one too; stopped after the module (even on failure) unless the next test uses it."""
+    global _running
+    if _running is None or _running[0].poll() is not None:
+        _running = start_cluster(num_cpus=2)
+    process, address, temp_dir = _running
     try:
         yield address
     finally:
-        stop_cluster(process, temp_dir)
+        if _next_test is None or "ray_cluster" not in getattr(_next_test, "fixturenames", ()):
+            _running = None
+            stop_cluster(process, temp_dir)
