@@ -18,6 +18,7 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -51,13 +52,29 @@ def vslam(*args: str | Path, cwd: Path | None = None, env: dict[str, str] | None
 
 @dataclass(frozen=True)
 class InterruptedRun:
-    """`vslam run KITTI --sequence 00 -o RECORDING --trajectory-out TRAJECTORY` in its own process, sent SIGINT
-    once the recording holds ~2 MB (some frames written): tests/conftest.py `interrupted_kitti_run`."""
+    """`vslam run KITTI --sequence 00 -o RECORDING --trajectory-out TRAJECTORY` in its own process, sent a signal
+    once the recording holds ~2 MB (some frames written): `interrupt_kitti_run`."""
 
     recording: Path
     trajectory: Path
     returncode: int
     stderr: str
+
+
+def interrupt_kitti_run(kitti_root: Path, folder: Path, signum: int) -> InterruptedRun:
+    """Start the run of KITTI 00 writing into `folder`, send `signum` once it has written some frames, wait."""
+    rrd, trajectory = folder / "i.rrd", folder / "i.txt"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "vslam.cli", "run", str(kitti_root), "--sequence", "00", "-o", str(rrd),
+         "--trajectory-out", str(trajectory)],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    deadline = time.monotonic() + 60
+    while (not rrd.exists() or rrd.stat().st_size < 2_000_000) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    process.send_signal(signum)
+    _, stderr = process.communicate(timeout=60)
+    return InterruptedRun(rrd, trajectory, process.returncode, stderr)
 
 
 def vslam_here(*args: str | Path, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:

@@ -5,16 +5,14 @@ from __future__ import annotations
 import os
 import shutil
 import signal
-import subprocess
 import sys
 import tempfile
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_helpers import InterruptedRun
+from cli_helpers import InterruptedRun, interrupt_kitti_run
 from ray_cluster import (
     note_next_test,
     ray_cluster,  # noqa: F401  (the fixture: a real one-node Ray head, see ray_cluster.py)
@@ -186,16 +184,4 @@ def kitti_00_map_run(kitti_root: Path) -> MapRun:
 def interrupted_kitti_run(kitti_root: Path, tmp_path_factory: pytest.TempPathFactory) -> InterruptedRun:
     """One interrupted run read by test_cli.py (its exit, message and files) and test_provenance.py (what its
     recording says it holds)."""
-    folder = tmp_path_factory.mktemp("interrupted")
-    rrd, trajectory = folder / "i.rrd", folder / "i.txt"
-    process = subprocess.Popen(
-        [sys.executable, "-m", "vslam.cli", "run", str(kitti_root), "--sequence", "00", "-o", str(rrd),
-         "--trajectory-out", str(trajectory)],
-        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )
-    deadline = time.monotonic() + 60
-    while (not rrd.exists() or rrd.stat().st_size < 2_000_000) and time.monotonic() < deadline:
-        time.sleep(0.2)
-    process.send_signal(signal.SIGINT)
-    _, stderr = process.communicate(timeout=60)
-    return InterruptedRun(rrd, trajectory, process.returncode, stderr)
+    return interrupt_kitti_run(kitti_root, tmp_path_factory.mktemp("interrupted"), signal.SIGINT)

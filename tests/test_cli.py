@@ -5,13 +5,11 @@ from __future__ import annotations
 import json
 import signal
 import subprocess
-import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_helpers import InterruptedRun, vslam, vslam_here
+from cli_helpers import InterruptedRun, interrupt_kitti_run, vslam, vslam_here
 
 from vslam.rrd.read import read_entity
 from vslam_core.config import EngineConfig
@@ -159,23 +157,10 @@ def test_output_must_be_rrd_and_its_folder_creatable(tmp_path: Path) -> None:
 @pytest.mark.parametrize(("signum", "code"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
 def test_interrupted_run_finalises_recording_and_trajectory(kitti_root: Path, tmp_path: Path, signum: int,
                                                             code: int, request: pytest.FixtureRequest) -> None:
-    if signum == signal.SIGINT:  # the run test_provenance.py reads too (conftest.py)
-        interrupted: InterruptedRun = request.getfixturevalue("interrupted_kitti_run")
-        rrd, trajectory = interrupted.recording, interrupted.trajectory
-        returncode, stderr = interrupted.returncode, interrupted.stderr
-    else:
-        rrd, trajectory = tmp_path / "i.rrd", tmp_path / "i.txt"
-        process = subprocess.Popen(
-            [sys.executable, "-m", "vslam.cli", "run", str(kitti_root), "--sequence", "00", "-o", str(rrd),
-             "--trajectory-out", str(trajectory)],
-            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        )
-        deadline = time.monotonic() + 60
-        while (not rrd.exists() or rrd.stat().st_size < 2_000_000) and time.monotonic() < deadline:
-            time.sleep(0.2)
-        process.send_signal(signum)
-        _, stderr = process.communicate(timeout=60)
-        returncode = process.returncode
+    interrupted: InterruptedRun = (request.getfixturevalue("interrupted_kitti_run") if signum == signal.SIGINT
+                                   else interrupt_kitti_run(kitti_root, tmp_path, signum))  # SIGINT: conftest.py
+    rrd, trajectory, returncode, stderr = (interrupted.recording, interrupted.trajectory, interrupted.returncode,
+                                           interrupted.stderr)
     assert returncode == code, stderr
     assert "interrupted" in stderr and "Traceback" not in stderr
     verify(rrd)
