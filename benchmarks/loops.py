@@ -21,6 +21,7 @@ import argparse
 import dataclasses
 import os
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -60,7 +61,7 @@ def _revisit_folder(root: Path, folder: Path, count: int, sequence: str = "05", 
     (symbolic links) with ground truth."""
     last = first + count - 1
     order = list(range(first, last + 1)) + list(range(last, (first if back_to is None else back_to) - 1, -1))
-    images = root / "sequences" / sequence
+    images = root.resolve() / "sequences" / sequence  # the links must work from the temporary folder
     for k, i in enumerate(order):
         os.symlink(images / "image_0" / f"{i:06d}.png", folder / f"{k:06d}.png")
     (folder / "calib.txt").write_text((images / "calib.txt").read_text())
@@ -68,19 +69,16 @@ def _revisit_folder(root: Path, folder: Path, count: int, sequence: str = "05", 
     return ImageFolderSource(folder, ground_truth=folder / "gt.txt")
 
 
-def _similarity_rows(root: Path, skip_synthetic: bool) -> list[str]:
-    """--scale none: ATE after Sim(3) alignment, loop closing on / off and `vo`, per route."""
+def _similarity_rows(root: Path, skip_synthetic: bool) -> Iterator[str]:
+    """--scale none: ATE after Sim(3) alignment, loop closing on / off and `vo`, per route (as each is done)."""
     routes: list[tuple[str, tuple[int, str, int, int]]] = [
         ("KITTI 05 0..149..0", (150, "05", 0, 0)), ("KITTI 05 0..149..60", (150, "05", 0, 60)),
         ("KITTI 05 100..249..100", (150, "05", 100, 100)), ("KITTI 00 150..299..150", (150, "00", 150, 150))]
-    rows = []
-    if not skip_synthetic:
-        loop = SyntheticStreet(route="loop")
-        rows.append(_similarity_row("synthetic loop, 660 frames", loop))
     for name, (count, sequence, first, back_to) in routes:
         with tempfile.TemporaryDirectory() as folder:
-            rows.append(_similarity_row(name, _revisit_folder(root, Path(folder), count, sequence, first, back_to)))
-    return rows
+            yield _similarity_row(name, _revisit_folder(root, Path(folder), count, sequence, first, back_to))
+    if not skip_synthetic:
+        yield _similarity_row("synthetic loop, 660 frames", SyntheticStreet(route="loop"))
 
 
 def _similarity_row(name: str, source: FrameSource) -> str:
@@ -103,7 +101,8 @@ def main() -> None:
     if args.scale == "none":
         print("| route (--scale none) | loops closed (frame, matched frame) | ATE Sim(3) m, loop on | off | vo |")
         print("|---|---|---|---|---|")
-        print("\n".join(_similarity_rows(args.root, args.skip_synthetic)))
+        for row in _similarity_rows(args.root, args.skip_synthetic):
+            print(row, flush=True)
         return
     rows: list[str] = []
     if not args.skip_synthetic:
