@@ -8,6 +8,11 @@
    street): loops found (frame pairs, which must show the same KITTI frame) and ATE (no alignment) of the
    map backend with loop closing against `vo`'s (target: no worse).
 3. False loops: loops accepted on the open synthetic street (300 frames) and KITTI 00 and 05 0:300 (target 0).
+
+    python -m benchmarks.loops ../shared/data/kitti --scale none [--skip-synthetic]
+
+prints instead the Sim(3) path (no scale source): ATE after Sim(3) alignment with loop closing on and off, and
+`vo`'s, on the synthetic loop and on real revisits driven forward then backward over part of the way.
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ import argparse
 import dataclasses
 import os
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -27,11 +33,12 @@ from vslam_core.sources.base import Frame, FrameRange, FrameSource
 from vslam_core.sources.folder import ImageFolderSource
 from vslam_core.sources.kitti import KittiSource
 from vslam_core.sources.synthetic.street import SyntheticStreet
+from vslam_core.trajectory.metrics import ate
 
 
-def _run(source: FrameSource, backend: str, loop: bool) -> tuple[np.ndarray, list[tuple[int, int]]]:
+def _run(source: FrameSource, backend: str, loop: bool, scale: str = "gt") -> tuple[np.ndarray, list[tuple[int, int]]]:
     """(N, 4, 4) poses after the run and the (frame, matched frame) source indices of each loop closed."""
-    config = EngineConfig(backend=backend, scale="gt")  # type: ignore[arg-type]
+    config = EngineConfig(backend=backend, scale=scale)  # type: ignore[arg-type]
     config = dataclasses.replace(config, loop=dataclasses.replace(config.loop, enabled=loop))
     indices = source.indices
     closed: list[tuple[int, int]] = []
@@ -48,22 +55,55 @@ def _errors(poses: np.ndarray, truth: np.ndarray) -> np.ndarray:
     return np.asarray(np.linalg.norm(poses[:, :3, 3] - truth[: len(poses), :3, 3], axis=1))
 
 
-def _revisit_folder(root: Path, folder: Path, count: int) -> ImageFolderSource:
-    """KITTI 05 frames 0..count-1 then count-1..0 as an image folder (symbolic links) with ground truth."""
-    order = list(range(count)) + list(range(count - 1, -1, -1))
-    sequence = root / "sequences" / "05"
+def _revisit_folder(root: Path, folder: Path, count: int, sequence: str = "05", first: int = 0,
+                    back_to: int | None = None) -> ImageFolderSource:
+    """KITTI frames first..first+count-1 then back down to `back_to` (default `first`) as an image folder
+    (symbolic links) with ground truth."""
+    last = first + count - 1
+    order = list(range(first, last + 1)) + list(range(last, (first if back_to is None else back_to) - 1, -1))
+    images = root.resolve() / "sequences" / sequence  # the links must work from the temporary folder
     for k, i in enumerate(order):
-        os.symlink(sequence / "image_0" / f"{i:06d}.png", folder / f"{k:06d}.png")
-    (folder / "calib.txt").write_text((sequence / "calib.txt").read_text())
-    np.savetxt(folder / "gt.txt", np.loadtxt(root / "poses" / "05.txt").reshape(-1, 12)[order])
+        os.symlink(images / "image_0" / f"{i:06d}.png", folder / f"{k:06d}.png")
+    (folder / "calib.txt").write_text((images / "calib.txt").read_text())
+    np.savetxt(folder / "gt.txt", np.loadtxt(root / "poses" / f"{sequence}.txt").reshape(-1, 12)[order])
     return ImageFolderSource(folder, ground_truth=folder / "gt.txt")
+
+
+def _similarity_rows(root: Path, skip_synthetic: bool) -> Iterator[str]:
+    """--scale none: ATE after Sim(3) alignment, loop closing on / off and `vo`, per route (as each is done)."""
+    routes: list[tuple[str, tuple[int, str, int, int]]] = [
+        ("KITTI 05 0..149..0", (150, "05", 0, 0)), ("KITTI 05 0..149..60", (150, "05", 0, 60)),
+        ("KITTI 05 100..249..100", (150, "05", 100, 100)), ("KITTI 00 150..299..150", (150, "00", 150, 150))]
+    for name, (count, sequence, first, back_to) in routes:
+        with tempfile.TemporaryDirectory() as folder:
+            yield _similarity_row(name, _revisit_folder(root, Path(folder), count, sequence, first, back_to))
+    if not skip_synthetic:
+        yield _similarity_row("synthetic loop, 660 frames", SyntheticStreet(route="loop"))
+
+
+def _similarity_row(name: str, source: FrameSource) -> str:
+    truth = source.ground_truth
+    assert truth is not None
+    on, closed = _run(source, "map", True, "none")
+    off, _ = _run(source, "map", False, "none")
+    vo, _ = _run(source, "vo", False, "none")
+    on_m, off_m, vo_m = (ate(truth[: len(p)], p, "sim3") for p in (on, off, vo))
+    return f"| {name} | {len(closed)} loops {closed} | {on_m:.2f} | {off_m:.2f} | {vo_m:.2f} |"
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("root", type=Path)
     parser.add_argument("--skip-synthetic", action="store_true", help="leave out the synthetic runs (slow)")
+    parser.add_argument("--scale", choices=("gt", "none"), default="gt",
+                        help="none: the Sim(3) path's table instead (ATE after Sim(3) alignment)")
     args = parser.parse_args()
+    if args.scale == "none":
+        print("| route (--scale none) | loops closed (frame, matched frame) | ATE Sim(3) m, loop on | off | vo |")
+        print("|---|---|---|---|---|")
+        for row in _similarity_rows(args.root, args.skip_synthetic):
+            print(row, flush=True)
+        return
     rows: list[str] = []
     if not args.skip_synthetic:
         loop = SyntheticStreet(route="loop")

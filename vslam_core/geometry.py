@@ -93,6 +93,26 @@ def interpolate_pose(start: np.ndarray, end: np.ndarray, fraction: float) -> np.
     return pose
 
 
+def interpolate_gaps(poses: list[np.ndarray], missing: set[int]) -> list[np.ndarray]:
+    """The (4, 4) poses with each run of `missing` positions that has a pose on both sides replaced by poses
+    interpolated between those two (`interpolate_pose`); a run at the start or the end is left as it is."""
+    filled = list(poses)
+    position, count = 0, len(filled)
+    while position < count:
+        if position not in missing or position == 0:
+            position += 1
+            continue
+        end = position
+        while end < count and end in missing:
+            end += 1
+        if end < count:  # positions position..end-1 are missing; end has a pose again
+            before, after = filled[position - 1], filled[end]
+            for gap in range(position, end):
+                filled[gap] = interpolate_pose(before, after, (gap - position + 1) / (end - position + 1))
+        position = end
+    return filled
+
+
 def essential_from_pose(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
     """E = [t]ₓR for X_prev = R·X_cur + t."""
     return skew(np.asarray(translation).reshape(3)) @ rotation

@@ -257,6 +257,7 @@ class LoopClosed:
     poses_after: np.ndarray  # (K, 4, 4) and after
     correction_m: np.ndarray  # (K,) distance each keyframe moved
     correction_deg: np.ndarray  # (K,) rotation applied to each
+    scales: np.ndarray  # (K,) how much larger each keyframe's neighbourhood became (1 with a metric scale)
     landmarks_moved: int
     milliseconds: float  # pose graph optimisation (in the search) and map update (at the fixed point)
 

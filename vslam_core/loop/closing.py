@@ -9,7 +9,8 @@ each keyframe moves by its own node's correction (a similarity X ← s·R'·Rᵀ
 to its pose as it is now (bundle adjustment may have refined it since), a keyframe inserted since moves with
 the newest node, each landmark with the newest keyframe that observes it, and tracking carries on from the
 corrected newest keyframe (frames are stored relative to their keyframes, so every pose written after the run is
-corrected).
+corrected). With --scale none a node's correction also scales its neighbourhood by s: the frames stored
+relative to its keyframes move s times farther from them (`rescale_relative`).
 """
 
 from __future__ import annotations
@@ -52,8 +53,9 @@ class LoopClosing:
     def collect(self, map_: Map) -> tuple[LoopStep, np.ndarray | None] | None:
         """At a keyframe insertion, after the bundle adjustment was applied: collect the search submitted at the
         previous insertion (applying its loop, if any), then submit the search for the map's newest keyframe.
-        Returns what the collected search did and, if it closed a loop, the correction T_new·T_old⁻¹ (4, 4) of
-        the newest keyframe, for the frames tracked since; None if no search was pending."""
+        Returns what the collected search did and, if it closed a loop, the correction (4, 4) of the newest
+        keyframe for the frames tracked since: T_new·T_old⁻¹, or with --scale none the world similarity
+        s·R, t (the caller orthonormalises the corrected pose); None if no search was pending."""
         collected = self._collect(map_)
         clock = time.perf_counter()
         self._start(map_)
@@ -166,7 +168,8 @@ class LoopClosing:
                 moved += 1
         for k, pose in zip(ids, after, strict=True):
             map_.keyframes[k].T_world_cam = pose
-        correction = after[-1] @ invert_pose(before[-1])
+        scales = np.array([graph.scales[node_of[k]] for k in ids])
+        correction = similarities[node_of[ids[-1]]] if graph.similarity else after[-1] @ invert_pose(before[-1])
         closed = LoopClosed(
             query_keyframe=graph.query_keyframe, candidate_keyframe=graph.candidate_keyframe,
             query_position=graph.query_position, candidate_position=graph.candidate_position, inliers=graph.inliers,
@@ -176,8 +179,20 @@ class LoopClosing:
             correction_m=np.linalg.norm(after[:, :3, 3] - before[:, :3, 3], axis=1),
             correction_deg=np.degrees([rotation_angle(a[:3, :3] @ b[:3, :3].T) for a, b in zip(after, before,
                                                                                                  strict=True)]),
-            landmarks_moved=moved, milliseconds=optimise_ms + _lap(start))
+            scales=scales, landmarks_moved=moved, milliseconds=optimise_ms + _lap(start))
         return closed, correction
+
+
+def rescale_relative(relative: dict[int, tuple[int, np.ndarray]], closed: LoopClosed) -> None:
+    """A Sim(3) correction made keyframe k's neighbourhood s_k times larger: the frames stored relative to it
+    (run position -> (keyframe id, (4, 4) T_key_frame), in place) move s_k times farther from it."""
+    scale_of = dict(zip(closed.keyframe_ids.tolist(), closed.scales.tolist(), strict=True))
+    for position, (keyframe_id, T_key_frame) in relative.items():  # noqa: N806
+        scale = scale_of.get(keyframe_id, 1.0)
+        if scale != 1.0:
+            moved = T_key_frame.copy()
+            moved[:3, 3] *= scale
+            relative[position] = (keyframe_id, moved)
 
 
 def _similarity(before: np.ndarray, after: np.ndarray, scale: float) -> np.ndarray:

@@ -24,8 +24,7 @@ from vslam_core.config import EngineConfig
 from vslam_core.loop.search import LoopSearch, SearchJob, SearchResult
 from vslam_core.mapping.worker_process import (
     IdleWorker,
-    keep_idle_worker,
-    stop_worker,
+    release_worker,
     take_idle_worker,
     without_main,
 )
@@ -140,17 +139,9 @@ class LoopWorker:
 
     def close(self) -> None:
         if self._connection is not None and self._process is not None and self._jobs is not None:
-            try:
-                if self._pending is not None:  # the answer in flight is received (and dropped) first
-                    self._connection.recv()
-                    self._pending = None
-                self._jobs.put(_Restart(None, None))  # the worker lets go of this run's places
-                if keep_idle_worker("loop-search", IdleWorker(self._process, self._connection, self._jobs)):
-                    self._connection = self._jobs = self._process = None
-                    return
-            except (OSError, EOFError):  # the worker is gone: stopped below
-                self._pending = None
-        stop_worker(self._connection, self._process, awaiting_result=self._pending is not None, jobs=self._jobs)
+            release_worker("loop-search", IdleWorker(self._process, self._connection, self._jobs),
+                           awaiting_result=self._pending is not None, restart=_Restart(None, None))
+        self._pending = None
         self._connection = None
         self._jobs = None
         self._process = None

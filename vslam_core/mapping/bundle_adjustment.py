@@ -24,8 +24,7 @@ import numpy as np
 from vslam_core.geometry import invert_pose
 from vslam_core.mapping.worker_process import (
     IdleWorker,
-    keep_idle_worker,
-    stop_worker,
+    release_worker,
     take_idle_worker,
     without_main,
 )
@@ -188,15 +187,8 @@ class BundleAdjuster:
 
     def close(self) -> None:
         if self._connection is not None and self._process is not None:
-            try:
-                if self._pending is not None:  # the answer in flight is received (and dropped) first
-                    self._connection.recv()
-                    self._pending = None
-                if keep_idle_worker("bundle-adjustment", IdleWorker(self._process, self._connection)):
-                    self._connection = self._process = None
-                    return
-            except (OSError, EOFError):  # the worker is gone: stopped below
-                self._pending = None
-        stop_worker(self._connection, self._process, awaiting_result=self._pending is not None)
+            release_worker("bundle-adjustment", IdleWorker(self._process, self._connection),
+                           awaiting_result=self._pending is not None)
+        self._pending = None
         self._connection = None
         self._process = None

@@ -48,6 +48,13 @@ class MapSpeed:
             self._speeds.append(float(np.linalg.norm(centre - self._last[1])) / (position - self._last[0]))
         self._last = (position, centre)
 
+    def move(self, S: np.ndarray) -> None:  # noqa: N803
+        """A loop correction moved the world by the (4, 4) similarity S: the speeds are s times larger."""
+        scale = float(np.cbrt(np.linalg.det(S[:3, :3])))
+        self._speeds = deque((scale * v for v in self._speeds), maxlen=self._speeds.maxlen)
+        if self._last is not None:
+            self._last = (self._last[0], S[:3, :3] @ self._last[1] + S[:3, 3])
+
     @property
     def speed(self) -> float:
         """Map units a frame: the median of the recent measured speeds (`INITIAL_SPEED` before any)."""

@@ -72,6 +72,10 @@ class MapRefinding:
             return False
         return self._time - self._previous_time > MISSING_FACTOR * float(np.median(self._intervals))
 
+    def predicted_pose(self) -> np.ndarray | None:
+        """(4, 4) T_world_cam the motion model predicts for this frame; None before it has two poses."""
+        return self._motion.predict(self._time)
+
     def trusted_motion(self, T_world_last: np.ndarray, rotation: np.ndarray, direction: np.ndarray,  # noqa: N803
                        max_disagreement_deg: float) -> tuple[np.ndarray, np.ndarray]:
         """A dead-reckoned motion from the last posed frame (T_world_last (4, 4)): (3, 3) `rotation` and unit (3,)

@@ -23,9 +23,9 @@ from vslam_core.config import EngineConfig
 from vslam_core.engine import Odometry
 from vslam_core.errors import ConfigError
 from vslam_core.features import match_descriptors
-from vslam_core.geometry import interpolate_pose, invert_pose, orthonormalise, pose_matrix, rotation_angle
+from vslam_core.geometry import interpolate_gaps, invert_pose, orthonormalise, pose_matrix, rotation_angle
 from vslam_core.lens import distort_pixels, undistort_pixels
-from vslam_core.loop.closing import LoopClosing
+from vslam_core.loop.closing import LoopClosing, rescale_relative
 from vslam_core.mapping.local_map import LocalMapSearcher
 from vslam_core.mapping.local_mapping import DESCRIPTOR_PATCH, LocalMapping
 from vslam_core.mapping.map_scale import MapSpeed, for_scale, initialisation_reason, translation_parallax
@@ -107,23 +107,17 @@ class MapTracking:
         flagged in their results)."""
         if self.mapping.collect_bundle_adjustment() is not None:
             self._odometry.set_keyframe_pose(self.pose_of(self._odometry.key_position))
-        if self.loop is not None:
-            self.loop.finish(self.mapping.map)  # the last loop search's loop, if any, moves the keyframes too
-        poses = [self.pose_of(position) for position in range(count)]
-        position = 0
-        while position < count:
-            if position not in self._held or position == 0:
-                position += 1
-                continue
-            end = position
-            while end < count and end in self._held:
-                end += 1
-            if end < count:  # frames position..end-1 were held; end has a pose again
-                before, after = poses[position - 1], poses[end]
-                for gap in range(position, end):
-                    poses[gap] = interpolate_pose(before, after, (gap - position + 1) / (end - position + 1))
-            position = end
-        return poses
+        if self.loop is not None and (looped := self.loop.finish(self.mapping.map)) is not None:
+            self._follow_loop(looped[1])  # the last loop search's loop, if any, moves the keyframes too
+        return interpolate_gaps([self.pose_of(position) for position in range(count)], self._held)
+
+    def _follow_loop(self, correction: np.ndarray | None) -> None:
+        """A loop was closed (its (4, 4) correction of the newest keyframe given): with --scale none the frames
+        stored relative to their keyframes and the map's speed follow the keyframes' new scales."""
+        if correction is not None and self.loop is not None and self.loop.closed:
+            rescale_relative(self._relative, self.loop.closed[-1])
+            if self._speed is not None:
+                self._speed.move(correction)
 
     def pose_of(self, position: int) -> np.ndarray:
         """(4, 4) pose of an earlier frame, moved with its keyframe by every refinement since."""
@@ -278,7 +272,11 @@ class MapTracking:
             reference = self.pose_of(vo.keyframe_position)
             pnp_motion = invert_pose(reference) @ solution.T_world_cam
             disagreement = np.degrees(rotation_angle(pnp_motion[:3, :3].T @ vo.T_key_cur[:3, :3]))
-            if disagreement > cfg.max_rotation_disagreement_deg:
+            # two against one: PnP agreeing with the motion model outvotes a two-view rotation over a short
+            # baseline (reversing, 1 frame from the keyframe: the essential matrix's rotation was 2-4° off)
+            predicted = self.refinding.predicted_pose()
+            if disagreement > cfg.max_rotation_disagreement_deg and (predicted is None or np.degrees(rotation_angle(
+                    predicted[:3, :3].T @ solution.T_world_cam[:3, :3])) > cfg.max_rotation_disagreement_deg):
                 return f"rotation {disagreement:.1f}° from the two-view motion"
         return None
 
@@ -424,7 +422,8 @@ class MapTracking:
             if self.loop is not None and (looped := self.loop.collect(self.mapping.map)) is not None:
                 loop, loop_correction = looped  # the previous keyframe's loop search, after its BA
                 if loop_correction is not None:
-                    pose = orthonormalise(loop_correction @ pose)
+                    pose = orthonormalise(loop_correction @ pose)  # a similarity with --scale none
+                    self._follow_loop(loop_correction)
             track_ids, pixels = self._odometry.live_tracks()
             tied = self._suspended_at_keyframe(track_ids, self._ideal(pixels), pose)
             keyframe, links, view = self.mapping.insert_keyframe(

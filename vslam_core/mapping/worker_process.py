@@ -119,3 +119,20 @@ def keep_idle_worker(kind: str, worker: IdleWorker) -> bool:
             return False
         workers.append(worker)
         return True
+
+
+def release_worker(kind: str, worker: IdleWorker, *, awaiting_result: bool, restart: Any = None) -> None:
+    """A run is done with its worker: the answer in flight, if `awaiting_result`, is received and dropped;
+    `restart`, if given, goes on the worker's job queue (it lets go of the run's state); then the worker is kept
+    idle for the next run (`keep_idle_worker`) or stopped (`stop_worker`). A worker already gone is stopped."""
+    try:
+        if awaiting_result:
+            worker.connection.recv()
+            awaiting_result = False
+        if restart is not None and worker.jobs is not None:
+            worker.jobs.put(restart)
+        if keep_idle_worker(kind, worker):
+            return
+    except (OSError, EOFError):  # the worker is gone
+        awaiting_result = False
+    stop_worker(worker.connection, worker.process, awaiting_result=awaiting_result, jobs=worker.jobs)
