@@ -272,12 +272,13 @@ class MapTracking:
             reference = self.pose_of(vo.keyframe_position)
             pnp_motion = invert_pose(reference) @ solution.T_world_cam
             disagreement = np.degrees(rotation_angle(pnp_motion[:3, :3].T @ vo.T_key_cur[:3, :3]))
-            # two against one: PnP agreeing with the motion model outvotes a two-view rotation over a short
-            # baseline (reversing, 1 frame from the keyframe: the essential matrix's rotation was 2-4° off)
-            predicted = self.refinding.predicted_pose()
-            if disagreement > cfg.max_rotation_disagreement_deg and (predicted is None or np.degrees(rotation_angle(
-                    predicted[:3, :3].T @ solution.T_world_cam[:3, :3])) > cfg.max_rotation_disagreement_deg):
-                return f"rotation {disagreement:.1f}° from the two-view motion"
+            if disagreement > cfg.max_rotation_disagreement_deg:
+                # two against one: PnP agreeing with the motion model outvotes a two-view rotation over a short
+                # baseline (reversing, 1 frame from the keyframe: the essential matrix's rotation was 2-4° off)
+                predicted = self.refinding.predicted_pose()
+                if predicted is None or np.degrees(rotation_angle(predicted[:3, :3].T @ solution.T_world_cam[:3, :3])) \
+                        > cfg.max_rotation_disagreement_deg:
+                    return f"rotation {disagreement:.1f}° from the two-view motion"
         return None
 
     def _metric(self, pose: np.ndarray, vo: FrameResult) -> np.ndarray:
