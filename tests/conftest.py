@@ -13,17 +13,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 from cli_helpers import InterruptedRun, interrupt_kitti_run
+from kitti_runs import MapRun, map_run_00
 from ray_cluster import (
     note_next_test,
     ray_cluster,  # noqa: F401  (the fixture: a real one-node Ray head, see ray_cluster.py)
 )
 
-from vslam_core.config import EngineConfig
 from vslam_core.mapping.worker_process import reuse_workers
-from vslam_core.pipeline import run_odometry
-from vslam_core.results import FrameResult
 from vslam_core.sources.base import FrameRange
-from vslam_core.sources.kitti import KittiSource
 from vslam_core.sources.synthetic import SyntheticStreet
 from vslam_core.sources.synthetic.frame_cache import ENVIRONMENT as FRAME_CACHE
 
@@ -166,18 +163,11 @@ def kitti_root() -> Path:
     return KITTI_ROOT
 
 
-MapRun = tuple[list[FrameResult], np.ndarray, np.ndarray]
-
-
 @pytest.fixture(scope="session")
 def kitti_00_map_run(kitti_root: Path) -> MapRun:
     """The map backend over KITTI 00 0:150, one thread, ground-truth scale: (results, poses, ground truth). The
     clean reference of test_mapping.py and the rectified frames' run of test_logs_cli.py (~9 s of CPU)."""
-    source = KittiSource(kitti_root, sequence="00", frames=FrameRange(0, 150))
-    results: list[FrameResult] = []
-    run = run_odometry(source, EngineConfig(backend="map", threads=1), (lambda _frame, result: results.append(result),))
-    assert source.ground_truth is not None
-    return results, run.pose_array(), source.ground_truth
+    return map_run_00(kitti_root, FrameRange(0, 150))
 
 
 @pytest.fixture(scope="session")

@@ -12,6 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from kitti_runs import MapRun
 from ros_logs import LOGS, LensLog, LogWriter, kitti_clip, make_reimager, write_lens_log
 from test_cli_inputs import assert_one_line_error, vslam
 
@@ -144,7 +145,7 @@ def map_run(source: FrameSource) -> tuple[float, float, list[FrameResult]]:
 
 @pytest.mark.kitti
 def test_the_map_backend_tracks_a_log_through_a_lens(
-    logs: dict[str, LensLog], kitti_00_map_run: tuple[list[FrameResult], np.ndarray, np.ndarray]
+    logs: dict[str, LensLog], kitti_00_map_run: MapRun
 ) -> None:
     """Strong radial–tangential lens: PnP, landmarks and BA on ideal pixels track as well as on the rectified
     frames (the map backend over KITTI 00 0:150, shared with test_mapping.py), and the PnP overlays are drawn

@@ -5,12 +5,11 @@ and the same frames forward only (an open route: no loop may be accepted)."""
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import cli_helpers
-import numpy as np
 import pytest
+from kitti_runs import kitti_folder
 from rerun.chunk import RrdReader
 
 from vslam.rrd.read import read_entity
@@ -20,22 +19,10 @@ FORWARD = 50  # frames driven forward; the revisit backs up over them again (a k
 CONFIG = "[loop]\nmin_separation_keyframes = 6\n"  # the short test drive: candidates 6 keyframes back
 
 
-def _folder(kitti_root: Path, folder: Path, order: list[int]) -> Path:
-    """An image folder of KITTI 05 frames in `order` (symbolic links), with its calib.txt and ground truth."""
-    folder.mkdir()
-    sequence = kitti_root / "sequences" / "05"
-    for k, i in enumerate(order):
-        os.symlink(sequence / "image_0" / f"{i:06d}.png", folder / f"{k:06d}.png")
-    (folder / "calib.txt").write_text((sequence / "calib.txt").read_text())
-    poses = np.loadtxt(kitti_root / "poses" / "05.txt").reshape(-1, 12)
-    np.savetxt(folder / "gt.txt", poses[order])
-    return folder
-
-
 def _run(kitti_root: Path, tmp: Path, order: list[int], threads: int = 2) -> tuple[Path, list[int]]:
     """The run's recording (its trajectory beside it, `run.txt`). With 2 threads (the default) loop search runs
     in a worker process; with 1, in the tracking thread when its result is due."""
-    folder = _folder(kitti_root, tmp / "images", order)
+    folder = kitti_folder(kitti_root, tmp / "images", order)
     (tmp / "loop.toml").write_text(f"threads = {threads}\n{CONFIG}")
     rrd = tmp / "run.rrd"
     result = cli_helpers.vslam("run", folder, "--gt", folder / "gt.txt", "--backend", "map", "--scale", "gt",

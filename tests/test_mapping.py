@@ -9,6 +9,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from kitti_runs import MapRun, map_run_00
 
 from vslam_core.config import EngineConfig
 from vslam_core.geometry import interpolate_pose, invert_pose, pose_matrix, rotation_angle, so3_exp
@@ -109,19 +110,6 @@ def test_pnp_recovers_the_pose_and_flags_outliers() -> None:
     assert solution.inlier_mask[~outlier].mean() > 0.95
 
 
-def _map_run(kitti_root: Path, frames: FrameRange, threads: int = 1,
-             ) -> tuple[list[FrameResult], np.ndarray, np.ndarray]:
-    source = KittiSource(kitti_root, sequence="00", frames=frames)
-    results: list[FrameResult] = []
-    config = EngineConfig(backend="map", threads=threads)
-    run = run_odometry(source, config, (lambda _frame, result: results.append(result),))
-    assert source.ground_truth is not None
-    return results, run.pose_array(), source.ground_truth
-
-
-MapRun = tuple[list[FrameResult], np.ndarray, np.ndarray]
-
-
 @pytest.fixture(scope="module")
 def clean_00(kitti_00_map_run: MapRun) -> MapRun:
     """The clean reference: the map backend over KITTI 00 0:150, one thread (results, poses, ground truth),
@@ -148,9 +136,9 @@ def test_map_backend_tracks_real_kitti_against_its_map(clean_00: MapRun) -> None
 
 @pytest.mark.kitti
 def test_map_backend_is_deterministic_with_and_without_the_worker(kitti_root: Path) -> None:
-    results, inline, _ = _map_run(kitti_root, FrameRange(0, 40), threads=1)
-    _, background, _ = _map_run(kitti_root, FrameRange(0, 40), threads=2)
-    _, again, _ = _map_run(kitti_root, FrameRange(0, 40), threads=2)
+    results, inline, _ = map_run_00(kitti_root, FrameRange(0, 40), threads=1)
+    _, background, _ = map_run_00(kitti_root, FrameRange(0, 40), threads=2)
+    _, again, _ = map_run_00(kitti_root, FrameRange(0, 40), threads=2)
     adjusted = sum(r.mapping is not None and r.mapping.bundle_adjustment is not None for r in results)
     assert adjusted >= 8  # many adjustments to compare (measured: 12 in the 14 keyframes)
     np.testing.assert_array_equal(inline, background)
