@@ -20,6 +20,8 @@ from ray_cluster import (
 )
 
 from vslam_core.mapping.worker_process import reuse_workers
+from vslam_core.sources import image_files
+from vslam_core.sources import kitti as kitti_source
 from vslam_core.sources.base import FrameRange
 from vslam_core.sources.synthetic import SyntheticStreet
 from vslam_core.sources.synthetic.frame_cache import ENVIRONMENT as FRAME_CACHE
@@ -27,6 +29,7 @@ from vslam_core.sources.synthetic.frame_cache import ENVIRONMENT as FRAME_CACHE
 ROOT = Path(__file__).resolve().parents[1]
 #: The real KITTI sample: the ``shared`` folder beside the repository checkout (never inside the repo).
 KITTI_ROOT = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti"
+KITTI_REAL = KITTI_ROOT.resolve()
 
 
 class _RenderedFrames:
@@ -57,6 +60,36 @@ class _RenderedFrames:
 RENDERED = _RenderedFrames()
 
 
+class _DecodedKitti:
+    """The real KITTI frames decoded once per test process: dozens of in-process runs read the same frames of
+    ../shared/data/kitti (~5 ms a PNG). Only files inside it (symbolic links to them included) are kept, keyed by
+    their real path, size and modification time; each call gets its own copy. Every other image (the tests' own
+    folders, corrupt or re-encoded files) is decoded as usual."""
+
+    LIMIT = 1800  # frames kept (~0.47 MB each)
+
+    def __init__(self) -> None:
+        self.images: dict[tuple[str, int, int], np.ndarray] = {}
+        self.decode = image_files.decode_image
+
+    def __call__(self, path: Path) -> np.ndarray:
+        real = Path(os.path.realpath(path))
+        if not real.is_relative_to(KITTI_REAL):
+            return self.decode(path)
+        stat = real.stat()
+        key = (str(real), stat.st_size, stat.st_mtime_ns)
+        image = self.images.get(key)
+        if image is None:
+            image = self.decode(path)
+            if len(self.images) < self.LIMIT:
+                self.images[key] = image
+        return image.copy()
+
+
+DECODED = _DecodedKitti()
+image_files.decode_image = kitti_source.decode_image = DECODED  # type: ignore[assignment]
+
+
 def pytest_configure(config: pytest.Config) -> None:
     """One synthetic-frame cache on disk for the whole session (`frame_cache`): set by the controlling
     process, so the xdist workers and every `vslam` process a test starts render each frame once. The map
@@ -76,10 +109,11 @@ def pytest_configure(config: pytest.Config) -> None:
 #: Files are handed to the xdist workers whole in this order (`--no-loadscope-reorder`; xdist's own order is by
 #: number of tests): the longest jobs first, so the two workers finish together.
 SLOWEST_FILES = (
-    "test_mapping.py", "test_compare.py", "test_logs_cli.py", "test_scale.py", "test_batch.py", "test_batch_ray.py",
-    "test_outputs.py", "test_faults.py", "test_viewer.py", "test_loop_recording.py", "test_eval_external.py",
-    "test_batch_workflow.py", "test_local_map.py", "test_engine.py", "test_codec.py", "test_recording_map.py",
-    "test_example_orb_vo.py", "test_eval.py", "test_cli.py", "test_map_scale.py", "test_synthetic.py",
+    "test_mapping.py", "test_types.py", "test_compare.py", "test_logs_cli.py", "test_scale.py", "test_batch.py",
+    "test_batch_ray.py", "test_outputs.py", "test_faults.py", "test_viewer.py", "test_loop_recording.py",
+    "test_eval_external.py", "test_batch_workflow.py", "test_local_map.py", "test_engine.py", "test_codec.py",
+    "test_recording_map.py", "test_example_orb_vo.py", "test_eval.py", "test_cli.py", "test_map_scale.py",
+    "test_synthetic.py",
 )
 
 
