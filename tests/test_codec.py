@@ -107,8 +107,8 @@ def test_snapshot_shows_the_video_frame(which: str, av1: Path, cropped: Path, tm
         pytest.skip("no Vulkan adapter")
     path, frame = (av1, 30) if which == "whole" else (cropped, CROP[0])
     # the smallest window the viewer takes (vslam.viewer.headless.MIN_SIZE): only the frame view is checked
-    shots = {p.stem: p for p in snapshot(path, frame, tmp_path, timeout_s=180, whole_window=False,
-                                         window_size=(320, 240))}
+    shots = {p.stem: p for p in snapshot(path, frame, tmp_path, timeout_s=180, window_size=(320, 240),
+                                         only=("frame",))}
     assert _visible(shots["frame"]) > 15, f"the frame view of {path.name} at frame {frame} looks blank"
 
 

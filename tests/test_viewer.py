@@ -491,8 +491,11 @@ def test_world_view_shows_the_car_large_near_the_centre(shots: dict[str, Path]) 
 
 def test_snapshot_cli_last_frame_and_size(recording: Path, vulkan: None, tmp_path: Path) -> None:
     out = tmp_path / "last"
-    result = vslam("snapshot", recording, "--frame", "last", "--size", "640x400", "--out", out)
+    result = vslam("snapshot", recording, "--frame", "last", "--size", "640x400", "--out", out,
+                   "--view", "Frame", "--view", "all")  # a view by its name (any case) or file name
     assert result.returncode == 0, result.stderr
+    assert sorted(p.name for p in out.iterdir()) == ["all.png", "frame.png"]  # only the views asked for
+    assert result.stdout.split() == [str(out / "frame.png"), str(out / "all.png")]
     assert cv2.imread(str(out / "all.png")).shape[:2] == (400, 640)
     shown = cv2.cvtColor(cv2.imread(str(out / "frame.png")), cv2.COLOR_BGR2GRAY)
     assert shown.shape[1] >= 0.95 * 640
@@ -508,6 +511,55 @@ def test_snapshot_cli_last_frame_and_size(recording: Path, vulkan: None, tmp_pat
         bad = vslam_here("snapshot", recording, "--out", out, *args)
         assert bad.returncode == 2 and fragment in bad.stderr and "Traceback" not in bad.stderr, bad.stderr
         assert len(bad.stderr.strip().splitlines()) == 1
+    unknown = vslam_here("snapshot", recording, "--frame", "3", "--size", "320x240", "--view", "nope", "--out",
+                         tmp_path / "none")
+    assert unknown.returncode == 2 and "Traceback" not in unknown.stderr, unknown.stderr
+    assert unknown.stderr.startswith(f"error: {recording}: no view nope in the recording's blueprint (its views: "
+                                     "all, "), unknown.stderr
+    assert "frame" in unknown.stderr and len(unknown.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "none").exists()  # no empty folder left
+
+
+class _FakeViewer:
+    """Screenshots from a list (the last one repeated, or the list over and over when `cycle`), and a viewer
+    state that is loading for the first `loading` calls."""
+
+    def __init__(self, shots: list[bytes], loading: int = 0, cycle: bool = False) -> None:
+        self.shots, self.loading, self.cycle, self.taken = shots, loading, cycle, 0
+
+    def take_screenshot(self, _view_id: str | None) -> bytes:
+        self.taken += 1
+        k = self.taken - 1
+        return self.shots[k % len(self.shots) if self.cycle else min(k, len(self.shots) - 1)]
+
+    def get_state(self) -> Any:
+        self.loading -= 1
+        return type("State", (), {"loading": ["chunk"] if self.loading >= 0 else []})()
+
+
+def _png(changed: int, size: tuple[int, int] = (240, 320)) -> bytes:
+    image = np.zeros((*size, 3), np.uint8)
+    image.reshape(-1, 3)[:changed] = 255
+    return cv2.imencode(".png", image)[1].tobytes()
+
+
+def test_a_picture_is_settled_when_it_stops_changing_or_only_flickers(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Identical shots with nothing loading settle at once; a picture changing in 150 of 76800 pixels for good
+    (egui's plots oscillating at 320x240) is taken after FLICKER_S with a warning; one changing in 5 % of its
+    pixels never settles (the time-out's one-line error)."""
+    monkeypatch.setattr(snapshots, "SETTLE_S", 0.0)
+    monkeypatch.setattr(snapshots, "FLICKER_S", 0.05)
+    settled = _FakeViewer([_png(0), _png(500), _png(500)], loading=1)
+    assert snapshots._settled(settled, None, Path("r.rrd"), time.monotonic() + 5) == _png(500)  # type: ignore[arg-type]
+    flicker = _FakeViewer([_png(0), _png(150)], cycle=True)
+    started = time.monotonic()
+    shot = snapshots._settled(flicker, "view", Path("r.rrd"), time.monotonic() + 5)  # type: ignore[arg-type]
+    assert shot in (_png(0), _png(150)) and 0.05 <= time.monotonic() - started < 5
+    moving = _FakeViewer([_png(0), _png(3840)], cycle=True)
+    with pytest.raises(ViewerError, match="did not settle before the time-out"):
+        snapshots._settled(moving, "view", Path("r.rrd"), time.monotonic() + 0.3)  # type: ignore[arg-type]
+    assert snapshots.changed_share(_png(768), _png(0)) == pytest.approx(0.01)
+    assert snapshots.changed_share(_png(0), _png(0, (10, 10))) == 1.0
 
 
 def test_parse_size_and_frame() -> None:

@@ -15,9 +15,12 @@ import logging
 import re
 import shutil
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import cv2
+import numpy as np
 from rerun.experimental import View, ViewerClient, ViewerState
 
 from vslam.rrd import first_line
@@ -84,12 +87,15 @@ def snapshot(
     *,
     whole_window: bool = True,
     window_size: tuple[int, int] = DEFAULT_SIZE,
+    only: Sequence[str] = (),
 ) -> list[Path]:
     """Open `rrd` in the headless Rerun viewer at `frame` (an index or `last`, paused) and save one PNG per view.
 
     The views are those of the recording's embedded blueprint; each PNG is named after its view
     (``frame.png``, ``world.png``, ``events.png``…) and shows that view maximised in a window of
     `window_size`, plus ``all.png`` of the whole layout when `whole_window`, in the layout's reading order.
+    `only` names the pictures to take instead (a view's name or its file name, ``all`` for the whole layout):
+    each view costs the viewer a render of its own, so a CI job that needs one picture asks for that one.
 
     Raises `ViewerError` (one line) for a missing/bad file, a frame outside the recording, no Vulkan
     adapter, or a viewer that fails or does not settle within `timeout_s`.
@@ -105,7 +111,7 @@ def snapshot(
     except OSError as exc:
         raise ViewerError(f"{out_dir}: cannot create output folder ({exc.strerror})") from None
     try:
-        return _snapshot(rrd, index, out_dir, timeout_s, whole_window, window_size)
+        return _snapshot(rrd, index, out_dir, timeout_s, whole_window, window_size, only)
     except BaseException:  # Ctrl-C or a failure: no empty folder left behind
         if created:
             with contextlib.suppress(OSError):
@@ -114,12 +120,12 @@ def snapshot(
 
 
 def _snapshot(rrd: Path, index: int, out_dir: Path, timeout_s: float, whole_window: bool,
-              window_size: tuple[int, int]) -> list[Path]:
+              window_size: tuple[int, int], only: Sequence[str]) -> list[Path]:
     started = time.monotonic()
     deadline = started + timeout_s
     with viewer.stop_viewer_on_sigterm(), viewer.headless_viewer(deadline, window_size) as (process, client):
         try:
-            shots = _settled_screenshots(client, rrd, index, deadline, whole_window)
+            shots = _settled_screenshots(client, rrd, index, deadline, whole_window, only)
         except ViewerError:
             raise
         except Exception as exc:
@@ -167,7 +173,7 @@ def _write_pictures(shots: list[tuple[str, bytes]], out_dir: Path) -> list[Path]
 
 
 def _settled_screenshots(
-    client: ViewerClient, rrd: Path, frame: int, deadline: float, whole_window: bool
+    client: ViewerClient, rrd: Path, frame: int, deadline: float, whole_window: bool, only: Sequence[str]
 ) -> list[tuple[str, bytes]]:
     opened = client.open(str(viewer.viewable(rrd).resolve()))
     if not opened.store_ids:
@@ -185,8 +191,10 @@ def _settled_screenshots(
     layout = client.get_blueprint(store_id=store_id).blueprint
     order = layout_order(layout)
     views.sort(key=lambda v: order.index(v.view_id) if v.view_id in order else len(order))
+    if only:
+        views, whole_window = chosen_views(views, only, rrd)
 
-    window = _settled(client, None, rrd, deadline)
+    window = _settled(client, None, rrd, deadline) if whole_window else b""
     shots = []
     for view in views:  # each view alone, maximised: as large as the window allows
         client.set_blueprint(maximised(layout, view.view_id), store_id=store_id)
@@ -203,6 +211,18 @@ def _settled_screenshots(
         for report in view.reports:
             log.warning("view %r: %s: %s", view.name, report.severity, report.summary)
     return shots
+
+
+def chosen_views(views: list[View], names: Sequence[str], rrd: Path) -> tuple[list[View], bool]:
+    """The views `names` asks for, in `views`' order, and whether it asks for the whole layout (``all``); a view
+    is named by its name or its file name (`view_file_name`), in any case. `ViewerError` (one line, listing the
+    names there are) for a name no view has."""
+    wanted = {view_file_name(name) for name in names}
+    known = {view_file_name(v.name or v.view_class) for v in views} | {WHOLE_WINDOW}
+    if unknown := sorted(wanted - known):
+        raise ViewerError(f"{rrd}: no view {', '.join(unknown)} in the recording's blueprint "
+                          f"(its views: {', '.join(sorted(known))})")
+    return [v for v in views if view_file_name(v.name or v.view_class) in wanted], WHOLE_WINDOW in wanted
 
 
 def _pause_at(client: ViewerClient, store_id: str, frame: int, rrd: Path, deadline: float) -> None:
@@ -249,18 +269,46 @@ def layout_order(tree: dict[str, Any]) -> list[str]:
 
 #: Two screenshots this far apart (seconds) that are identical, with nothing loading, are the settled picture.
 SETTLE_S = 0.1
+#: A picture that keeps changing in no more than this share of its pixels for `FLICKER_S` seconds, with nothing
+#: loading, is taken as it is: at small window sizes egui's plots can oscillate between two layouts (an axis
+#: label's width changes the plot's, which changes the label), measured at 320x240: 100-200 of 76800 pixels
+#: changing every frame for good, while the same layout at 640x360 settles at once.
+FLICKER_SHARE = 0.01
+FLICKER_S = 3.0
 
 
 def _settled(client: ViewerClient, view_id: str | None, rrd: Path, deadline: float) -> bytes:
     """Screenshot the view (the whole window for None) until two shots `SETTLE_S` apart are identical and
     nothing is loading: the viewer loads chunks lazily, decodes images and eases the 3-D eye in the
-    background (it repaints while it does, so a changing picture is never taken twice)."""
+    background (it repaints while it does, so a changing picture is never taken twice). A picture whose changes
+    stay small (`FLICKER_SHARE`) for `FLICKER_S` is taken too, with a warning."""
     previous = client.take_screenshot(view_id)
+    flicker_since: float | None = None
     while True:
         if time.monotonic() > deadline:
             raise ViewerError(f"{rrd}: the viewer's pictures did not settle before the time-out")
         time.sleep(SETTLE_S)
         shot = client.take_screenshot(view_id)
-        if shot == previous and not client.get_state().loading:
-            return shot
+        if not client.get_state().loading:
+            if shot == previous:
+                return shot
+            if changed_share(previous, shot) > FLICKER_SHARE:
+                flicker_since = None
+            elif flicker_since is None:
+                flicker_since = time.monotonic()
+            elif time.monotonic() - flicker_since >= FLICKER_S:
+                log.warning("view %s kept changing in a few pixels for %.0f s (a layout oscillating at this "
+                            "window size); its last picture was taken", view_id or "layout", FLICKER_S)
+                return shot
+        else:
+            flicker_since = None
         previous = shot
+
+
+def changed_share(first: bytes, second: bytes) -> float:
+    """Share of pixels that differ between two PNG screenshots (1.0 when their sizes differ or one is unreadable)."""
+    a, b = (cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED) for png in (first, second))
+    if a is None or b is None or a.shape != b.shape:
+        return 1.0
+    differs = a != b
+    return float((differs.any(axis=2) if differs.ndim == 3 else differs).mean())
