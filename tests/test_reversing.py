@@ -14,7 +14,7 @@ from kitti_runs import kitti_folder
 from vslam_core.config import EngineConfig
 from vslam_core.geometry import rotation_angle
 from vslam_core.pipeline import run_odometry
-from vslam_core.results import FrameResult
+from vslam_core.results import FrameResult, Reason
 from vslam_core.sources.base import Frame
 from vslam_core.sources.folder import ImageFolderSource
 
@@ -27,10 +27,15 @@ def test_reversing_is_tracked_against_the_map(kitti_root: Path, tmp_path: Path) 
     truth = source.ground_truth
     assert truth is not None
     modes: Counter[str] = Counter()
+    outvoted: list[int] = []
 
-    def sink(_frame: Frame, result: FrameResult) -> None:
+    def sink(frame: Frame, result: FrameResult) -> None:
         assert result.mapping is not None
         modes[result.mapping.mode.value] += 1
+        if Reason.TWO_VIEW_OUTVOTED in result.health.reasons:  # PnP won against the two-view rotation: flagged
+            assert result.mapping.mode.value == "map" and result.mapping.pnp is not None
+            assert result.mapping.pnp.outvoted_two_view and result.mapping.pnp.rejected is None
+            outvoted.append(frame.index)
 
     poses = run_odometry(source, EngineConfig(backend="map", scale="gt"), (sink,)).pose_array()
     assert len(poses) == 61
@@ -38,3 +43,4 @@ def test_reversing_is_tracked_against_the_map(kitti_root: Path, tmp_path: Path) 
     assert max(rotation_deg) < 1.0
     assert np.sqrt(np.mean(np.sum((poses[:, :3, 3] - truth[:, :3, 3]) ** 2, axis=1))) < 0.35
     assert modes["map"] >= 50, modes
+    assert outvoted == [45], outvoted  # measured: the one frame (KITTI 05 frame 15) where the vote decided

@@ -59,6 +59,8 @@ class Reason(StrEnum):
     # map backend
     TRACKING_LOST = "tracking_lost"  # fail: neither the map nor two-view geometry gave a pose, relocalisation failed
     PNP_REJECTED = "pnp_rejected"  # warn: tracking against the map failed its checks; the two-view pose was used
+    TWO_VIEW_OUTVOTED = "two_view_outvoted"  # warn: PnP disagreed with the two-view rotation, agreed with the
+    # motion model's prediction, and was used
     RELOCALISED = "relocalised"  # warn: tracking was lost; the pose came from matching the map's landmarks
     NEW_MAP_SEGMENT = "new_map_segment"  # warn: relocalisation failed, a new map was started here
     COASTED = "coasted"  # the image could not be tracked; its pose is dead-reckoned from the degraded image
@@ -123,6 +125,7 @@ class PnPEstimate:
     inlier_mask: np.ndarray  # (L,) bool: RANSAC inliers kept after refinement
     T_world_cam: np.ndarray | None  # (4, 4) the refined PnP pose; None when PnP failed  # noqa: N815
     rejected: str | None = None  # why it was not used, if it was not
+    outvoted_two_view: bool = False  # used though the two-view rotation disagreed: it agreed with the motion model
 
 
 @dataclass(frozen=True)

@@ -150,6 +150,7 @@ class MapTracking:
         pose, mode, why = None, TrackingMode.LOST, None
         if pnp is not None and pnp.rejected is None and pnp.T_world_cam is not None:
             pose, mode = self._metric(pnp.T_world_cam, vo), TrackingMode.MAP
+            warnings += [Reason.TWO_VIEW_OUTVOTED] if pnp.outvoted_two_view else []
         elif self._has_map() and (lost_tracks or self._gap):
             clock = time.perf_counter()
             relocalisation, found = self.refinding.relocalise(self.mapping.map, self._reference, self._segment,
@@ -221,7 +222,7 @@ class MapTracking:
                                None, f"only {len(rows)} landmarks tracked")
         solution = solve_pnp(self.mapping.map.positions(landmark_ids), observed, self._K, cfg.pnp_threshold_px,
                              cfg.pnp_iterations, (self.config.pose.seed, position))
-        rejected = self._check_pnp(solution, two_view, vo)
+        rejected, outvoted = self._check_pnp(solution, two_view, vo)
         if rejected is None:
             outliers = {int(t) for t, inlier in zip(track_ids[[n for n, _ in rows]], solution.inlier_mask, strict=True)
                         if not inlier}
@@ -230,7 +231,7 @@ class MapTracking:
                 if self._cfg.local_map_tracking:
                     self._suspended[track_id] = landmark_id
         return PnPEstimate(landmark_ids, observed, solution.projected, solution.inlier_mask, solution.T_world_cam,
-                           rejected)
+                           rejected, outvoted)
 
     def _suspended_at_keyframe(self, track_ids: np.ndarray, pixels: np.ndarray, pose: np.ndarray) -> dict[int, int]:
         """Tracks PnP rejected whose (ideal) pixel in a keyframe at `pose` lies within `keyframe_observation_px`
@@ -258,19 +259,17 @@ class MapTracking:
         new_tracks = self._odometry.add_tracks(raw.astype(np.float32))
         self._links.update(zip(new_tracks.tolist(), found.landmark_ids[keep].tolist(), strict=True))
 
-    def _check_pnp(self, solution: PnPSolution, two_view: np.ndarray | None, vo: FrameResult) -> str | None:
-        """Why a PnP pose is not trusted, if it is not."""
+    def _check_pnp(self, solution: PnPSolution, two_view: np.ndarray | None,
+                   vo: FrameResult) -> tuple[str | None, bool]:
+        """Why a PnP pose is not trusted, if it is not; and whether it outvoted the two-view rotation."""
         cfg = self._cfg
-        if solution.T_world_cam is None:
-            return "no PnP solution"
         inliers = int(solution.inlier_mask.sum())
-        if inliers < cfg.pnp_min_inliers:
-            return f"{inliers} inliers"
+        if solution.T_world_cam is None or inliers < cfg.pnp_min_inliers:
+            return ("no PnP solution" if solution.T_world_cam is None else f"{inliers} inliers"), False
         if inliers < cfg.pnp_min_inlier_ratio * len(solution.inlier_mask):
-            return f"inlier ratio {inliers / len(solution.inlier_mask):.2f}"
+            return f"inlier ratio {inliers / len(solution.inlier_mask):.2f}", False
         if two_view is not None and vo.T_key_cur is not None:
-            reference = self.pose_of(vo.keyframe_position)
-            pnp_motion = invert_pose(reference) @ solution.T_world_cam
+            pnp_motion = invert_pose(self.pose_of(vo.keyframe_position)) @ solution.T_world_cam
             disagreement = np.degrees(rotation_angle(pnp_motion[:3, :3].T @ vo.T_key_cur[:3, :3]))
             if disagreement > cfg.max_rotation_disagreement_deg:
                 # two against one: PnP agreeing with the motion model outvotes a two-view rotation over a short
@@ -278,8 +277,9 @@ class MapTracking:
                 predicted = self.refinding.predicted_pose()
                 if predicted is None or np.degrees(rotation_angle(predicted[:3, :3].T @ solution.T_world_cam[:3, :3])) \
                         > cfg.max_rotation_disagreement_deg:
-                    return f"rotation {disagreement:.1f}° from the two-view motion"
-        return None
+                    return f"rotation {disagreement:.1f}° from the two-view motion", False
+                return None, True
+        return None, False
 
     def _metric(self, pose: np.ndarray, vo: FrameResult) -> np.ndarray:
         """The PnP pose with its step from the front end's keyframe given the scale source's length (gt or
