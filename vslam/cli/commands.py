@@ -308,8 +308,9 @@ def snapshot_command(
     out_dir: Annotated[Path, typer.Option("--out", help="folder for one PNG per view")],
     size: Annotated[str, typer.Option(help="viewer window WIDTHxHEIGHT: each view's PNG is about this large")]
     = "1280x720",  # vslam.viewer.headless.DEFAULT_SIZE (a test keeps the two equal)
-    view: Annotated[list[str] | None, typer.Option(help="only this view's picture (its name or file name, 'all' "
-                                                   "for the whole layout); repeat for more")] = None,
+    view: Annotated[list[str] | None, typer.Option(
+        metavar="<str>", help="only this view's picture (its name or file name, 'all' for the whole layout); repeat "
+                              "for more")] = None,
 ) -> None:
     """Render every view of the recording's blueprint at one frame to PNG, with the real viewer, headless."""
     from vslam.viewer import parse_frame, parse_size, snapshot
