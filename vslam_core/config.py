@@ -39,6 +39,9 @@ class DetectorConfig:
     grid_rows: int = 4
     grid_cols: int = 10
     min_distance_px: int = 8  # no new corner within this distance of a live track
+    # re-detect also when live tracks cover less than this share of the grid's cells (a car reversing: its tracks
+    # flow to the image centre and are not lost, so their number alone never asks for new ones); 0: off
+    min_coverage: float = 0.5
 
 
 @dataclass(frozen=True)

@@ -85,6 +85,7 @@ RANGES: dict[str, Range] = {
     "detector.grid_rows": closed(1, 100),
     "detector.grid_cols": closed(1, 100),
     "detector.min_distance_px": closed(0, 1000),
+    "detector.min_coverage": closed(0.0, 1.0),
     # tracker (OpenCV's calcOpticalFlowPyrLK needs a window > 2 px and maxLevel ≥ 0)
     "tracker.window_px": closed(3, 101),
     "tracker.max_level": PYRAMID,

@@ -24,7 +24,7 @@ import numpy as np
 
 from vslam_core.coasting import DeadReckoning, agrees
 from vslam_core.config import EngineConfig
-from vslam_core.features import detect_corners, fill_flow, match_features, track_points
+from vslam_core.features import detect_corners, fill_flow, grid_coverage, match_features, track_points
 from vslam_core.geometry import (
     pose_matrix,
 )
@@ -381,13 +381,17 @@ class Odometry:
         return detect_corners(image, existing, wanted, detector, region=(x0, y0, x1, y1), usable=self._usable)
 
     def _replenish(self, image: np.ndarray, timings: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
-        """Detect new corners away from live tracks when too few are left; they start new tracks."""
+        """Detect new corners away from live tracks when too few are left, or when they cover too little of the
+        image (then a quarter of `target_tracks`, up to 1.25 x `target_tracks` live); they start new tracks."""
         cfg = self.config.detector
         clock = time.perf_counter()
         tracks = self._tracks
         corners = np.zeros((0, 2), np.float32)
         if len(tracks) < cfg.redetect_below or self._previous is None:
             corners = detect_corners(image, tracks.points, cfg.target_tracks - len(tracks), cfg, usable=self._usable)
+        elif grid_coverage(tracks.points, image.shape, cfg) < cfg.min_coverage:
+            wanted = min(cfg.target_tracks // 4, cfg.target_tracks + cfg.target_tracks // 4 - len(tracks))
+            corners = detect_corners(image, tracks.points, wanted, cfg, usable=self._usable)
         if self.config.scale == "height":
             corners = np.concatenate((corners, self._road_corners(image, np.concatenate((tracks.points, corners)))))
         if not len(corners):

@@ -11,6 +11,15 @@ import numpy as np
 from vslam_core.config import DetectorConfig, TrackerConfig
 
 
+def grid_coverage(points: np.ndarray, shape: tuple[int, int], config: DetectorConfig) -> float:
+    """Share of the grid_rows x grid_cols cells of an (H, W) image that hold at least one of the (N, 2) points."""
+    height, width = shape
+    cell = (np.clip((points[:, 1] * config.grid_rows / height).astype(np.int64), 0, config.grid_rows - 1)
+            * config.grid_cols
+            + np.clip((points[:, 0] * config.grid_cols / width).astype(np.int64), 0, config.grid_cols - 1))
+    return len(np.unique(cell)) / (config.grid_rows * config.grid_cols)
+
+
 def detect_corners(
     image: np.ndarray, existing: np.ndarray, wanted: int, config: DetectorConfig,
     region: tuple[int, int, int, int] | None = None, usable: np.ndarray | None = None,
