@@ -11,13 +11,17 @@ import numpy as np
 from vslam_core.config import DetectorConfig, TrackerConfig
 
 
-def grid_coverage(points: np.ndarray, shape: tuple[int, int], config: DetectorConfig) -> float:
-    """Share of the grid_rows x grid_cols cells of an (H, W) image that hold at least one of the (N, 2) points."""
+def grid_cells(points: np.ndarray, shape: tuple[int, int], config: DetectorConfig) -> np.ndarray:
+    """(N,) int64 row-major index of the grid_rows x grid_cols cell of an (H, W) image holding each (N, 2) point."""
     height, width = shape
-    cell = (np.clip((points[:, 1] * config.grid_rows / height).astype(np.int64), 0, config.grid_rows - 1)
+    return (np.clip((points[:, 1] * config.grid_rows / height).astype(np.int64), 0, config.grid_rows - 1)
             * config.grid_cols
             + np.clip((points[:, 0] * config.grid_cols / width).astype(np.int64), 0, config.grid_cols - 1))
-    return len(np.unique(cell)) / (config.grid_rows * config.grid_cols)
+
+
+def grid_coverage(points: np.ndarray, shape: tuple[int, int], config: DetectorConfig) -> float:
+    """Share of the grid's cells (`grid_cells`) that hold at least one of the (N, 2) points."""
+    return len(np.unique(grid_cells(points, shape, config))) / (config.grid_rows * config.grid_cols)
 
 
 def detect_corners(
@@ -53,11 +57,7 @@ def detect_corners(
     if cells == 1:
         order = np.argsort(-response, kind="stable")[:wanted]
         return points[order]
-    cell = (
-        np.minimum((points[:, 1] * config.grid_rows / height).astype(np.int64), config.grid_rows - 1)
-        * config.grid_cols
-        + np.minimum((points[:, 0] * config.grid_cols / width).astype(np.int64), config.grid_cols - 1)
-    )
+    cell = grid_cells(points, (height, width), config)  # FAST corners lie inside the image: the clip is a no-op
     # Rank of each corner inside its cell by response; take rank 0 of every cell, then rank 1, ...
     order = np.lexsort((-response, cell))
     sorted_cell = cell[order]

@@ -85,7 +85,6 @@ def snapshot(
     out_dir: Path,
     timeout_s: float = 300,
     *,
-    whole_window: bool = True,
     window_size: tuple[int, int] = DEFAULT_SIZE,
     only: Sequence[str] = (),
 ) -> list[Path]:
@@ -93,7 +92,7 @@ def snapshot(
 
     The views are those of the recording's embedded blueprint; each PNG is named after its view
     (``frame.png``, ``world.png``, ``events.png``…) and shows that view maximised in a window of
-    `window_size`, plus ``all.png`` of the whole layout when `whole_window`, in the layout's reading order.
+    `window_size`, plus ``all.png`` of the whole layout, in the layout's reading order.
     `only` names the pictures to take instead (a view's name or its file name, ``all`` for the whole layout):
     each view costs the viewer a render of its own, so a CI job that needs one picture asks for that one.
 
@@ -111,7 +110,7 @@ def snapshot(
     except OSError as exc:
         raise ViewerError(f"{out_dir}: cannot create output folder ({exc.strerror})") from None
     try:
-        return _snapshot(rrd, index, out_dir, timeout_s, whole_window, window_size, only)
+        return _snapshot(rrd, index, out_dir, timeout_s, window_size, only)
     except BaseException:  # Ctrl-C or a failure: no empty folder left behind
         if created:
             with contextlib.suppress(OSError):
@@ -119,13 +118,13 @@ def snapshot(
         raise
 
 
-def _snapshot(rrd: Path, index: int, out_dir: Path, timeout_s: float, whole_window: bool,
-              window_size: tuple[int, int], only: Sequence[str]) -> list[Path]:
+def _snapshot(rrd: Path, index: int, out_dir: Path, timeout_s: float, window_size: tuple[int, int],
+              only: Sequence[str]) -> list[Path]:
     started = time.monotonic()
     deadline = started + timeout_s
     with viewer.stop_viewer_on_sigterm(), viewer.headless_viewer(deadline, window_size) as (process, client):
         try:
-            shots = _settled_screenshots(client, rrd, index, deadline, whole_window, only)
+            shots = _settled_screenshots(client, rrd, index, deadline, only)
         except ViewerError:
             raise
         except Exception as exc:
@@ -173,7 +172,7 @@ def _write_pictures(shots: list[tuple[str, bytes]], out_dir: Path) -> list[Path]
 
 
 def _settled_screenshots(
-    client: ViewerClient, rrd: Path, frame: int, deadline: float, whole_window: bool, only: Sequence[str]
+    client: ViewerClient, rrd: Path, frame: int, deadline: float, only: Sequence[str]
 ) -> list[tuple[str, bytes]]:
     opened = client.open(str(viewer.viewable(rrd).resolve()))
     if not opened.store_ids:
@@ -191,6 +190,7 @@ def _settled_screenshots(
     layout = client.get_blueprint(store_id=store_id).blueprint
     order = layout_order(layout)
     views.sort(key=lambda v: order.index(v.view_id) if v.view_id in order else len(order))
+    whole_window = True
     if only:
         views, whole_window = chosen_views(views, only, rrd)
 
