@@ -74,11 +74,11 @@ class _DecodedKitti:
 
     def __call__(self, path: Path) -> np.ndarray:
         real = Path(os.path.realpath(path))
+        if not real.is_relative_to(KITTI_REAL):
+            return self.decode(path)
         try:
             stat = real.stat()
         except OSError:  # missing or unreadable: the source's own error
-            return self.decode(path)
-        if not real.is_relative_to(KITTI_REAL):
             return self.decode(path)
         key = (str(real), stat.st_size, stat.st_mtime_ns)
         image = self.images.get(key)
