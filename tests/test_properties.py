@@ -1,5 +1,6 @@
 """Property tests: geometry never raises on valid-but-degenerate input and always returns proper
-rotations; loaders turn any bytes into a clean `VslamError`."""
+rotations; loaders turn any bytes into a clean `VslamError`; the noise check's fast filter gives what its
+3x3 kernel gives."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ from vslam_core.config import EngineConfig
 from vslam_core.engine import Odometry
 from vslam_core.errors import VslamError
 from vslam_core.geometry import candidate_poses, chirality_check, normalise_points, refine_relative_pose, so3_exp
+from vslam_core.quality import image_stats
 from vslam_core.scale import UnitScale
 from vslam_core.sources.base import CameraIntrinsics, Frame
 from vslam_core.sources.kitti import read_grey_image, read_p0_intrinsics
@@ -114,3 +116,18 @@ def test_loaders_turn_any_bytes_into_a_clean_error(data: bytes) -> None:
                 load(path)  # type: ignore[operator]
             except VslamError as exc:
                 assert str(path) in str(exc) and "\n" not in str(exc)
+
+
+
+@given(st.integers(0, 2**31 - 1), st.integers(3, 64), st.integers(3, 64), st.booleans())
+def test_noise_estimate_is_the_3x3_kernels(seed: int, height: int, width: int, saturated: bool) -> None:
+    """`image_stats`' noise sigma (Immerkaer's kernel as two 1-D passes) is the one the 3x3 kernel itself gives,
+    on any image, black-and-white ones (the largest responses) included: sqrt(pi/2) / 6 x the lower median of
+    |response| over the interior, clipped at 255."""
+    rng = np.random.default_rng(seed)
+    image = (255 * rng.integers(0, 2, (height, width)) if saturated
+             else rng.integers(0, 256, (height, width))).astype(np.uint8)
+    kernel = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
+    magnitude = np.minimum(np.abs(cv2.filter2D(image, cv2.CV_32F, kernel)[1:-1, 1:-1]), 255).astype(np.int64)
+    median = int(np.sort(magnitude.ravel())[(magnitude.size - 1) // 2])
+    assert image_stats(image).noise_sigma == float(np.sqrt(np.pi / 2) * median / 6)
