@@ -19,11 +19,12 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
+import rerun as rr
 from cli_helpers import vslam, vslam_here
 from rerun.chunk import RrdReader
 
 from vslam.recording.layout import CAR_ENTITY
-from vslam.rrd.read import read_entity
+from vslam.rrd.read import blueprint_view_names, read_entity
 from vslam.viewer import headless as snapshots
 from vslam.viewer import processes as viewer
 from vslam.viewer import web
@@ -511,13 +512,34 @@ def test_snapshot_cli_last_frame_and_size(recording: Path, vulkan: None, tmp_pat
         bad = vslam_here("snapshot", recording, "--out", out, *args)
         assert bad.returncode == 2 and fragment in bad.stderr and "Traceback" not in bad.stderr, bad.stderr
         assert len(bad.stderr.strip().splitlines()) == 1
-    unknown = vslam_here("snapshot", recording, "--frame", "3", "--size", "320x240", "--view", "nope", "--out",
-                         tmp_path / "none")
+    with pytest.MonkeyPatch.context() as mp:  # refused from the embedded blueprint, before any viewer starts
+        mp.setattr(viewer, "headless_viewer", _no_viewer)
+        unknown = vslam_here("snapshot", recording, "--frame", "3", "--size", "320x240", "--view", "nope", "--out",
+                             tmp_path / "none")
     assert unknown.returncode == 2 and "Traceback" not in unknown.stderr, unknown.stderr
     assert unknown.stderr.startswith(f"error: {recording}: no view nope in the recording's blueprint (its views: "
                                      "all, "), unknown.stderr
     assert "frame" in unknown.stderr and len(unknown.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "none").exists()  # no empty folder left
+
+
+def _no_viewer(*_args: object) -> None:
+    raise AssertionError("a viewer was started")
+
+
+def test_the_blueprint_read_without_a_viewer_names_the_views_the_viewer_shows(
+    recording: Path, shots: dict[str, Path], tmp_path: Path
+) -> None:
+    names = blueprint_view_names(recording)
+    assert names is not None
+    assert sorted([*(snapshots.view_file_name(name) for name in names), "all"]) == sorted(shots)
+    bare = tmp_path / "bare.rrd"  # no blueprint: the views are known only once a viewer shows them
+    stream = rr.RecordingStream("bare")
+    stream.save(bare)
+    stream.log("/points", rr.Points3D([[0.0, 0.0, 1.0]]))
+    stream.flush()
+    stream.disconnect()
+    assert blueprint_view_names(bare) is None
 
 
 class _FakeViewer:

@@ -12,6 +12,7 @@ from vslam_core.lazy import lazy_names
 #: Where each public name lives.
 _HOMES = {
     "RecordingError": "read",
+    "blueprint_view_names": "read",
     "check_recording": "check",
     "comparison_prefixes": "provenance",
     "crop_recording": "crop",
@@ -45,6 +46,7 @@ if TYPE_CHECKING:
     from vslam.rrd.provenance import comparison_prefixes, flatten, run_differences
     from vslam.rrd.read import (
         RecordingError,
+        blueprint_view_names,
         first_line,
         has_footer,
         open_store,
@@ -63,6 +65,7 @@ __getattr__ = lazy_names(__name__, _HOMES)
 
 __all__ = [
     "RecordingError",
+    "blueprint_view_names",
     "check_recording",
     "comparison_prefixes",
     "crop_recording",

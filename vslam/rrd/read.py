@@ -206,6 +206,34 @@ def open_store(source: Path) -> tuple[RrdReader, StoreEntry, list[StoreEntry]]:
     return reader, recordings[0], blueprints
 
 
+def blueprint_view_names(path: Path) -> list[str] | None:
+    """The display names of the views in the recording's embedded blueprint (its last value per view; views
+    set invisible left out), or None when the file has no blueprint or a view has no name (the viewer then
+    names it by its class, which only the viewer knows). Read from the blueprint store's `/view/*` entities
+    with pyarrow (polars cannot hold some of the blueprint's union columns)."""
+    names: dict[str, str | None] = {}
+    hidden: set[str] = set()
+    with _reading(path) as reader:
+        for blueprint in reader.blueprints():
+            for chunk in reader.store(store=blueprint).stream().to_chunks():
+                entity = chunk.entity_path
+                if not entity.startswith("/view/") or entity.count("/") != 2:
+                    continue
+                batch = chunk.to_record_batch()
+                for column, values in zip(batch.schema.names, batch.columns, strict=True):
+                    last = next((v for v in reversed(values.to_pylist()) if v), None)
+                    if column.endswith("ViewBlueprint:display_name"):
+                        names[entity] = last[0] if last else names.get(entity)
+                    elif column.endswith("ViewBlueprint:class_identifier"):
+                        names.setdefault(entity, None)
+                    elif column.endswith("ViewBlueprint:visible") and last == [False]:
+                        hidden.add(entity)
+    shown = [name for entity, name in names.items() if entity not in hidden]
+    if not shown or any(name is None for name in shown):
+        return None
+    return [name for name in shown if name is not None]
+
+
 def run_rerun_cli(source: Path, *args: str) -> None:
     """Run the `rerun` binary of the installed rerun-sdk (not `python -m rerun_cli`: it exits 0 on errors)."""
     try:

@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 from rerun.experimental import View, ViewerClient, ViewerState
 
-from vslam.rrd import first_line
+from vslam.rrd import RecordingError, blueprint_view_names, first_line
 from vslam.viewer import processes as viewer
 from vslam.viewer.processes import NO_VULKAN, ViewerError
 
@@ -100,6 +100,8 @@ def snapshot(
     adapter, or a viewer that fails or does not settle within `timeout_s`.
     """
     index = resolve_frame(rrd, frame)
+    if only and (view_names := _blueprint_views(rrd)) is not None:
+        check_view_names(view_names, only, rrd)  # before the viewer starts (~3 s); else once it shows the views
     if problem := video_decoding_problem(rrd):
         raise ViewerError(problem)
     if not viewer.vulkan_available():
@@ -135,6 +137,15 @@ def _snapshot(rrd: Path, index: int, out_dir: Path, timeout_s: float, window_siz
     log.info("snapshot of %s at frame %d: %d pictures in %.1f s", rrd, index, len(written),
              time.monotonic() - started)
     return written
+
+
+def _blueprint_views(rrd: Path) -> list[str] | None:
+    """The names of the views of the recording's embedded blueprint, read without the viewer; None when they
+    cannot be known before the viewer shows them (no blueprint, an unnamed view, a blueprint not readable)."""
+    try:
+        return blueprint_view_names(rrd)
+    except RecordingError:
+        return None
 
 
 def video_decoding_problem(rrd: Path) -> str | None:
@@ -217,12 +228,19 @@ def chosen_views(views: list[View], names: Sequence[str], rrd: Path) -> tuple[li
     """The views `names` asks for, in `views`' order, and whether it asks for the whole layout (``all``); a view
     is named by its name or its file name (`view_file_name`), in any case. `ViewerError` (one line, listing the
     names there are) for a name no view has."""
+    wanted = check_view_names([v.name or v.view_class for v in views], names, rrd)
+    return [v for v in views if view_file_name(v.name or v.view_class) in wanted], WHOLE_WINDOW in wanted
+
+
+def check_view_names(view_names: Sequence[str], names: Sequence[str], rrd: Path) -> set[str]:
+    """The file names (`view_file_name`) of the views `names` asks for; `ViewerError` (one line, listing the
+    views there are) for a name none of `view_names` (or ``all``) has."""
     wanted = {view_file_name(name) for name in names}
-    known = {view_file_name(v.name or v.view_class) for v in views} | {WHOLE_WINDOW}
+    known = {view_file_name(name) for name in view_names} | {WHOLE_WINDOW}
     if unknown := sorted(wanted - known):
         raise ViewerError(f"{rrd}: no view {', '.join(unknown)} in the recording's blueprint "
                           f"(its views: {', '.join(sorted(known))})")
-    return [v for v in views if view_file_name(v.name or v.view_class) in wanted], WHOLE_WINDOW in wanted
+    return wanted
 
 
 def _pause_at(client: ViewerClient, store_id: str, frame: int, rrd: Path, deadline: float) -> None:
