@@ -254,7 +254,10 @@ def test_bad_inputs_and_outputs_are_one_line_errors_naming_the_file(runs: tuple[
     _one_line_error(lambda: compare_recordings(garbage, b, out), str(garbage), "not a readable Rerun recording")
     truncated = tmp_path / "truncated.rrd"  # cut before its first /world/camera rows were written
     truncated.write_bytes(a.read_bytes()[: a.stat().st_size // 2])
-    _one_line_error(lambda: compare_recordings(a, truncated, out), str(truncated), "no /world/camera")
+    message = _one_line_error(lambda: compare_recordings(a, truncated, out), str(truncated))
+    # what the first half holds depends on when the writer flushed (the blueprint store's messages can fill it)
+    assert ("not a vslam recording (no /world/camera" in message
+            or "not a readable Rerun recording (no recording data in it)" in message), message
     other = tmp_path / "other.rrd"
     with rr.RecordingStream("other", recording_id="x", send_properties=False) as rec:
         rec.save(other)
