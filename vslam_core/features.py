@@ -11,17 +11,19 @@ import numpy as np
 from vslam_core.config import DetectorConfig, TrackerConfig
 
 
-def grid_cells(points: np.ndarray, shape: tuple[int, int], config: DetectorConfig) -> np.ndarray:
-    """(N,) int64 row-major index of the grid_rows x grid_cols cell of an (H, W) image holding each (N, 2) point."""
+def grid_cells(points: np.ndarray, shape: tuple[int, int], grid: tuple[int, int]) -> np.ndarray:
+    """(N,) int64 row-major index of the cell of a (rows, cols) grid over an (H, W) image holding each (N, 2)
+    point (points outside the image: the nearest border cell)."""
     height, width = shape
-    return (np.clip((points[:, 1] * config.grid_rows / height).astype(np.int64), 0, config.grid_rows - 1)
-            * config.grid_cols
-            + np.clip((points[:, 0] * config.grid_cols / width).astype(np.int64), 0, config.grid_cols - 1))
+    rows, cols = grid
+    return (np.clip((points[:, 1] * rows / height).astype(np.int64), 0, rows - 1) * cols
+            + np.clip((points[:, 0] * cols / width).astype(np.int64), 0, cols - 1))
 
 
 def grid_coverage(points: np.ndarray, shape: tuple[int, int], config: DetectorConfig) -> float:
-    """Share of the grid's cells (`grid_cells`) that hold at least one of the (N, 2) points."""
-    return len(np.unique(grid_cells(points, shape, config))) / (config.grid_rows * config.grid_cols)
+    """Share of the grid_rows x grid_cols cells (`grid_cells`) that hold at least one of the (N, 2) points."""
+    grid = (config.grid_rows, config.grid_cols)
+    return len(np.unique(grid_cells(points, shape, grid))) / (grid[0] * grid[1])
 
 
 def detect_corners(
@@ -58,7 +60,7 @@ def detect_corners(
     if cells == 1:
         order = np.argsort(-response, kind="stable")[:wanted]
         return points[order]
-    cell = grid_cells(points, (height, width), config)  # FAST corners lie inside the image: the clip is a no-op
+    cell = grid_cells(points, (height, width), (config.grid_rows, config.grid_cols))  # corners lie inside the image
     # Rank of each corner inside its cell by response; take rank 0 of every cell, then rank 1, ...
     order = np.lexsort((-response, cell))
     sorted_cell = cell[order]
@@ -72,13 +74,11 @@ def fill_flow(flow: np.ndarray, points: np.ndarray, image_shape: tuple[int, int]
     """(N, 2) flow with its NaN rows (tracks with no flow history yet) replaced by the mean flow of the
     known rows in the same cell of a (rows, cols) grid over the image; rows whose cell has no known flow
     stay NaN. Neighbours move alike, so a new track can start near where it will be found."""
-    height, width = image_shape
-    rows, cols = grid
-    cell = (np.clip((points[:, 1] * rows / height).astype(np.int64), 0, rows - 1) * cols
-            + np.clip((points[:, 0] * cols / width).astype(np.int64), 0, cols - 1))
     known = ~np.isnan(flow[:, 0])
     if known.all() or not known.any():
         return flow
+    rows, cols = grid
+    cell = grid_cells(points, image_shape, grid)
     count = np.bincount(cell[known], minlength=rows * cols)
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = np.column_stack([np.bincount(cell[known], flow[known, axis], rows * cols) / count for axis in (0, 1)])
