@@ -133,6 +133,43 @@ def test_frames_the_map_cannot_place_take_the_maps_speed(kitti_root: Path) -> No
     np.testing.assert_allclose(coasted, speed, rtol=0.25)
 
 
+def bundle_adjusted_step_changes(results: list[FrameResult]) -> np.ndarray:
+    """Per bundle adjustment, per pair of consecutive window keyframes: the distance between them after it over
+    the distance before (each keyframe's pose before = at its insertion or after the last BA that moved it)."""
+    poses: dict[int, np.ndarray] = {}
+    changes = []
+    for result in results:
+        mapping = result.mapping
+        if mapping is None:
+            continue
+        adjusted = mapping.bundle_adjustment
+        if adjusted is not None:
+            after = dict(zip(adjusted.keyframe_ids.tolist(), adjusted.keyframe_poses, strict=True))
+            for k, pose in after.items():
+                if k - 1 in after and k in poses and k - 1 in poses:
+                    before = np.linalg.norm(poses[k][:3, 3] - poses[k - 1][:3, 3])
+                    changes.append(np.linalg.norm(pose[:3, 3] - after[k - 1][:3, 3]) / before)
+            poses.update(after)
+        if mapping.keyframe is not None:
+            poses[mapping.keyframe.keyframe_id] = mapping.keyframe.T_world_cam
+    return np.array(changes)
+
+
+@pytest.mark.kitti
+def test_bundle_adjustment_keeps_the_maps_steps(kitti_root: Path) -> None:
+    """With --scale none nothing outside the map holds its scale, and bundle adjustment left free lengthened
+    the keyframe-to-keyframe steps a little, which added up to scale drift. Each step now enters BA as a prior
+    at its length before it (sigma `none_step_sigma` = 0.3 % of it). On KITTI 05 0:60 (90 steps adjusted) the
+    largest change a BA makes is 0.22 % and the 95th percentile 0.13 %; without the prior (measured) 1.29 % and
+    0.37 %."""
+    results: list[FrameResult] = []
+    source = KittiSource(kitti_root, sequence="05", frames=FrameRange(0, 60))
+    run_odometry(source, EngineConfig(backend="map", scale="none", threads=1), (lambda _, r: results.append(r),))
+    changes = np.abs(bundle_adjusted_step_changes(results) - 1)
+    assert len(changes) >= 60
+    assert changes.max() < 0.006 and np.percentile(changes, 95) < 0.002, (changes.max(), np.percentile(changes, 95))
+
+
 def keyframe_reasons(results: list[FrameResult]) -> list[str]:
     return [r.mapping.keyframe.why for r in results if r.mapping is not None and r.mapping.keyframe is not None]
 

@@ -150,6 +150,10 @@ class MapConfig:
     init_parallax_px: float = 20.0
     none_min_triangulation_deg: float = 3.0
     none_ba_iterations: int = 10
+    # ... and each keyframe-to-keyframe distance enters BA as a prior at its length before the adjustment, with
+    # this sigma (a fraction of it; 0: no prior): left free, BA lengthened each step by 0.3-0.5 %, which
+    # accumulated into scale drift (KITTI 00/05 Sim(3) t_err mean 3.31 -> 2.70 %, docs/map-backend.md)
+    none_step_sigma: float = 0.003
     # relocalisation
     reloc_keyframes: int = 10  # landmarks of this many recent keyframes are searched
     reloc_fast_threshold: int = 15  # FAST corners of the lost frame that are described and matched

@@ -151,6 +151,7 @@ RANGES: dict[str, Range] = {
     "map.init_parallax_px": positive(10_000.0),
     "map.none_min_triangulation_deg": Range(0.0, 90.0, high_open=True),
     "map.none_ba_iterations": closed(1, 1000),
+    "map.none_step_sigma": closed(0.0, 10.0),
     "map.ba_max_landmarks": closed(1, 10_000_000),
     "map.scale_sigma_gt": positive(100.0),
     "map.scale_sigma_height": positive(10.0),

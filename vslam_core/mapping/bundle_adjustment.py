@@ -5,7 +5,8 @@ positions (Triggs et al., "Bundle Adjustment — A Modern Synthesis", 2000, eq. 
 gtsam's `GenericProjectionFactorCal3_S2`, Levenberg–Marquardt). Older keyframes that see the window's
 landmarks are held fixed (`NonlinearEquality`), which fixes the gauge. The scale source stays in charge:
 with a metric scale, the distance between consecutive keyframes enters as a `RangeFactorPose3` with the
-scale source's length; with unit scale two poses are held fixed instead.
+scale source's length; with the map's own scale (`--scale none`) two poses are held fixed instead, and the
+distance enters at its length before the adjustment, with a sigma of `none_step_sigma` times it.
 
 `solve` is a pure function of a `Problem` (arrays in, arrays out), so it runs the same in this process or
 in the background worker (`BundleAdjuster`), and the same input always gives the same output.

@@ -152,6 +152,13 @@ class LocalMapping:
                     step = keyframe.metric_step
                     ranges.append((index[previous], index[keyframe.id], step,
                                    sigma if sigma is not None else max(cfg.scale_sigma_height * step, 1e-3)))
+        elif cfg.none_step_sigma > 0:  # the map's own scale: BA keeps each step near its length so far
+            for keyframe in window:
+                previous = keyframe.id - 1
+                if previous in index:
+                    step = float(np.linalg.norm(keyframe.T_world_cam[:3, 3]
+                                                - self.map.keyframes[previous].T_world_cam[:3, 3]))
+                    ranges.append((index[previous], index[keyframe.id], step, max(cfg.none_step_sigma * step, 1e-9)))
         gauge = 2 if self._scale == "none" or not ranges else 1
         problem = Problem(
             K=self._K,
