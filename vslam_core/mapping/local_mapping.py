@@ -144,21 +144,11 @@ class LocalMapping:
         pixels = np.array([pixel for seen in observations for pixel in seen.values()], np.float64).reshape(-1, 2)
         kept_ids = [landmark_ids[i] for i in kept.tolist()]
         ranges = []
-        if self._scale != "none":
-            sigma = cfg.scale_sigma_gt if self._scale == "gt" else None
-            for keyframe in window:  # consecutive keyframes (ids are consecutive) that are both in the problem
-                previous = keyframe.id - 1
-                if previous in index and keyframe.metric_step is not None:
-                    step = keyframe.metric_step
-                    ranges.append((index[previous], index[keyframe.id], step,
-                                   sigma if sigma is not None else max(cfg.scale_sigma_height * step, 1e-3)))
-        elif cfg.none_step_sigma > 0:  # the map's own scale: BA keeps each step near its length so far
-            for keyframe in window:
-                previous = keyframe.id - 1
-                if previous in index:
-                    step = float(np.linalg.norm(keyframe.T_world_cam[:3, 3]
-                                                - self.map.keyframes[previous].T_world_cam[:3, 3]))
-                    ranges.append((index[previous], index[keyframe.id], step, max(cfg.none_step_sigma * step, 1e-9)))
+        for keyframe in window:  # consecutive keyframes (ids are consecutive) that are both in the problem
+            previous = keyframe.id - 1
+            prior = self._distance_prior(keyframe, previous) if previous in index else None
+            if prior is not None:
+                ranges.append((index[previous], index[keyframe.id], *prior))
         gauge = 2 if self._scale == "none" or not ranges else 1
         problem = Problem(
             K=self._K,
@@ -175,6 +165,21 @@ class LocalMapping:
         )
         self._submitted = _Submitted(keyframe_ids, len(self._window), np.array(kept_ids, np.int64))
         self._adjuster.submit(problem)
+
+    def _distance_prior(self, keyframe: Keyframe, previous: int) -> tuple[float, float] | None:
+        """(distance, sigma) between a window keyframe and the one before it for BA: the scale source's length,
+        or with --scale none their distance before this adjustment (σ `none_step_sigma` of it: BA left free
+        lengthened the map's steps); None: no prior."""
+        cfg = self._config
+        if self._scale == "none":
+            if cfg.none_step_sigma <= 0:
+                return None
+            step = float(np.linalg.norm(keyframe.T_world_cam[:3, 3] - self.map.keyframes[previous].T_world_cam[:3, 3]))
+            return step, max(cfg.none_step_sigma * step, 1e-9)
+        if keyframe.metric_step is None:
+            return None
+        step = keyframe.metric_step
+        return step, cfg.scale_sigma_gt if self._scale == "gt" else max(cfg.scale_sigma_height * step, 1e-3)
 
     # -- keyframes and landmarks ---------------------------------------------------------------------------
 
