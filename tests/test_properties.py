@@ -118,7 +118,6 @@ def test_loaders_turn_any_bytes_into_a_clean_error(data: bytes) -> None:
                 assert str(path) in str(exc) and "\n" not in str(exc)
 
 
-
 @given(st.integers(0, 2**31 - 1), st.integers(3, 64), st.integers(3, 64), st.booleans())
 def test_noise_estimate_is_the_3x3_kernels(seed: int, height: int, width: int, saturated: bool) -> None:
     """`image_stats`' noise sigma (Immerkaer's kernel as two 1-D passes) is the one the 3x3 kernel itself gives,
