@@ -23,7 +23,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 from vslam.cli import main as cli_main
+from vslam.viewer import processes as viewer_processes
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -107,3 +110,12 @@ def _set_environment(values: dict[str, str | None]) -> None:
             os.environ.pop(name, None)
         else:
             os.environ[name] = value
+
+
+def need_vulkan() -> None:
+    """Skip a test that starts the viewer when no Vulkan adapter is here, except when CI is set: there the
+    viewer's tests must run, so it fails instead (.ci/run installs mesa-vulkan-drivers)."""
+    if not viewer_processes.vulkan_available():
+        if "CI" in os.environ:
+            pytest.fail(f"{viewer_processes.NO_VULKAN} (CI is set: the viewer tests must not be skipped)")
+        pytest.skip(viewer_processes.NO_VULKAN)

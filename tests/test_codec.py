@@ -3,13 +3,12 @@ the frame visible, and survives `crop` mid-GOP (the cut GOP re-encoded from a ke
 
 from __future__ import annotations
 
-import os
 import subprocess
 from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_helpers import vslam
+from cli_helpers import need_vulkan, vslam
 from PIL import Image
 from rerun.chunk import RrdReader
 
@@ -17,7 +16,6 @@ from vslam.recording.video import GOP_FRAMES, ImageCodec
 from vslam.rrd.crop import crop_recording
 from vslam.rrd.crop_video import _decode
 from vslam.rrd.read import rerun_binary
-from vslam.viewer import processes as viewer
 from vslam.viewer.headless import snapshot
 from vslam.viewer.processes import ViewerError
 
@@ -101,10 +99,7 @@ def _visible(picture: Path) -> float:
 
 @pytest.mark.parametrize("which", ["whole", "cropped"])
 def test_snapshot_shows_the_video_frame(which: str, av1: Path, cropped: Path, tmp_path: Path) -> None:
-    if not viewer.vulkan_available():
-        if os.environ.get("CI"):
-            pytest.fail("no Vulkan adapter")
-        pytest.skip("no Vulkan adapter")
+    need_vulkan()
     path, frame = (av1, 30) if which == "whole" else (cropped, CROP[0])
     # the smallest window the viewer takes (vslam.viewer.headless.MIN_SIZE): only the frame view is checked
     shots = {p.stem: p for p in snapshot(path, frame, tmp_path, timeout_s=180, window_size=(320, 240),

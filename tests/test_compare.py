@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 import subprocess
 from collections.abc import Iterator
 from pathlib import Path
@@ -14,7 +13,7 @@ import cv2
 import numpy as np
 import pytest
 import rerun as rr
-from cli_helpers import vslam, vslam_here
+from cli_helpers import need_vulkan, vslam, vslam_here
 from rerun.chunk import RrdReader
 
 from vslam.compare.blueprint import DIFFERENCE_TITLES
@@ -31,9 +30,8 @@ from vslam.recording import METRICS
 from vslam.rrd.crop import crop_recording
 from vslam.rrd.inspect import inspect_recording
 from vslam.rrd.read import RecordingError, read_entity
-from vslam.viewer import processes as viewer
 from vslam.viewer.headless import snapshot, view_file_name
-from vslam.viewer.processes import NO_VULKAN, rerun_executable
+from vslam.viewer.processes import rerun_executable
 
 ROOT = Path(__file__).resolve().parents[1]
 FRAMES = list(range(20))
@@ -276,10 +274,7 @@ def test_bad_inputs_and_outputs_are_one_line_errors_naming_the_file(runs: tuple[
 
 @pytest.fixture(scope="module")
 def shots(compared: ComparisonResult, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    if not viewer.vulkan_available():
-        if "CI" in os.environ:
-            pytest.fail(f"{NO_VULKAN} (CI is set: the viewer tests must not be skipped)")
-        pytest.skip(NO_VULKAN)
+    need_vulkan()
 
     warnings: list[str] = []
     handler = logging.Handler()
@@ -464,10 +459,7 @@ def test_three_runs_as_json_and_bad_labels(kitti_runs: list[Path], tmp_path: Pat
 
 @pytest.mark.kitti
 def test_snapshot_of_three_runs(three: tuple[Path, subprocess.CompletedProcess[str]], tmp_path: Path) -> None:
-    if not viewer.vulkan_available():
-        if "CI" in os.environ:
-            pytest.fail(f"{NO_VULKAN} (CI is set: the viewer tests must not be skipped)")
-        pytest.skip(NO_VULKAN)
+    need_vulkan()
     output, _ = three
     # the smallest window --size allows, four of the views: that each run has its views (--view refuses a view the
     # blueprint does not have) and that the pictures are not blank is checked

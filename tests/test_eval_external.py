@@ -10,7 +10,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from cli_helpers import vslam
+from cli_helpers import need_vulkan, vslam
 
 from vslam.evaluation.matching import MatchMode, match_images
 from vslam.evaluation.plots import ESTIMATES_BGR, GROUND_TRUTH_BGR, top_view
@@ -113,6 +113,7 @@ def test_one_camera_frame_per_trajectory_row_with_its_pinhole(external: dict[str
 
 @pytest.mark.kitti
 def test_snapshot_crop_and_compare_work_on_it(external: dict[str, Path]) -> None:
+    need_vulkan()
     rrd, folder = external["rrd"], external["folder"]
     shots = folder / "snap"
     # the smallest window --size allows: which views are pictured and that the frame is not blank is checked

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_helpers import vslam
+from cli_helpers import need_vulkan, vslam
 
 from vslam.recording import Detail
 from vslam.recording import recorder as recorder_module
@@ -30,7 +30,7 @@ from vslam.rrd.read import has_footer, read_entity, readable
 from vslam.runs import outputs
 from vslam.runs.outputs import OutputError, claim, default_recording
 from vslam.viewer.headless import snapshot
-from vslam.viewer.processes import recording_frames, vulkan_available
+from vslam.viewer.processes import recording_frames
 from vslam_core.config import EngineConfig
 from vslam_core.sources.base import FrameRange
 from vslam_core.sources.kitti import KittiSource
@@ -214,8 +214,7 @@ def test_open_and_snapshot_load_a_killed_recording(killed_run: tuple[Path, Path]
     assert recording_frames(rrd) == (0, last)  # what `open` checks before starting a viewer on the file
     viewable = readable(rrd)
     assert viewable.cut_short and has_footer(viewable.path) and viewable.path.name == rrd.name
-    if not vulkan_available():
-        pytest.skip("no Vulkan driver: the snapshot part needs one")
+    need_vulkan()
     # the smallest window it takes, the camera frame and the whole layout only
     paths = snapshot(rrd, last - 5, tmp_path / "shots", window_size=(320, 240), only=("frame", "all"))
     assert [p.name for p in paths] == ["frame.png", "all.png"] and all(p.stat().st_size > 0 for p in paths)

@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 import pytest
 import rerun as rr
-from cli_helpers import vslam, vslam_here
+from cli_helpers import need_vulkan, vslam, vslam_here
 from rerun.chunk import RrdReader
 
 from vslam.recording.layout import CAR_ENTITY
@@ -51,10 +51,7 @@ def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture(scope="module")
 def vulkan() -> None:
     """Skip without a Vulkan adapter, except when CI is set: there the snapshot tests must run."""
-    if not viewer.vulkan_available():
-        if "CI" in os.environ:
-            pytest.fail(f"{NO_VULKAN} (CI is set: the viewer tests must not be skipped)")
-        pytest.skip(NO_VULKAN)
+    need_vulkan()
 
 
 class _Spy:
