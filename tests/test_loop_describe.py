@@ -81,6 +81,36 @@ def test_mutual_matches_are_the_matchers(kitti_root: Path,
     assert len(match_descriptors(descriptors[:1], later, 0.8)[0]) == 0
 
 
+def _described_in_full(image: np.ndarray, count: int, fast_threshold: int) -> tuple[np.ndarray, np.ndarray]:
+    """`describe_image` the plain way: every corner at the configured threshold, the strongest `count` of them
+    (ties: row-major order) described."""
+    corners = cv2.FastFeatureDetector_create(threshold=fast_threshold).detect(image, None)
+    points = cv2.KeyPoint_convert(corners).reshape(-1, 2)
+    response = np.array([c.response for c in corners], np.float32)
+    order = np.lexsort((points[:, 0], points[:, 1], -response))[:count]
+    describer = cv2.ORB_create(edgeThreshold=int(DESCRIPTOR_PATCH), patchSize=int(DESCRIPTOR_PATCH))
+    keypoints, descriptors = describer.compute(image, cv2.KeyPoint_convert(points[order], DESCRIPTOR_PATCH))
+    return cv2.KeyPoint_convert(keypoints).astype(np.float32).reshape(-1, 2), descriptors
+
+
+def test_corners_preselected_at_a_higher_threshold_are_the_strongest_at_the_configured_one(kitti_root: Path) -> None:
+    """The first detection above the threshold changes nothing: the same features as every corner at the
+    configured threshold, on real frames of 00 and 05 (the preselection enough: 1000 corners), with more corners
+    asked for than the higher threshold finds (the fallback), and on a dark frame with too few corners for either."""
+    describer = cv2.ORB_create(edgeThreshold=int(DESCRIPTOR_PATCH), patchSize=int(DESCRIPTOR_PATCH))
+    images = [cv2.imread(str(kitti_root / "sequences" / sequence / "image_0" / f"{index:06d}.png"),
+                         cv2.IMREAD_GRAYSCALE) for sequence, index in (("00", 0), ("00", 120), ("05", 140))]
+    dark = (images[0] // 6).astype(np.uint8)
+    preselected = cv2.FastFeatureDetector_create(threshold=25).detect(images[1], None)
+    for image, count in [(image, 1000) for image in images] + [(images[1], len(preselected) + 500), (dark, 1000)]:
+        pixels, descriptors = describe_image(image, count, 15, describer)
+        expected_pixels, expected_descriptors = _described_in_full(image, count, 15)
+        assert len(pixels) > 100
+        np.testing.assert_array_equal(pixels, expected_pixels)
+        np.testing.assert_array_equal(descriptors, expected_descriptors)
+    assert len(cv2.FastFeatureDetector_create(threshold=25).detect(dark, None)) < 1000  # the fallback was taken
+
+
 def test_strongest_corners_ties_in_row_major_order() -> None:
     """The strongest corners, equal responses taken row by row, whatever order the corners come in."""
     rng = np.random.default_rng(0)
