@@ -22,6 +22,7 @@ from vslam_core.geometry import (
     sampson_jacobian,
     so3_exp,
     triangulate,
+    triangulate_each,
 )
 
 K = np.array([[718.856, 0.0, 607.1928], [0.0, 718.856, 185.2157], [0.0, 0.0, 1.0]])
@@ -143,6 +144,22 @@ def test_triangulation_returns_points_in_the_current_frame_up_to_baseline() -> N
     points = triangulate(T_prev_cur[:3, :3], T_prev_cur[:3, 3] / baseline,
                          normalise_points(p_cur, K), normalise_points(p_prev, K))
     assert np.allclose(points * baseline, truth, rtol=1e-6, atol=1e-6)
+
+
+def test_triangulating_many_pairs_at_once_is_triangulating_each_pair() -> None:
+    """`triangulate_each` (a camera pair per point, as local mapping triangulates tracks first seen at different
+    keyframes) gives each pair's `triangulate` points, parallel rays (NaN) included."""
+    motions = [MOTIONS["turning_with_pitch_and_roll"], MOTIONS["turning"], pose_matrix(np.eye(3), np.zeros(3))]
+    pairs = [two_view(T, n=30, seed=k) for k, T in enumerate(motions)]  # noqa: N806
+    x_cur = np.vstack([normalise_points(p_cur, K) for p_cur, _, _ in pairs])
+    x_prev = np.vstack([normalise_points(p_prev, K) for _, p_prev, _ in pairs])
+    rotations = np.repeat(np.array([T[:3, :3] for T in motions]), 30, axis=0)
+    translations = np.repeat(np.array([T[:3, 3] for T in motions]), 30, axis=0)
+    points = triangulate_each(rotations, translations, x_cur, x_prev)
+    for k, T in enumerate(motions):  # noqa: N806
+        expected = triangulate(T[:3, :3], T[:3, 3], x_cur[30 * k: 30 * (k + 1)], x_prev[30 * k: 30 * (k + 1)])
+        np.testing.assert_allclose(points[30 * k: 30 * (k + 1)], expected, rtol=1e-9, atol=1e-12)
+    assert np.isnan(points[60:]).all() and np.isfinite(points[:60]).all()  # no baseline: rays parallel
 
 
 def test_refinement_reduces_direction_error_on_noisy_points() -> None:

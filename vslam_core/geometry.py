@@ -167,6 +167,33 @@ def triangulate(
     return np.asarray(points)
 
 
+def triangulate_each(
+    rotations: np.ndarray, translations: np.ndarray, x_cur: np.ndarray, x_prev: np.ndarray
+) -> np.ndarray:
+    """`triangulate` with a camera pair of its own for each correspondence: (N, 3, 3) rotations and (N, 3)
+    translations (X_prev = R·X_cur + t), (N, 2) normalised points in each. Returns (N, 3) points in each
+    pair's current camera frame (NaN where the rays are parallel). One call for many keyframe pairs, instead
+    of one per pair."""
+    _check_points("x_cur", x_cur)
+    _check_points("x_prev", x_prev)
+    t = np.asarray(translations, dtype=np.float64).reshape(-1, 3)
+    ray_cur = np.einsum("nij,nj->ni", rotations, _homogeneous(x_cur))  # in the previous camera's frame
+    ray_prev = _homogeneous(x_prev)
+    a = np.einsum("ij,ij->i", ray_cur, ray_cur)
+    b = np.einsum("ij,ij->i", ray_cur, ray_prev)
+    c = np.einsum("ij,ij->i", ray_prev, ray_prev)
+    d = np.einsum("ij,ij->i", ray_cur, t)
+    e = np.einsum("ij,ij->i", ray_prev, t)
+    det = b * b - a * c
+    with np.errstate(divide="ignore", invalid="ignore"):
+        depth_cur = (d * c - b * e) / det
+        depth_prev = (b * d - a * e) / det
+        midpoint_prev = 0.5 * (t + depth_cur[:, None] * ray_cur + depth_prev[:, None] * ray_prev)
+        points = np.einsum("nji,nj->ni", rotations, midpoint_prev - t)  # Rᵀ·(X_prev − t)
+    points[np.abs(det) < 1e-12 * a * c] = np.nan
+    return np.asarray(points)
+
+
 def in_front_mask(
     rotation: np.ndarray, translation: np.ndarray, points_cur: np.ndarray, max_depth: float
 ) -> np.ndarray:

@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from vslam_core.config import MapConfig, ScaleSource
-from vslam_core.geometry import invert_pose, normalise_points, orthonormalise, triangulate
+from vslam_core.geometry import invert_pose, normalise_points, orthonormalise, triangulate_each
 from vslam_core.lens import distort_pixels
 from vslam_core.mapping.bundle_adjustment import BundleAdjuster, Problem, Solution
 from vslam_core.mapping.map import Keyframe, Map
@@ -223,38 +223,42 @@ class LocalMapping:
 
     def _triangulate(self, keyframe: Keyframe) -> dict[int, int]:
         """New landmarks from tracks seen at an earlier keyframe and at this one (first sighting to now:
-        the longest baseline). Returns track id → new landmark id."""
+        the longest baseline), all pairs in one call. Returns track id → new landmark id."""
         by_first: dict[int, list[int]] = {}
         for track_id, sightings in self._sightings.items():
             if len(sightings) >= 2 and sightings[-1][0] == keyframe.id:
                 by_first.setdefault(sightings[0][0], []).append(track_id)
+        track_ids: list[int] = []
+        poses = []  # T_first_cur of each track's pair
+        for first_id, tracks in sorted(by_first.items()):
+            T_first_cur = invert_pose(self.map.keyframes[first_id].T_world_cam) @ keyframe.T_world_cam  # noqa: N806
+            if np.linalg.norm(T_first_cur[:3, 3]) >= 1e-9:
+                track_ids += tracks
+                poses += [T_first_cur] * len(tracks)
+        if not track_ids:
+            return {}
+        T_first_cur = np.array(poses)  # (N, 4, 4)  # noqa: N806
+        p_first = np.array([self._sightings[t][0][1] for t in track_ids], np.float64)
+        p_cur = np.array([self._sightings[t][-1][1] for t in track_ids], np.float64)
+        points_cur = triangulate_each(T_first_cur[:, :3, :3], T_first_cur[:, :3, 3], normalise_points(p_cur, self._K),
+                                      normalise_points(p_first, self._K))
+        good = self._well_triangulated(points_cur, T_first_cur, p_cur, p_first)
+        world = points_cur @ keyframe.T_world_cam[:3, :3].T + keyframe.T_world_cam[:3, 3]
         links: dict[int, int] = {}
-        for first_id, track_ids in sorted(by_first.items()):
-            first = self.map.keyframes[first_id]
-            T_first_cur = invert_pose(first.T_world_cam) @ keyframe.T_world_cam  # noqa: N806
-            if np.linalg.norm(T_first_cur[:3, 3]) < 1e-9:
-                continue
-            p_first = np.array([self._sightings[t][0][1] for t in track_ids], np.float64)
-            p_cur = np.array([self._sightings[t][-1][1] for t in track_ids], np.float64)
-            points_cur = triangulate(T_first_cur[:3, :3], T_first_cur[:3, 3], normalise_points(p_cur, self._K),
-                                     normalise_points(p_first, self._K))
-            good = self._well_triangulated(points_cur, T_first_cur, p_cur, p_first)
-            world = points_cur @ keyframe.T_world_cam[:3, :3].T + keyframe.T_world_cam[:3, 3]
-            for n in np.flatnonzero(good):
-                track_id = track_ids[n]
-                landmark = self.map.add_landmark(world[n], {k: p for k, p in self._sightings.pop(track_id)})
-                links[track_id] = landmark.id
+        for n in np.flatnonzero(good):
+            track_id = track_ids[n]
+            landmark = self.map.add_landmark(world[n], {k: p for k, p in self._sightings.pop(track_id)})
+            links[track_id] = landmark.id
         return links
 
     def _well_triangulated(self, points_cur: np.ndarray, T_first_cur: np.ndarray, p_cur: np.ndarray,  # noqa: N803
                            p_first: np.ndarray) -> np.ndarray:
         """(N,) bool: in front of both cameras, rays meeting at `min_triangulation_deg` or more, and
-        reprojecting within `max_reprojection_px` into both keyframes."""
+        reprojecting within `max_reprojection_px` into both keyframes (`T_first_cur` (N, 4, 4): each point's pair)."""
         cfg = self._config
-        points_first = points_cur @ T_first_cur[:3, :3].T + T_first_cur[:3, 3]
-        centre_cur_in_first = T_first_cur[:3, 3]
+        points_first = np.einsum("nij,nj->ni", T_first_cur[:, :3, :3], points_cur) + T_first_cur[:, :3, 3]
         ray_first = points_first
-        ray_cur = points_first - centre_cur_in_first
+        ray_cur = points_first - T_first_cur[:, :3, 3]  # from the current camera's centre, in the first's frame
         with np.errstate(invalid="ignore", divide="ignore"):
             cosine = np.einsum("ij,ij->i", ray_first, ray_cur) / (
                 np.linalg.norm(ray_first, axis=1) * np.linalg.norm(ray_cur, axis=1))
