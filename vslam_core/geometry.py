@@ -151,19 +151,10 @@ def triangulate(
     t = np.asarray(translation, dtype=np.float64).reshape(3)
     ray_cur = _homogeneous(x_cur) @ np.asarray(rotation).T  # in the previous camera's frame
     ray_prev = _homogeneous(x_prev)
-    # minimise |t + λ·ray_cur − μ·ray_prev|² over the depths λ (current camera) and μ (previous camera)
-    a = np.einsum("ij,ij->i", ray_cur, ray_cur)
-    b = np.einsum("ij,ij->i", ray_cur, ray_prev)
-    c = np.einsum("ij,ij->i", ray_prev, ray_prev)
-    d = ray_cur @ t
-    e = ray_prev @ t
-    det = b * b - a * c  # −|ray_cur × ray_prev|²
-    with np.errstate(divide="ignore", invalid="ignore"):
-        depth_cur = (d * c - b * e) / det
-        depth_prev = (b * d - a * e) / det
-        midpoint_prev = 0.5 * (t + depth_cur[:, None] * ray_cur + depth_prev[:, None] * ray_prev)
+    midpoint_prev, parallel = _midpoints(ray_cur, ray_prev, t, ray_cur @ t, ray_prev @ t)
+    with np.errstate(invalid="ignore"):
         points = (midpoint_prev - t) @ np.asarray(rotation)  # Rᵀ·(X_prev − t)
-    points[np.abs(det) < 1e-12 * a * c] = np.nan
+    points[parallel] = np.nan
     return np.asarray(points)
 
 
@@ -179,19 +170,29 @@ def triangulate_each(
     t = np.asarray(translations, dtype=np.float64).reshape(-1, 3)
     ray_cur = np.einsum("nij,nj->ni", rotations, _homogeneous(x_cur))  # in the previous camera's frame
     ray_prev = _homogeneous(x_prev)
+    midpoint_prev, parallel = _midpoints(ray_cur, ray_prev, t, np.einsum("ij,ij->i", ray_cur, t),
+                                         np.einsum("ij,ij->i", ray_prev, t))
+    with np.errstate(invalid="ignore"):
+        points = np.einsum("nji,nj->ni", rotations, midpoint_prev - t)  # Rᵀ·(X_prev − t)
+    points[parallel] = np.nan
+    return np.asarray(points)
+
+
+def _midpoints(ray_cur: np.ndarray, ray_prev: np.ndarray, t: np.ndarray, d: np.ndarray,
+               e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The midpoint step shared by `triangulate` and `triangulate_each`: (N, 3) rays of the current and the
+    previous camera in the previous camera's frame, the baseline t ((3,) or (N, 3)), d = ray_cur·t and
+    e = ray_prev·t (N,). Minimises |t + λ·ray_cur − μ·ray_prev|² over the depths λ, μ and returns the (N, 3)
+    midpoints (previous camera's frame) and an (N,) mask of parallel rays."""
     a = np.einsum("ij,ij->i", ray_cur, ray_cur)
     b = np.einsum("ij,ij->i", ray_cur, ray_prev)
     c = np.einsum("ij,ij->i", ray_prev, ray_prev)
-    d = np.einsum("ij,ij->i", ray_cur, t)
-    e = np.einsum("ij,ij->i", ray_prev, t)
-    det = b * b - a * c
+    det = b * b - a * c  # −|ray_cur × ray_prev|²
     with np.errstate(divide="ignore", invalid="ignore"):
         depth_cur = (d * c - b * e) / det
         depth_prev = (b * d - a * e) / det
         midpoint_prev = 0.5 * (t + depth_cur[:, None] * ray_cur + depth_prev[:, None] * ray_prev)
-        points = np.einsum("nji,nj->ni", rotations, midpoint_prev - t)  # Rᵀ·(X_prev − t)
-    points[np.abs(det) < 1e-12 * a * c] = np.nan
-    return np.asarray(points)
+    return midpoint_prev, np.abs(det) < 1e-12 * a * c
 
 
 def in_front_mask(
