@@ -1,10 +1,10 @@
 """The camera frames that go with a trajectory file (`vslam eval --trajectory … --images PATH`).
 
 PATH is anything `open_source` reads as image files: a KITTI sequence folder (``image_0``, ``calib.txt``,
-``times.txt``), an EuRoC or TUM monoVO folder, or a folder of images (sorted by name). The camera comes with
+``times.txt``), an EuRoC, TUM monoVO or TUM RGB-D folder, or a folder of images (sorted by name). The camera comes with
 the dataset, from ``--intrinsics`` / ``--calib`` or a ``calib.txt`` in the folder or its parent; a plain
 folder without any is still shown, as 2-D images without a frustum. Times come from the dataset, a
-``times.txt`` beside the images, or file names that are integer nanosecond stamps (EuRoC, TUM RGB-D style).
+``times.txt`` beside the images, or file names that are integer nanosecond stamps (EuRoC style).
 """
 
 from __future__ import annotations
@@ -75,7 +75,7 @@ def _plain_folder_without_camera(path: Path) -> bool:
 
 def stamps_from_names(files: list[Path]) -> np.ndarray | None:
     """(len(files),) seconds when every file name is an integer of `STAMP_DIGITS` or more digits (nanoseconds,
-    as EuRoC and TUM RGB-D name their frames); None otherwise."""
+    as EuRoC names its frames); None otherwise."""
     if not files or not all(re.fullmatch(rf"\d{{{STAMP_DIGITS},}}", f.stem) for f in files):
         return None
     return np.array([int(f.stem) for f in files], np.float64) / 1e9

@@ -43,10 +43,10 @@ def open_source(
     ``.mcap``/``.db3``, or a ROS 2 bag folder without ``metadata.yaml`` (the recorder killed) holding one
     ``.mcap``: `RosbagSource`. A video file: `VideoSource`. A folder with ``sequences/`` or
     ``image_0/``: KITTI; with ``mav0/``: EuRoC; with ``camera.txt``, ``times.txt`` and ``images/``: TUM
-    monoVO. Any other folder: `ImageFolderSource`. `inject` wraps the source in a `FaultInjector` (e.g.
-    ``"dark@120,blur@200:210"``). `gt_tolerance_s` (None: 10 ms) applies where ground truth is matched to the
-    frames by time; given where it is not (no ground truth, or paired row by row), it is a `SourceError`.
-    `route` picks the synthetic street's route ("street" or "loop")."""
+    monoVO; with ``rgb.txt`` and ``rgb/``: TUM RGB-D. Any other folder: `ImageFolderSource`. `inject` wraps the
+    source in a `FaultInjector` (e.g. ``"dark@120,blur@200:210"``). `gt_tolerance_s` (None: 10 ms) applies
+    where ground truth is matched to the frames by time; given where it is not (no ground truth, or paired row
+    by row), it is a `SourceError`. `route` picks the synthetic street's route ("street" or "loop")."""
     tolerance = DEFAULT_GT_TOLERANCE_S if gt_tolerance_s is None else gt_tolerance_s
     request = _Request(spec, sequence, frames, intrinsics, calib, ground_truth, gt_format, on_bad_frame, topic,
                        gt_topic, tolerance, route)
@@ -133,6 +133,7 @@ def _open(r: _Request) -> FrameSource:
     from vslam_core.sources.euroc import EurocSource, is_euroc
     from vslam_core.sources.folder import ImageFolderSource
     from vslam_core.sources.tum_mono import TumMonoSource, is_tum_mono
+    from vslam_core.sources.tum_rgbd import TumRgbdSource, is_tum_rgbd
 
     if is_euroc(path):
         _refuse(given, ("--intrinsics", "--calib"), "an EuRoC sequence has its own sensor.yaml")
@@ -142,6 +143,9 @@ def _open(r: _Request) -> FrameSource:
         _refuse(given, ("--intrinsics", "--calib"), "a TUM monoVO sequence has its own camera.txt")
         return TumMonoSource(path, frames=r.frames, ground_truth=r.ground_truth, gt_tolerance_s=r.gt_tolerance_s,
                              on_bad_frame=r.on_bad_frame)
+    if is_tum_rgbd(path):
+        return TumRgbdSource(path, camera=_calibration(r), frames=r.frames, ground_truth=r.ground_truth,
+                             gt_tolerance_s=r.gt_tolerance_s, on_bad_frame=r.on_bad_frame)
     return ImageFolderSource(path, intrinsics=_calibration(r), ground_truth=r.ground_truth, gt_format=r.gt_format,
                              frames=r.frames, on_bad_frame=r.on_bad_frame, gt_tolerance_s=r.gt_tolerance_s)
 

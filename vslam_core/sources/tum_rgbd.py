@@ -1,0 +1,166 @@
+"""TUM RGB-D sequences (Sturm, Engelhard, Endres, Burgard, Cremers, "A Benchmark for the Evaluation of RGB-D SLAM
+Systems", IROS 2012), and any folder in their layout: the colour frames, monocular (the depth images are not used).
+
+Layout::
+
+    SEQ/rgb.txt            ``timestamp filename`` a line (seconds; ``rgb/<timestamp>.png``), ``#`` comments
+    SEQ/rgb/*.png          colour frames (640x480 in the benchmark), converted to grey
+    SEQ/groundtruth.txt    ``timestamp tx ty tz qx qy qz qw``: the colour camera's optical centre in the
+                           motion-capture frame (T_world_cam), 100 Hz, matched to the frames by time
+    SEQ/depth.txt, depth/  registered depth images: not used
+
+Frame i is row i of ``rgb.txt`` (the file's order, which is time order). The benchmark ships no calibration file:
+the camera comes from ``--calib`` / ``--intrinsics`` when given, else from the folder's name when it names one of
+the benchmark's three Kinects (``rgbd_dataset_freiburg1_xyz`` → freiburg1), with the values the benchmark
+publishes ("File Formats", intrinsic calibration of the colour cameras; plumb_bob k1 k2 p1 p2 k3, the full
+precision of the ROS calibration files they were rounded from). freiburg3's colour images are undistorted
+already (its coefficients are zero). A folder whose name names no Freiburg camera is refused without a
+calibration: a guessed focal length would silently scale every rotation.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+
+from vslam_core.errors import SourceError
+from vslam_core.sources.base import CameraIntrinsics, FrameRange
+from vslam_core.sources.folder import complete_intrinsics
+from vslam_core.sources.kitti import BadFramePolicy, ImageFilesSource, first_image, select, sixteen_bit_property
+from vslam_core.sources.stamps import (
+    DEFAULT_GT_TOLERANCE_S,
+    matched_by_time,
+    read_tum_ground_truth,
+    selected_ground_truth,
+    stamp_problems,
+)
+
+#: The benchmark's colour cameras: fx fy cx cy (pixels) and plumb_bob k1 k2 p1 p2 k3, for 640x480 frames.
+FREIBURG_CAMERAS: dict[str, tuple[tuple[float, float, float, float], tuple[float, ...]]] = {
+    "freiburg1": ((517.306408, 516.469215, 318.643040, 255.313989),
+                  (0.262383, -0.953104, -0.005358, 0.002628, 1.163314)),
+    "freiburg2": ((520.908620, 521.007327, 325.141442, 249.701764),
+                  (0.231222, -0.784899, -0.003257, -0.000105, 0.917205)),
+    "freiburg3": ((535.4, 539.2, 320.1, 247.6), (0.0, 0.0, 0.0, 0.0, 0.0)),
+}
+FREIBURG_SIZE = (640, 480)
+GROUND_TRUTH_FILE = "groundtruth.txt"
+
+
+def sequence_folder(path: str | Path) -> Path | None:
+    """The sequence folder of a TUM RGB-D layout given the folder or its ``rgb/`` folder (None otherwise)."""
+    folder = Path(path)
+    for candidate in (folder, folder.parent) if folder.name == "rgb" else (folder,):
+        if (candidate / "rgb.txt").is_file() and (candidate / "rgb").is_dir():
+            return candidate
+    return None
+
+
+def is_tum_rgbd(path: str | Path) -> bool:
+    """True when `path` is a TUM RGB-D sequence (or its ``rgb/`` folder): ``rgb.txt`` beside ``rgb/``."""
+    return sequence_folder(path) is not None
+
+
+def read_frame_list(path: Path) -> tuple[np.ndarray, list[Path]]:
+    """``rgb.txt``: ((N,) timestamps in seconds, (N,) image paths relative to its folder), in the file's order.
+    `SourceError` naming the file and line for a malformed line or a missing image."""
+    try:
+        lines = path.read_text().splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SourceError(f"{path}: cannot read the frame list ({exc.__class__.__name__})") from None
+    stamps: list[float] = []
+    files: list[Path] = []
+    for number, line in enumerate(lines, start=1):
+        stripped = line.strip()
+        if not stripped or stripped.startswith("#"):
+            continue
+        fields = stripped.split()
+        if len(fields) != 2:
+            raise SourceError(f"{path}:{number}: expected 'timestamp filename', found {stripped[:60]!r}")
+        try:
+            stamp = float(fields[0])
+        except ValueError:
+            raise SourceError(f"{path}:{number}: timestamp {fields[0][:30]!r} is not a number") from None
+        if not np.isfinite(stamp):
+            raise SourceError(f"{path}:{number}: timestamp is not finite")
+        file = path.parent / fields[1]
+        if not file.is_file():
+            raise SourceError(f"{path}:{number}: {fields[1]} not found")
+        stamps.append(stamp)
+        files.append(file)
+    if not files:
+        raise SourceError(f"{path}: no frames listed")
+    return np.asarray(stamps, np.float64), files
+
+
+def freiburg_camera(folder: Path) -> CameraIntrinsics | None:
+    """The benchmark's published calibration of the Kinect the folder's name names (``freiburg1``..``3``), or
+    None when it names none (or more than one)."""
+    name = folder.resolve().name
+    named = set(re.findall(r"freiburg([123])", name, flags=re.IGNORECASE))
+    if len(named) != 1:
+        return None
+    camera = f"freiburg{named.pop()}"
+    (fx, fy, cx, cy), coefficients = FREIBURG_CAMERAS[camera]
+    return CameraIntrinsics(fx, fy, cx, cy, *FREIBURG_SIZE, "plumb_bob", coefficients,
+                            f"TUM RGB-D {camera} published calibration (camera named by the folder {name!r})")
+
+
+class TumRgbdSource(ImageFilesSource):
+    """The colour frames of a TUM RGB-D sequence (see the module docstring), as grey frames.
+
+    path: the sequence folder (or its ``rgb/`` folder). camera: the calibration (``--calib`` / ``--intrinsics``;
+    a 0x0 size is filled from the images), else the Freiburg camera the folder's name names. frames: the
+    selection over the rows of ``rgb.txt``. ground_truth: a TUM file of camera poses T_w_c instead of the
+    folder's ``groundtruth.txt``; either is matched to the frames by time within `gt_tolerance_s`; with neither,
+    ``ground_truth`` is None."""
+
+    _times: np.ndarray
+
+    def __init__(
+        self,
+        path: str | Path,
+        camera: CameraIntrinsics | None = None,
+        frames: FrameRange | None = None,
+        ground_truth: str | Path | None = None,
+        gt_tolerance_s: float = DEFAULT_GT_TOLERANCE_S,
+        on_bad_frame: BadFramePolicy = "fail",
+    ):
+        self._on_bad_frame = on_bad_frame
+        given = Path(path)
+        folder = sequence_folder(given)
+        if folder is None:
+            raise SourceError(f"{given}: not a TUM RGB-D sequence (needs rgb.txt and rgb/)")
+        self.folder = folder
+        self._times, self._files = read_frame_list(folder / "rgb.txt")
+        self._indices = select(frames, len(self._files), folder)
+        self._size, self._shift = first_image(self._files, self._indices, on_bad_frame, folder)
+        self.notes: list[str] = [f"{folder / 'rgb.txt'}: {note}" for note in stamp_problems(self._times)]
+        if (folder / "depth.txt").is_file() or (folder / "depth").is_dir():
+            self.notes.append("depth images not used: vslam is monocular (the colour frames only)")
+
+        chosen = camera if camera is not None else freiburg_camera(folder)
+        if chosen is None:
+            raise SourceError(f"{folder}: a TUM RGB-D folder has no calibration file and its name names no Freiburg "
+                              "camera (freiburg1, 2 or 3): give --calib FILE or --intrinsics fx,fy,cx,cy")
+        self._intrinsics = complete_intrinsics(chosen, self._size[0], self._size[1], folder)
+
+        self.properties: dict[str, str] = {"dataset": "TUM RGB-D", "frame_order": "rows of rgb.txt",
+                                           **sixteen_bit_property(self._shift)}
+        gt_file = Path(ground_truth) if ground_truth is not None else folder / GROUND_TRUTH_FILE
+        if ground_truth is None and not gt_file.is_file():
+            self._ground_truth = None
+            self.properties["ground_truth"] = "none"
+        else:
+            gt_stamps, gt_poses = read_tum_ground_truth(gt_file)
+            label = f"{gt_file.name} (TUM, camera poses)"
+            self._ground_truth = selected_ground_truth(self._times, self._indices, gt_stamps, gt_poses, gt_tolerance_s,
+                                                       label, folder)
+            self.properties["ground_truth"] = label
+            self.gt_matching = matched_by_time(len(self._indices), gt_tolerance_s)
+        self._name = "tum-rgbd-" + (re.sub(r"[^A-Za-z0-9._-]+", "_", folder.resolve().name).strip("_") or "sequence")
+
+    def __repr__(self) -> str:
+        return f"TumRgbdSource({str(self.folder)!r}, frames={len(self)})"
