@@ -206,3 +206,27 @@ def test_the_map_is_not_initialised_from_a_pure_rotation(kitti_root: Path) -> No
     reasons = keyframe_reasons(driven)
     assert reasons[0] == "initialisation" and reasons[1].startswith("initialisation: parallax"), reasons
     assert float(reasons[1].split()[2]) >= config.map.init_parallax_px
+
+
+@pytest.mark.kitti
+def test_an_initialisation_with_too_few_landmarks_is_tried_again(kitti_root: Path) -> None:
+    """--scale none: the keyframe that sets the map's scale must triangulate `init_min_landmarks` landmarks; with
+    fewer the next keyframe tries again (issue 23: re-initialise when the two-view start is degenerate). Before,
+    any landmark counted as a map: on a hand-held-like re-imaging of KITTI 05 the first attempt made 0 and the
+    next 8, and keyframes went on every 10 frames against a map PnP could never use. Here the bar is set above
+    what any attempt on KITTI 05 0:40 makes, so every keyframe stays an attempt; at the default bar the first
+    attempt starts the map and the next keyframe is an ordinary one."""
+    source = KittiSource(kitti_root, sequence="05", frames=FrameRange(0, 40))
+    config = EngineConfig(backend="map", scale="none", threads=1)
+    runs: dict[int, list[FrameResult]] = {}
+    for bar in (config.map.init_min_landmarks, 100_000):
+        runs[bar] = []
+        run_odometry(source, replace(config, map=replace(config.map, init_min_landmarks=bar)),
+                     (lambda _, r, bar=bar: runs[bar].append(r),))  # type: ignore[misc]
+    attempts = [r.mapping.keyframe for r in runs[100_000] if r.mapping is not None and r.mapping.keyframe]
+    assert len(attempts) >= 3, attempts
+    assert all(k.why.startswith(("initialisation", "re-initialisation")) for k in attempts), [k.why for k in attempts]
+    assert max(k.new_landmarks for k in attempts) >= 50  # they triangulated, just not enough for this bar
+    started = [r.mapping.keyframe for r in runs[config.map.init_min_landmarks] if r.mapping is not None and r.mapping.keyframe]
+    assert started[1].why.startswith("initialisation: parallax") and started[1].new_landmarks >= 50
+    assert not started[2].why.startswith(("initialisation", "re-initialisation")), [k.why for k in started]

@@ -148,6 +148,7 @@ class MapConfig:
     # baseline waits for this much translation parallax; then these replace min_triangulation_deg and
     # ba_iterations, and the keyframe parallax counts only the displacement translation caused
     init_parallax_px: float = 20.0
+    init_min_landmarks: int = 50  # ... and must triangulate this many landmarks, else it is tried again
     none_min_triangulation_deg: float = 3.0
     none_ba_iterations: int = 10
     # ... and each keyframe-to-keyframe distance enters BA as a prior at its length before the adjustment, with

@@ -147,7 +147,6 @@ def run(
 ) -> None:
     """Run the odometry on a source and write a Rerun recording (and optionally the trajectory)."""
     from vslam.runs import (
-        backend_problem,
         claim_run_outputs,
         input_warnings,
         output_problem,
@@ -186,7 +185,6 @@ def run(
 
     refuse(output_problem(output, detail == Detail.OFF))
     refuse(same_file_problem(output if detail != Detail.OFF else None, trajectory_out))
-    refuse(backend_problem(src, config))
     for warning in input_warnings(src, config):
         warn(warning)
 

@@ -27,7 +27,6 @@ from vslam.cli.common import (
     fail,
     out,
     print_error,
-    refuse,
     report_writes,
     warn,
 )
@@ -145,7 +144,7 @@ def eval_command(
     else:
         if gt_times is not None or match is not MatchMode.auto:
             fail("--gt-times and --match apply to --trajectory files only")
-        from vslam.runs import backend_problem, input_warnings, with_camera_height
+        from vslam.runs import input_warnings, with_camera_height
         from vslam_core.config import EngineConfig, load_config
         from vslam_core.sources.base import FrameRange
         from vslam_core.sources.open import open_source
@@ -173,7 +172,6 @@ def eval_command(
                                    gt_tolerance_s=None if time_tolerance is None else time_tolerance / 1000.0)]
         for src in sources:
             config = with_camera_height(config, camera_height, src)
-            refuse(backend_problem(src, config))
         for warning in dict.fromkeys(w for src in sources for w in input_warnings(src, config)):
             warn(warning)
         from vslam.evaluation import evaluate_sources  # here: it loads the engine, the recorder and polars

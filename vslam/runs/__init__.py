@@ -18,7 +18,6 @@ _HOMES = {
     "RecordedRun": "runner",
     "RunOutputs": "run_outputs",
     "TrajectoryWriter": "trajectory_out",
-    "backend_problem": "checks",
     "camera_height_problem": "checks",
     "claim": "outputs",
     "claim_run_outputs": "run_outputs",
@@ -45,7 +44,6 @@ _HOMES = {
 if TYPE_CHECKING:
     from vslam.runs.checks import (
         EXIT_NOTHING_TRACKED,
-        backend_problem,
         camera_height_problem,
         input_warnings,
         nothing_tracked,
@@ -82,7 +80,6 @@ __all__ = [
     "RecordedRun",
     "RunOutputs",
     "TrajectoryWriter",
-    "backend_problem",
     "camera_height_problem",
     "claim",
     "claim_run_outputs",

@@ -72,15 +72,6 @@ def same_file_problem(recording: Path | None, trajectory: Path | None) -> str | 
     return None
 
 
-def backend_problem(source: FrameSource, config: EngineConfig) -> str | None:
-    """A backend that cannot handle this source's camera, refused before any output is written."""
-    if config.backend != "map":
-        return None
-    from vslam_core.mapping.tracking import unsupported_camera  # here: the vo backend never loads the map's
-
-    return unsupported_camera(source.intrinsics)
-
-
 def input_warnings(source: FrameSource, config: EngineConfig) -> list[str]:
     """Inputs that are valid but probably a mistake, and what the source noticed (e.g. a log's out-of-order
     stamps): one line each."""

@@ -22,7 +22,7 @@ from dataclasses import replace
 import numpy as np
 
 from vslam_core.config import MapConfig, ScaleSource
-from vslam_core.results import ScaleEstimate
+from vslam_core.results import KeyframeInserted, ScaleEstimate
 from vslam_core.scale import TwoView
 
 #: Steps whose median is the speed.
@@ -105,3 +105,14 @@ def initialisation_reason(config: MapConfig, K: np.ndarray, T_world_key: np.ndar
     if parallax < config.init_parallax_px or close_chirality:
         return None
     return f"initialisation: parallax {parallax:.0f} px"
+
+
+def initialised(config: MapConfig, keyframe: KeyframeInserted) -> bool:
+    """--scale none: whether this keyframe starts the map. An initialisation keyframe does when its two-view
+    reconstruction triangulated `init_min_landmarks` landmarks (ORB-SLAM likewise rejects an initialisation with
+    too few triangulated points, Mur-Artal et al. 2015, sec. IV-4): with fewer, rotation-dominated motion or a
+    poor relative pose, tracking would have too little map to place frames by PnP, so the next keyframe tries
+    again. A keyframe made for another reason (a relocalised or loaded map) finds the map started."""
+    if not keyframe.why.startswith(("initialisation", "re-initialisation")):
+        return True
+    return keyframe.new_landmarks >= config.init_min_landmarks

@@ -21,14 +21,13 @@ import numpy as np
 from vslam_core.coasting import degraded_motion
 from vslam_core.config import EngineConfig
 from vslam_core.engine import Odometry
-from vslam_core.errors import ConfigError
 from vslam_core.features import match_descriptors
 from vslam_core.geometry import interpolate_gaps, invert_pose, orthonormalise, pose_matrix, rotation_angle
 from vslam_core.lens import distort_pixels, undistort_pixels
 from vslam_core.loop.closing import LoopClosing, rescale_relative
 from vslam_core.mapping.local_map import LocalMapSearcher
 from vslam_core.mapping.local_mapping import DESCRIPTOR_PATCH, LocalMapping
-from vslam_core.mapping.map_scale import MapSpeed, for_scale, initialisation_reason, translation_parallax
+from vslam_core.mapping.map_scale import MapSpeed, for_scale, initialisation_reason, initialised, translation_parallax
 from vslam_core.mapping.pnp import PnPSolution, project, solve_pnp
 from vslam_core.mapping.refinding import MapRefinding
 from vslam_core.results import (
@@ -55,18 +54,10 @@ HOLD_REASONS = {Reason.TOO_FEW_TRACKS, Reason.LOW_PARALLAX, Reason.STATIONARY, R
                 Reason.TOO_FEW_INLIERS, Reason.CHIRALITY}
 
 
-def unsupported_camera(intrinsics: CameraIntrinsics) -> str | None:
-    """Why this backend cannot run on this camera, if so: none since it models lens distortion (tracks stay
-    on raw pixels; PnP, landmarks, triangulation and bundle adjustment use their ideal pinhole pixels)."""
-    return None
-
-
 class MapTracking:
     """Monocular SLAM over a stream of frames: tracking against a map of keyframes and landmarks."""
 
     def __init__(self, intrinsics: CameraIntrinsics, config: EngineConfig, scale: ScaleProvider) -> None:
-        if (problem := unsupported_camera(intrinsics)) is not None:
-            raise ConfigError(problem)
         self._lens = intrinsics  # tracks are on raw pixels; the map's geometry on ideal ones (vslam_core/lens.py)
         self.config = config
         self._cfg = for_scale(config.map, config.scale)
@@ -89,6 +80,7 @@ class MapTracking:
         self._posed_position = -1  # run position of the last frame with a pose
         self._held: set[int] = set()  # run positions whose pose was held (no tracking, no relocalisation)
         self._segment_lost = False  # relocalisation failed: a new segment starts at the next frame with a pose
+        self._initialised = False  # --scale none: the segment's map was started by a well-conditioned two-view
         self.loop = LoopClosing(self._K, config, background=config.threads > 1) if config.loop.enabled else None
         self._refound: dict[int, np.ndarray] = {}  # landmark id -> ideal pixel: re-found, for a keyframe now
         self.refinding = MapRefinding(self._K, self._cfg, LocalMapSearcher(self._K, self._cfg, intrinsics),
@@ -192,7 +184,7 @@ class MapTracking:
             # the old map cannot be reached from here: a new one starts, at a frame that has a pose (a held
             # frame keeps trying to relocalise instead, and its stale pose never becomes a keyframe)
             self._segment += 1
-            self._segment_lost = False
+            self._segment_lost, self._initialised = False, False
             warnings.append(Reason.NEW_MAP_SEGMENT)
             why = "new map segment"
         return self._finish(frame, vo, pose, mode, pnp, relocalisation, warnings, why, two_view)
@@ -363,7 +355,7 @@ class MapTracking:
         alive = vo.track_fate >= TrackFate.NOT_USED
         _, in_reference, in_frame = np.intersect1d(reference.track_ids, vo.track_ids[alive], assume_unique=True,
                                                    return_indices=True)
-        if self._speed is not None and not self._has_map():
+        if self._speed is not None and not self._initialised:
             return initialisation_reason(cfg, self._K, reference.T_world_cam, pose,
                                          self._ideal(vo.track_cur[alive][in_frame]), reference.pixels[in_reference],
                                          Reason.CLOSE_CHIRALITY in vo.health.reasons)
@@ -437,6 +429,7 @@ class MapTracking:
             self._suspended = {t: m for t, m in tied.items() if t not in self._links and m in landmarks}
             self._reference = keyframe.keyframe_id
             self._since_keyframe = 0
+            self._initialised = self._initialised or initialised(self._cfg, keyframe)
             if self.loop is not None:
                 self.loop.submit(keyframe.keyframe_id, frame.image)
             vo.timings_ms["mapping"] = _lap(clock)
