@@ -14,14 +14,15 @@ from cli_helpers import vslam
 
 from vslam.rrd.read import read_entity
 from vslam_core.config import EngineConfig
-from vslam_core.mapping.map_scale import INITIAL_SPEED, MapSpeed, translation_parallax
+from vslam_core.mapping.map_scale import INITIAL_SPEED, STARTING_REASONS, MapSpeed, translation_parallax
 from vslam_core.mapping.tracking import MapTracking
 from vslam_core.pipeline import run_odometry
-from vslam_core.results import FrameResult, TrackingMode
+from vslam_core.results import FrameResult, KeyframeInserted, TrackingMode
 from vslam_core.scale import TwoView, UnitScale
 from vslam_core.sources.base import FrameRange, rebase_poses
 from vslam_core.sources.faults import FaultInjector, parse_faults
 from vslam_core.sources.kitti import KittiSource
+from vslam_core.sources.open import open_source
 from vslam_core.trajectory.io import read_kitti_poses
 from vslam_core.trajectory.metrics import kitti_errors, sim3_aligned
 
@@ -223,10 +224,31 @@ def test_an_initialisation_with_too_few_landmarks_is_tried_again(kitti_root: Pat
         runs[bar] = []
         run_odometry(source, replace(config, map=replace(config.map, init_min_landmarks=bar)),
                      (lambda _, r, bar=bar: runs[bar].append(r),))  # type: ignore[misc]
-    attempts = [r.mapping.keyframe for r in runs[100_000] if r.mapping is not None and r.mapping.keyframe]
+    attempts = keyframes(runs[100_000])
     assert len(attempts) >= 3, attempts
-    assert all(k.why.startswith(("initialisation", "re-initialisation")) for k in attempts), [k.why for k in attempts]
+    assert all(k.why.startswith(STARTING_REASONS) for k in attempts), [k.why for k in attempts]
     assert max(k.new_landmarks for k in attempts) >= 50  # they triangulated, just not enough for this bar
-    started = [r.mapping.keyframe for r in runs[config.map.init_min_landmarks] if r.mapping is not None and r.mapping.keyframe]
+    started = keyframes(runs[config.map.init_min_landmarks])
     assert started[1].why.startswith("initialisation: parallax") and started[1].new_landmarks >= 50
-    assert not started[2].why.startswith(("initialisation", "re-initialisation")), [k.why for k in started]
+    assert not started[2].why.startswith(STARTING_REASONS), [k.why for k in started]
+
+
+@pytest.mark.kitti
+def test_a_new_map_segment_starts_its_own_map(kitti_root: Path) -> None:
+    """--scale none: KITTI 00 170:240 without frames 199–208 (the sharpest turn: relocalisation fails) starts a
+    second map segment, whose first keyframe is no map yet: the next is an initialisation that waits for parallax
+    and triangulates at least `init_min_landmarks` landmarks before keyframes are made for tracking again."""
+    source = open_source(str(kitti_root), sequence="00", frames=FrameRange.parse("170:240"), inject="drop@199:208")
+    config = EngineConfig(backend="map", scale="none", threads=1)
+    results: list[FrameResult] = []
+    run_odometry(source, config, (lambda _, r: results.append(r),))
+    second = [(r.mapping.segment, r.mapping.keyframe) for r in results if r.mapping and r.mapping.keyframe]
+    second = [(s, k) for s, k in second if s == 1]
+    assert second[0][1].why == "new map segment" and second[0][1].new_landmarks == 0
+    assert second[1][1].why.startswith("initialisation: parallax"), [k.why for _, k in second]
+    assert second[1][1].new_landmarks >= config.map.init_min_landmarks
+    assert not second[2][1].why.startswith(STARTING_REASONS)
+
+
+def keyframes(results: list[FrameResult]) -> list[KeyframeInserted]:
+    return [r.mapping.keyframe for r in results if r.mapping is not None and r.mapping.keyframe is not None]

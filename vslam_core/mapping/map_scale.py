@@ -25,6 +25,8 @@ from vslam_core.config import MapConfig, ScaleSource
 from vslam_core.results import KeyframeInserted, ScaleEstimate
 from vslam_core.scale import TwoView
 
+#: Why a keyframe was made when it starts a map (segment): it is the map's start only with enough landmarks.
+STARTING_REASONS = ("initialisation", "re-initialisation", "new map segment")
 #: Steps whose median is the speed.
 SPEED_FRAMES = 5
 #: Speed (map units a frame) before any step is known: the map's first baseline is one unit a frame.
@@ -112,7 +114,8 @@ def initialised(config: MapConfig, keyframe: KeyframeInserted) -> bool:
     reconstruction triangulated `init_min_landmarks` landmarks (ORB-SLAM likewise rejects an initialisation with
     too few triangulated points, Mur-Artal et al. 2015, sec. IV-4): with fewer, rotation-dominated motion or a
     poor relative pose, tracking would have too little map to place frames by PnP, so the next keyframe tries
-    again. A keyframe made for another reason (a relocalised or loaded map) finds the map started."""
-    if not keyframe.why.startswith(("initialisation", "re-initialisation")):
+    again. So does the first keyframe of a new map segment; one made for another reason (tracking, relocalised
+    into the map) finds the map started."""
+    if not keyframe.why.startswith(STARTING_REASONS):
         return True
     return keyframe.new_landmarks >= config.init_min_landmarks
