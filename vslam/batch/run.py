@@ -27,9 +27,9 @@ from vslam.batch.manifest import LogSpec
 from vslam.batch.pool import CRASH, Terminated, run_on_pool
 from vslam.evaluation import evaluate_sources
 from vslam.recording import Detail, ImageCodec
-from vslam.runs import backend_problem, input_warnings, with_camera_height
+from vslam.runs import input_warnings, with_camera_height
 from vslam_core.config import EngineConfig, load_config
-from vslam_core.errors import ConfigError, VslamError
+from vslam_core.errors import VslamError
 from vslam_core.sources.base import FrameRange
 from vslam_core.sources.open import open_source
 
@@ -116,9 +116,6 @@ def run_log(job: LogJob) -> LogResult:
                              intrinsics=spec.intrinsics, calib=spec.calib, ground_truth=spec.gt, topic=spec.topic,
                              gt_topic=spec.gt_topic)
         config = with_camera_height(config, spec.camera_height, source, "camera_height", "scale height")
-        problem = backend_problem(source, config)
-        if problem is not None:
-            raise ConfigError(problem)
         warnings = input_warnings(source, config)
         quiet = Console(file=io.StringIO())  # per-frame progress would interleave: the batch prints per log
         evaluation = evaluate_sources([source], config, job.report_dir, quiet, job.detail,
