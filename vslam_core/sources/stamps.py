@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -185,3 +186,29 @@ def associate_ground_truth(
     else:
         raise SourceError(f"{path}: unknown ground-truth format {fmt!r} (kitti, tum or auto)")
     return rebase_poses(gt_poses[np.asarray(indices)]), ROW_BY_ROW
+
+
+def stamped_lines(path: Path, holding: str) -> Iterator[tuple[int, str, list[str]]]:
+    """(line number, the line stripped, its whitespace-separated fields) of each line of a dataset's text list
+    (``times.txt``, ``rgb.txt``) that is neither empty nor a ``#`` comment; `SourceError` naming the file (what
+    it is `holding`) when it cannot be read."""
+    try:
+        lines = path.read_text().splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SourceError(f"{path}: cannot read {holding} ({exc.__class__.__name__})") from None
+    for number, line in enumerate(lines, start=1):
+        stripped = line.strip()
+        if stripped and not stripped.startswith("#"):
+            yield number, stripped, stripped.split()
+
+
+def parse_stamp(path: Path, number: int, text: str) -> float:
+    """A timestamp in seconds from line `number` of `path`; `SourceError` naming both when it is not a finite
+    number."""
+    try:
+        stamp = float(text)
+    except ValueError:
+        raise SourceError(f"{path}:{number}: timestamp {text[:30]!r} is not a number") from None
+    if not np.isfinite(stamp):
+        raise SourceError(f"{path}:{number}: timestamp is not finite")
+    return stamp

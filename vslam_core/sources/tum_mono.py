@@ -35,9 +35,11 @@ from vslam_core.sources.kitti import BadFramePolicy, ImageFilesSource, first_ima
 from vslam_core.sources.stamps import (
     DEFAULT_GT_TOLERANCE_S,
     matched_by_time,
+    parse_stamp,
     read_tum_ground_truth,
     selected_ground_truth,
     stamp_problems,
+    stamped_lines,
 )
 
 #: DSO's camera.txt prefixes (lower case) → (our model name, how many numbers follow).
@@ -119,25 +121,11 @@ def read_camera_txt(path: Path) -> CameraIntrinsics:
 def read_frame_times(path: Path) -> dict[str, float]:
     """``times.txt``: image id → timestamp (s). Ids are compared as numbers when they are numbers (``00007``
     = ``7``). `SourceError` naming the file and line for a malformed line."""
-    try:
-        lines = path.read_text().splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise SourceError(f"{path}: cannot read timestamps ({exc.__class__.__name__})") from None
     times: dict[str, float] = {}
-    for number, line in enumerate(lines, start=1):
-        stripped = line.strip()
-        if not stripped or stripped.startswith("#"):
-            continue
-        fields = stripped.split()
+    for number, stripped, fields in stamped_lines(path, "timestamps"):
         if len(fields) < 2:
             raise SourceError(f"{path}:{number}: expected 'id timestamp [exposure]', found {stripped[:60]!r}")
-        try:
-            stamp = float(fields[1])
-        except ValueError:
-            raise SourceError(f"{path}:{number}: timestamp {fields[1][:30]!r} is not a number") from None
-        if not np.isfinite(stamp):
-            raise SourceError(f"{path}:{number}: timestamp is not finite")
-        times[_image_id(fields[0])] = stamp
+        times[_image_id(fields[0])] = parse_stamp(path, number, fields[1])
     if not times:
         raise SourceError(f"{path}: no timestamps")
     return times

@@ -32,9 +32,11 @@ from vslam_core.sources.kitti import BadFramePolicy, ImageFilesSource, first_ima
 from vslam_core.sources.stamps import (
     DEFAULT_GT_TOLERANCE_S,
     matched_by_time,
+    parse_stamp,
     read_tum_ground_truth,
     selected_ground_truth,
     stamp_problems,
+    stamped_lines,
 )
 
 #: The benchmark's colour cameras: fx fy cx cy (pixels) and plumb_bob k1 k2 p1 p2 k3, for 640x480 frames.
@@ -66,29 +68,15 @@ def is_tum_rgbd(path: str | Path) -> bool:
 def read_frame_list(path: Path) -> tuple[np.ndarray, list[Path]]:
     """``rgb.txt``: ((N,) timestamps in seconds, (N,) image paths relative to its folder), in the file's order.
     `SourceError` naming the file and line for a malformed line or a missing image."""
-    try:
-        lines = path.read_text().splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise SourceError(f"{path}: cannot read the frame list ({exc.__class__.__name__})") from None
     stamps: list[float] = []
     files: list[Path] = []
-    for number, line in enumerate(lines, start=1):
-        stripped = line.strip()
-        if not stripped or stripped.startswith("#"):
-            continue
-        fields = stripped.split()
+    for number, stripped, fields in stamped_lines(path, "the frame list"):
         if len(fields) != 2:
             raise SourceError(f"{path}:{number}: expected 'timestamp filename', found {stripped[:60]!r}")
-        try:
-            stamp = float(fields[0])
-        except ValueError:
-            raise SourceError(f"{path}:{number}: timestamp {fields[0][:30]!r} is not a number") from None
-        if not np.isfinite(stamp):
-            raise SourceError(f"{path}:{number}: timestamp is not finite")
+        stamps.append(parse_stamp(path, number, fields[0]))
         file = path.parent / fields[1]
         if not file.is_file():
             raise SourceError(f"{path}:{number}: {fields[1]} not found")
-        stamps.append(stamp)
         files.append(file)
     if not files:
         raise SourceError(f"{path}: no frames listed")
