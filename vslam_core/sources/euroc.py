@@ -33,9 +33,9 @@ from vslam_core.sources.kitti import BadFramePolicy, ImageFilesSource, first_ima
 from vslam_core.sources.stamps import (
     DEFAULT_GT_TOLERANCE_S,
     matched_by_time,
-    read_tum_ground_truth,
     selected_ground_truth,
     stamp_problems,
+    tum_camera_poses,
 )
 from vslam_core.trajectory.io import check_ground_truth_steps
 
@@ -266,16 +266,13 @@ class EurocSource(ImageFilesSource):
     def _read_ground_truth(self, override: str | Path | None, tolerance_s: float) -> tuple[np.ndarray | None, str]:
         """The selected frames' T_w_c (re-based) and a description of where they came from."""
         if override is not None:
-            gt_file = Path(override)
-            gt_stamps, gt_poses = read_tum_ground_truth(gt_file)
-            label = f"{gt_file.name} (TUM, camera poses)"
-        else:
-            gt_file = self.mav0 / GROUND_TRUTH_FOLDER / "data.csv"
-            if not gt_file.is_file():
-                return None, "none"
-            stamps_ns, body = read_body_ground_truth(gt_file)
-            gt_stamps, gt_poses = stamps_ns / 1e9, body @ self.t_bs
-            label = f"{GROUND_TRUTH_FOLDER} (body poses × T_BS)"
+            return tum_camera_poses(Path(override), self._times, self._indices, tolerance_s, self.folder)
+        gt_file = self.mav0 / GROUND_TRUTH_FOLDER / "data.csv"
+        if not gt_file.is_file():
+            return None, "none"
+        stamps_ns, body = read_body_ground_truth(gt_file)
+        gt_stamps, gt_poses = stamps_ns / 1e9, body @ self.t_bs
+        label = f"{GROUND_TRUTH_FOLDER} (body poses × T_BS)"
         return selected_ground_truth(self._times, self._indices, gt_stamps, gt_poses, tolerance_s, label,
                                      self.folder), label
 

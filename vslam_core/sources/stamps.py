@@ -119,6 +119,15 @@ def selected_ground_truth(
     return ground_truth_at(frame_stamps[np.asarray(indices)], gt_stamps, gt_poses, tolerance_s, f"{where} ({label})")
 
 
+def tum_camera_poses(gt_file: Path, frame_stamps: np.ndarray, indices: list[int], tolerance_s: float,
+                     where: object) -> tuple[np.ndarray, str]:
+    """A TUM file of camera poses T_w_c given as a dataset's ground truth: ((N, 4, 4) poses of the selected
+    frames, matched by time and re-based, as `selected_ground_truth`), and the label the run summary shows."""
+    gt_stamps, gt_poses = read_tum_ground_truth(gt_file)
+    label = f"{gt_file.name} (TUM, camera poses)"
+    return selected_ground_truth(frame_stamps, indices, gt_stamps, gt_poses, tolerance_s, label, where), label
+
+
 def stamp_problems(stamps: np.ndarray) -> list[str]:
     """What is wrong with a log's (N,) frame stamps in arrival order: out-of-order and duplicate stamps,
     as short notes (empty when they increase strictly)."""

@@ -36,10 +36,9 @@ from vslam_core.sources.stamps import (
     DEFAULT_GT_TOLERANCE_S,
     matched_by_time,
     parse_stamp,
-    read_tum_ground_truth,
-    selected_ground_truth,
     stamp_problems,
     stamped_lines,
+    tum_camera_poses,
 )
 
 #: DSO's camera.txt prefixes (lower case) → (our model name, how many numbers follow).
@@ -201,11 +200,8 @@ class TumMonoSource(ImageFilesSource):
             self._ground_truth = None
             self.properties["ground_truth"] = "none"
         else:
-            gt_file = Path(ground_truth)
-            gt_stamps, gt_poses = read_tum_ground_truth(gt_file)
-            label = f"{gt_file.name} (TUM, camera poses)"
-            self._ground_truth = selected_ground_truth(self._times, self._indices, gt_stamps, gt_poses, gt_tolerance_s,
-                                                       label, folder)
+            self._ground_truth, label = tum_camera_poses(Path(ground_truth), self._times, self._indices,
+                                                         gt_tolerance_s, folder)
             self.properties["ground_truth"] = label
             self.gt_matching = matched_by_time(len(self._indices), gt_tolerance_s)
         self._name = "tum-mono-" + (re.sub(r"[^A-Za-z0-9._-]+", "_", folder.resolve().name).strip("_") or "sequence")
