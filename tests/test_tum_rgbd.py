@@ -110,6 +110,15 @@ def test_published_freiburg_calibration_from_the_folder_name(tmp_path: Path, kit
     assert not open_source(str(fr3)).intrinsics.distorted  # freiburg3's colour frames come undistorted
 
 
+def test_rows_out_of_stamp_order_are_put_in_order_with_a_note(tmp_path: Path, kitti_root: Path) -> None:
+    root = make_tum_rgbd(tmp_path / "shuffled", kitti_root, count=6)
+    lines = (root / "rgb.txt").read_text().splitlines()
+    (root / "rgb.txt").write_text("\n".join(lines[:3] + [lines[4], lines[3]] + lines[5:]) + "\n")  # rows 0 and 1
+    source = open_source(str(root), calib=kitti_calib(kitti_root))
+    assert np.all(np.diff(source.file_times) > 0) and source.files[0].name < source.files[1].name
+    assert any("out of stamp order" in note and "used in stamp order" in note for note in source.notes)
+
+
 def test_refusals_are_one_line(tmp_path: Path, kitti_root: Path) -> None:
     plain = make_tum_rgbd(tmp_path / "my_sequence", kitti_root, count=3)
     with pytest.raises(SourceError, match=r"names no Freiburg camera .*--calib FILE or --intrinsics") as caught:

@@ -9,13 +9,14 @@ Layout::
                            motion-capture frame (T_world_cam), 100 Hz, matched to the frames by time
     SEQ/depth.txt, depth/  registered depth images: not used
 
-Frame i is row i of ``rgb.txt`` (the file's order, which is time order). The benchmark ships no calibration file:
-the camera comes from ``--calib`` / ``--intrinsics`` when given, else from the folder's name when it names one of
-the benchmark's three Kinects (``rgbd_dataset_freiburg1_xyz`` → freiburg1), with the values the benchmark
-publishes ("File Formats", intrinsic calibration of the colour cameras; plumb_bob k1 k2 p1 p2 k3, the full
-precision of the ROS calibration files they were rounded from). freiburg3's colour images are undistorted
-already (its coefficients are zero). A folder whose name names no Freiburg camera is refused without a
-calibration: a guessed focal length would silently scale every rotation.
+Frames are the rows of ``rgb.txt`` in stamp order (the file's own order in the benchmark; rows out of order are put
+in order, with a note). The benchmark ships no calibration file: the camera comes from ``--calib`` /
+``--intrinsics`` when given, else from the folder's name when it names one of the benchmark's three Kinects
+(``rgbd_dataset_freiburg1_xyz`` → freiburg1), with the colour cameras' calibration the benchmark publishes (its
+"File Formats" page rounds it to 0.1 px; these are the unrounded values that ORB-SLAM's TUM1/2/3 settings and other
+public tools carry; plumb_bob k1 k2 p1 p2 k3). freiburg3's colour images are undistorted already (its coefficients
+are zero). A folder whose name names no Freiburg camera is refused without a calibration: a guessed focal length
+would silently scale every rotation.
 """
 
 from __future__ import annotations
@@ -121,10 +122,12 @@ class TumRgbdSource(ImageFilesSource):
         if folder is None:
             raise SourceError(f"{given}: not a TUM RGB-D sequence (needs rgb.txt and rgb/)")
         self.folder = folder
-        self._times, self._files = read_frame_list(folder / "rgb.txt")
+        stamps, files = read_frame_list(folder / "rgb.txt")
+        order = np.argsort(stamps, kind="stable")  # rgb.txt is in time order; if not, its stamps decide
+        self._times, self._files = stamps[order], [files[i] for i in order]
         self._indices = select(frames, len(self._files), folder)
         self._size, self._shift = first_image(self._files, self._indices, on_bad_frame, folder)
-        self.notes: list[str] = [f"{folder / 'rgb.txt'}: {note}" for note in stamp_problems(self._times)]
+        self.notes: list[str] = [f"{folder / 'rgb.txt'}: {note}" for note in stamp_problems(stamps)]
         if (folder / "depth.txt").is_file() or (folder / "depth").is_dir():
             self.notes.append("depth images not used: vslam is monocular (the colour frames only)")
 
@@ -134,7 +137,7 @@ class TumRgbdSource(ImageFilesSource):
                               "camera (freiburg1, 2 or 3): give --calib FILE or --intrinsics fx,fy,cx,cy")
         self._intrinsics = complete_intrinsics(chosen, self._size[0], self._size[1], folder)
 
-        self.properties: dict[str, str] = {"dataset": "TUM RGB-D", "frame_order": "rows of rgb.txt",
+        self.properties: dict[str, str] = {"dataset": "TUM RGB-D", "frame_order": "rgb.txt's stamps",
                                            **sixteen_bit_property(self._shift)}
         gt_file = Path(ground_truth) if ground_truth is not None else folder / GROUND_TRUTH_FILE
         if ground_truth is None and not gt_file.is_file():
