@@ -94,8 +94,7 @@ def _recording_id(source: FrameSource, frames: FrameRange, config: EngineConfig)
 def run(
     source: Annotated[str | None, typer.Argument(help="KITTI root or sequence folder, ROS bag / MCAP "
                                                  "log, EuRoC, TUM monoVO or TUM RGB-D folder, image folder, "
-                                                 "video file, or "
-                                                 "'synthetic' (the default: no download)")] = None,
+                                                 "video file, or 'synthetic' (the default: no download)")] = None,
     sequence: Annotated[str | None, typer.Option("--sequence", "-s", help="KITTI sequence, e.g. 00")] = None,
     frames: Annotated[str | None, typer.Option(help="START:END[:STEP] of the source's frames (END excluded; an END "
                                                "past the last frame is clamped to it, like a Python slice)")]

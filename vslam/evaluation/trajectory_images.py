@@ -1,9 +1,9 @@
 """The camera frames that go with a trajectory file (`vslam eval --trajectory … --images PATH`).
 
 PATH is anything `open_source` reads as image files: a KITTI sequence folder (``image_0``, ``calib.txt``,
-``times.txt``), an EuRoC, TUM monoVO or TUM RGB-D folder, or a folder of images (sorted by name). The camera comes with
-the dataset, from ``--intrinsics`` / ``--calib`` or a ``calib.txt`` in the folder or its parent; a plain
-folder without any is still shown, as 2-D images without a frustum. Times come from the dataset, a
+``times.txt``), an EuRoC, TUM monoVO or TUM RGB-D folder, or a folder of images (sorted by name). The camera
+comes with the dataset, from ``--intrinsics`` / ``--calib`` or a ``calib.txt`` in the folder or its parent; a
+plain folder without any is still shown, as 2-D images without a frustum. Times come from the dataset, a
 ``times.txt`` beside the images, or file names that are integer nanosecond stamps (EuRoC style).
 """
 
