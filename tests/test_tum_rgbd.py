@@ -119,6 +119,12 @@ def test_rows_out_of_stamp_order_are_put_in_order_with_a_note(tmp_path: Path, ki
     assert any("out of stamp order" in note and "used in stamp order" in note for note in source.notes)
 
 
+def test_a_byte_order_mark_is_not_part_of_the_frame_list(tmp_path: Path, kitti_root: Path) -> None:
+    root = make_tum_rgbd(tmp_path / "edited_on_windows", kitti_root, count=4)
+    (root / "rgb.txt").write_text((root / "rgb.txt").read_text(), encoding="utf-8-sig")  # as Notepad saves it
+    assert len(open_source(str(root), calib=kitti_calib(kitti_root))) == 4
+
+
 def test_refusals_are_one_line(tmp_path: Path, kitti_root: Path) -> None:
     plain = make_tum_rgbd(tmp_path / "my_sequence", kitti_root, count=3)
     with pytest.raises(SourceError, match=r"names no Freiburg camera .*--calib FILE or --intrinsics") as caught:

@@ -29,6 +29,7 @@ from vslam_core.sources.image_files import (
     read_grey_image,
     sixteen_bit_shift,
 )
+from vslam_core.sources.stamps import stamped_lines
 from vslam_core.trajectory.io import check_ground_truth_steps, detect_format, read_kitti_poses, read_tum_poses
 
 GroundTruthFormat = Literal["kitti", "tum", "auto"]
@@ -71,19 +72,12 @@ def read_times(path: Path, count: int) -> list[float]:
     """The first ``count`` timestamps (seconds, one a line) of a KITTI ``times.txt``.
 
     Raises `SourceError` naming the file for a non-number or fewer than ``count`` lines."""
-    try:
-        lines = path.read_text(encoding="utf-8-sig").splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise SourceError(f"{path}: cannot read timestamps ({exc.__class__.__name__})") from None
     times: list[float] = []
-    for number, line in enumerate(lines, start=1):
-        stripped = line.strip()
-        if not stripped or stripped.startswith("#"):
-            continue
+    for number, stripped, fields in stamped_lines(path, "timestamps"):
         if len(times) == count:
             break
         try:
-            times.append(float(stripped.split()[0]))
+            times.append(float(fields[0]))
         except ValueError:
             raise SourceError(f"{path}:{number}: timestamp {stripped[:40]!r} is not a number") from None
     if len(times) < count:

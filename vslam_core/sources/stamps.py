@@ -200,9 +200,9 @@ def associate_ground_truth(
 def stamped_lines(path: Path, holding: str) -> Iterator[tuple[int, str, list[str]]]:
     """(line number, the line stripped, its whitespace-separated fields) of each line of a dataset's text list
     (``times.txt``, ``rgb.txt``) that is neither empty nor a ``#`` comment; `SourceError` naming the file (what
-    it is `holding`) when it cannot be read."""
+    it is `holding`) when it cannot be read. A byte-order mark (Windows editors) is not part of the first line."""
     try:
-        lines = path.read_text().splitlines()
+        lines = path.read_text(encoding="utf-8-sig").splitlines()
     except (OSError, UnicodeDecodeError) as exc:
         raise SourceError(f"{path}: cannot read {holding} ({exc.__class__.__name__})") from None
     for number, line in enumerate(lines, start=1):
