@@ -183,7 +183,7 @@ def test_bundle_adjustment_keeps_the_maps_steps(blurred_unit_run: list[FrameResu
 
 
 def keyframe_reasons(results: list[FrameResult]) -> list[str]:
-    return [r.mapping.keyframe.why for r in results if r.mapping is not None and r.mapping.keyframe is not None]
+    return [k.why for k in keyframes(results)]
 
 
 @pytest.mark.kitti
