@@ -37,7 +37,8 @@ from vslam_core.trajectory.metrics import ate
 
 
 def _run(source: FrameSource, backend: str, loop: bool, scale: str = "gt") -> tuple[np.ndarray, list[tuple[int, int]]]:
-    """(N, 4, 4) poses after the run and the (frame, matched frame) source indices of each loop closed."""
+    """(N, 4, 4) poses after the run and the (frame, matched frame) source indices of each loop closed (those
+    closed when the run ended last)."""
     config = EngineConfig(backend=backend, scale=scale)  # type: ignore[arg-type]
     config = dataclasses.replace(config, loop=dataclasses.replace(config.loop, enabled=loop))
     indices = source.indices
@@ -48,7 +49,10 @@ def _run(source: FrameSource, backend: str, loop: bool, scale: str = "gt") -> tu
             found = result.mapping.loop.closed
             closed.append((indices[found.query_position], indices[found.candidate_position]))
 
-    return run_odometry(source, config, (sink,)).pose_array(), closed
+    run = run_odometry(source, config, (sink,))
+    closed += [(indices[step.closed.query_position], indices[step.closed.candidate_position])
+               for step in run.loops_at_end if step.closed is not None]
+    return run.pose_array(), closed
 
 
 def _errors(poses: np.ndarray, truth: np.ndarray) -> np.ndarray:

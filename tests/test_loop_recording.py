@@ -8,6 +8,7 @@ import json
 from pathlib import Path
 
 import cli_helpers
+import numpy as np
 import pytest
 from kitti_runs import kitti_folder
 from rerun.chunk import RrdReader
@@ -50,6 +51,23 @@ def test_revisit_is_found_at_the_right_place(revisit: tuple[Path, list[int]]) ->
     for query, matched in zip(closed["query_frame"].to_list(), closed["candidate_frame"].to_list(), strict=True):
         assert query[0] >= FORWARD > matched[0]  # a frame of the way back revisits one of the way out ...
         assert abs(order[query[0]] - order[matched[0]]) <= 3  # ... showing the same place (KITTI frame)
+
+
+def test_the_last_keyframe_is_searched_when_the_run_ends(revisit: tuple[Path, list[int]]) -> None:
+    """The run's last keyframe has no later keyframe to collect its search at: it is searched when the run ends,
+    without the cooldown after a loop (no tracking is left to disturb). Here it revisits the start two keyframes
+    after the loop before it was closed: the loop is recorded at the last frame, and its correction is in the
+    trajectory written after the run, not in the pose tracking logged for that frame."""
+    rrd, order = revisit
+    closed = read_entity(rrd, "/loops/closed")
+    at_end = closed.filter(closed["frame"] == len(order) - 1)
+    assert len(at_end) == 1 and len(closed) >= 2
+    query, matched = at_end["query_frame"].to_list()[0][0], at_end["candidate_frame"].to_list()[0][0]
+    assert query >= FORWARD > matched and abs(order[query] - order[matched]) <= 3
+    camera = read_entity(rrd, "/world/camera")
+    tracked = np.array(camera.filter(camera["frame"] == len(order) - 1)["Transform3D:translation"].to_list()[0][0])
+    written = np.loadtxt(rrd.parent / "run.txt").reshape(-1, 3, 4)[-1, :, 3]
+    assert np.linalg.norm(written - tracked) >= 0.5 * at_end["correction_m"].to_list()[0][0] > 0.01
 
 
 def test_candidates_and_images_are_recorded(revisit: tuple[Path, list[int]]) -> None:

@@ -18,7 +18,7 @@ from vslam_core.config import EngineConfig
 from vslam_core.engine import Odometry
 from vslam_core.mapping.localisation import MapLocalisation
 from vslam_core.mapping.tracking import MapTracking
-from vslam_core.results import FrameResult, FrameStatus, Reason
+from vslam_core.results import FrameResult, FrameStatus, LoopStep, Reason
 from vslam_core.scale import make_scale_provider
 from vslam_core.sources.base import Frame, FrameSource
 
@@ -42,6 +42,8 @@ class RunResult:
     tracked: int = 0  # frames whose motion was measured (status ok) or dead-reckoned
     held_reasons: dict[str, int] = field(default_factory=dict)  # why frames were held: reason -> frames
     seconds: float = 0.0  # wall time of the whole run, decoding and sinks included
+    loops_at_end: list[LoopStep] = field(default_factory=list)  # map backend: the loop searches collected when
+    # the run ended (vslam_core/loop/closing.py `finish`); a loop they closed corrected `poses`
 
     @property
     def frames(self) -> int:
@@ -159,6 +161,7 @@ def run_odometry(
     finally:
         if isinstance(engine, MapTracking):  # the map's refined poses replace the tracking-time ones
             run.poses[:] = engine.refined_poses(len(run.poses))
+            run.loops_at_end[:] = engine.loops_at_end
         if completed and finish is not None:
             finish(engine)
         engine.close()

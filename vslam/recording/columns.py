@@ -122,6 +122,9 @@ def add_event(columns: ColumnBuffer, frame: Frame, text: str, level: str) -> Non
     columns.add("/events", frame, (rr.TextLog.columns, {"text": f"frame {frame.index}: {text}", "level": level}))
 
 
+#: The image of a `Frame` made only to place something on the timelines.
+NO_IMAGE = np.zeros((0, 0), np.uint8)
+
 #: Stamps after this many seconds are Unix times (a ROS log's header stamps), not time since the start.
 UNIX_STAMPS_AFTER_S = 1e9
 

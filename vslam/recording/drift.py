@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import rerun as rr
 
-from vslam.recording.columns import ColumnBuffer, add_event
+from vslam.recording.columns import NO_IMAGE, ColumnBuffer, add_event
 from vslam_core.geometry import invert_pose
 from vslam_core.sources.base import Frame
 from vslam_core.trajectory.drift import FrameErrors, frame_errors, step_errors, worst_frames
@@ -80,7 +80,7 @@ class DriftRecording:
                      reasons: str) -> dict[str, float]:
         """Remember the frame; return its drift series (none with ``online`` False). NaN values are left out
         (the recording's series hold none)."""
-        self.frames.append(Frame(frame.index, frame.timestamp, _NO_IMAGE))
+        self.frames.append(Frame(frame.index, frame.timestamp, NO_IMAGE))
         self.positions.append(pose[:3, 3].copy())
         self.run_positions.append(position)
         self.health.append((status, reasons))
@@ -179,4 +179,3 @@ class DriftRecording:
 
 
 SERIES = ("rotation_deg", "translation_m", "translation_pct", "scale_ratio")
-_NO_IMAGE = np.zeros((0, 0), np.uint8)

@@ -22,7 +22,7 @@ import numpy as np
 import rerun as rr
 
 from vslam.evaluation import TrajectoryImages
-from vslam.recording.columns import FLUSH_FRAMES, ColumnBuffer
+from vslam.recording.columns import FLUSH_FRAMES, NO_IMAGE, ColumnBuffer
 from vslam.recording.drift import DriftRecording
 from vslam.recording.layout import blueprint
 from vslam.recording.levels import Detail
@@ -39,7 +39,6 @@ NO_HEALTH = "not reported (external trajectory)"
 #: The series groups such a recording holds (the engine's tracks, inliers and timings it has not).
 GROUPS = ("error", "angle_error", "drift")
 JPEG_QUALITY = 75
-_NO_IMAGE = np.zeros((0, 0), np.uint8)
 
 
 @dataclass(frozen=True)
@@ -113,7 +112,7 @@ def _frame(run: ExternalRun, frames: RunFrames | None, i: int) -> Frame:
         stamp = float(run.times[i])
     elif frames is not None and frames.images.times is not None:
         stamp = float(frames.images.times[int(frames.picks[i])])
-    return Frame(int(run.rows[i]), stamp, _NO_IMAGE)
+    return Frame(int(run.rows[i]), stamp, NO_IMAGE)
 
 
 def _log_row(columns: ColumnBuffer, drift: DriftRecording, run: ExternalRun, frame: Frame, i: int) -> None:

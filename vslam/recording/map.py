@@ -57,7 +57,15 @@ from vslam.recording.columns import ColumnBuffer, Part, add_event
 from vslam.recording.levels import Detail
 from vslam.recording.loops import LoopRecording
 from vslam.recording.metrics import MAP_METRICS, MAP_STAGES, MAP_TIMING, map_frame_metrics
-from vslam_core.results import BundleAdjusted, FrameResult, MapFrame, MapView, PnPEstimate, TrackingMode
+from vslam_core.results import (
+    BundleAdjusted,
+    FrameResult,
+    LoopStep,
+    MapFrame,
+    MapView,
+    PnPEstimate,
+    TrackingMode,
+)
 from vslam_core.sources.base import CameraIntrinsics, Frame
 
 FRUSTUM_DEPTH = 1.0  # metres (or baselines with --scale none) from a keyframe's centre to its image plane
@@ -152,6 +160,11 @@ class MapRecording:
                 self._log_residuals(frame, None)
         self._log_events(frame, mapping, new_segment)
         self._loops.log_frame(frame, result.position, mapping.loop)
+
+    def log_loops_at_end(self, frame: Frame, position: int, steps: list[LoopStep]) -> None:
+        """The loop searches collected when the run ended (`RunResult.loops_at_end`), at the last frame."""
+        for step in steps:
+            self._loops.log_frame(frame, position, step)
 
     def _log_scale(self, frame: Frame, result: FrameResult, mapping: MapFrame) -> None:
         """The map's scale: this frame's step in map units, and over the ground truth's step when known."""

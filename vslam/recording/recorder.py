@@ -14,7 +14,7 @@ import rerun as rr
 
 import vslam_core
 from vslam.evaluation import markdown_table, metrics_row, scored_estimate
-from vslam.recording.columns import FLUSH_FRAMES, ColumnBuffer, Part, add_event
+from vslam.recording.columns import FLUSH_FRAMES, NO_IMAGE, ColumnBuffer, Part, add_event
 from vslam.recording.drift import DriftRecording
 from vslam.recording.layout import UNDISTORTED, blueprint
 from vslam.recording.levels import Detail, ImageCodec
@@ -162,6 +162,9 @@ class Recorder:
         try:
             if stopped is not None or self._properties.get("frame_count") != str(run.frames):
                 self._restate_frames(run, stopped)
+            if self._map is not None and run.loops_at_end and run.indices:  # at the last frame's time
+                self._map.log_loops_at_end(Frame(run.indices[-1], run.timestamps[-1], NO_IMAGE), run.frames - 1,
+                                           run.loops_at_end)
             lines = [f"# {self._name}", "", f"{run.frames} frames, {run.held_summary}"
                      + (f" — {stopped}" if stopped else "")]
             if self._gt is not None and run.frames > 2:

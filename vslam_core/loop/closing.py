@@ -17,15 +17,13 @@ from __future__ import annotations
 
 import time
 
-import cv2
 import numpy as np
 
 from vslam_core.config import EngineConfig
 from vslam_core.geometry import invert_pose, orthonormalise, rotation_angle
-from vslam_core.loop.places import EMPTY_DESCRIPTORS, KeyframePlace, describe_image
+from vslam_core.loop.places import EMPTY_DESCRIPTORS, KeyframePlace
 from vslam_core.loop.search import GraphSolution, SearchJob, SearchResult
 from vslam_core.loop.worker import LoopWorker
-from vslam_core.mapping.local_mapping import DESCRIPTOR_PATCH
 from vslam_core.mapping.map import Map
 from vslam_core.results import LoopClosed, LoopStep
 
@@ -63,18 +61,14 @@ class LoopClosing:
             collected[0].timings_ms["submit"] = _lap(clock)
         return collected
 
-    def finish(self, map_: Map) -> tuple[LoopStep, np.ndarray | None] | None:
-        """The run ended: collect the last search (its loop is applied) and describe the newest keyframe without
-        searching, so `places` holds every keyframe's features."""
-        collected = self._collect(map_)
-        waiting, self._waiting = self._waiting, None
-        if waiting is not None and waiting[0] in map_.keyframes:
-            place = self._place(map_, waiting[0])
-            place.pixels, place.descriptors = describe_image(
-                waiting[1], self._config.features, self._config.fast_threshold,
-                cv2.ORB_create(edgeThreshold=int(DESCRIPTOR_PATCH), patchSize=int(DESCRIPTOR_PATCH)))
-            self.places[place.keyframe_id] = place
-        return collected
+    def finish(self, map_: Map) -> list[tuple[LoopStep, np.ndarray | None]]:
+        """The run ended: collect the last search (its loop is applied), then search for the newest keyframe as
+        the final one (no cooldown; loop edges deferred by the cooldown are optimised: vslam_core/loop/search.py)
+        and apply what it closes. Returns what each did, in order (nothing when called again)."""
+        steps = [step for step in (self._collect(map_),) if step is not None]
+        self._start(map_, final=True)
+        steps += [step for step in (self._collect(map_),) if step is not None]
+        return steps
 
     # -- steps ------------------------------------------------------------------------------------------------
 
@@ -97,7 +91,7 @@ class LoopClosing:
         if place is not None:
             place.pixels, place.descriptors = result.pixels, result.descriptors
 
-    def _start(self, map_: Map) -> None:
+    def _start(self, map_: Map, final: bool = False) -> None:
         """Submit the search for the waiting keyframe: a snapshot of it and of its segment's keyframe poses."""
         waiting, self._waiting = self._waiting, None
         if waiting is None or waiting[0] not in map_.keyframes:
@@ -112,7 +106,7 @@ class LoopClosing:
             graph_ids=np.array([k.id for k in graph], np.int64),
             graph_positions=np.array([k.position for k in graph], np.int64),
             graph_poses=np.array([k.T_world_cam for k in graph]).reshape(-1, 4, 4),
-            refreshed=self._refresh(map_, place.keyframe_id - self._settled)))
+            refreshed=self._refresh(map_, place.keyframe_id - self._settled), final=final))
 
     def _place(self, map_: Map, keyframe_id: int) -> KeyframePlace:
         """The keyframe's landmarks in its camera frame (its features come back with its search)."""

@@ -45,6 +45,7 @@ class SearchJob:
     graph_positions: np.ndarray  # (K,) their frames' run positions
     graph_poses: np.ndarray  # (K, 4, 4) their T_world_cam
     refreshed: tuple[int, np.ndarray] | None = None  # an older keyframe's (L', 3) points_cam once BA settled them
+    final: bool = False  # the run's last keyframe, searched when the run ends: no cooldown applies
 
 
 @dataclass(frozen=True)
@@ -113,7 +114,7 @@ class LoopSearch:
                    for candidate, score in found]
         timings["verify"] = _lap(clock)
         best = max((c for c in checked if c[2].rejected is None), key=lambda c: (c[2].inliers, -c[0]), default=None)
-        accepted, why = self._consistent(query.keyframe_id, best[0] if best is not None else None)
+        accepted, why = self._consistent(query.keyframe_id, best[0] if best is not None else None, job.final)
         chosen = best[0] if accepted and best is not None else None
         candidates = tuple(self._candidate(query, candidate, score, result, candidate == chosen,
                                            why if chosen is None or candidate == chosen
@@ -160,8 +161,10 @@ class LoopSearch:
         return replace(place, points_cam=np.concatenate(points), point_pixels=np.concatenate(pixels),
                        point_descriptors=np.concatenate(descriptors), point_ids=np.concatenate(ids))
 
-    def _consistent(self, query: int, candidate: int | None) -> tuple[bool, str]:
-        """Track verified places over consecutive keyframes: accept the `consistency`-th in a row."""
+    def _consistent(self, query: int, candidate: int | None, final: bool) -> tuple[bool, str]:
+        """Track verified places over consecutive keyframes: accept the `consistency`-th in a row, unless a loop
+        was closed within `cooldown_keyframes` (its correction is still settling into tracking's map) and this
+        is not the run's `final` keyframe (no tracking is left to disturb)."""
         cfg = self._config
         if candidate is None:
             self._streak = []
@@ -172,7 +175,7 @@ class LoopSearch:
         self._streak.append((query, candidate))
         if len(self._streak) < cfg.consistency:
             return False, f"not consistent yet ({len(self._streak)} of {cfg.consistency} keyframes)"
-        if query - self._last_closed < cfg.cooldown_keyframes:
+        if query - self._last_closed < cfg.cooldown_keyframes and not final:
             return False, f"a loop was closed {query - self._last_closed} keyframes ago"
         self._last_closed = query
         self._streak = []

@@ -82,6 +82,7 @@ class MapTracking:
         self._segment_lost = False  # relocalisation failed: a new segment starts at the next frame with a pose
         self._initialised = False  # --scale none: the segment's map was started by a well-conditioned two-view
         self.loop = LoopClosing(self._K, config, background=config.threads > 1) if config.loop.enabled else None
+        self.loops_at_end: list[LoopStep] = []  # what the loop searches collected when the run ended did
         self._refound: dict[int, np.ndarray] = {}  # landmark id -> ideal pixel: re-found, for a keyframe now
         self.refinding = MapRefinding(self._K, self._cfg, LocalMapSearcher(self._K, self._cfg, intrinsics),
                                       config.tracker, intrinsics)
@@ -99,8 +100,11 @@ class MapTracking:
         flagged in their results)."""
         if self.mapping.collect_bundle_adjustment() is not None:
             self._odometry.set_keyframe_pose(self.pose_of(self._odometry.key_position))
-        if self.loop is not None and (looped := self.loop.finish(self.mapping.map)) is not None:
-            self._follow_loop(looped[1])  # the last loop search's loop, if any, moves the keyframes too
+        if self.loop is not None:
+            finished = self.loop.finish(self.mapping.map)
+            self.loops_at_end += [step for step, _ in finished]
+            for _, correction in finished:
+                self._follow_loop(correction)  # the last loop searches' loops, if any, move the keyframes too
         return interpolate_gaps([self.pose_of(position) for position in range(count)], self._held)
 
     def _follow_loop(self, correction: np.ndarray | None) -> None:
