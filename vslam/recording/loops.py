@@ -1,4 +1,5 @@
-"""Entities of loop closing (`--backend map`, vslam_core/loop/), logged at the keyframes that searched for one.
+"""Entities of loop closing (`--backend map`, vslam_core/loop/), logged at the keyframes that searched for one,
+and at the last frame for the searches collected when the run ended (`RunResult.loops_at_end`).
 
     /loops/candidates                   AnyValues, one instance per candidate checked at this keyframe:
                                         query_frame, candidate_frame (source frame indices), score, matches,
