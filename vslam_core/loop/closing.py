@@ -63,8 +63,8 @@ class LoopClosing:
 
     def finish(self, map_: Map) -> list[tuple[LoopStep, np.ndarray | None]]:
         """The run ended: collect the last search (its loop is applied), then search for the newest keyframe as
-        the final one (no cooldown; loop edges deferred by the cooldown are optimised: vslam_core/loop/search.py)
-        and apply what it closes. Returns what each did, in order (nothing when called again)."""
+        the final one (no cooldown: vslam_core/loop/search.py) and apply what it closes. Returns what each did and
+        the correction of a loop it closed, in order (nothing when called again)."""
         steps = [step for step in (self._collect(map_),) if step is not None]
         self._start(map_, final=True)
         steps += [step for step in (self._collect(map_),) if step is not None]

@@ -103,15 +103,15 @@ class MapTracking:
         if self.loop is not None:
             finished = self.loop.finish(self.mapping.map)
             self.loops_at_end += [step for step, _ in finished]
-            for _, correction in finished:
-                self._follow_loop(correction)  # the last loop searches' loops, if any, move the keyframes too
+            for step, correction in finished:  # the last loop searches' loops, if any, move the keyframes too
+                self._follow_loop(step, correction)
         return interpolate_gaps([self.pose_of(position) for position in range(count)], self._held)
 
-    def _follow_loop(self, correction: np.ndarray | None) -> None:
-        """A loop was closed (its (4, 4) correction of the newest keyframe given): with --scale none the frames
-        stored relative to their keyframes and the map's speed follow the keyframes' new scales."""
-        if correction is not None and self.loop is not None and self.loop.closed:
-            rescale_relative(self._relative, self.loop.closed[-1])
+    def _follow_loop(self, step: LoopStep, correction: np.ndarray | None) -> None:
+        """The loop `step` closed, if any (its (4, 4) correction of the newest keyframe given): with --scale none
+        the frames stored relative to their keyframes and the map's speed follow the keyframes' new scales."""
+        if correction is not None and step.closed is not None:
+            rescale_relative(self._relative, step.closed)
             if self._speed is not None:
                 self._speed.move(correction)
 
@@ -420,7 +420,7 @@ class MapTracking:
                 loop, loop_correction = looped  # the previous keyframe's loop search, after its BA
                 if loop_correction is not None:
                     pose = orthonormalise(loop_correction @ pose)  # a similarity with --scale none
-                    self._follow_loop(loop_correction)
+                    self._follow_loop(loop, loop_correction)
             track_ids, pixels = self._odometry.live_tracks()
             tied = self._suspended_at_keyframe(track_ids, self._ideal(pixels), pose)
             keyframe, links, view = self.mapping.insert_keyframe(
