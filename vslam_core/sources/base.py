@@ -13,6 +13,7 @@ frame, see ../shared/docs/conventions.md).
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Literal, Protocol, runtime_checkable
@@ -267,3 +268,9 @@ def is_utf8_path(path: str | os.PathLike[str]) -> bool:
 def shown_path(path: str | os.PathLike[str]) -> str:
     """`path` for a message: its bytes that are not UTF-8 written as ``\\xff`` escapes."""
     return os.fsencode(path).decode("utf-8", "backslashreplace")
+
+
+def safe_name(text: str, fallback: str) -> str:
+    """`text` for a file name: each run of characters other than letters, digits, '.', '_' and '-' becomes one '_',
+    leading and trailing '_' are dropped, and `fallback` stands in for what is left empty."""
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", text).strip("_") or fallback

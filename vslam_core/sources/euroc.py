@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from vslam_core.errors import SourceError, TrajectoryFormatError
-from vslam_core.sources.base import CameraIntrinsics, FrameRange
+from vslam_core.sources.base import CameraIntrinsics, FrameRange, safe_name
 from vslam_core.sources.calibration_files import load_yaml, number_list, read_calibration
 from vslam_core.sources.kitti import BadFramePolicy, ImageFilesSource, first_image, select
 from vslam_core.sources.stamps import (
@@ -67,10 +67,6 @@ def is_euroc(path: str | Path) -> bool:
 def _cameras(mav0: Path) -> list[str]:
     """The camera folders (``cam0``, ``cam1``, …) of a ``mav0`` folder, sorted."""
     return sorted(p.name for p in mav0.iterdir() if p.is_dir() and _CAMERA_NAME.fullmatch(p.name))
-
-
-def _safe(text: str) -> str:
-    return re.sub(r"[^A-Za-z0-9._-]+", "_", text).strip("_") or "sequence"
 
 
 # --------------------------------------------------------------------------------------------------
@@ -248,7 +244,7 @@ class EurocSource(ImageFilesSource):
         self._ground_truth, label = self._read_ground_truth(ground_truth, gt_tolerance_s)
         self.gt_matching = None if self._ground_truth is None else matched_by_time(len(self._indices), gt_tolerance_s)
         sequence = mav0.resolve().parent.name if mav0.name == "mav0" else mav0.resolve().name
-        self._name = f"euroc-{_safe(sequence)}-{self.camera}"
+        self._name = f"euroc-{safe_name(sequence, 'sequence')}-{self.camera}"
         self.properties: dict[str, str] = {"dataset": "EuRoC", "camera": self.camera, "ground_truth": label}
 
     def _check_missing(self) -> None:

@@ -128,6 +128,16 @@ def tum_camera_poses(gt_file: Path, frame_stamps: np.ndarray, indices: list[int]
     return selected_ground_truth(frame_stamps, indices, gt_stamps, gt_poses, tolerance_s, label, where), label
 
 
+def optional_tum_camera_poses(gt_file: Path | None, frame_stamps: np.ndarray, indices: list[int],
+                              tolerance_s: float, where: object) -> tuple[np.ndarray | None, str, str | None]:
+    """`tum_camera_poses` of `gt_file` with how they were matched (`matched_by_time`); without a file, no poses,
+    the label "none" and no matching."""
+    if gt_file is None:
+        return None, "none", None
+    poses, label = tum_camera_poses(gt_file, frame_stamps, indices, tolerance_s, where)
+    return poses, label, matched_by_time(len(indices), tolerance_s)
+
+
 def stamp_problems(stamps: np.ndarray) -> list[str]:
     """What is wrong with a log's (N,) frame stamps in arrival order: out-of-order and duplicate stamps,
     as short notes (empty when they increase strictly)."""

@@ -28,17 +28,16 @@ from pathlib import Path
 import numpy as np
 
 from vslam_core.errors import SourceError
-from vslam_core.sources.base import CameraIntrinsics, FrameRange
+from vslam_core.sources.base import CameraIntrinsics, FrameRange, safe_name
 from vslam_core.sources.calibration import make_intrinsics
 from vslam_core.sources.image_files import list_frame_files
 from vslam_core.sources.kitti import BadFramePolicy, ImageFilesSource, first_image, select
 from vslam_core.sources.stamps import (
     DEFAULT_GT_TOLERANCE_S,
-    matched_by_time,
+    optional_tum_camera_poses,
     parse_stamp,
     stamp_problems,
     stamped_lines,
-    tum_camera_poses,
 )
 
 #: DSO's camera.txt prefixes (lower case) → (our model name, how many numbers follow).
@@ -196,15 +195,10 @@ class TumMonoSource(ImageFilesSource):
                               "recorded (vignetting, camera response and exposure times ignored)")
 
         self.properties: dict[str, str] = {"dataset": "TUM monoVO", "photometric_calibration": "not applied"}
-        if ground_truth is None:
-            self._ground_truth = None
-            self.properties["ground_truth"] = "none"
-        else:
-            self._ground_truth, label = tum_camera_poses(Path(ground_truth), self._times, self._indices,
-                                                         gt_tolerance_s, folder)
-            self.properties["ground_truth"] = label
-            self.gt_matching = matched_by_time(len(self._indices), gt_tolerance_s)
-        self._name = "tum-mono-" + (re.sub(r"[^A-Za-z0-9._-]+", "_", folder.resolve().name).strip("_") or "sequence")
+        self._ground_truth, self.properties["ground_truth"], self.gt_matching = optional_tum_camera_poses(
+            Path(ground_truth) if ground_truth is not None else None, self._times, self._indices, gt_tolerance_s,
+            folder)
+        self._name = "tum-mono-" + safe_name(folder.resolve().name, "sequence")
 
     @property
     def stamps(self) -> np.ndarray:

@@ -27,16 +27,15 @@ from pathlib import Path
 import numpy as np
 
 from vslam_core.errors import SourceError
-from vslam_core.sources.base import CameraIntrinsics, FrameRange
+from vslam_core.sources.base import CameraIntrinsics, FrameRange, safe_name
 from vslam_core.sources.folder import complete_intrinsics
 from vslam_core.sources.kitti import BadFramePolicy, ImageFilesSource, first_image, select, sixteen_bit_property
 from vslam_core.sources.stamps import (
     DEFAULT_GT_TOLERANCE_S,
-    matched_by_time,
+    optional_tum_camera_poses,
     parse_stamp,
     stamp_problems,
     stamped_lines,
-    tum_camera_poses,
 )
 
 #: The benchmark's colour cameras: fx fy cx cy (pixels) and plumb_bob k1 k2 p1 p2 k3, for 640x480 frames.
@@ -139,15 +138,11 @@ class TumRgbdSource(ImageFilesSource):
 
         self.properties: dict[str, str] = {"dataset": "TUM RGB-D", "frame_order": "rgb.txt's stamps",
                                            **sixteen_bit_property(self._shift)}
-        gt_file = Path(ground_truth) if ground_truth is not None else folder / GROUND_TRUTH_FILE
-        if ground_truth is None and not gt_file.is_file():
-            self._ground_truth = None
-            self.properties["ground_truth"] = "none"
-        else:
-            self._ground_truth, label = tum_camera_poses(gt_file, self._times, self._indices, gt_tolerance_s, folder)
-            self.properties["ground_truth"] = label
-            self.gt_matching = matched_by_time(len(self._indices), gt_tolerance_s)
-        self._name = "tum-rgbd-" + (re.sub(r"[^A-Za-z0-9._-]+", "_", folder.resolve().name).strip("_") or "sequence")
+        default = folder / GROUND_TRUTH_FILE
+        gt_file = Path(ground_truth) if ground_truth is not None else default if default.is_file() else None
+        self._ground_truth, self.properties["ground_truth"], self.gt_matching = optional_tum_camera_poses(
+            gt_file, self._times, self._indices, gt_tolerance_s, folder)
+        self._name = "tum-rgbd-" + safe_name(folder.resolve().name, "sequence")
 
     def __repr__(self) -> str:
         return f"TumRgbdSource({str(self.folder)!r}, frames={len(self)})"

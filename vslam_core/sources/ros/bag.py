@@ -19,7 +19,6 @@ matched to the frames by stamp; a body frame other than the camera's is moved on
 
 from __future__ import annotations
 
-import re
 import struct
 from collections.abc import Iterator
 from pathlib import Path
@@ -28,7 +27,15 @@ from typing import Any
 import numpy as np
 
 from vslam_core.errors import SourceError
-from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange, SelectedSource, is_utf8_path, shown_path
+from vslam_core.sources.base import (
+    CameraIntrinsics,
+    Frame,
+    FrameRange,
+    SelectedSource,
+    is_utf8_path,
+    safe_name,
+    shown_path,
+)
 from vslam_core.sources.calibration import make_intrinsics
 from vslam_core.sources.folder import complete_intrinsics
 from vslam_core.sources.kitti import BadFramePolicy, select
@@ -69,10 +76,6 @@ def parse_header(raw: bytes | memoryview, cdr: bool) -> tuple[int, str]:
     if nsec >= 1_000_000_000 or 16 + length > len(raw):
         raise ValueError("corrupt message header")
     return sec * 1_000_000_000 + nsec, text.decode("utf-8", errors="replace")
-
-
-def _safe_name(text: str) -> str:
-    return re.sub(r"[^A-Za-z0-9._-]+", "_", text).strip("_") or "log"
 
 
 def _open_reader(path: Path) -> Any:
@@ -171,7 +174,7 @@ class RosbagSource(SelectedSource):
             "messages": str(len(self._order)),
         })
         stem = self.path.name if self.path.is_dir() else self.path.stem
-        self._name = f"{_safe_name(stem)}-{_safe_name(self.topic)}"
+        self._name = f"{safe_name(stem, 'log')}-{safe_name(self.topic, 'log')}"
         if self._decoder.mono16_shift is not None:
             self.properties["mono16"] = f">> {self._decoder.mono16_shift} bits (from the first frame's range)"
 
