@@ -398,10 +398,6 @@ class RosbagSource(SelectedSource):
         parts = [p for p in self.topic.split("/") if p and p not in ("compressed", "theora")]
         return bool(parts) and parts[-1].startswith("image_rect")
 
-    def _selected_stamps(self) -> np.ndarray:
-        positions = self._order[np.asarray(self._indices)]
-        return self._stamps_ns[positions] / 1e9
-
     def _load_ground_truth(self, reader: Any, topics: dict[str, str], ground_truth: str | Path | None,
                            gt_topic: str | None, tolerance_s: float) -> np.ndarray | None:
         if ground_truth is not None:
@@ -411,10 +407,10 @@ class RosbagSource(SelectedSource):
             gt_stamps, gt_poses = read_tum_poses(gt_path)
             check_ground_truth_steps(gt_path, gt_poses, gt_stamps)
             self.properties["ground_truth"] = f"TUM {gt_path.name}"
-            return ground_truth_at(self._selected_stamps(), gt_stamps, gt_poses, tolerance_s, str(gt_path))
+            return ground_truth_at(self.stamps, gt_stamps, gt_poses, tolerance_s, str(gt_path))
         if gt_topic is None:
             return None
-        poses, label, notes = topic_ground_truth(reader, topics, gt_topic, self.frame_id, self._selected_stamps(),
+        poses, label, notes = topic_ground_truth(reader, topics, gt_topic, self.frame_id, self.stamps,
                                                  tolerance_s, self._where)
         self.notes.extend(notes)
         self.properties["ground_truth"] = label
@@ -426,7 +422,7 @@ class RosbagSource(SelectedSource):
     @property
     def stamps(self) -> np.ndarray:
         """(N,) header stamps (Unix seconds) of the selected frames."""
-        return self._selected_stamps()
+        return self._stamps_ns[self._order[np.asarray(self._indices)]] / 1e9
 
     def __iter__(self) -> Iterator[Frame]:
         reader = self._open_log()
