@@ -71,6 +71,8 @@ class Odometry:
         self._tracks = _Tracks.empty()
         self._next_id = 0
         self._previous: np.ndarray | None = None  # last usable image
+        # (position, R, unit t) of the last step measured from the frame before it
+        self._last_motion: tuple[int, np.ndarray, np.ndarray] | None = None
         self._previous_position = -1  # its run position
         self._position = 0
         self._key_position = 0
@@ -151,6 +153,8 @@ class Odometry:
                     warnings.append(Reason.SCALE_HELD)
                 warnings += self._motion_warnings(motion, int(used.sum()), scale)
                 T_key_cur = pose_matrix(motion.rotation, scale * motion.translation)  # noqa: N806
+                self._last_motion = (self._position, motion.rotation, motion.translation) \
+                    if self._key_position == self._position - 1 else None
                 T_w_cur = self._T_w_key @ T_key_cur  # noqa: N806
                 if motion.points_cur is not None:
                     points_world = (scale * motion.points_cur) @ T_w_cur[:3, :3].T + T_w_cur[:3, 3]
@@ -366,7 +370,10 @@ class Odometry:
         if parallax < cfg.min_parallax_px:
             return Motion(reason=Reason.LOW_PARALLAX), parallax
         order = np.random.default_rng((self.config.pose.seed, self._position)).permutation(len(p_cur))
-        return two_view_motion(p_cur, p_key, self._K, self.config, order, timings), parallax
+        # constant velocity: the last step's motion, when it was measured from the frame before it
+        last = self._last_motion
+        prior = last[1:] if last is not None and last[0] == self._position - 1 == self._key_position else None
+        return two_view_motion(p_cur, p_key, self._K, self.config, order, timings, prior), parallax
 
     def _road_corners(self, image: np.ndarray, existing: np.ndarray) -> np.ndarray:
         """With --scale height: FAST corners (a lower threshold) in the road band ahead while it holds fewer

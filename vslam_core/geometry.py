@@ -291,6 +291,15 @@ def _tangent_basis(t: np.ndarray) -> np.ndarray:
     return np.column_stack((b1, skew(t) @ b1))
 
 
+def robust_sampson_cost(
+    rotation: np.ndarray, translation: np.ndarray, x_cur: np.ndarray, x_prev: np.ndarray, robust_scale: float
+) -> float:
+    """The Cauchy cost `refine_relative_pose` minimises: Σ log(1 + (e_i / robust_scale)²) over the signed Sampson
+    errors e_i of E = [t]ₓR on (N, 2) normalised correspondences."""
+    errors = _sampson(essential_from_pose(rotation, translation), _homogeneous(x_cur), _homogeneous(x_prev))
+    return float(np.sum(np.log1p(errors**2 / robust_scale**2)))
+
+
 def refine_relative_pose(
     rotation: np.ndarray,
     translation: np.ndarray,

@@ -7,6 +7,7 @@ pixels; the translation is a unit vector (its length is the scale source's job).
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 
@@ -20,9 +21,14 @@ from vslam_core.geometry import (
     in_front_mask,
     normalise_points,
     refine_relative_pose,
+    robust_sampson_cost,
+    rotation_angle,
     triangulate,
 )
 from vslam_core.results import Reason, TrackFate
+
+# a prior within 0.5° of rotation and 5° of translation direction of RANSAC's pose lies in its basin of the cost
+PRIOR_SAME_BASIN = (math.radians(0.5), math.radians(5.0))
 
 
 @dataclass(frozen=True)
@@ -53,14 +59,15 @@ class Motion:
 
 def two_view_motion(
     p_cur: np.ndarray, p_key: np.ndarray, K: np.ndarray, config: EngineConfig, order: np.ndarray,  # noqa: N803
-    timings: dict[str, float],
+    timings: dict[str, float], prior: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> Motion:
     """Motion keyframe → current frame from (N, 2) matched ideal pixels: the essential matrix by the 5-point
     algorithm in RANSAC (Nistér 2004), its four candidate poses, the one with most points in front
     (chirality), refined on the robust Sampson error of the inliers.
 
     `order` (N,) is a permutation of the correspondences: OpenCV's RANSAC draws from a fixed RNG, so the input
-    order is the seed. `timings` gets the stages' milliseconds (``essential``, ``chirality``).
+    order is the seed. `timings` gets the stages' milliseconds (``essential``, ``chirality``). `prior` (R, unit t),
+    e.g. the last step's motion, is a second starting point of the refinement (`_better_of`).
     """
     cfg = config.pose
     clock = time.perf_counter()
@@ -88,6 +95,9 @@ def two_view_motion(
             rotation, translation, x_cur[inlier_mask], x_key[inlier_mask],
             robust_scale=cfg.ransac_threshold_px / focal,
         )
+        if prior is not None:
+            rotation, translation = _better_of(rotation, translation, prior, x_cur[inlier_mask], x_key[inlier_mask],
+                                               cfg.ransac_threshold_px / focal)
     derotated = derotated_parallax(rotation, p_cur[inlier_mask], p_key[inlier_mask], K)
     points = triangulate(rotation, translation, x_cur, x_key)
     # A track fails chirality only if it lands behind a camera; far points are fine, just not shown.
@@ -107,6 +117,24 @@ def two_view_motion(
         derotated_parallax=derotated,
     )
 
+
+def _better_of(rotation: np.ndarray, translation: np.ndarray, prior: tuple[np.ndarray, np.ndarray],
+               x_cur: np.ndarray, x_key: np.ndarray, robust_scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """RANSAC's refined pose, or the prior (R, unit t) refined on the same inliers if it reaches a lower cost.
+
+    Where the field of view is narrow and the motion turns, a rotation and a sideways translation move the
+    image alike (the rotation–translation ambiguity, Daniilidis & Spetsakis 1997), and the robust Sampson cost
+    has more than one minimum: RANSAC can settle in the wrong one (KITTI 05's turn through a 640x200 crop:
+    2.2° too much rotation a frame, the car sliding 40° sideways). A prior as close as `PRIOR_SAME_BASIN` to
+    RANSAC's pose refines to the same minimum (KITTI 00/05 0:300: always), so it is only refined when farther."""
+    if rotation_angle(rotation.T @ prior[0]) <= PRIOR_SAME_BASIN[0] and \
+            float(np.dot(translation, prior[1])) >= math.cos(PRIOR_SAME_BASIN[1]):
+        return rotation, translation
+    r_prior, t_prior = refine_relative_pose(prior[0], prior[1], x_cur, x_key, robust_scale=robust_scale)
+    if robust_sampson_cost(r_prior, t_prior, x_cur, x_key, robust_scale) < \
+            robust_sampson_cost(rotation, translation, x_cur, x_key, robust_scale):
+        return r_prior, t_prior
+    return rotation, translation
 
 
 def find_essential(
