@@ -60,7 +60,9 @@ def test_pose_graph_closes_the_loop(similarity_graph: bool) -> None:
     truth = _circle(24)
     drifted = _drifted(truth, 0.5, 1.0 if not similarity_graph else 1.02)
     loop = LoopEdge(0, 23, invert_pose(truth[0]) @ truth[23], 1.0)
-    corrected, scales = optimise(drifted, [loop], LoopConfig(), similarity_graph)
+    # edges as uncertain as this drift (0.5° a keyframe; the metric default assumes a car's, 0.05°)
+    config = LoopConfig(odometry_sigma_deg=0.5, odometry_sigma_m=0.1)
+    corrected, scales = optimise(drifted, [loop], config, similarity_graph)
     before = np.linalg.norm(drifted[:, :3, 3] - truth[:, :3, 3], axis=1)
     after = np.linalg.norm(corrected[:, :3, 3] - truth[:, :3, 3], axis=1)
     assert before[-1] > 1.0

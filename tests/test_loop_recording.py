@@ -14,6 +14,10 @@ from kitti_runs import kitti_folder
 from rerun.chunk import RrdReader
 
 from vslam.rrd.read import read_entity
+from vslam_core.config import EngineConfig
+from vslam_core.pipeline import run_odometry
+from vslam_core.sources.folder import ImageFolderSource
+from vslam_core.trajectory.io import read_kitti_poses
 
 FORWARD = 50  # frames driven forward; the revisit backs up over them again (a keyframe's loop search is
 # collected two keyframes after it: the drive back needs a few keyframes after the loop is seen)
@@ -51,6 +55,24 @@ def test_revisit_is_found_at_the_right_place(revisit: tuple[Path, list[int]]) ->
     for query, matched in zip(closed["query_frame"].to_list(), closed["candidate_frame"].to_list(), strict=True):
         assert query[0] >= FORWARD > matched[0]  # a frame of the way back revisits one of the way out ...
         assert abs(order[query[0]] - order[matched[0]]) <= 3  # ... showing the same place (KITTI frame)
+
+
+def test_the_corrected_revisit_is_no_worse_than_vo(revisit: tuple[Path, list[int]]) -> None:
+    """Issue 26: the trajectory written after the run (loop corrections applied) is at least as close to ground
+    truth as `vo`'s on the same frames (ATE, no alignment; measured 0.150 m against 0.177 m)."""
+    rrd, _ = revisit
+    folder = rrd.parent / "images"
+    source = ImageFolderSource(folder, ground_truth=folder / "gt.txt")
+    truth = source.ground_truth
+    assert truth is not None
+    vo = run_odometry(source, EngineConfig(backend="vo", scale="gt")).pose_array()
+    mapped = read_kitti_poses(rrd.parent / "run.txt")
+    assert mapped.shape == vo.shape == truth.shape
+
+    def ate(poses: np.ndarray) -> float:
+        return float(np.sqrt(np.mean(np.sum((poses[:, :3, 3] - truth[:, :3, 3]) ** 2, axis=1))))
+
+    assert ate(mapped) <= ate(vo)
 
 
 def test_the_last_keyframe_is_searched_when_the_run_ends(revisit: tuple[Path, list[int]]) -> None:

@@ -188,6 +188,8 @@ RANGES: dict[str, Range] = {
     "loop.cooldown_keyframes": closed(0, 100_000),
     "loop.odometry_sigma_deg": positive(180.0),
     "loop.odometry_sigma_m": positive(1000.0),
+    "loop.none_odometry_sigma_deg": positive(180.0),
+    "loop.none_odometry_sigma_m": positive(1000.0),
     "loop.loop_sigma_deg": positive(180.0),
     "loop.loop_sigma_m": positive(1000.0),
 }

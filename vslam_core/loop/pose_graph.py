@@ -37,7 +37,8 @@ def optimise(poses: np.ndarray, loops: list[LoopEdge], config: LoopConfig,
     import gtsam  # as in bundle_adjustment: only the map backend needs it
     from gtsam.symbol_shorthand import X
 
-    rotation, translation = np.radians(config.odometry_sigma_deg), config.odometry_sigma_m
+    rotation, translation = (np.radians(config.none_odometry_sigma_deg), config.none_odometry_sigma_m) if similarity \
+        else (np.radians(config.odometry_sigma_deg), config.odometry_sigma_m)
     loop_rotation, loop_translation = np.radians(config.loop_sigma_deg), config.loop_sigma_m
     graph = gtsam.NonlinearFactorGraph()
     initial = gtsam.Values()
