@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vslam_core.errors import GeometryError
-from vslam_core.trajectory.metrics import _check_pair
+from vslam_core.trajectory.metrics import _check_pair, rotation_angles
 
 #: A ground-truth step shorter than this (metres) has no meaningful percentage or scale ratio (NaN).
 MIN_STEP_M = 1e-3
@@ -53,13 +53,9 @@ def rigid_inverse(poses: np.ndarray) -> np.ndarray:
 
 
 def rotation_angle_deg(rotations: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) rotations -> (...) angle in degrees, atan2(‖(R − Rᵀ)∨‖ / 2, (tr R − 1) / 2): unlike the acos
-    of the trace alone, accurate for the small angles of one frame's error (acos loses ~1e-3 rad to the
-    rounding of a KITTI pose file's 7 digits near 0)."""
-    skew = rotations - np.swapaxes(rotations, -1, -2)
-    sin = 0.5 * np.linalg.norm(np.stack([skew[..., 2, 1], skew[..., 0, 2], skew[..., 1, 0]], axis=-1), axis=-1)
-    cos = 0.5 * (np.trace(rotations, axis1=-2, axis2=-1) - 1.0)
-    return np.degrees(np.arctan2(sin, cos))
+    """(..., 3, 3) rotations -> (...) angle in degrees (`metrics.rotation_angles`: accurate for the small angles
+    of one frame's error)."""
+    return np.degrees(rotation_angles(rotations))
 
 
 def step_errors(gt_step: np.ndarray, est_step: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
