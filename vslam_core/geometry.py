@@ -296,7 +296,12 @@ def robust_sampson_cost(
 ) -> float:
     """The Cauchy cost `refine_relative_pose` minimises: Σ log(1 + (e_i / robust_scale)²) over the signed Sampson
     errors e_i of E = [t]ₓR on (N, 2) normalised correspondences."""
-    errors = _sampson(essential_from_pose(rotation, translation), _homogeneous(x_cur), _homogeneous(x_prev))
+    return _cauchy_cost(_sampson(essential_from_pose(rotation, translation), _homogeneous(x_cur), _homogeneous(x_prev)),
+                        robust_scale)
+
+
+def _cauchy_cost(errors: np.ndarray, robust_scale: float) -> float:
+    """Σ log(1 + (e_i / robust_scale)²) of (N,) errors."""
     return float(np.sum(np.log1p(errors**2 / robust_scale**2)))
 
 
@@ -331,12 +336,9 @@ def refine_relative_pose(
     def residuals(r: np.ndarray, t: np.ndarray) -> np.ndarray:
         return _sampson(essential_from_pose(r, t), h_cur, h_prev)
 
-    def cost(res: np.ndarray) -> float:
-        return float(np.sum(np.log1p(res**2 / c2)))
-
     damping = 1e-3
     current = residuals(rotation, translation)
-    current_cost = cost(current)
+    current_cost = _cauchy_cost(current, robust_scale)
     for _ in range(iterations):
         basis = _tangent_basis(translation)
         jacobian = sampson_jacobian(rotation, translation, basis, h_cur, h_prev)
@@ -349,7 +351,7 @@ def refine_relative_pose(
             delta = -np.linalg.solve(hessian + damping * np.diag(np.diag(hessian) + 1e-12), gradient)
             r_new, t_new = params_to_pose(delta, rotation, translation, basis)
             candidate = residuals(r_new, t_new)
-            candidate_cost = cost(candidate)
+            candidate_cost = _cauchy_cost(candidate, robust_scale)
             if candidate_cost < current_cost:
                 converged = current_cost - candidate_cost < 1e-6 * current_cost
                 rotation, translation, current, current_cost = r_new, t_new, candidate, candidate_cost
