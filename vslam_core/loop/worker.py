@@ -44,7 +44,8 @@ def _serve(jobs: Any, connection: Connection, K: np.ndarray, config: EngineConfi
     cv2.setNumThreads(1)  # one core's worth: the other is tracking's
     search: LoopSearch | None = LoopSearch(K, config)
     assert search is not None
-    warming = False
+    # gtsam (a few seconds to import) is needed only when a loop is accepted: imported beside the first searches
+    threading.Thread(target=search.warm_up, name="vslam-gtsam-import", daemon=True).start()
     parent = multiprocessing.parent_process()
     while True:
         try:
@@ -57,24 +58,12 @@ def _serve(jobs: Any, connection: Connection, K: np.ndarray, config: EngineConfi
             return
         if isinstance(job, _Restart):
             search = LoopSearch(job.K, job.config) if job.K is not None and job.config is not None else None
-            config = job.config if job.config is not None else config
             continue
         assert search is not None, "a job before its run's restart"
         try:
             connection.send(search.run(job))
         except (BrokenPipeError, OSError):  # the run's process is gone
             return
-        if not warming and len(search.database.places) >= _warm_up_keyframes(config):
-            threading.Thread(target=search.warm_up, name="vslam-gtsam-import", daemon=True).start()
-            warming = True
-
-
-def _warm_up_keyframes(config: EngineConfig) -> int:
-    """Keyframes searched before gtsam (~0.4 s of CPU to import) is imported beside the searches: it is needed only
-    once a loop is accepted, which takes a candidate `min_separation_keyframes` older than the query. Half-way
-    there, the import is done long before the first loop can be, and it does not compete with the run's start,
-    when tracking, bundle adjustment's worker and this one are all starting up on the cores."""
-    return max(config.loop.min_separation_keyframes // 2, 1)
 
 
 class LoopWorker:
