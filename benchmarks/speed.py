@@ -5,9 +5,10 @@
 
 Each configuration runs in its own fresh Python process (``python -m benchmarks.speed --measure LABEL``),
 one after the other, on the same frames: frames per second (decoding included), its ratio to the paper
-configuration's, the cost of recording over the same threading with recording off, ms per frame per stage,
-peak RSS, KB per frame of recording, and KITTI t_err / r_err. With 2 threads the next frame is decoded in
-the background, so `decode` overlaps the other stages.
+configuration's (with `--repeat` N the rows run round by round, N rounds, and the ratio is the median of the N
+ratios within a round: the host's speed may drift between rounds), the cost of recording over the same threading
+with recording off, ms per frame per stage, peak RSS, KB per frame of recording, and KITTI t_err / r_err. With
+2 threads the next frame is decoded in the background, so `decode` overlaps the other stages.
 
 The `--backend map` rows (recording off, 1 and 2 threads) add: `pnp` (tracking against the map) and
 `mapping` (keyframe insertion and local mapping in the tracking thread, including the wait for the pending
@@ -38,6 +39,7 @@ import argparse
 import dataclasses
 import json
 import resource
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -165,8 +167,15 @@ def _median_runs(labels: list[str], root: str, sequence: str, frames: str, repea
     medians = []
     for label in labels:
         ordered = sorted(runs[label], key=lambda r: float(r["fps"]))  # type: ignore[arg-type]
-        medians.append(ordered[len(ordered) // 2])
+        medians.append({**ordered[len(ordered) // 2],
+                        "fps_runs": " ".join(f"{float(r['fps']):.2f}" for r in runs[label])})  # type: ignore[arg-type]
     return medians
+
+
+def _paired(fps_runs: str, against: str) -> list[float]:
+    """Per round, a row's fps over another row's (two `fps_runs` strings, rounds in order): the rows of a round
+    ran one after the other, so a change in the machine's speed between rounds cancels out of each ratio."""
+    return [float(a) / float(b) for a, b in zip(fps_runs.split(), against.split(), strict=True)]
 
 
 def _optional(value: object, fmt: str) -> str:
@@ -199,20 +208,21 @@ def main() -> None:
               if wanted is None or any(w in label for w in wanted) or label == next(iter(SYSTEMS))]
     rows = [row for sequence in args.sequences.split(",")
             for row in _median_runs(labels, args.root, sequence, args.frames, args.repeat, args.taskset)]
+    paper_runs = {row["sequence"]: str(row["fps_runs"]) for row in rows if row["system"] == next(iter(SYSTEMS))}
+    for row in rows:  # the median over rounds of the ratio within each round
+        row["x_paper"] = statistics.median(_paired(str(row["fps_runs"]), paper_runs[str(row["sequence"])]))
     table = pl.DataFrame(rows)
-    paper = table.filter(pl.col("system") == next(iter(SYSTEMS))).select("sequence", paper_fps="fps")
     off = (table.filter((pl.col("detail") == str(Detail.OFF)) & pl.col("system").str.starts_with("vslam"))
            .select("sequence", "backend", "threads", off_fps="fps"))
-    table = (table.join(paper, on="sequence").join(off, on=["sequence", "backend", "threads"], how="left")
-             .with_columns(x_paper=pl.col("fps") / pl.col("paper_fps"),
-                           recording_cost_pct=100 * (pl.col("off_fps") / pl.col("fps") - 1))
-             .drop("paper_fps", "off_fps"))
+    table = (table.join(off, on=["sequence", "backend", "threads"], how="left")
+             .with_columns(recording_cost_pct=100 * (pl.col("off_fps") / pl.col("fps") - 1))
+             .drop("off_fps"))
     if args.csv:
         table.write_csv(args.csv)
     stages = " | ".join(STAGES)
     pinned = f"; every run pinned to CPU {args.taskset} (taskset -c {args.taskset})" if args.taskset else ""
-    print(f"KITTI {args.sequences}, frames {args.frames}; median-fps run of {args.repeat} (rows measured in turn); "
-          "ms per frame per stage"
+    print(f"KITTI {args.sequences}, frames {args.frames}; median-fps run of {args.repeat} (rows measured in turn, "
+          "round by round); × paper: the median over rounds of the ratio within each round; ms per frame per stage"
           + pinned)
     print(f"| system | seq | fps | × paper | recording cost | t_err % | r_err °/100 m | {stages} | keyframes/100 "
           "frames | BA ms/keyframe | peak RSS MB | KB/frame |")
@@ -248,12 +258,15 @@ def _loop_table(table: pl.DataFrame) -> None:
     print("\nLoop closing (map backend, 2 threads, recording off): fps on / off and ms per keyframe; describe, query,"
           "\nverify and optimise run in the loop worker process, wait (for the worker, at the fixed point), apply"
           "\n(a closed loop to the map) and submit (the next keyframe's snapshot) in the tracking thread")
+    print("(change: the median over rounds of on / off within each round, and its range)")
     print("| seq | fps on | fps off | change | " + " | ".join(LOOP_PARTS) + " |")
     print("|---|---|---|---|" + "---|" * len(LOOP_PARTS))
-    for row in on.join(off.select("sequence", fps_off="fps"), on="sequence").iter_rows(named=True):
+    for row in on.join(off.select("sequence", fps_off="fps", runs_off="fps_runs"), on="sequence").iter_rows(named=True):
         parts = " | ".join(f"{row[f'loop_{part}_ms_per_keyframe']:.1f}" for part in LOOP_PARTS)
+        change = [100 * (ratio - 1) for ratio in _paired(row["fps_runs"], row["runs_off"])]
+        spread = f" [{min(change):+.1f} to {max(change):+.1f}]" if len(change) > 1 else ""
         print(f"| {row['sequence']} | {row['fps']:.1f} | {row['fps_off']:.1f} | "
-              f"{100 * (row['fps'] / row['fps_off'] - 1):+.1f} % | {parts} |")
+              f"{statistics.median(change):+.1f} %{spread} | {parts} |")
 
 
 if __name__ == "__main__":
