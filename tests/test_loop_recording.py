@@ -18,6 +18,7 @@ from vslam_core.config import EngineConfig
 from vslam_core.pipeline import run_odometry
 from vslam_core.sources.folder import ImageFolderSource
 from vslam_core.trajectory.io import read_kitti_poses
+from vslam_core.trajectory.metrics import ate
 
 FORWARD = 50  # frames driven forward; the revisit backs up over them again (a keyframe's loop search is
 # collected two keyframes after it: the drive back needs a few keyframes after the loop is seen)
@@ -68,11 +69,7 @@ def test_the_corrected_revisit_is_no_worse_than_vo(revisit: tuple[Path, list[int
     vo = run_odometry(source, EngineConfig(backend="vo", scale="gt")).pose_array()
     mapped = read_kitti_poses(rrd.parent / "run.txt")
     assert mapped.shape == vo.shape == truth.shape
-
-    def ate(poses: np.ndarray) -> float:
-        return float(np.sqrt(np.mean(np.sum((poses[:, :3, 3] - truth[:, :3, 3]) ** 2, axis=1))))
-
-    assert ate(mapped) <= ate(vo)
+    assert ate(truth, mapped, align="none") <= ate(truth, vo, align="none")
 
 
 def test_the_last_keyframe_is_searched_when_the_run_ends(revisit: tuple[Path, list[int]]) -> None:
