@@ -149,6 +149,7 @@ class MapConfig:
     # ba_iterations, and the keyframe parallax counts only the displacement translation caused
     init_parallax_px: float = 20.0
     init_min_landmarks: int = 50  # ... and must triangulate this many landmarks, else it is tried again
+    init_wait_frames: int = 10  # ... or, after this many frames without that parallax, on the landmarks alone
     none_min_triangulation_deg: float = 3.5
     none_ba_iterations: int = 10
     # ... and each keyframe-to-keyframe distance enters BA as a prior at its length before the adjustment, with

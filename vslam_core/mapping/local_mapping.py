@@ -242,7 +242,7 @@ class LocalMapping:
         p_cur = np.array([self._sightings[t][-1][1] for t in track_ids], np.float64)
         points_cur = triangulate_each(T_first_cur[:, :3, :3], T_first_cur[:, :3, 3], normalise_points(p_cur, self._K),
                                       normalise_points(p_first, self._K))
-        good = self._well_triangulated(points_cur, T_first_cur, p_cur, p_first)
+        good = well_triangulated(points_cur, T_first_cur, p_cur, p_first, self._K, self._config)
         world = points_cur @ keyframe.T_world_cam[:3, :3].T + keyframe.T_world_cam[:3, 3]
         links: dict[int, int] = {}
         for n in np.flatnonzero(good):
@@ -250,25 +250,6 @@ class LocalMapping:
             landmark = self.map.add_landmark(world[n], {k: p for k, p in self._sightings.pop(track_id)})
             links[track_id] = landmark.id
         return links
-
-    def _well_triangulated(self, points_cur: np.ndarray, T_first_cur: np.ndarray, p_cur: np.ndarray,  # noqa: N803
-                           p_first: np.ndarray) -> np.ndarray:
-        """(N,) bool: in front of both cameras, rays meeting at `min_triangulation_deg` or more, and
-        reprojecting within `max_reprojection_px` into both keyframes (`T_first_cur` (N, 4, 4): each point's pair)."""
-        cfg = self._config
-        points_first = np.einsum("nij,nj->ni", T_first_cur[:, :3, :3], points_cur) + T_first_cur[:, :3, 3]
-        ray_first = points_first
-        ray_cur = points_first - T_first_cur[:, :3, 3]  # from the current camera's centre, in the first's frame
-        with np.errstate(invalid="ignore", divide="ignore"):
-            cosine = np.einsum("ij,ij->i", ray_first, ray_cur) / (
-                np.linalg.norm(ray_first, axis=1) * np.linalg.norm(ray_cur, axis=1))
-            error_cur = _project_error(points_cur, p_cur, self._K)
-            error_first = _project_error(points_first, p_first, self._K)
-            return np.asarray(
-                (points_cur[:, 2] > 0) & (points_first[:, 2] > 0)
-                & (cosine < np.cos(np.radians(cfg.min_triangulation_deg)))
-                & (error_cur <= cfg.max_reprojection_px) & (error_first <= cfg.max_reprojection_px)
-            )
 
     def _describe(self, keyframe: Keyframe, image: np.ndarray) -> None:
         """Upright ORB descriptors (the car's camera hardly rolls) of the landmarks this keyframe sees, at
@@ -364,6 +345,27 @@ def _window_observations(observations: list[dict[int, np.ndarray]], keyframe_ids
     point = np.cumsum(in_problem >= 2) - 1
     pose_index[in_problem[landmark] < 2] = -1
     return pose_index, point[landmark], kept
+
+
+def well_triangulated(points_cur: np.ndarray, T_first_cur: np.ndarray, p_cur: np.ndarray,  # noqa: N803
+                      p_first: np.ndarray, K: np.ndarray, config: MapConfig) -> np.ndarray:  # noqa: N803
+    """(N,) bool: which of (N, 3) points, triangulated in the current camera from (N, 2) ideal pixels `p_cur` and
+    `p_first` of a first keyframe, make landmarks: in front of both cameras, rays meeting at
+    `min_triangulation_deg` or more, and reprojecting within `max_reprojection_px` into both keyframes.
+    `T_first_cur` (N, 4, 4): each point's pair of cameras."""
+    points_first = np.einsum("nij,nj->ni", T_first_cur[:, :3, :3], points_cur) + T_first_cur[:, :3, 3]
+    ray_first = points_first
+    ray_cur = points_first - T_first_cur[:, :3, 3]  # from the current camera's centre, in the first's frame
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cosine = np.einsum("ij,ij->i", ray_first, ray_cur) / (
+            np.linalg.norm(ray_first, axis=1) * np.linalg.norm(ray_cur, axis=1))
+        error_cur = _project_error(points_cur, p_cur, K)
+        error_first = _project_error(points_first, p_first, K)
+        return np.asarray(
+            (points_cur[:, 2] > 0) & (points_first[:, 2] > 0)
+            & (cosine < np.cos(np.radians(config.min_triangulation_deg)))
+            & (error_cur <= config.max_reprojection_px) & (error_first <= config.max_reprojection_px)
+        )
 
 
 def _project_error(points: np.ndarray, pixels: np.ndarray, K: np.ndarray) -> np.ndarray:  # noqa: N803

@@ -21,9 +21,13 @@ from dataclasses import replace
 
 import numpy as np
 
-from vslam_core.config import MapConfig, ScaleSource
+from vslam_core.config import EngineConfig, MapConfig, ScaleSource
+from vslam_core.geometry import normalise_points, pose_matrix, rotation_angle, triangulate
+from vslam_core.mapping.local_mapping import well_triangulated
+from vslam_core.mapping.pnp import solve_pnp
 from vslam_core.results import KeyframeInserted, ScaleEstimate
 from vslam_core.scale import TwoView
+from vslam_core.two_view import two_view_motion
 
 #: Why a keyframe was made when it starts a map (segment): it is the map's start only with enough landmarks.
 STARTING_REASONS = ("initialisation", "re-initialisation", "new map segment")
@@ -91,22 +95,57 @@ def translation_parallax(T_world_key: np.ndarray, T_world_cur: np.ndarray, pixel
     return float(np.median(np.linalg.norm(moved[:, :2] / moved[:, 2:3] - pixels_key, axis=1)))
 
 
-def initialisation_reason(config: MapConfig, K: np.ndarray, T_world_key: np.ndarray,  # noqa: N803
-                          T_world_cam: np.ndarray, pixels: np.ndarray, key_pixels: np.ndarray,  # noqa: N803
-                          close_chirality: bool) -> str | None:
+def initialisation(config: EngineConfig, K: np.ndarray, T_world_key: np.ndarray,  # noqa: N803
+                   T_world_cam: np.ndarray, pixels: np.ndarray, key_pixels: np.ndarray,  # noqa: N803
+                   close_chirality: bool, waited: int, chain_measured: bool) -> tuple[str, np.ndarray] | None:
     """--scale none, before the map has landmarks: the next keyframe's baseline sets the map's scale, so it
-    waits for a well-conditioned two-view reconstruction from the last keyframe: translation parallax
-    (rotation removed) of `init_parallax_px` between the (N, 2) ideal `pixels` of the keyframe's tracks now
-    and their `key_pixels`, and an unambiguous chirality: pure rotation and too short a baseline leave the
-    translation, and so the scale, undetermined (Mur-Artal et al., "ORB-SLAM", 2015, sec. IV, which likewise
-    waits for parallax before it initialises). If the keyframe's tracks are lost first, initialisation
-    starts again from this frame."""
-    if len(pixels) < config.pnp_min_landmarks:
-        return "re-initialisation: tracks lost"
+    waits for a well-conditioned two-view reconstruction from the last keyframe: a translation parallax
+    (rotation removed) of `init_parallax_px` between the (N, 2) ideal `pixels` of the keyframe's tracks now and
+    their `key_pixels`, and an unambiguous chirality (`close_chirality`: the front end's, this frame). Pure
+    rotation and too short a baseline leave the translation, and so the scale, undetermined (Mur-Artal et al.,
+    "ORB-SLAM", 2015, sec. IV, which likewise waits for parallax before it initialises).
+
+    A camera whose median track never gets that parallax (a slow hand-held camera seeing far façades and sky;
+    its front end holds every other frame, the baseline too short) starts once it has `waited` frames
+    (`init_wait_frames`) from the two views alone: the essential matrix of the keyframe's tracks and this
+    frame, unambiguous, with `init_min_landmarks` of its points triangulated as landmarks
+    (`local_mapping.well_triangulated`: rays meeting at `min_triangulation_deg`). Its keyframe is then placed
+    by that motion rather than by the chain of short steps (unless each of them was measured:
+    `chain_measured`), as far from the last keyframe as the chain (the map's units so far).
+
+    Returns None while it waits, else the keyframe's reason and pose. If the keyframe's tracks are lost first,
+    initialisation starts again from this frame, at its own pose `T_world_cam`."""
+    cfg = config.map
+    if len(pixels) < cfg.pnp_min_landmarks:
+        return "re-initialisation: tracks lost", T_world_cam
     parallax = translation_parallax(T_world_key, T_world_cam, pixels, key_pixels, K)
-    if parallax < config.init_parallax_px or close_chirality:
+    if parallax >= cfg.init_parallax_px and not close_chirality:
+        return f"initialisation: parallax {parallax:.0f} px", T_world_cam
+    if waited < cfg.init_wait_frames:
         return None
-    return f"initialisation: parallax {parallax:.0f} px"
+    order = np.random.default_rng((config.pose.seed, waited, 3)).permutation(len(pixels))
+    motion = two_view_motion(pixels, key_pixels, K, config, order, {})
+    if motion.reason is not None or motion.rotation is None or motion.translation is None:
+        return None
+    counts = sorted((c.in_front for c in motion.candidates), reverse=True)
+    if len(counts) > 1 and counts[1] > config.health.ambiguous_chirality * counts[0]:
+        return None
+    chained = T_world_key[:3, :3].T @ T_world_cam[:3, :3]
+    if np.degrees(rotation_angle(chained.T @ motion.rotation)) > cfg.max_rotation_disagreement_deg:
+        return None  # low parallax lets rotation and translation trade off (bas-relief): the chain's is trusted
+    T_key_cur = pose_matrix(motion.rotation, motion.translation)  # noqa: N806
+    inliers = motion.inlier_mask if motion.inlier_mask is not None else np.ones(len(pixels), bool)
+    x_cur, x_key = normalise_points(pixels[inliers], K), normalise_points(key_pixels[inliers], K)
+    points = triangulate(motion.rotation, motion.translation, x_cur, x_key)
+    landmarks = int(well_triangulated(points, np.broadcast_to(T_key_cur, (len(points), 4, 4)), pixels[inliers],
+                                      key_pixels[inliers], K, cfg).sum())
+    if landmarks < cfg.init_min_landmarks:
+        return None
+    why = f"initialisation: two views {waited} frames apart, {landmarks} landmarks"
+    if chain_measured:
+        return why, T_world_cam
+    length = float(np.linalg.norm(T_world_cam[:3, 3] - T_world_key[:3, 3]))
+    return why, T_world_key @ pose_matrix(motion.rotation, max(length, 1e-6) * motion.translation)
 
 
 def initialised(config: MapConfig, keyframe: KeyframeInserted) -> bool:
@@ -119,3 +158,41 @@ def initialised(config: MapConfig, keyframe: KeyframeInserted) -> bool:
     if not keyframe.why.startswith(STARTING_REASONS):
         return True
     return keyframe.new_landmarks >= config.init_min_landmarks
+
+
+class FramesBeforeMap:
+    """--scale none: the frames tracked while the map waits for its initialisation, with their tracks. Until
+    then their poses are chained from the front end's short steps at the map's guessed speed (on a hand-held
+    camera it holds every other one, its baseline too short); once the map starts, `place` measures them by PnP
+    against its first landmarks, which their tracks saw (ORB-SLAM outputs no pose at all before it initialises;
+    these frames get one in the map's own scale)."""
+
+    def __init__(self) -> None:
+        self._frames: list[tuple[int, np.ndarray, np.ndarray]] = []  # (run position, (T,) track ids, (T, 2) px)
+
+    def add(self, position: int, track_ids: np.ndarray, pixels: np.ndarray) -> None:
+        """A frame with a pose before the map started: its live tracks at their (T, 2) ideal pixels."""
+        self._frames.append((position, track_ids.copy(), pixels.copy()))
+
+    def clear(self) -> None:
+        self._frames = []
+
+    def place(self, links: dict[int, int], positions: dict[int, np.ndarray], K: np.ndarray,  # noqa: N803
+              config: MapConfig, seed: int) -> dict[int, np.ndarray]:
+        """Run position -> (4, 4) T_world_cam of each frame kept that PnP places against the landmarks the map
+        started with (`links`: track id -> landmark id; `positions`: landmark id -> (3,) world point), with
+        tracking's thresholds; the frames are then forgotten."""
+        placed = {}
+        for position, track_ids, pixels in self._frames:
+            linked = np.array([t in links for t in track_ids.tolist()], bool)
+            if linked.sum() < config.pnp_min_landmarks:
+                continue
+            points = np.array([positions[links[t]] for t in track_ids[linked].tolist()])
+            solution = solve_pnp(points, pixels[linked], K, config.pnp_threshold_px, config.pnp_iterations,
+                                 (seed, position, 4))
+            inliers = int(solution.inlier_mask.sum())
+            if solution.T_world_cam is not None and inliers >= max(config.pnp_min_inliers,
+                                                                   config.pnp_min_inlier_ratio * len(points)):
+                placed[position] = solution.T_world_cam
+        self.clear()
+        return placed

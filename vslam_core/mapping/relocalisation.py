@@ -19,17 +19,21 @@ Poses are camera-to-world `T_world_cam` (4, 4); times in seconds (or frame indic
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
 
 from vslam_core.config import MapConfig
+from vslam_core.features import match_descriptors
 from vslam_core.geometry import invert_pose, pose_matrix, rotation_angle, so3_exp, so3_log
+from vslam_core.lens import undistort_pixels
 from vslam_core.mapping.local_map import FrameCorners, LocalMapSearcher
+from vslam_core.mapping.local_mapping import DESCRIPTOR_PATCH
 from vslam_core.mapping.map import Map
 from vslam_core.mapping.pnp import PnPSolution, solve_pnp
-from vslam_core.results import LocalMapSearch
+from vslam_core.results import LocalMapSearch, PnPEstimate, Relocalisation
+from vslam_core.sources.base import CameraIntrinsics
 
 HISTORY = 5  # poses the motion model keeps: the turn rate's trend is fitted over their intervals
 
@@ -237,3 +241,40 @@ def _pnp_on(search: LocalMapSearch, world: Map, K: np.ndarray, config: MapConfig
     if solution.T_world_cam is None or int(solution.inlier_mask.sum()) < minimum:
         return None, ids, pixels
     return solution, ids, pixels
+
+
+def relocalise_by_descriptors(map_: Map, segment: int, image: np.ndarray, describer: cv2.ORB,
+                              lens: CameraIntrinsics, config: MapConfig,
+                              seed: tuple[int, ...]) -> tuple[Relocalisation, PnPEstimate | None, np.ndarray]:
+    """Unguided relocalisation: upright ORB descriptors of the (H, W) image's FAST corners (like the ones tracks,
+    and so landmarks, are born at, described like the landmarks) matched to the landmarks of the segment's
+    `reloc_keyframes` recent keyframes, then PnP in RANSAC. Returns the attempt, the estimate on success, and
+    the (M, 2) float32 raw pixels of its PnP inliers (where tracks can start)."""
+    no_pixels = np.zeros((0, 2), np.float32)
+    recent = map_.recent_keyframes(config.reloc_keyframes, segment)
+    landmarks = map_.landmarks
+    candidates = [i for i in map_.landmarks_seen_by(recent) if landmarks[i].descriptor is not None]
+    corners = cv2.FastFeatureDetector_create(threshold=config.reloc_fast_threshold).detect(image, None)
+    keypoints = [cv2.KeyPoint(k.pt[0], k.pt[1], DESCRIPTOR_PATCH, 0.0, k.response, 0) for k in corners]
+    keypoints, descriptors = describer.compute(image, keypoints)
+    failed = Relocalisation(False, None, len(candidates), 0, 0)
+    if descriptors is None or len(candidates) < config.pnp_min_landmarks:
+        return failed, None, no_pixels
+    train = np.array([landmarks[i].descriptor for i in candidates])
+    query_index, train_index = match_descriptors(descriptors, train, config.reloc_ratio)
+    failed = replace(failed, matches=len(query_index))
+    if len(query_index) < config.reloc_min_inliers:
+        return failed, None, no_pixels
+    landmark_ids = np.array(candidates, np.int64)[train_index]
+    raw = np.array([keypoints[i].pt for i in query_index], np.float64).reshape(-1, 2)
+    pixels = undistort_pixels(raw, lens)
+    solution = solve_pnp(map_.positions(landmark_ids), pixels, lens.K, config.reloc_threshold_px,
+                         config.reloc_iterations, seed)
+    inliers = int(solution.inlier_mask.sum())
+    if solution.T_world_cam is None or inliers < config.reloc_min_inliers:
+        return replace(failed, inliers=inliers), None, no_pixels
+    found = set(landmark_ids[solution.inlier_mask].tolist())
+    best = max(recent, key=lambda k: (len(k.landmark_ids & found), k.id))
+    return (Relocalisation(True, best.id, len(candidates), len(query_index), inliers),
+            PnPEstimate(landmark_ids, pixels, solution.projected, solution.inlier_mask, solution.T_world_cam),
+            raw[solution.inlier_mask].astype(np.float32))

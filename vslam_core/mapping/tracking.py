@@ -15,27 +15,34 @@ from __future__ import annotations
 import time
 from dataclasses import replace
 
-import cv2
 import numpy as np
 
 from vslam_core.coasting import degraded_motion
 from vslam_core.config import EngineConfig
 from vslam_core.engine import Odometry
-from vslam_core.features import match_descriptors
 from vslam_core.geometry import interpolate_gaps, invert_pose, orthonormalise, pose_matrix, rotation_angle
 from vslam_core.lens import distort_pixels, undistort_pixels
 from vslam_core.loop.closing import LoopClosing, rescale_relative
 from vslam_core.mapping.local_map import LocalMapSearcher
-from vslam_core.mapping.local_mapping import DESCRIPTOR_PATCH, LocalMapping
-from vslam_core.mapping.map_scale import MapSpeed, for_scale, initialisation_reason, initialised, translation_parallax
+from vslam_core.mapping.local_mapping import LocalMapping
+from vslam_core.mapping.map_scale import (
+    FramesBeforeMap,
+    MapSpeed,
+    for_scale,
+    initialisation,
+    initialised,
+    translation_parallax,
+)
 from vslam_core.mapping.pnp import PnPSolution, project, solve_pnp
 from vslam_core.mapping.refinding import MapRefinding
+from vslam_core.mapping.relocalisation import relocalise_by_descriptors
 from vslam_core.results import (
     STANDING_STILL,
     BundleAdjusted,
     FrameResult,
     FrameStatus,
     Health,
+    KeyframeInserted,
     LocalMapSearch,
     LoopStep,
     MapFrame,
@@ -81,6 +88,7 @@ class MapTracking:
         self._held: set[int] = set()  # run positions whose pose was held (no tracking, no relocalisation)
         self._segment_lost = False  # relocalisation failed: a new segment starts at the next frame with a pose
         self._initialised = False  # --scale none: the segment's map was started by a well-conditioned two-view
+        self._before_map = FramesBeforeMap()  # --scale none: the frames tracked while it waits for that
         self.loop = LoopClosing(self._K, config, background=config.threads > 1) if config.loop.enabled else None
         self.loops_at_end: list[LoopStep] = []  # what the loop searches collected when the run ended did
         self._refound: dict[int, np.ndarray] = {}  # landmark id -> ideal pixel: re-found, for a keyframe now
@@ -291,38 +299,14 @@ class MapTracking:
         return reference @ step
 
     def relocalise(self, image: np.ndarray, position: int) -> tuple[Relocalisation, PnPEstimate | None]:
-        """Match upright ORB descriptors of this frame to the landmarks of the segment's recent keyframes,
-        then PnP. Returns the attempt and, on success, the estimate (matched tracks are started and linked)."""
-        cfg = self._cfg
-        recent = self.mapping.map.recent_keyframes(cfg.reloc_keyframes, self._segment)
-        landmarks = self.mapping.map.landmarks
-        candidates = [i for i in self.mapping.map.landmarks_seen_by(recent) if landmarks[i].descriptor is not None]
-        # FAST corners like the ones tracks (and so landmarks) are born at, described like the landmarks
-        corners = cv2.FastFeatureDetector_create(threshold=self._cfg.reloc_fast_threshold).detect(image, None)
-        keypoints = [cv2.KeyPoint(k.pt[0], k.pt[1], DESCRIPTOR_PATCH, 0.0, k.response, 0) for k in corners]
-        keypoints, descriptors = self.mapping.describer.compute(image, keypoints)
-        failed = Relocalisation(False, None, len(candidates), 0, 0)
-        if descriptors is None or len(candidates) < cfg.pnp_min_landmarks:
-            return failed, None
-        train = np.array([landmarks[i].descriptor for i in candidates])
-        query_index, train_index = match_descriptors(descriptors, train, cfg.reloc_ratio)
-        failed = replace(failed, matches=len(query_index))
-        if len(query_index) < cfg.reloc_min_inliers:
-            return failed, None
-        landmark_ids = np.array(candidates, np.int64)[train_index]
-        raw = np.array([keypoints[i].pt for i in query_index], np.float64).reshape(-1, 2)
-        pixels = self._ideal(raw)
-        solution = solve_pnp(self.mapping.map.positions(landmark_ids), pixels, self._K, cfg.reloc_threshold_px,
-                             cfg.reloc_iterations, (self.config.pose.seed, position, 1))
-        inliers = int(solution.inlier_mask.sum())
-        if solution.T_world_cam is None or inliers < cfg.reloc_min_inliers:
-            return replace(failed, inliers=inliers), None
-        found = set(landmark_ids[solution.inlier_mask].tolist())
-        best = max(recent, key=lambda k: (len(k.landmark_ids & found), k.id))
-        new_tracks = self._odometry.add_tracks(raw[solution.inlier_mask].astype(np.float32))
-        self._links.update(zip(new_tracks.tolist(), landmark_ids[solution.inlier_mask].tolist(), strict=True))
-        return (Relocalisation(True, best.id, len(candidates), len(query_index), inliers),
-                PnPEstimate(landmark_ids, pixels, solution.projected, solution.inlier_mask, solution.T_world_cam))
+        """Unguided relocalisation against the segment's recent keyframes (`relocalise_by_descriptors`). Returns
+        the attempt and, on success, the estimate (its matched corners start tracks linked to their landmarks)."""
+        attempt, found, raw = relocalise_by_descriptors(self.mapping.map, self._segment, image, self.mapping.describer,
+                                                        self._lens, self._cfg, (self.config.pose.seed, position, 1))
+        if found is not None:
+            new_tracks = self._odometry.add_tracks(raw)
+            self._links.update(zip(new_tracks.tolist(), found.landmark_ids[found.inlier_mask].tolist(), strict=True))
+        return attempt, found
 
     def _coast(self, image: np.ndarray, position: int, checked: bool = False) -> np.ndarray | None:
         """Dead reckoning from the previous frame: the rotation and direction the degraded images still give
@@ -352,34 +336,38 @@ class MapTracking:
 
     # -- keyframes and the result ---------------------------------------------------------------------------
 
-    def _keyframe_reason(self, vo: FrameResult, pnp: PnPEstimate | None, pose: np.ndarray) -> str | None:
-        """What makes this tracked frame a keyframe, if anything."""
+    def _keyframe_reason(self, vo: FrameResult, pnp: PnPEstimate | None,
+                         pose: np.ndarray) -> tuple[str | None, np.ndarray]:
+        """What makes this tracked frame a keyframe, if anything, and the pose to insert it at: its own, or with
+        --scale none the one the map's initialisation measured from the last keyframe."""
         cfg = self._cfg
         reference = self.mapping.map.keyframes[self._reference]
         alive = vo.track_fate >= TrackFate.NOT_USED
         _, in_reference, in_frame = np.intersect1d(reference.track_ids, vo.track_ids[alive], assume_unique=True,
                                                    return_indices=True)
         if self._speed is not None and not self._initialised:
-            return initialisation_reason(cfg, self._K, reference.T_world_cam, pose,
-                                         self._ideal(vo.track_cur[alive][in_frame]), reference.pixels[in_reference],
-                                         Reason.CLOSE_CHIRALITY in vo.health.reasons)
+            started = initialisation(replace(self.config, map=cfg), self._K, reference.T_world_cam, pose,
+                                     self._ideal(vo.track_cur[alive][in_frame]), reference.pixels[in_reference],
+                                     Reason.CLOSE_CHIRALITY in vo.health.reasons, vo.position - reference.position,
+                                     not any(p in self._held for p in range(reference.position, vo.position)))
+            return started if started is not None else (None, pose)
         if self._since_keyframe >= cfg.keyframe_max_frames:
-            return f"{self._since_keyframe} frames"
+            return f"{self._since_keyframe} frames", pose
         if len(in_frame):
             pixels = self._ideal(vo.track_cur[alive][in_frame])
             parallax = translation_parallax(reference.T_world_cam, pose, pixels, reference.pixels[in_reference],
                                             self._K) if self._speed is not None else \
                 float(np.median(np.linalg.norm(pixels - reference.pixels[in_reference], axis=1)))
             if parallax >= cfg.keyframe_parallax_px:
-                return f"parallax {parallax:.0f} px"
+                return f"parallax {parallax:.0f} px", pose
         if pnp is not None and pnp.T_world_cam is not None and reference.landmark_ids:
             tracked = set(pnp.landmark_ids[pnp.inlier_mask].tolist())
             if len(tracked) < cfg.keyframe_min_landmarks:
-                return f"{len(tracked)} landmarks tracked"
+                return f"{len(tracked)} landmarks tracked", pose
             overlap = len(tracked & reference.landmark_ids) / len(reference.landmark_ids)
             if overlap < cfg.keyframe_overlap:
-                return f"overlap {overlap:.2f}"
-        return None
+                return f"overlap {overlap:.2f}", pose
+        return None, pose
 
     def _metric_step(self, position: int, pose: np.ndarray) -> float | None:
         """Distance from the previous keyframe by the scale source (the BA's range prior); None for unit scale."""
@@ -406,7 +394,7 @@ class MapTracking:
                 self._gap = False
         self._since_keyframe += 1
         if not held and why is None and mode in (TrackingMode.MAP, TrackingMode.TWO_VIEW):
-            why = self._keyframe_reason(vo, pnp, pose)
+            why, pose = self._keyframe_reason(vo, pnp, pose)
         keyframe = view = None
         bundle: BundleAdjusted | None = None
         loop: LoopStep | None = None
@@ -433,7 +421,7 @@ class MapTracking:
             self._suspended = {t: m for t, m in tied.items() if t not in self._links and m in landmarks}
             self._reference = keyframe.keyframe_id
             self._since_keyframe = 0
-            self._initialised = self._initialised or initialised(self._cfg, keyframe)
+            self._start_map(keyframe, links)
             if self.loop is not None:
                 self.loop.submit(keyframe.keyframe_id, frame.image)
             vo.timings_ms["mapping"] = _lap(clock)
@@ -444,6 +432,9 @@ class MapTracking:
         self._posed_position = self._posed_position if held else vo.position
         if self._speed is not None and not held:
             self._speed.observe(vo.position, pose, mode in (TrackingMode.MAP, TrackingMode.RELOCALISED))
+            if not self._initialised and keyframe is None:
+                alive = vo.track_fate >= TrackFate.NOT_USED
+                self._before_map.add(vo.position, vo.track_ids[alive], self._ideal(vo.track_cur[alive]))
         self._previous_image = frame.image
         self.refinding.end_frame(None if held else pose)
         if mode in (TrackingMode.COASTED, TrackingMode.RELOCALISED) and vo.reason not in UNUSABLE_IMAGE:
@@ -452,6 +443,18 @@ class MapTracking:
         return self._result(vo, pose, held, mode, warnings, two_view,
                             MapFrame(mode, self._segment, two_view, self._at_raw_pixels(pnp), keyframe, bundle,
                                      relocalisation, view, loop, self._search_at_raw_pixels()))
+
+    def _start_map(self, keyframe: KeyframeInserted, links: dict[int, int]) -> None:
+        """--scale none: did this keyframe start the segment's map? Then the frames tracked since the last
+        keyframe are placed against its first landmarks (`FramesBeforeMap`)."""
+        if self._initialised or not initialised(self._cfg, keyframe):
+            return self._before_map.clear()  # (a new attempt measures from this keyframe)
+        self._initialised = True
+        positions = {i: self.mapping.map.landmarks[i].position for i in links.values()}
+        placed = self._before_map.place(links, positions, self._K, self._cfg, self.config.pose.seed)
+        for position, T_world_cam in placed.items():  # noqa: N806
+            key = self.mapping.map.keyframes[self._relative[position][0]]
+            self._relative[position] = (key.id, invert_pose(key.T_world_cam) @ T_world_cam)
 
     def _ideal(self, raw: np.ndarray) -> np.ndarray:
         """(N, 2) raw image pixels → (N, 2) float64 ideal pinhole pixels of K (a copy when the lens has none)."""

@@ -146,3 +146,36 @@ def camera_path(line: Centreline, n_frames: int, camera_height: float, rng: np.r
         poses[k, :3, :3] = base @ _rotation_x(pitch[k]) @ _rotation_z(roll[k])
         poses[k, :3, 3] = (position[k, 0], position[k, 1], camera_height)
     return poses
+
+
+#: A person walking along the street with a hand-held camera: metres a frame (at 30 Hz, ~1.35 m/s).
+WALK_STEP = 0.045
+
+
+def walk_path(line: Centreline, n_frames: int, camera_height: float, rng: np.random.Generator) -> np.ndarray:
+    """Camera poses T_m_c (n_frames, 4, 4) of a hand-held camera carried along the right lane at a walk.
+
+    The low-parallax, rotation-dominated motion of hand-held sequences (TUM RGB-D, EuRoC): the camera moves
+    `WALK_STEP` (±20 %) a frame, bobs 2 cm with each step (period 15 frames), and swings about its centre,
+    yaw ±14° (periods 70 and 23 frames), pitch ±7° (53, 17) and roll ±3° (61): up to ~2° of rotation a
+    frame, while it moves only a few centimetres.
+    """
+    phase = rng.uniform(0.0, 2.0 * np.pi, 7)
+    i = np.arange(n_frames, dtype=np.float64)
+    speed = WALK_STEP * (1.0 + 0.2 * np.sin(2 * np.pi * i / 97 + phase[0]))
+    yaw = np.radians(10.0) * np.sin(2 * np.pi * i / 70 + phase[1]) + np.radians(4.0) * np.sin(
+        2 * np.pi * i / 23 + phase[2])
+    pitch = np.radians(5.0) * np.sin(2 * np.pi * i / 53 + phase[3]) + np.radians(2.0) * np.sin(
+        2 * np.pi * i / 17 + phase[4])
+    roll = np.radians(3.0) * np.sin(2 * np.pi * i / 61 + phase[5])
+    bob = 0.02 * np.sin(2 * np.pi * i / 15 + phase[6])
+    arc = START_S + np.concatenate(([0.0], np.cumsum(speed[:-1])))
+    xy, heading, normal = line.frame_at(arc)
+    position = xy + _LANE_OFFSET * normal
+    poses = np.tile(np.eye(4), (n_frames, 1, 1))
+    for k in range(n_frames):
+        c, s = math.cos(heading[k] + yaw[k]), math.sin(heading[k] + yaw[k])
+        base = np.array([[s, 0.0, c], [-c, 0.0, s], [0.0, -1.0, 0.0]])  # as in `camera_path`
+        poses[k, :3, :3] = base @ _rotation_x(pitch[k]) @ _rotation_z(roll[k])
+        poses[k, :3, 3] = (position[k, 0], position[k, 1], camera_height + bob[k])
+    return poses

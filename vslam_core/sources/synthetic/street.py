@@ -51,14 +51,22 @@ from vslam_core.sources.synthetic.raster import (
     surface_coords,
     surface_homography,
 )
-from vslam_core.sources.synthetic.road import START_S, Centreline, camera_path, make_centreline, make_loop_centreline
+from vslam_core.sources.synthetic.road import (
+    START_S,
+    WALK_STEP,
+    Centreline,
+    camera_path,
+    make_centreline,
+    make_loop_centreline,
+    walk_path,
+)
 from vslam_core.sources.synthetic.scene import COARSE_RES, build_street, ground_layout
 from vslam_core.sources.synthetic.scratch import Scratch
 from vslam_core.sources.synthetic.textures import FINE_TILE, PANO_ELEV_MAX, ground_fine_tile, mip_pyramid, panorama
 
 _INTRINSICS = CameraIntrinsics(fx=718.856, fy=718.856, cx=607.1928, cy=185.2157, width=1241, height=376,
                               origin="the synthetic street (KITTI 00's camera)")
-_FRAME_DT = 0.1  # seconds between frames
+_FRAME_DT = {"street": 0.1, "loop": 0.1, "walk": 1 / 30}  # seconds between frames, by route
 _LOOK_AHEAD = 130.0  # scene generated beyond the last camera position
 _FAR = 100.0  # metres; rectangles whose nearest point is farther are culled
 _GROUND_FAR = 300.0  # metres; farther ground shows the panorama (hills) instead
@@ -67,8 +75,8 @@ _SPECKLE_CONTRAST = 0.45  # ground speckle amplitude, about +-55 grey levels
 _MIP_LEVELS = 7
 _MAX_FRAMES = 2000  # textures must stay under cv2.remap's 32767-texel limit (and memory reasonable)
 _SCRATCH = threading.local()  # .memory: the `Scratch` of this thread's renderings (~50 MB at full size)
-Route = Literal["street", "loop"]
-ROUTES: dict[str, int] = {"street": 300, "loop": 660}  # route -> default number of frames
+Route = Literal["street", "loop", "walk"]
+ROUTES: dict[str, int] = {"street": 300, "loop": 660, "walk": 450}  # route -> default number of frames
 
 
 def _scaled(intrinsics: CameraIntrinsics, factor: float) -> CameraIntrinsics:
@@ -100,7 +108,8 @@ def _centreline(n_frames: int, seed: int, route: Route) -> Centreline:
     """The road the camera drives along (cheap; the scene around it is `_world`)."""
     if route == "loop":  # around a block and back past the start (~1 m per frame)
         return make_loop_centreline()
-    return make_centreline(START_S + 1.25 * n_frames + _LOOK_AHEAD, _streams(seed)[0])
+    length = (WALK_STEP * 1.25 if route == "walk" else 1.25) * n_frames
+    return make_centreline(START_S + length + _LOOK_AHEAD, _streams(seed)[0])
 
 
 @functools.lru_cache(maxsize=2)
@@ -131,8 +140,9 @@ class SyntheticStreet:
     """Procedurally generated street, rendered deterministically from `seed` (a `FrameSource`).
 
     n_frames: number of source frames (the path length is about n_frames metres); default by route.
-    route: "street" (an open road with curves both ways) or "loop" (around a 600 m block, four left turns,
-    and on past the start: a closed route whose end revisits its start, for loop closure).
+    route: "street" (an open road with curves both ways), "loop" (around a 600 m block, four left turns,
+    and on past the start: a closed route whose end revisits its start, for loop closure) or "walk" (a
+    hand-held camera carried down the street at 30 Hz, swinging about its centre: `road.walk_path`).
     resolution: image size factor (< 1 renders smaller images, faster: for tests).
     frames: selection among them (`FrameRange.indices(n_frames)`, SourceError when out of range).
     camera_height: metres between the camera centre and the road plane.
@@ -159,8 +169,8 @@ class SyntheticStreet:
         self._indices = (frames or FrameRange()).indices(n_frames)
         self._intr = intr = _INTRINSICS if resolution == 1.0 else _scaled(_INTRINSICS, resolution)
         self._k = intr.K
-        self._poses_map = camera_path(_centreline(n_frames, seed, route), n_frames, self.camera_height,
-                                      _streams(seed)[1])
+        path = walk_path if route == "walk" else camera_path
+        self._poses_map = path(_centreline(n_frames, seed, route), n_frames, self.camera_height, _streams(seed)[1])
         self._ground_truth = rebase_poses(self._poses_map[self._indices])
         self._prepared = False  # the scene is built on the first frame not found in the frame cache
 
@@ -211,7 +221,7 @@ class SyntheticStreet:
 
     def __iter__(self) -> Iterator[Frame]:
         for index in self._indices:
-            yield Frame(index=index, timestamp=index * _FRAME_DT, image=self.render(index))
+            yield Frame(index=index, timestamp=index * _FRAME_DT[self.route], image=self.render(index))
 
     def render(self, index: int) -> np.ndarray:
         """(H, W) uint8 grey image of source frame `index` (0 <= index < n_frames); read from, or written
