@@ -23,8 +23,9 @@ from vslam_core.sources.base import FrameRange, rebase_poses
 from vslam_core.sources.faults import FaultInjector, parse_faults
 from vslam_core.sources.kitti import KittiSource
 from vslam_core.sources.open import open_source
+from vslam_core.sources.synthetic import SyntheticStreet
 from vslam_core.trajectory.io import read_kitti_poses
-from vslam_core.trajectory.metrics import kitti_errors, sim3_aligned
+from vslam_core.trajectory.metrics import ate, kitti_errors, sim3_aligned
 
 #: KITTI 05 frames 0:150: ~150 m, a turn at frames 116–153 (05 ground truth agrees with its images).
 FRAMES = (0, 150)
@@ -264,3 +265,23 @@ def test_a_new_map_segment_starts_its_own_map(kitti_root: Path) -> None:
 
 def keyframes(results: list[FrameResult]) -> list[KeyframeInserted]:
     return [r.mapping.keyframe for r in results if r.mapping is not None and r.mapping.keyframe is not None]
+
+
+def test_a_slow_hand_held_camera_starts_its_map_from_two_views() -> None:
+    """The synthetic walk (a hand-held camera at 30 Hz, 4.5 cm a frame, swinging up to 2° a frame) never gives
+    its median track 20 px of translation parallax from the first frame, and the front end holds every other
+    frame (its baseline too short to tell the chirality). After `init_wait_frames` the map starts from the two
+    views alone, and the frames tracked before it are placed against its first landmarks by PnP. Measured: ATE
+    after Sim(3) 0.9 cm over those frames and 1.0 cm over all 100; before (the frames chained at the guessed
+    speed, the map started by the parallax rule alone) 10.7 cm over all."""
+    source = SyntheticStreet(route="walk", frames=FrameRange(0, 100))
+    config = EngineConfig(backend="map", scale="none", threads=1)
+    results: list[FrameResult] = []
+    run = run_odometry(source, config, (lambda _, r: results.append(r),))
+    started = [r.position for r in results if r.mapping is not None and r.mapping.keyframe is not None
+               and r.mapping.keyframe.why.startswith("initialisation: two views")]
+    assert started and started[0] >= config.map.init_wait_frames, keyframe_reasons(results)
+    truth, poses = source.ground_truth, run.pose_array()
+    assert ate(truth[: started[0] + 1], poses[: started[0] + 1]) < 0.02
+    assert ate(truth, poses) < 0.03
+    assert sum(r.mapping is not None and r.mapping.mode == TrackingMode.MAP for r in results) > 30

@@ -122,6 +122,24 @@ def test_path_turns_pitches_and_rolls(street: SyntheticStreet) -> None:
     np.testing.assert_allclose(heights, street.camera_height, atol=1e-9)
 
 
+def test_the_walk_route_is_a_hand_held_camera() -> None:
+    """`route="walk"`: 30 Hz, a few centimetres a frame, swinging about its centre (up to ~2° a frame), bobbing
+    2 cm above the camera height; its frames render like the street's."""
+    walk = SyntheticStreet(route="walk", frames=FrameRange(0, 90))
+    frames = [frame for _, frame in zip(range(2), walk, strict=False)]
+    assert frames[1].timestamp - frames[0].timestamp == pytest.approx(1 / 30)
+    assert frames[0].image.shape == (walk.intrinsics.height, walk.intrinsics.width)
+    assert frames[0].image.dtype == np.uint8 and frames[0].image.std() > 20  # a textured street, not a blank
+    gt = walk.ground_truth
+    steps = np.linalg.norm(np.diff(gt[:, :3, 3], axis=0), axis=1)
+    assert steps.min() > 0.03 and steps.max() < 0.06
+    turns = np.degrees([math.acos(np.clip((np.trace(a[:3, :3].T @ b[:3, :3]) - 1) / 2, -1, 1))
+                        for a, b in zip(gt[:-1], gt[1:], strict=True)])
+    assert turns.mean() > 0.5 and 1.5 < turns.max() < 3.0  # rotation-dominated: ~20 px of flow a frame
+    heights = gt[:, :3, 3] @ walk.ground_plane[:3] + walk.ground_plane[3]  # each camera's, from the first's plane
+    assert np.abs(heights - walk.camera_height).max() == pytest.approx(0.02, abs=1e-3)  # the bob of each step
+
+
 def test_frame_range_selection(street: SyntheticStreet) -> None:
     selected = SyntheticStreet(frames=FrameRange(10, 20, 2))
     assert len(selected) == 5

@@ -205,11 +205,13 @@ class SyntheticStreet:
     def ground_plane(self) -> np.ndarray:
         """(4,) float64 (n_x, n_y, n_z, d): the road plane n . X + d = 0 in world coordinates.
 
-        n is the unit normal pointing up (towards the cameras); d = `camera_height`, the first selected
-        camera's distance to the road. n = (0, -1, 0) when that camera has no pitch or roll.
+        n is the unit normal pointing up (towards the cameras); d = the first selected camera's distance to the
+        road (`camera_height`; on the walk, ± the bob of its step). n = (0, -1, 0) when that camera has no pitch
+        or roll.
         """
-        r_m_c0 = self._poses_map[self._indices[0], :3, :3] if self._indices else np.eye(3)
-        return np.append(r_m_c0[2, :], self.camera_height)  # R_c0_m . z_map = third row of R_m_c0
+        pose = self._poses_map[self._indices[0]] if self._indices else np.eye(4)
+        height = float(pose[2, 3]) if self._indices else self.camera_height  # the road is the map's z = 0
+        return np.append(pose[2, :3], height)  # R_c0_m . z_map = third row of R_m_c0
 
     @property
     def indices(self) -> list[int]:
