@@ -284,4 +284,4 @@ def test_a_slow_hand_held_camera_starts_its_map_from_two_views() -> None:
     truth, poses = source.ground_truth, run.pose_array()
     assert ate(truth[: started[0] + 1], poses[: started[0] + 1]) < 0.02
     assert ate(truth, poses) < 0.03
-    assert sum(r.mapping is not None and r.mapping.mode == TrackingMode.MAP for r in results) > 30
+    assert all(r.mapping is not None and r.mapping.mode == TrackingMode.MAP for r in results[started[0] + 1:])
