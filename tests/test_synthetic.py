@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from vslam_core.errors import SourceError
+from vslam_core.geometry import rotation_angle
 from vslam_core.sources.base import FrameRange, FrameSource
 from vslam_core.sources.synthetic import SyntheticStreet, frame_cache
 from vslam_core.sources.synthetic.street import _world
@@ -133,8 +134,7 @@ def test_the_walk_route_is_a_hand_held_camera() -> None:
     gt = walk.ground_truth
     steps = np.linalg.norm(np.diff(gt[:, :3, 3], axis=0), axis=1)
     assert steps.min() > 0.03 and steps.max() < 0.06
-    turns = np.degrees([math.acos(np.clip((np.trace(a[:3, :3].T @ b[:3, :3]) - 1) / 2, -1, 1))
-                        for a, b in zip(gt[:-1], gt[1:], strict=True)])
+    turns = np.degrees([rotation_angle(a[:3, :3].T @ b[:3, :3]) for a, b in zip(gt[:-1], gt[1:], strict=True)])
     assert turns.mean() > 0.5 and 1.5 < turns.max() < 3.0  # rotation-dominated: ~20 px of flow a frame
     heights = gt[:, :3, 3] @ walk.ground_plane[:3] + walk.ground_plane[3]  # each camera's, from the first's plane
     assert np.abs(heights - walk.camera_height).max() == pytest.approx(0.02, abs=1e-3)  # the bob of each step

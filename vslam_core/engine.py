@@ -314,8 +314,7 @@ class Odometry:
             warnings.append(Reason.FEW_TRACKS)
         if motion.inlier_mask is not None and motion.inlier_mask.mean() < cfg.warn_inlier_ratio:
             warnings.append(Reason.LOW_INLIER_RATIO)
-        counts = sorted((c.in_front for c in motion.candidates), reverse=True)
-        if len(counts) > 1 and counts[1] > cfg.ambiguous_chirality * counts[0]:
+        if motion.close_chirality(cfg.ambiguous_chirality):
             warnings.append(Reason.CLOSE_CHIRALITY)
         if motion.derotated_parallax < cfg.rotation_parallax_px:
             warnings.append(Reason.ROTATION_DOMINATED)

@@ -54,6 +54,12 @@ class Motion:
             if self.in_front is not None else TrackFate.NOT_USED
         return np.where(self.inlier_mask, inlier, TrackFate.RANSAC_OUTLIER).astype(np.uint8)
 
+    def close_chirality(self, ratio: float) -> bool:
+        """The runner-up of the candidate poses has more than `ratio` of the winner's points in front: the
+        chirality hardly tells them apart."""
+        counts = sorted((c.in_front for c in self.candidates), reverse=True)
+        return len(counts) > 1 and counts[1] > ratio * counts[0]
+
 
 
 

@@ -125,10 +125,8 @@ def initialisation(config: EngineConfig, K: np.ndarray, T_world_key: np.ndarray,
         return None
     order = np.random.default_rng((config.pose.seed, waited, 3)).permutation(len(pixels))
     motion = two_view_motion(pixels, key_pixels, K, config, order, {})
-    if motion.reason is not None or motion.rotation is None or motion.translation is None:
-        return None
-    counts = sorted((c.in_front for c in motion.candidates), reverse=True)
-    if len(counts) > 1 and counts[1] > config.health.ambiguous_chirality * counts[0]:
+    if (motion.reason is not None or motion.rotation is None or motion.translation is None
+            or motion.close_chirality(config.health.ambiguous_chirality)):
         return None
     chained = T_world_key[:3, :3].T @ T_world_cam[:3, :3]
     if np.degrees(rotation_angle(chained.T @ motion.rotation)) > cfg.max_rotation_disagreement_deg:

@@ -137,14 +137,20 @@ def camera_path(line: Centreline, n_frames: int, camera_height: float, rng: np.r
     for k in range(1, n_frames):  # lane arc length = (1 - offset * curvature) * centreline arc length
         arc[k] = arc[k - 1] + speed[k - 1] / (1.0 - _LANE_OFFSET * line.curvature_at(arc[k - 1]))
     xy, heading, normal = line.frame_at(arc)
-    position = xy + _LANE_OFFSET * normal
-    poses = np.tile(np.eye(4), (n_frames, 1, 1))
-    for k in range(n_frames):
+    return _lane_poses(xy + _LANE_OFFSET * normal, heading, pitch, roll, np.full(n_frames, camera_height))
+
+
+def _lane_poses(position: np.ndarray, heading: np.ndarray, pitch: np.ndarray, roll: np.ndarray,
+                height: np.ndarray) -> np.ndarray:
+    """(N, 4, 4) T_m_c of cameras at (N, 2) map positions and (N,) heights above the road, looking along (N,)
+    headings (radians), pitched and rolled by (N,) angles."""
+    poses = np.tile(np.eye(4), (len(position), 1, 1))
+    for k in range(len(position)):
         c, s = math.cos(heading[k]), math.sin(heading[k])
         # Columns: camera x (right), y (down), z (forward) in map coordinates.
         base = np.array([[s, 0.0, c], [-c, 0.0, s], [0.0, -1.0, 0.0]])
         poses[k, :3, :3] = base @ _rotation_x(pitch[k]) @ _rotation_z(roll[k])
-        poses[k, :3, 3] = (position[k, 0], position[k, 1], camera_height)
+        poses[k, :3, 3] = (position[k, 0], position[k, 1], height[k])
     return poses
 
 
@@ -171,11 +177,4 @@ def walk_path(line: Centreline, n_frames: int, camera_height: float, rng: np.ran
     bob = 0.02 * np.sin(2 * np.pi * i / 15 + phase[6])
     arc = START_S + np.concatenate(([0.0], np.cumsum(speed[:-1])))
     xy, heading, normal = line.frame_at(arc)
-    position = xy + _LANE_OFFSET * normal
-    poses = np.tile(np.eye(4), (n_frames, 1, 1))
-    for k in range(n_frames):
-        c, s = math.cos(heading[k] + yaw[k]), math.sin(heading[k] + yaw[k])
-        base = np.array([[s, 0.0, c], [-c, 0.0, s], [0.0, -1.0, 0.0]])  # as in `camera_path`
-        poses[k, :3, :3] = base @ _rotation_x(pitch[k]) @ _rotation_z(roll[k])
-        poses[k, :3, 3] = (position[k, 0], position[k, 1], camera_height + bob[k])
-    return poses
+    return _lane_poses(xy + _LANE_OFFSET * normal, heading + yaw, pitch, roll, camera_height + bob)
