@@ -70,6 +70,25 @@ def test_the_last_step_pulls_a_turn_out_of_the_wrong_minimum(kitti_root: Path) -
     assert np.array_equal(same_basin.rotation, alone.rotation)
 
 
+
+@pytest.mark.kitti
+def test_a_prior_with_the_wrong_sign_does_not_reverse_the_step(kitti_root: Path) -> None:
+    """The Sampson cost cannot tell t from -t: refined from a prior whose translation points backwards (a
+    reversed step before it), the motion still has its points in front of both cameras and the car moving
+    forwards (a hand-held walk chained such a reversal over 16 frames before the sign was checked)."""
+    view, images, truth = narrow_view(kitti_root, "05", FrameRange(131, 134), (0, 0))
+    config = EngineConfig()
+    corners = detect_corners(images[1], np.zeros((0, 2), np.float32), 800, config.detector)
+    tracked, ok, fb_error = track_points(images[1], images[2], corners, config.tracker)
+    ok &= fb_error <= config.tracker.fb_threshold_px
+    order = np.random.default_rng((0, 2)).permutation(int(ok.sum()))
+    step = np.linalg.inv(truth[1]) @ truth[2]
+    reversed_prior = (step[:3, :3], -step[:3, 3] / np.linalg.norm(step[:3, 3]))
+    motion = two_view_motion(tracked[ok], corners[ok], view.K, config, order, {}, reversed_prior)
+    assert motion.translation is not None and motion.in_front is not None and motion.inlier_mask is not None
+    assert float(np.dot(motion.translation, step[:3, 3] / np.linalg.norm(step[:3, 3]))) > 0.95
+    assert motion.in_front[motion.inlier_mask].mean() > 0.9
+
 @pytest.mark.kitti
 def test_odometry_keeps_its_heading_through_a_narrow_view_of_a_turn(kitti_root: Path) -> None:
     """KITTI 00 frames 50–249 (the turn at 93–126) through the narrow window: `vo` ends within 2° of ground

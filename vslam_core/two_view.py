@@ -108,6 +108,11 @@ def two_view_motion(
     points = triangulate(rotation, translation, x_cur, x_key)
     # A track fails chirality only if it lands behind a camera; far points are fine, just not shown.
     in_front = in_front_mask(rotation, translation, points, np.inf)
+    # The Sampson cost is blind to the sign of t: a refinement started from the prior can end reversed.
+    flipped = -points  # the points of (R, -t): midpoints scale with t
+    if (in_front_mask(rotation, -translation, flipped, np.inf) & inlier_mask).sum() > (in_front & inlier_mask).sum():
+        translation, points = -translation, flipped
+        in_front = in_front_mask(rotation, translation, points, np.inf)
     near = in_front_mask(rotation, translation, points, cfg.chirality_max_depth)
     timings["chirality"] = _lap(clock)
     return Motion(
