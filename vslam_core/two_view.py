@@ -27,6 +27,9 @@ from vslam_core.geometry import (
 )
 from vslam_core.results import Reason, TrackFate
 
+# points handed on (shown, the road plane) lie within this many baselines: farther ones are mostly noise in depth
+POINTS_MAX_DEPTH = 50.0
+
 # a prior within 0.5° of rotation and 5° of translation direction of RANSAC's pose lies in its basin of the cost
 PRIOR_SAME_BASIN = (math.radians(0.5), math.radians(5.0))
 
@@ -113,7 +116,7 @@ def two_view_motion(
     if (in_front_mask(rotation, -translation, flipped, np.inf) & inlier_mask).sum() > (in_front & inlier_mask).sum():
         translation, points = -translation, flipped
         in_front = in_front_mask(rotation, translation, points, np.inf)
-    near = in_front_mask(rotation, translation, points, cfg.chirality_max_depth)
+    near = in_front_mask(rotation, translation, points, POINTS_MAX_DEPTH)
     timings["chirality"] = _lap(clock)
     return Motion(
         essential=essential,
