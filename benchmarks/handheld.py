@@ -118,13 +118,15 @@ def main() -> None:
             rows = pool.map(_run, jobs)
     print(f"KITTI {args.sequence} {args.frames} re-imaged through a 640x200 camera, steady and swinging "
           f"(amplitude {args.amplitude:g}); mean over seeds {args.seeds}; t_err after Sim(3) with --scale none")
-    print("| clip | backend | scale | t_err % | ATE Sim(3) m | final heading ° | held |")
+    print("| clip | backend | scale | t_err % (per seed) | ATE Sim(3) m | final heading ° (per seed) | held |")
     print("|---|---|---|---|---|---|---|")
     for key in dict.fromkeys(row[:3] for row in rows):
         mine = [row for row in rows if row[:3] == key]
         t_err, ate_m, heading, held = (float(np.mean([row[i] for row in mine])) for i in (3, 4, 5, 6))
         spread = "/".join(f"{row[3]:.2f}" for row in mine)
-        print(f"| {key[0]} | {key[1]} | {key[2]} | {t_err:.2f} ({spread}) | {ate_m:.3f} | {heading:.2f} | {held:.0f} |")
+        headings = "/".join(f"{row[5]:.1f}" for row in mine)
+        print(f"| {key[0]} | {key[1]} | {key[2]} | {t_err:.2f} ({spread}) | {ate_m:.3f} | {heading:.2f} ({headings}) "
+              f"| {held:.0f} |")
 
 
 if __name__ == "__main__":

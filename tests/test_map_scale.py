@@ -287,13 +287,13 @@ def test_a_slow_hand_held_camera_starts_its_map_from_two_views() -> None:
 
 
 def test_the_front_end_tracks_every_frame_of_a_hand_held_walk() -> None:
-    """A hand-held step (4.5 cm) is 1/100-1/400 of the street's depth, so points up to 500 baselines away vote in
-    the chirality check (`pose.chirality_max_depth`): `vo` holds no frame of the walk. With 50 baselines
-    (cv2.recoverPose's distanceThresh) too few points voted and it held 60 of these 100 frames. Measured with
-    ground-truth scale: ATE after Sim(3) 0.8 cm (4.6 cm with 50)."""
+    """A hand-held step (4.5 cm) is 1/100-1/400 of the street's depth: when fewer than `min_inliers` points within
+    50 baselines vote in the chirality check, points up to 500 baselines away do (`pose.chirality_far_depth`), and
+    `vo` holds no frame of the walk. With 50 baselines alone (cv2.recoverPose's distanceThresh) it held 60 of these
+    100 frames. Measured with ground-truth scale: ATE after Sim(3) 0.8 cm (4.6 cm with 50 alone)."""
     source = SyntheticStreet(route="walk", frames=FrameRange(0, 100))
     run = run_odometry(source, EngineConfig(backend="vo", scale="gt", threads=1))
     assert run.held == 0
     assert ate(source.ground_truth, run.pose_array()) < 0.015
-    fifty = EngineConfig(backend="vo", scale="gt", threads=1, pose=replace(PoseConfig(), chirality_max_depth=50.0))
+    fifty = EngineConfig(backend="vo", scale="gt", threads=1, pose=replace(PoseConfig(), chirality_far_depth=50.0))
     assert run_odometry(source, fifty).held >= 30

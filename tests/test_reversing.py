@@ -31,8 +31,8 @@ def backwards(kitti_root: Path, tmp_path_factory: pytest.TempPathFactory) -> Pat
 
 
 #: The front end as it was: no re-detection for coverage, and only points within 50 baselines voting in the chirality
-#: check (that vote now reaches 500 baselines, which alone keeps this run out of most of the trouble below).
-OLD_DETECTOR, OLD_POSE = replace(DetectorConfig(), min_coverage=0.0), replace(PoseConfig(), chirality_max_depth=50.0)
+#: check (now farther points vote when too few do, which alone keeps this run out of most of the trouble below).
+OLD_DETECTOR, OLD_POSE = replace(DetectorConfig(), min_coverage=0.0), replace(PoseConfig(), chirality_far_depth=50.0)
 
 
 def run(folder: Path, config: EngineConfig) -> tuple[np.ndarray, np.ndarray, list[FrameResult]]:

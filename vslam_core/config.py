@@ -74,9 +74,10 @@ class PoseConfig:
     seed: int = 0  # seeds RANSAC through a fixed shuffle of the correspondences
     refine: bool = True  # Gauss–Newton on the Sampson error of the inliers after RANSAC
     drop_outliers: bool = True  # RANSAC outliers stop being tracked
-    # points nearer than this (in baselines) vote in the chirality check; cv2.recoverPose's distanceThresh is 50,
-    # but a hand-held camera's step is 1/100-1/400 of its scene's depth (at 50 the walk held 63 % of its frames)
-    chirality_max_depth: float = 500.0
+    chirality_max_depth: float = 50.0  # points nearer than this (in baselines) vote in the chirality check
+    # ... and when fewer than min_inliers of them vote, points up to this far: a hand-held camera's step is
+    # 1/100-1/400 of its scene's depth (with 50 alone the synthetic walk held 63 % of its frames)
+    chirality_far_depth: float = 500.0
     min_tracks: int = 30  # fewer tracks from the keyframe: re-initialise
     min_inliers: int = 20
     min_parallax_px: float = 1.0  # median flow from the keyframe below this: too little motion to measure

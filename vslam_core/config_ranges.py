@@ -101,6 +101,7 @@ RANGES: dict[str, Range] = {
     "pose.ransac_max_iterations": ITERATIONS,
     "pose.seed": closed(0, 2**63 - 1),
     "pose.chirality_max_depth": Range(0.0, INF, low_open=True, high_open=True),
+    "pose.chirality_far_depth": Range(0.0, INF, low_open=True, high_open=True),
     "pose.min_tracks": closed(5, 100_000),
     "pose.min_inliers": closed(5, 100_000),
     "pose.min_parallax_px": closed(0.0, 1000.0),

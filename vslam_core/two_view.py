@@ -27,9 +27,6 @@ from vslam_core.geometry import (
 )
 from vslam_core.results import Reason, TrackFate
 
-# points handed on (shown, the road plane) lie within this many baselines: farther ones are mostly noise in depth
-POINTS_MAX_DEPTH = 50.0
-
 # a prior within 0.5° of rotation and 5° of translation direction of RANSAC's pose lies in its basin of the cost
 PRIOR_SAME_BASIN = (math.radians(0.5), math.radians(5.0))
 
@@ -93,6 +90,9 @@ def two_view_motion(
     x_key = normalise_points(p_key, K)
     candidates, best = chirality_check(essential, x_cur[inlier_mask], x_key[inlier_mask],
                                        cfg.chirality_max_depth)
+    if candidates[best].in_front < cfg.min_inliers:  # a step short for its scene's depth: let farther points vote
+        candidates, best = chirality_check(essential, x_cur[inlier_mask], x_key[inlier_mask],
+                                           cfg.chirality_far_depth)
     rotation, translation = candidates[best].rotation, candidates[best].translation
     if candidates[best].in_front < cfg.min_inliers:
         timings["chirality"] = _lap(clock)
@@ -116,7 +116,7 @@ def two_view_motion(
     if (in_front_mask(rotation, -translation, flipped, np.inf) & inlier_mask).sum() > (in_front & inlier_mask).sum():
         translation, points = -translation, flipped
         in_front = in_front_mask(rotation, translation, points, np.inf)
-    near = in_front_mask(rotation, translation, points, POINTS_MAX_DEPTH)
+    near = in_front_mask(rotation, translation, points, cfg.chirality_max_depth)
     timings["chirality"] = _lap(clock)
     return Motion(
         essential=essential,
