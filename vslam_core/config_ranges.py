@@ -153,6 +153,8 @@ RANGES: dict[str, Range] = {
     "map.init_wait_frames": closed(0, 1_000_000),
     "map.init_min_landmarks": closed(1, 100_000),
     "map.none_min_triangulation_deg": Range(0.0, 90.0, high_open=True),
+    "map.slow_depth_frames": positive(1e9),
+    "map.slow_min_triangulation_deg": Range(0.0, 90.0, high_open=True),
     "map.none_ba_iterations": closed(1, 1000),
     "map.none_step_sigma": closed(0.0, 10.0),
     "map.ba_max_landmarks": closed(1, 10_000_000),

@@ -187,10 +187,12 @@ class LocalMapping:
         self, position: int, segment: int, T_world_cam: np.ndarray, track_ids: np.ndarray,  # noqa: N803
         pixels: np.ndarray, image: np.ndarray, metric_step: float | None, why: str,
         track_landmarks: dict[int, int], refound: dict[int, np.ndarray] | None = None,
+        landmark_config: MapConfig | None = None,
     ) -> tuple[KeyframeInserted, dict[int, int], MapView]:
         """Add a keyframe seeing (N,) tracks at (N, 2) pixels; `track_landmarks` links live tracks to
         landmarks; `refound` maps landmarks re-found in this frame without a track to their (2,) pixel (they
-        are observed too). Returns the event, the new track → landmark links, and what to draw of the map."""
+        are observed too; `landmark_config`: other settings for its new landmarks). Returns the event, the new
+        track → landmark links, and what to draw of the map."""
         assert self._submitted is None, "collect the pending bundle adjustment first"
         keyframe = self.map.add_keyframe(position, segment, T_world_cam, track_ids, pixels, metric_step)
         observed = []
@@ -208,7 +210,7 @@ class LocalMapping:
         alive = set(track_ids.tolist())
         self._sightings = {t: s for t, s in self._sightings.items()
                            if t in alive and self.map.keyframes[s[0][0]].segment == segment}
-        links = self._triangulate(keyframe)
+        links = self._triangulate(keyframe, landmark_config or self._config)
         self._describe(keyframe, image)
         self.keyframe_images[keyframe.id] = image
         self.keyframe_images.pop(keyframe.id - KEYFRAME_IMAGES, None)
@@ -221,7 +223,7 @@ class LocalMapping:
                                  culled)
         return event, links, self._view(previous_window)
 
-    def _triangulate(self, keyframe: Keyframe) -> dict[int, int]:
+    def _triangulate(self, keyframe: Keyframe, config: MapConfig) -> dict[int, int]:
         """New landmarks from tracks seen at an earlier keyframe and at this one (first sighting to now:
         the longest baseline), all pairs in one call. Returns track id → new landmark id."""
         by_first: dict[int, list[int]] = {}
@@ -242,7 +244,7 @@ class LocalMapping:
         p_cur = np.array([self._sightings[t][-1][1] for t in track_ids], np.float64)
         points_cur = triangulate_each(T_first_cur[:, :3, :3], T_first_cur[:, :3, 3], normalise_points(p_cur, self._K),
                                       normalise_points(p_first, self._K))
-        good = well_triangulated(points_cur, T_first_cur, p_cur, p_first, self._K, self._config)
+        good = well_triangulated(points_cur, T_first_cur, p_cur, p_first, self._K, config)
         world = points_cur @ keyframe.T_world_cam[:3, :3].T + keyframe.T_world_cam[:3, 3]
         links: dict[int, int] = {}
         for n in np.flatnonzero(good):

@@ -24,6 +24,7 @@ import numpy as np
 from vslam_core.config import EngineConfig, MapConfig, ScaleSource
 from vslam_core.geometry import normalise_points, pose_matrix, rotation_angle, triangulate
 from vslam_core.mapping.local_mapping import well_triangulated
+from vslam_core.mapping.map import Map
 from vslam_core.mapping.pnp import solve_pnp
 from vslam_core.results import KeyframeInserted, ScaleEstimate
 from vslam_core.scale import TwoView
@@ -97,7 +98,7 @@ def translation_parallax(T_world_key: np.ndarray, T_world_cur: np.ndarray, pixel
 
 def initialisation(config: EngineConfig, K: np.ndarray, T_world_key: np.ndarray,  # noqa: N803
                    T_world_cam: np.ndarray, pixels: np.ndarray, key_pixels: np.ndarray,  # noqa: N803
-                   close_chirality: bool, waited: int, chain_measured: bool) -> tuple[str, np.ndarray] | None:
+                   close_chirality: bool, waited: int, chain_measured: bool) -> tuple[str, np.ndarray, bool] | None:
     """--scale none, before the map has landmarks: the next keyframe's baseline sets the map's scale, so it
     waits for a well-conditioned two-view reconstruction from the last keyframe: a translation parallax
     (rotation removed) of `init_parallax_px` between the (N, 2) ideal `pixels` of the keyframe's tracks now and
@@ -111,16 +112,18 @@ def initialisation(config: EngineConfig, K: np.ndarray, T_world_key: np.ndarray,
     frame, unambiguous, with `init_min_landmarks` of its points triangulated as landmarks
     (`local_mapping.well_triangulated`: rays meeting at `min_triangulation_deg`). Its keyframe is then placed
     by that motion rather than by the chain of short steps (unless each of them was measured:
-    `chain_measured`), as far from the last keyframe as the chain (the map's units so far).
+    `chain_measured`), as far from the last keyframe as the chain (the map's units so far). When the points'
+    median depth is more than `slow_depth_frames` frames of travel (a slow camera), rays meeting at
+    `slow_min_triangulation_deg` make its landmarks (`slow_camera`).
 
-    Returns None while it waits, else the keyframe's reason and pose. If the keyframe's tracks are lost first,
-    initialisation starts again from this frame, at its own pose `T_world_cam`."""
+    Returns None while it waits, else the keyframe's reason, its pose and whether the camera is slow. If the
+    keyframe's tracks are lost first, initialisation starts again from this frame, at its own pose `T_world_cam`."""
     cfg = config.map
     if len(pixels) < cfg.pnp_min_landmarks:
-        return "re-initialisation: tracks lost", T_world_cam
+        return "re-initialisation: tracks lost", T_world_cam, False
     parallax = translation_parallax(T_world_key, T_world_cam, pixels, key_pixels, K)
     if parallax >= cfg.init_parallax_px and not close_chirality:
-        return f"initialisation: parallax {parallax:.0f} px", T_world_cam
+        return f"initialisation: parallax {parallax:.0f} px", T_world_cam, False
     if waited < cfg.init_wait_frames:
         return None
     order = np.random.default_rng((config.pose.seed, waited, 3)).permutation(len(pixels))
@@ -134,16 +137,37 @@ def initialisation(config: EngineConfig, K: np.ndarray, T_world_key: np.ndarray,
     T_key_cur = pose_matrix(motion.rotation, motion.translation)  # noqa: N806
     inliers = motion.inlier_mask if motion.inlier_mask is not None else np.ones(len(pixels), bool)
     x_cur, x_key = normalise_points(pixels[inliers], K), normalise_points(key_pixels[inliers], K)
-    points = triangulate(motion.rotation, motion.translation, x_cur, x_key)
+    points = triangulate(motion.rotation, motion.translation, x_cur, x_key)  # in baselines of `waited` frames
+    slow = bool(np.nanmedian(points[:, 2]) * waited > cfg.slow_depth_frames) if len(points) else False
     landmarks = int(well_triangulated(points, np.broadcast_to(T_key_cur, (len(points), 4, 4)), pixels[inliers],
-                                      key_pixels[inliers], K, cfg).sum())
+                                      key_pixels[inliers], K, landmark_settings(cfg, slow)).sum())
     if landmarks < cfg.init_min_landmarks:
         return None
     why = f"initialisation: two views {waited} frames apart, {landmarks} landmarks"
     if chain_measured:
-        return why, T_world_cam
+        return why, T_world_cam, slow
     length = float(np.linalg.norm(T_world_cam[:3, 3] - T_world_key[:3, 3]))
-    return why, T_world_key @ pose_matrix(motion.rotation, max(length, 1e-6) * motion.translation)
+    return why, T_world_key @ pose_matrix(motion.rotation, max(length, 1e-6) * motion.translation), slow
+
+
+def slow_camera(the_map: Map, keyframe_id: int, speed: float, config: MapConfig) -> bool:
+    """--scale none: whether the landmarks a keyframe observes lie at a median depth of more than
+    `slow_depth_frames` frames of travel at `speed` (map units a frame). A hand-held camera moves
+    1/100-1/400 of its scene's depth a frame, a car 1/10-1/50: the rays of a slow camera's landmarks rarely
+    meet at `none_min_triangulation_deg` (3.5°), and without new landmarks its map starves. Scale-free: depth
+    and speed are both in the map's units."""
+    keyframe = the_map.keyframes[keyframe_id]
+    ids = np.array([i for i in keyframe.landmark_ids if i in the_map.landmarks], np.int64)
+    if not len(ids):
+        return False
+    T_cam_world = np.linalg.inv(keyframe.T_world_cam)  # noqa: N806
+    depths = the_map.positions(ids) @ T_cam_world[2, :3] + T_cam_world[2, 3]
+    return float(np.median(depths)) > config.slow_depth_frames * speed
+
+
+def landmark_settings(config: MapConfig, slow: bool) -> MapConfig:
+    """The map's settings for new landmarks: rays meeting at `slow_min_triangulation_deg` for a slow camera."""
+    return replace(config, min_triangulation_deg=config.slow_min_triangulation_deg) if slow else config
 
 
 def initialised(config: MapConfig, keyframe: KeyframeInserted) -> bool:

@@ -17,6 +17,7 @@ from vslam_core.geometry import invert_pose, rotation_angle
 from vslam_core.mapping.local_map import FrameCorners, LocalMapSearcher, local_keyframes, refind_by_flow
 from vslam_core.mapping.local_mapping import LocalMapping
 from vslam_core.mapping.map import Map
+from vslam_core.mapping.pnp import project
 from vslam_core.mapping.relocalisation import MotionModel, bridged_prediction, relocalise_guided
 from vslam_core.results import LocalMapSearch, PnPEstimate, Relocalisation
 from vslam_core.sources.base import CameraIntrinsics, Frame
@@ -149,3 +150,21 @@ class MapRefinding:
         return (Relocalisation(True, best, candidates, len(outcome.landmark_ids), len(inliers)),
                 PnPEstimate(outcome.landmark_ids, outcome.pixels, solution.projected, solution.inlier_mask,
                             solution.T_world_cam))
+
+
+def suspended_at_keyframe(the_map: Map, suspended: dict[int, int], track_ids: np.ndarray, pixels: np.ndarray,
+                          pose: np.ndarray, K: np.ndarray, config: MapConfig  # noqa: N803
+                          ) -> tuple[dict[int, int], dict[int, int]]:
+    """Tracks PnP rejected (`suspended`: track id → landmark id) whose (N,) ids' (N, 2) ideal pixels in a keyframe
+    at `pose` lie within `keyframe_observation_px` of their landmark's projection: the keyframe observes the
+    landmark there (BA refines its depth rather than a duplicate landmark being triangulated); within
+    `pnp_threshold_px` they are linked again. The others are released (their track may start a new landmark).
+    Returns (track id → landmark id observed, track id → landmark id linked again)."""
+    rows = [(n, t) for n, t in enumerate(track_ids.tolist()) if suspended.get(t) in the_map.landmarks]
+    if not rows:
+        return {}, {}
+    landmark_ids = [suspended[t] for _, t in rows]
+    error = np.linalg.norm(project(the_map.positions(landmark_ids), pose, K) - pixels[[n for n, _ in rows]], axis=1)
+    pairs = [(t, m, e) for (_, t), m, e in zip(rows, landmark_ids, error, strict=True)]
+    return ({t: m for t, m, e in pairs if e <= config.keyframe_observation_px},
+            {t: m for t, m, e in pairs if e <= config.pnp_threshold_px})

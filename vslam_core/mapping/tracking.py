@@ -31,10 +31,12 @@ from vslam_core.mapping.map_scale import (
     for_scale,
     initialisation,
     initialised,
+    landmark_settings,
+    slow_camera,
     translation_parallax,
 )
-from vslam_core.mapping.pnp import PnPSolution, project, solve_pnp
-from vslam_core.mapping.refinding import MapRefinding
+from vslam_core.mapping.pnp import PnPSolution, solve_pnp
+from vslam_core.mapping.refinding import MapRefinding, suspended_at_keyframe
 from vslam_core.mapping.relocalisation import relocalise_by_descriptors
 from vslam_core.results import (
     STANDING_STILL,
@@ -71,6 +73,7 @@ class MapTracking:
         self._K = intrinsics.K
         # --scale none: steps the map cannot place take their length from the map's speed, never unit steps
         self._speed = MapSpeed() if config.scale == "none" else None
+        self._slow = False  # --scale none: a slow camera (map_scale.slow_camera), its landmarks at a smaller angle
         self._scale: ScaleProvider = self._speed if self._speed is not None else scale
         self._odometry = Odometry(intrinsics, config, self._scale, coast=False)  # coasting is done here, with the map
         self.mapping = LocalMapping(self._K, self._cfg, config.scale, background=config.threads > 1,
@@ -237,24 +240,6 @@ class MapTracking:
         return PnPEstimate(landmark_ids, observed, solution.projected, solution.inlier_mask, solution.T_world_cam,
                            rejected, outvoted)
 
-    def _suspended_at_keyframe(self, track_ids: np.ndarray, pixels: np.ndarray, pose: np.ndarray) -> dict[int, int]:
-        """Tracks PnP rejected whose (ideal) pixel in a keyframe at `pose` lies within `keyframe_observation_px`
-        of their landmark's projection: the keyframe observes the landmark there (BA refines its depth rather
-        than a duplicate landmark being triangulated); within `pnp_threshold_px` they are linked again. The
-        others are released (their track may start a new landmark). Returns track id → landmark id."""
-        landmarks = self.mapping.map.landmarks
-        rows = [(n, t) for n, t in enumerate(track_ids.tolist()) if self._suspended.get(t) in landmarks]
-        if not rows:
-            return {}
-        landmark_ids = [self._suspended[t] for _, t in rows]
-        error = np.linalg.norm(project(self.mapping.map.positions(landmark_ids), pose, self._K)
-                               - pixels[[n for n, _ in rows]], axis=1)
-        tied = {t: m for (_, t), m, e in zip(rows, landmark_ids, error, strict=True)
-                if e <= self._cfg.keyframe_observation_px}
-        self._links.update({t: m for (_, t), m, e in zip(rows, landmark_ids, error, strict=True)
-                            if e <= self._cfg.pnp_threshold_px})
-        return tied
-
     def _link_found(self, found: PnPEstimate) -> None:
         """Start a track at each landmark re-found in this frame (PnP inliers when it has a pose) and link it,
         so the landmark is tracked on and observed by the next keyframe."""
@@ -350,7 +335,10 @@ class MapTracking:
                                      self._ideal(vo.track_cur[alive][in_frame]), reference.pixels[in_reference],
                                      Reason.CLOSE_CHIRALITY in vo.health.reasons, vo.position - reference.position,
                                      not any(p in self._held for p in range(reference.position, vo.position)))
-            return started if started is not None else (None, pose)
+            if started is None:
+                return None, pose
+            why, pose, self._slow = started
+            return why, pose
         if self._since_keyframe >= cfg.keyframe_max_frames:
             return f"{self._since_keyframe} frames", pose
         if len(in_frame):
@@ -410,11 +398,13 @@ class MapTracking:
                     pose = orthonormalise(loop_correction @ pose)  # a similarity with --scale none
                     self._follow_loop(loop, loop_correction)
             track_ids, pixels = self._odometry.live_tracks()
-            tied = self._suspended_at_keyframe(track_ids, self._ideal(pixels), pose)
+            tied, relinked = suspended_at_keyframe(self.mapping.map, self._suspended, track_ids, self._ideal(pixels),
+                                                   pose, self._K, self._cfg)
+            self._links.update(relinked)
             keyframe, links, view = self.mapping.insert_keyframe(
                 vo.position, self._segment, pose, track_ids, self._ideal(pixels), frame.image,
                 self._metric_step(vo.position, pose),
-                why, {**self._links, **tied}, self._refound)
+                why, {**self._links, **tied}, self._refound, landmark_settings(self._cfg, self._slow))
             live = set(track_ids.tolist())
             landmarks = self.mapping.map.landmarks
             self._links = {t: m for t, m in {**self._links, **links}.items() if t in live and m in landmarks}
@@ -422,6 +412,8 @@ class MapTracking:
             self._reference = keyframe.keyframe_id
             self._since_keyframe = 0
             self._start_map(keyframe, links)
+            if self._speed is not None and self._initialised:
+                self._slow = slow_camera(self.mapping.map, keyframe.keyframe_id, self._speed.speed, self._cfg)
             if self.loop is not None:
                 self.loop.submit(keyframe.keyframe_id, frame.image)
             vo.timings_ms["mapping"] = _lap(clock)
