@@ -138,7 +138,8 @@ def initialisation(config: EngineConfig, K: np.ndarray, T_world_key: np.ndarray,
     inliers = motion.inlier_mask if motion.inlier_mask is not None else np.ones(len(pixels), bool)
     x_cur, x_key = normalise_points(pixels[inliers], K), normalise_points(key_pixels[inliers], K)
     points = triangulate(motion.rotation, motion.translation, x_cur, x_key)  # in baselines of `waited` frames
-    slow = bool(np.nanmedian(points[:, 2]) * waited > cfg.slow_depth_frames) if len(points) else False
+    depths = points[np.isfinite(points[:, 2]), 2]  # rows of parallel rays are NaN
+    slow = bool(len(depths)) and float(np.median(depths)) * waited > cfg.slow_depth_frames
     landmarks = int(well_triangulated(points, np.broadcast_to(T_key_cur, (len(points), 4, 4)), pixels[inliers],
                                       key_pixels[inliers], K, landmark_settings(cfg, slow)).sum())
     if landmarks < cfg.init_min_landmarks:
