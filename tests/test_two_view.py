@@ -7,6 +7,7 @@ principal point moved with it), so ground truth stays exact."""
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -43,32 +44,51 @@ def _degrees(rotation: np.ndarray, truth: np.ndarray) -> float:
     return math.degrees(rotation_angle(rotation.T @ truth))
 
 
-@pytest.mark.kitti
-def test_the_last_step_pulls_a_turn_out_of_the_wrong_minimum(kitti_root: Path) -> None:
-    """KITTI 05 frames 132 → 133 in the 3°-a-frame turn: RANSAC's pose is 1.6° off in rotation; started again
-    from the true previous step (131 → 132), the refinement finds the lower-cost minimum, within 0.3°. A prior in
-    RANSAC's own basin changes nothing."""
+@dataclass(frozen=True)
+class TurnStep:
+    """KITTI 05 frames 132 → 133 in the 3°-a-frame turn, through the narrow view: the (N, 2) tracked corners in
+    both, the correspondences' order (RANSAC's seed), the camera, and the true steps 131 → 132 and 132 → 133."""
+
+    cur: np.ndarray
+    key: np.ndarray
+    order: np.ndarray
+    K: np.ndarray  # noqa: N815
+    previous: np.ndarray  # (4, 4) X_131 = R·X_132 + t
+    step: np.ndarray  # (4, 4) X_132 = R·X_133 + t
+
+
+def turn_step(kitti_root: Path) -> TurnStep:
     view, images, truth = narrow_view(kitti_root, "05", FrameRange(131, 134), (0, 0))
     config = EngineConfig()
     corners = detect_corners(images[1], np.zeros((0, 2), np.float32), 800, config.detector)
     tracked, ok, fb_error = track_points(images[1], images[2], corners, config.tracker)
     ok &= fb_error <= config.tracker.fb_threshold_px
-    order = np.random.default_rng((0, 2)).permutation(int(ok.sum()))
-    step = np.linalg.inv(truth[1]) @ truth[2]  # X_132 = R·X_133 + t
-    previous = np.linalg.inv(truth[0]) @ truth[1]
-    prior = (previous[:3, :3], previous[:3, 3] / np.linalg.norm(previous[:3, 3]))
+    return TurnStep(tracked[ok], corners[ok], np.random.default_rng((0, 2)).permutation(int(ok.sum())), view.K,
+                    np.linalg.inv(truth[0]) @ truth[1], np.linalg.inv(truth[1]) @ truth[2])
 
-    alone = two_view_motion(tracked[ok], corners[ok], view.K, config, order, {})
-    helped = two_view_motion(tracked[ok], corners[ok], view.K, config, order, {}, prior)
+
+def _unit(t: np.ndarray) -> np.ndarray:
+    return t / np.linalg.norm(t)
+
+
+@pytest.mark.kitti
+def test_the_last_step_pulls_a_turn_out_of_the_wrong_minimum(kitti_root: Path) -> None:
+    """KITTI 05 frames 132 → 133 in the 3°-a-frame turn: RANSAC's pose is 1.6° off in rotation; started again
+    from the true previous step (131 → 132), the refinement finds the lower-cost minimum, within 0.3°. A prior in
+    RANSAC's own basin changes nothing."""
+    turn, config = turn_step(kitti_root), EngineConfig()
+    prior = (turn.previous[:3, :3], _unit(turn.previous[:3, 3]))
+
+    alone = two_view_motion(turn.cur, turn.key, turn.K, config, turn.order, {})
+    helped = two_view_motion(turn.cur, turn.key, turn.K, config, turn.order, {}, prior)
     assert alone.rotation is not None and helped.rotation is not None and alone.translation is not None
-    assert _degrees(alone.rotation, step[:3, :3]) > 1.2
-    assert _degrees(helped.rotation, step[:3, :3]) < 0.3
+    assert _degrees(alone.rotation, turn.step[:3, :3]) > 1.2
+    assert _degrees(helped.rotation, turn.step[:3, :3]) < 0.3
 
-    same_basin = two_view_motion(tracked[ok], corners[ok], view.K, config, order, {},
+    same_basin = two_view_motion(turn.cur, turn.key, turn.K, config, turn.order, {},
                                  (alone.rotation, alone.translation))
     assert same_basin.rotation is not None
     assert np.array_equal(same_basin.rotation, alone.rotation)
-
 
 
 @pytest.mark.kitti
@@ -76,18 +96,13 @@ def test_a_prior_with_the_wrong_sign_does_not_reverse_the_step(kitti_root: Path)
     """The Sampson cost cannot tell t from -t: refined from a prior whose translation points backwards (a
     reversed step before it), the motion still has its points in front of both cameras and the car moving
     forwards (a hand-held walk chained such a reversal over 16 frames before the sign was checked)."""
-    view, images, truth = narrow_view(kitti_root, "05", FrameRange(131, 134), (0, 0))
-    config = EngineConfig()
-    corners = detect_corners(images[1], np.zeros((0, 2), np.float32), 800, config.detector)
-    tracked, ok, fb_error = track_points(images[1], images[2], corners, config.tracker)
-    ok &= fb_error <= config.tracker.fb_threshold_px
-    order = np.random.default_rng((0, 2)).permutation(int(ok.sum()))
-    step = np.linalg.inv(truth[1]) @ truth[2]
-    reversed_prior = (step[:3, :3], -step[:3, 3] / np.linalg.norm(step[:3, 3]))
-    motion = two_view_motion(tracked[ok], corners[ok], view.K, config, order, {}, reversed_prior)
+    turn = turn_step(kitti_root)
+    reversed_prior = (turn.step[:3, :3], -_unit(turn.step[:3, 3]))
+    motion = two_view_motion(turn.cur, turn.key, turn.K, EngineConfig(), turn.order, {}, reversed_prior)
     assert motion.translation is not None and motion.in_front is not None and motion.inlier_mask is not None
-    assert float(np.dot(motion.translation, step[:3, 3] / np.linalg.norm(step[:3, 3]))) > 0.95
+    assert float(np.dot(motion.translation, _unit(turn.step[:3, 3]))) > 0.95
     assert motion.in_front[motion.inlier_mask].mean() > 0.9
+
 
 @pytest.mark.kitti
 def test_odometry_keeps_its_heading_through_a_narrow_view_of_a_turn(kitti_root: Path) -> None:
