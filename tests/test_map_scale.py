@@ -282,6 +282,8 @@ def test_a_slow_hand_held_camera_starts_its_map_from_two_views() -> None:
     started = [r.position for r in results if r.mapping is not None and r.mapping.keyframe is not None
                and r.mapping.keyframe.why.startswith("initialisation: two views")]
     assert started and config.map.init_wait_frames <= started[0] <= 30, keyframe_reasons(results)
+    angles = {k.min_ray_angle_deg for k in keyframes(results) if k.position >= started[0]}
+    assert angles == {config.map.slow_min_triangulation_deg}, angles  # every keyframe since: a slow camera
     truth, poses = source.ground_truth, run.pose_array()
     assert ate(truth[: started[0] + 1], poses[: started[0] + 1]) < 0.02
     assert ate(truth, poses) < 0.03

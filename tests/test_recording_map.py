@@ -214,6 +214,7 @@ def test_bundle_adjustment_series_residuals_and_events(full: tuple[Path, list[Fr
     assert sum("bundle adjustment over keyframes" in t for t in texts) == len(runs)
     keyframes = [mapping(r).keyframe for r in results if mapping(r).keyframe is not None]
     assert sum(": keyframe " in t for t in texts) == len(keyframes)
+    assert sum(" new (rays ≥ 1°)" in t for t in texts) == len(keyframes)  # gt scale: map.min_triangulation_deg
     first_ba = min(runs)
     ba = runs[first_ba]
     assert ba is not None

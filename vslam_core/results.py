@@ -139,6 +139,7 @@ class KeyframeInserted:
     observed_landmarks: int  # landmarks its tracks see
     new_landmarks: int  # landmarks triangulated with earlier keyframes
     culled_landmarks: int  # landmarks removed (bad reprojection, too few observations)
+    min_ray_angle_deg: float = 0.0  # the rays of its new landmarks met at least at this angle (a slow camera's less)
 
 
 @dataclass(frozen=True)

@@ -276,7 +276,8 @@ class MapRecording:
         if keyframe is not None:
             total = f", {mapping.view.landmarks_total} in the map" if mapping.view is not None else ""
             add_event(columns, frame, f"keyframe {keyframe.keyframe_id} ({keyframe.why}): "
-                      f"{keyframe.observed_landmarks} landmarks seen, {keyframe.new_landmarks} new, "
+                      f"{keyframe.observed_landmarks} landmarks seen, {keyframe.new_landmarks} new "
+                      f"(rays ≥ {keyframe.min_ray_angle_deg:g}°), "
                       f"{keyframe.culled_landmarks} culled{total}", "DEBUG")
 
 

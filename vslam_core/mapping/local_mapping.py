@@ -210,7 +210,8 @@ class LocalMapping:
         alive = set(track_ids.tolist())
         self._sightings = {t: s for t, s in self._sightings.items()
                            if t in alive and self.map.keyframes[s[0][0]].segment == segment}
-        links = self._triangulate(keyframe, landmark_config or self._config)
+        settings = landmark_config or self._config
+        links = self._triangulate(keyframe, settings)
         self._describe(keyframe, image)
         self.keyframe_images[keyframe.id] = image
         self.keyframe_images.pop(keyframe.id - KEYFRAME_IMAGES, None)
@@ -220,7 +221,7 @@ class LocalMapping:
         culled = self._retire([k for k in previous_window if k not in self._window], alive_landmarks)
         culled += self._forget(keyframe.id - self._config.map_keyframes, alive_landmarks)
         event = KeyframeInserted(keyframe.id, position, keyframe.T_world_cam.copy(), why, len(observed), len(links),
-                                 culled)
+                                 culled, settings.min_triangulation_deg)
         return event, links, self._view(previous_window)
 
     def _triangulate(self, keyframe: Keyframe, config: MapConfig) -> dict[int, int]:
