@@ -271,9 +271,9 @@ def test_a_slow_hand_held_camera_starts_its_map_from_two_views() -> None:
     """The synthetic walk (a hand-held camera at 30 Hz, 4.5 cm a frame, swinging up to 2° a frame) never gives
     its median track 20 px of translation parallax from the first frame. After `init_wait_frames` the map starts
     from the two views alone, and the frames tracked before it are placed against its first landmarks by PnP. Its
-    points lie ~250 frames of travel away (`slow_depth_frames`: 100), so rays meeting at 2° make its landmarks
-    (`slow_min_triangulation_deg`) and it starts 22 frames after the first (68 at 3.5°). Measured: ATE after
-    Sim(3) 2.4 cm over all 100 frames (0.8 cm at 3.5°, but 9.5 cm against 2.8 cm over benchmarks.walk's 12 runs);
+    points lie ~250 frames of travel away (`slow_depth_frames`: 100), so rays meeting at 1° make its landmarks
+    (`slow_min_triangulation_deg`) and it starts 11 frames after the first (68 at 3.5°). Measured: ATE after
+    Sim(3) 1.2 cm over all 100 frames (0.8 cm at 3.5°, but 9.5 cm against 1.2 cm over benchmarks.walk's 12 runs);
     before the two-view start (the frames chained at the guessed speed) 10.7 cm."""
     source = SyntheticStreet(route="walk", frames=FrameRange(0, 100))
     config = EngineConfig(backend="map", scale="none", threads=1)
