@@ -61,8 +61,6 @@ class Motion:
         return len(counts) > 1 and counts[1] > ratio * counts[0]
 
 
-
-
 def two_view_motion(
     p_cur: np.ndarray, p_key: np.ndarray, K: np.ndarray, config: EngineConfig, order: np.ndarray,  # noqa: N803
     timings: dict[str, float], prior: tuple[np.ndarray, np.ndarray] | None = None,
@@ -113,9 +111,9 @@ def two_view_motion(
     in_front = in_front_mask(rotation, translation, points, np.inf)
     # The Sampson cost is blind to the sign of t: a refinement started from the prior can end reversed.
     flipped = -points  # the points of (R, -t): midpoints scale with t
-    if (in_front_mask(rotation, -translation, flipped, np.inf) & inlier_mask).sum() > (in_front & inlier_mask).sum():
-        translation, points = -translation, flipped
-        in_front = in_front_mask(rotation, translation, points, np.inf)
+    flipped_in_front = in_front_mask(rotation, -translation, flipped, np.inf)
+    if (flipped_in_front & inlier_mask).sum() > (in_front & inlier_mask).sum():
+        translation, points, in_front = -translation, flipped, flipped_in_front
     near = in_front_mask(rotation, translation, points, cfg.chirality_max_depth)
     timings["chirality"] = _lap(clock)
     return Motion(

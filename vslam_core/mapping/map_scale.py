@@ -22,7 +22,7 @@ from dataclasses import replace
 import numpy as np
 
 from vslam_core.config import EngineConfig, MapConfig, ScaleSource
-from vslam_core.geometry import normalise_points, pose_matrix, rotation_angle, triangulate
+from vslam_core.geometry import invert_pose, normalise_points, pose_matrix, rotation_angle, triangulate
 from vslam_core.mapping.local_mapping import well_triangulated
 from vslam_core.mapping.map import Map
 from vslam_core.mapping.pnp import solve_pnp
@@ -106,8 +106,8 @@ def initialisation(config: EngineConfig, K: np.ndarray, T_world_key: np.ndarray,
     rotation and too short a baseline leave the translation, and so the scale, undetermined (Mur-Artal et al.,
     "ORB-SLAM", 2015, sec. IV, which likewise waits for parallax before it initialises).
 
-    A camera whose median track never gets that parallax (a slow hand-held camera seeing far façades and sky;
-    its front end holds every other frame, the baseline too short) starts once it has `waited` frames
+    A camera whose median track never gets that parallax (a slow hand-held camera seeing far façades and sky)
+    starts once it has `waited` frames
     (`init_wait_frames`) from the two views alone: the essential matrix of the keyframe's tracks and this
     frame, unambiguous, with `init_min_landmarks` of its points triangulated as landmarks
     (`local_mapping.well_triangulated`: rays meeting at `min_triangulation_deg`). Its keyframe is then placed
@@ -161,7 +161,7 @@ def slow_camera(the_map: Map, keyframe_id: int, speed: float, config: MapConfig)
     ids = np.array([i for i in keyframe.landmark_ids if i in the_map.landmarks], np.int64)
     if not len(ids):
         return False
-    T_cam_world = np.linalg.inv(keyframe.T_world_cam)  # noqa: N806
+    T_cam_world = invert_pose(keyframe.T_world_cam)  # noqa: N806
     depths = the_map.positions(ids) @ T_cam_world[2, :3] + T_cam_world[2, 3]
     return float(np.median(depths)) > config.slow_depth_frames * speed
 
@@ -185,8 +185,8 @@ def initialised(config: MapConfig, keyframe: KeyframeInserted) -> bool:
 
 class FramesBeforeMap:
     """--scale none: the frames tracked while the map waits for its initialisation, with their tracks. Until
-    then their poses are chained from the front end's short steps at the map's guessed speed (on a hand-held
-    camera it holds every other one, its baseline too short); once the map starts, `place` measures them by PnP
+    then their poses are chained from the front end's short steps at the map's guessed speed; once the map
+    starts, `place` measures them by PnP
     against its first landmarks, which their tracks saw (ORB-SLAM outputs no pose at all before it initialises;
     these frames get one in the map's own scale)."""
 

@@ -397,12 +397,13 @@ class MapTracking:
                 if loop_correction is not None:
                     pose = orthonormalise(loop_correction @ pose)  # a similarity with --scale none
                     self._follow_loop(loop, loop_correction)
-            track_ids, pixels = self._odometry.live_tracks()
-            tied, relinked = suspended_at_keyframe(self.mapping.map, self._suspended, track_ids, self._ideal(pixels),
-                                                   pose, self._K, self._cfg)
+            track_ids, raw = self._odometry.live_tracks()
+            pixels = self._ideal(raw)
+            tied, relinked = suspended_at_keyframe(self.mapping.map, self._suspended, track_ids, pixels, pose, self._K,
+                                                   self._cfg)
             self._links.update(relinked)
             keyframe, links, view = self.mapping.insert_keyframe(
-                vo.position, self._segment, pose, track_ids, self._ideal(pixels), frame.image,
+                vo.position, self._segment, pose, track_ids, pixels, frame.image,
                 self._metric_step(vo.position, pose),
                 why, {**self._links, **tied}, self._refound, landmark_settings(self._cfg, self._slow))
             live = set(track_ids.tolist())
