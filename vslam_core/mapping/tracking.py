@@ -17,7 +17,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from vslam_core.coasting import degraded_motion
+from vslam_core.coasting import agrees, degraded_motion
 from vslam_core.config import EngineConfig
 from vslam_core.engine import Odometry
 from vslam_core.geometry import interpolate_gaps, invert_pose, orthonormalise, pose_matrix, rotation_angle
@@ -76,8 +76,7 @@ class MapTracking:
         self._slow = False  # --scale none: a slow camera (map_scale.slow_camera), its landmarks at a smaller angle
         self._scale: ScaleProvider = self._speed if self._speed is not None else scale
         self._odometry = Odometry(intrinsics, config, self._scale, coast=False)  # coasting is done here, with the map
-        self.mapping = LocalMapping(self._K, self._cfg, config.scale, background=config.threads > 1,
-                                    lens=intrinsics)
+        self.mapping = LocalMapping(self._K, self._cfg, config.scale, background=config.threads > 1, lens=intrinsics)
         self._links: dict[int, int] = {}  # live track id -> landmark id
         self._suspended: dict[int, int] = {}  # tracks PnP rejected -> their landmark (observed at keyframes only)
         self._segment = 0
@@ -171,12 +170,18 @@ class MapTracking:
             if found is not None:
                 pnp, pose, mode, why = found, found.T_world_cam, TrackingMode.RELOCALISED, "relocalised"
                 warnings.append(Reason.RELOCALISED)
-        if pose is None and two_view is not None:
+        reckoned = None
+        if pose is None and self._gap and two_view is not None:  # measured across the gap: it must agree, as in vo
+            reckoned = self._coast(frame.image, vo.position)
+            if reckoned is not None and not agrees(two_view[:3, :3], reckoned, vo.position - vo.keyframe_position):
+                warnings.append(Reason.GAP_MOTION_REJECTED)
+        if pose is None and two_view is not None and Reason.GAP_MOTION_REJECTED not in warnings:
             pose, mode = two_view, TrackingMode.TWO_VIEW
             if pnp is not None and self._has_map():
                 warnings.append(Reason.PNP_REJECTED)
         if pose is None and (self._gap or missing):  # the first frame after a gap that nothing else could place
-            pose = self._coast(frame.image, vo.position) if self._gap else self._bridge(vo.position)
+            pose = reckoned if reckoned is not None else \
+                self._coast(frame.image, vo.position) if self._gap else self._bridge(vo.position)
             if pose is not None:
                 mode = TrackingMode.COASTED
                 warnings.append(Reason.COASTED)
@@ -479,6 +484,8 @@ class MapTracking:
             reason = vo.reason if vo.reason is not None else Reason.TRACKING_LOST
             if vo.reason in HOLD_REASONS and vo.reason not in STANDING_STILL:
                 reason = Reason.TRACKING_LOST
+            if Reason.GAP_MOTION_REJECTED in warnings:  # its two-view motion, measured across a gap, was refused
+                reason = warnings.pop(warnings.index(Reason.GAP_MOTION_REJECTED))
             health = Health.of(reason, [r for r in vo.health.reasons if r != vo.reason] + warnings)
             status = FrameStatus.HELD
         else:
