@@ -6,9 +6,11 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from cli_helpers import vslam
+from ros_logs import PLUMB_BOB, kitti_clip, make_reimager
 
 from vslam.rrd.read import read_entity
 from vslam_core.config import EngineConfig
@@ -17,7 +19,8 @@ from vslam_core.geometry import rotation_angle
 from vslam_core.pipeline import run_odometry
 from vslam_core.results import FrameResult, HealthStatus, Reason
 from vslam_core.sources.base import FrameRange
-from vslam_core.sources.faults import Fault, parse_faults
+from vslam_core.sources.faults import Fault, FaultInjector, parse_faults
+from vslam_core.sources.folder import ImageFolderSource
 from vslam_core.sources.open import open_source
 from vslam_core.trajectory.metrics import kitti_errors, rpe
 
@@ -107,6 +110,51 @@ def test_a_turn_taken_while_blind_is_not_lost(kitti_root: Path) -> None:
     t_err, _ = kitti_errors(gt, run.pose_array())
     heading = np.degrees(rotation_angle(gt[-1, :3, :3].T @ run.poses[-1][:3, :3]))
     assert t_err < 2.5 and heading < 2.5, (t_err, heading)  # %, degrees
+
+
+@pytest.fixture(scope="module")
+def lens_folder(kitti_root: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """KITTI 00 frames 100–299 re-imaged through a strong radial–tangential lens (tests/ros_logs.py) as a folder
+    of PNGs with times and ground truth, and the lens as a ROS camera_info YAML: what a user brings."""
+    clip = kitti_clip(kitti_root, "00", range(100, 300))
+    reimager = make_reimager(clip.camera, "plumb_bob", PLUMB_BOB)
+    folder = tmp_path_factory.mktemp("lens") / "frames"
+    folder.mkdir()
+    for k, image in enumerate(clip.images()):
+        cv2.imwrite(str(folder / f"{k:06d}.png"), reimager(image))
+    (folder / "times.txt").write_text("".join(f"{(t - clip.stamps_ns[0]) / 1e9:.6f}\n" for t in clip.stamps_ns))
+    np.savetxt(folder / "gt.txt", clip.poses[:, :3, :].reshape(-1, 12))
+    lens = reimager.camera
+    calib = folder.parent / "lens.yaml"
+    calib.write_text(
+        f"image_width: {lens.width}\nimage_height: {lens.height}\ncamera_name: lens\n"
+        f"camera_matrix:\n  rows: 3\n  cols: 3\n  data: [{lens.fx}, 0, {lens.cx}, 0, {lens.fy}, {lens.cy}, 0, 0, 1]\n"
+        f"distortion_model: plumb_bob\ndistortion_coefficients:\n  rows: 1\n  cols: 5\n"
+        f"  data: [{', '.join(map(str, lens.coefficients))}]\n")
+    return folder, calib
+
+
+@pytest.mark.kitti
+@pytest.mark.parametrize("backend", ["vo", "map"])
+def test_a_turn_taken_while_blind_through_a_lens_is_not_lost(lens_folder: tuple[Path, Path], backend: str) -> None:
+    """The turn above (KITTI 00 frames 200–210 blurred, of 100–299) through a strong radial–tangential lens:
+    dead reckoning tracks the raw images and undistorts the corners before the essential matrix. Measured
+    t_err 2.7 % (the clean run through the lens: 1.9 %) and final heading 2.0° (`vo`) / 2.2° (map); before,
+    a distorted lens was never dead-reckoned, the frames were held and the turn was lost: 32 %, 44.7°."""
+    folder, calib = lens_folder
+    source = FaultInjector(ImageFolderSource(folder, calib=calib, ground_truth=folder / "gt.txt"),
+                           parse_faults("blur@100:110"))
+    assert source.intrinsics.distorted
+    results: list[FrameResult] = []
+    run = run_odometry(source, EngineConfig(backend=backend, threads=1),  # type: ignore[arg-type]
+                       sinks=(lambda _f, r: results.append(r),))
+    gt = source.ground_truth
+    assert gt is not None
+    coasted = [r.index for r in results if Reason.COASTED in r.health.reasons]
+    assert set(range(100, 111)) <= set(coasted), coasted
+    t_err, _ = kitti_errors(gt, run.pose_array())
+    heading = np.degrees(rotation_angle(gt[-1, :3, :3].T @ run.poses[-1][:3, :3]))
+    assert t_err < 3.5 and heading < 3.0, (t_err, heading)  # %, degrees
 
 
 @pytest.mark.kitti

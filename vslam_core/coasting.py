@@ -22,8 +22,10 @@ from vslam_core.geometry import (
     refine_relative_pose,
     rotation_angle,
 )
+from vslam_core.lens import undistort_pixels
 from vslam_core.quality import sharpness
 from vslam_core.scale import ScaleProvider, TwoView
+from vslam_core.sources.base import CameraIntrinsics
 
 _CORNERS = 400
 _WINDOW_PX = 31
@@ -55,9 +57,11 @@ def _matched_blur(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     return (blurred, b) if sharp_a > sharp_b else (a, blurred)
 
 
-def degraded_motion(previous: np.ndarray, current: np.ndarray, K: np.ndarray  # noqa: N803
-                    ) -> tuple[np.ndarray, np.ndarray] | None:
-    """(R (3, 3), unit t (3,)) from `previous` to `current`, or None when too few corners agree."""
+def degraded_motion(previous: np.ndarray, current: np.ndarray, K: np.ndarray,  # noqa: N803
+                    lens: CameraIntrinsics | None = None) -> tuple[np.ndarray, np.ndarray] | None:
+    """(R (3, 3), unit t (3,)) from `previous` to `current`, or None when too few corners agree. With a
+    distorted `lens` (whose pinhole is K) the corners are tracked on the raw images and their pixels
+    undistorted (vslam_core/lens.py) before the essential matrix."""
     a, b = _matched_blur(_normalised(previous), _normalised(current))
     corners = cv2.goodFeaturesToTrack(a, _CORNERS, 0.01, 15)
     if corners is None or len(corners) < _MIN_INLIERS:
@@ -66,6 +70,10 @@ def degraded_motion(previous: np.ndarray, current: np.ndarray, K: np.ndarray  # 
                                                   maxLevel=_LEVELS)
     ok = status.reshape(-1) == 1
     p_prev, p_cur = corners.reshape(-1, 2)[ok].astype(np.float64), tracked.reshape(-1, 2)[ok].astype(np.float64)
+    if lens is not None and lens.distorted:
+        p_prev, p_cur = undistort_pixels(p_prev, lens), undistort_pixels(p_cur, lens)
+        finite = np.isfinite(p_prev).all(axis=1) & np.isfinite(p_cur).all(axis=1)
+        p_prev, p_cur = p_prev[finite], p_cur[finite]
     if len(p_cur) < _MIN_INLIERS:
         return None
     essential, mask = cv2.findEssentialMat(p_cur, p_prev, K, method=cv2.RANSAC, prob=0.999, threshold=1.0)
@@ -93,8 +101,10 @@ class DeadReckoning:
     """Where dead reckoning continues from: the last pose given out and the last readable image (usable or
     degraded), and whether the frames since the keyframe were dead-reckoned (a gap)."""
 
-    def __init__(self, K: np.ndarray, scale: ScaleProvider, enabled: bool = True) -> None:  # noqa: N803
+    def __init__(self, K: np.ndarray, scale: ScaleProvider, enabled: bool = True,  # noqa: N803
+                 lens: CameraIntrinsics | None = None) -> None:
         self._K = K
+        self._lens = lens
         self._scale = scale
         self.enabled = enabled
         self.T_world_cam = np.eye(4)  # the last frame's pose, measured, dead-reckoned or held
@@ -113,7 +123,7 @@ class DeadReckoning:
         when the images give no motion."""
         if not self.enabled or self._image is None:
             return None
-        motion = degraded_motion(self._image, image, self._K)
+        motion = degraded_motion(self._image, image, self._K, self._lens)
         if motion is None:
             return None
         empty = np.zeros((0, 3))

@@ -80,8 +80,8 @@ class Odometry:
         self._key_image: np.ndarray | None = None
         self._last_mean: float | None = None  # grey level of the last usable frame
         self._last_step: tuple[float, float] | None = None  # (step length, de-rotated parallax) last accepted
-        # Dead reckoning through frames tracking cannot place; it works on pinhole pixels only.
-        self._reckoning = DeadReckoning(self._K, scale, enabled=coast and not intrinsics.distorted)
+        # Dead reckoning through frames tracking cannot place (through the lens: on ideal pixels)
+        self._reckoning = DeadReckoning(self._K, scale, enabled=coast, lens=intrinsics)
 
     def process(self, frame: Frame) -> FrameResult:
         """Estimate this frame's pose from the previous ones."""

@@ -100,7 +100,7 @@ class MapRefinding:
         predicted = self._motion.predict(self._time)
         if predicted is None or self._image is None or self._posed is None:
             return None
-        bridged = bridged_prediction(self._posed[0], self._image, self._posed[1], predicted, self._K)
+        bridged = bridged_prediction(self._posed[0], self._image, self._posed[1], predicted, self._lens)
         step = np.linalg.inv(self._posed[1]) @ bridged
         if length is not None:
             step[:3, 3] *= length / max(float(np.linalg.norm(step[:3, 3])), 1e-12)
@@ -135,7 +135,7 @@ class MapRefinding:
         predicted = self._motion.predict(self._time)
         if predicted is None or self._image is None or self._posed is None:
             return Relocalisation(False, None, 0, 0, 0), None
-        predicted = bridged_prediction(self._posed[0], self._image, self._posed[1], predicted, self._K)
+        predicted = bridged_prediction(self._posed[0], self._image, self._posed[1], predicted, self._lens)
         keyframe_ids = local_keyframes(world, reference, segment, self._config.local_map_keyframes)
         outcome = relocalise_guided(self._searcher, world, self._frame_corners(), keyframe_ids, predicted, self._K,
                                     self._config, seed)

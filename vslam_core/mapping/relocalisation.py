@@ -27,7 +27,7 @@ import numpy as np
 from vslam_core.config import MapConfig
 from vslam_core.features import match_descriptors
 from vslam_core.geometry import invert_pose, pose_matrix, rotation_angle, so3_exp, so3_log
-from vslam_core.lens import undistort_pixels
+from vslam_core.lens import distort_pixels, undistort_pixels
 from vslam_core.mapping.local_map import FrameCorners, LocalMapSearcher
 from vslam_core.mapping.local_mapping import DESCRIPTOR_PATCH
 from vslam_core.mapping.map import Map
@@ -113,7 +113,7 @@ GAP_ORB_FEATURES = 3000  # multi-scale ORB features of each image when KLT canno
 GAP_ORB_RATIO = 0.8
 
 
-def gap_motion(previous: np.ndarray, current: np.ndarray, K: np.ndarray,  # noqa: N803
+def gap_motion(previous: np.ndarray, current: np.ndarray, lens: CameraIntrinsics,
                predicted: np.ndarray) -> np.ndarray | None:
     """Relative motion T_prev_cur (4, 4), |t| = 1, from the last posed frame's (H, W) uint8 image to this
     one across a gap: Shi–Tomasi corners of `previous` tracked by pyramidal KLT from where the predicted
@@ -121,20 +121,22 @@ def gap_motion(previous: np.ndarray, current: np.ndarray, K: np.ndarray,  # noqa
     checked forward–backward; when too few survive (a long gap: the view has turned and moved too far),
     multi-scale ORB matches (8 levels, scale 1.2: KITTI 05 frames 129 → 140, 33.7° of turn, gave 79 inliers
     where KLT kept 2). Then the 5-point essential matrix in RANSAC (Nistér 2004, cv2.findEssentialMat) and
-    its decomposition. None when too few inliers remain, or the rotation is implausible."""
+    its decomposition. None when too few inliers remain, or the rotation is implausible. Images are raw (the
+    `lens`'s); the geometry is on ideal pixels of its pinhole K (vslam_core/lens.py)."""
+    K = lens.K  # noqa: N806
     corners = cv2.goodFeaturesToTrack(previous, GAP_CORNERS, 0.01, 10)
     best: tuple[int, np.ndarray, np.ndarray] | None = None
     p_prev = corners.reshape(-1, 2).astype(np.float32) if corners is not None else np.zeros((0, 2), np.float32)
     for offset in GAP_YAW_OFFSETS_DEG if len(p_prev) >= GAP_MIN_INLIERS else ():
         # the turn rate may have changed during the gap: the most consistent
         rotation = predicted[:3, :3] @ so3_exp(np.array([0.0, np.radians(offset), 0.0]))
-        p_cur, good = _track_from(previous, current, p_prev, K @ rotation.T @ np.linalg.inv(K))
+        p_cur, good = _track_from(previous, current, p_prev, K @ rotation.T @ np.linalg.inv(K), lens)
         if best is None or int(good.sum()) > best[0]:
             best = (int(good.sum()), p_cur, good)
-    motion = _essential_motion(best[1][best[2]], p_prev[best[2]], K, predicted) \
+    motion = _essential_motion(best[1][best[2]], p_prev[best[2]], lens, predicted) \
         if best is not None and best[0] >= GAP_MIN_INLIERS else None
     if motion is None:
-        motion = _essential_motion(*_orb_matches(previous, current), K, predicted)
+        motion = _essential_motion(*_orb_matches(previous, current), lens, predicted)
     return motion
 
 
@@ -151,10 +153,16 @@ def _orb_matches(previous: np.ndarray, current: np.ndarray) -> tuple[np.ndarray,
             np.array([key_prev[m.queryIdx].pt for m in good], np.float64).reshape(-1, 2))
 
 
-def _essential_motion(p_cur: np.ndarray, p_prev: np.ndarray, K: np.ndarray,  # noqa: N803
+def _essential_motion(p_cur: np.ndarray, p_prev: np.ndarray, lens: CameraIntrinsics,
                       predicted: np.ndarray) -> np.ndarray | None:
-    """T_prev_cur (4, 4), |t| = 1, from (N, 2) matched pixels by the essential matrix in RANSAC; None with
-    fewer than `GAP_MIN_INLIERS` inliers or a rotation over `GAP_MAX_CORRECTION_DEG` from `predicted`'s."""
+    """T_prev_cur (4, 4), |t| = 1, from (N, 2) matched raw pixels by the essential matrix in RANSAC (on their
+    ideal pixels); None with fewer than `GAP_MIN_INLIERS` inliers or a rotation over `GAP_MAX_CORRECTION_DEG`
+    from `predicted`'s."""
+    K = lens.K  # noqa: N806
+    if lens.distorted:
+        p_cur, p_prev = undistort_pixels(p_cur, lens), undistort_pixels(p_prev, lens)
+        finite = np.isfinite(p_cur).all(axis=1) & np.isfinite(p_prev).all(axis=1)
+        p_cur, p_prev = p_cur[finite], p_prev[finite]
     if len(p_cur) < GAP_MIN_INLIERS:
         return None
     essential, mask = cv2.findEssentialMat(p_cur, p_prev, K, cv2.RANSAC, 0.999, 1.0)
@@ -168,11 +176,14 @@ def _essential_motion(p_cur: np.ndarray, p_prev: np.ndarray, K: np.ndarray,  # n
     return pose_matrix(rotation, translation.reshape(3) / max(float(np.linalg.norm(translation)), 1e-12))
 
 
-def _track_from(previous: np.ndarray, current: np.ndarray, p_prev: np.ndarray,
-                homography: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """KLT of (N, 2) float32 points from `previous` to `current`, starting where `homography` (3, 3) puts
-    them: (N, 2) tracked points and an (N,) mask of those consistent forward–backward within 1 px."""
-    guess = cv2.perspectiveTransform(p_prev[None], homography)[0].astype(np.float32)
+def _track_from(previous: np.ndarray, current: np.ndarray, p_prev: np.ndarray, homography: np.ndarray,
+                lens: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray]:
+    """KLT of (N, 2) float32 raw points from `previous` to `current`, starting where `homography` (3, 3, on
+    ideal pixels) puts them through the lens: (N, 2) tracked points and an (N,) mask of those consistent
+    forward–backward within 1 px."""
+    ideal = undistort_pixels(p_prev, lens).astype(np.float32) if lens.distorted else p_prev
+    guess = cv2.perspectiveTransform(ideal[None], homography)[0]
+    guess = (distort_pixels(guess, lens) if lens.distorted else guess).astype(np.float32)
     window = (GAP_WINDOW_PX, GAP_WINDOW_PX)
     p_cur, ok, _ = cv2.calcOpticalFlowPyrLK(previous, current, p_prev, guess, winSize=window, maxLevel=GAP_LEVELS,
                                             flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
@@ -184,11 +195,11 @@ def _track_from(previous: np.ndarray, current: np.ndarray, p_prev: np.ndarray,
 
 
 def bridged_prediction(previous_image: np.ndarray, image: np.ndarray, T_world_previous: np.ndarray,  # noqa: N803
-                       predicted: np.ndarray, K: np.ndarray) -> np.ndarray:  # noqa: N803
+                       predicted: np.ndarray, lens: CameraIntrinsics) -> np.ndarray:
     """The motion model's prediction (4, 4) with its rotation and direction replaced by the ones measured
     across the gap (`gap_motion`), the step length kept; the prediction itself when nothing is measured."""
     T_prev_pred = invert_pose(T_world_previous) @ predicted  # noqa: N806
-    measured = gap_motion(previous_image, image, K, T_prev_pred)
+    measured = gap_motion(previous_image, image, lens, T_prev_pred)
     if measured is None:
         return predicted
     measured[:3, 3] *= float(np.linalg.norm(T_prev_pred[:3, 3]))

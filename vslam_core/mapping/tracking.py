@@ -303,9 +303,9 @@ class MapTracking:
         (vslam_core/coasting.py), the step length from the scale source; None if they give none. `checked` (the
         first frame of a gap: the model's last poses are measured ones, never dead-reckoned ones, which fed back
         into its trend): a rotation over `COAST_DISAGREEMENT_DEG` from its prediction gives way to the prediction."""
-        if self._previous_image is None or self._reference < 0 or self._lens.distorted:
-            return None  # dead reckoning works on pinhole images only (as in vo)
-        motion = degraded_motion(self._previous_image, image, self._K)
+        if self._previous_image is None or self._reference < 0:
+            return None
+        motion = degraded_motion(self._previous_image, image, self._K, self._lens)
         if motion is None:
             return None
         rotation, direction = motion
