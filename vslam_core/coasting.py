@@ -17,6 +17,7 @@ import numpy as np
 
 from vslam_core.geometry import (
     chirality_check,
+    invert_pose,
     normalise_points,
     pose_matrix,
     refine_relative_pose,
@@ -95,6 +96,27 @@ def degraded_motion(previous: np.ndarray, current: np.ndarray, K: np.ndarray,  #
 # drift (0.05-0.3° a frame on KITTI, above), and is never required to come closer than 2°.
 _DRIFT_DEG_PER_FRAME = 0.3
 _AGREEMENT_DEG = 2.0
+# A dead-reckoned step whose rotation is this far from the step before it is taken for the rotation–translation
+# ambiguity's other solution (blurred frames in a turn: KITTI 00 197 -> 198 through a strong lens, 1.6° of yaw
+# the wrong way and the car sliding sideways, where it turned 2.6°), and the step before it is repeated. A car's
+# turn rate changes by well under 1° from one frame to the next (KITTI 00's sharpest turn: 0.2°).
+STEP_DISAGREEMENT_DEG = 1.5
+
+
+def steady(motion: tuple[np.ndarray, np.ndarray], before: tuple[np.ndarray, np.ndarray] | None,
+           max_deg: float = STEP_DISAGREEMENT_DEG) -> tuple[np.ndarray, np.ndarray]:
+    """A dead-reckoned step (R (3, 3), unit t (3,)), or the step `before` it (e.g. the one into the frame it
+    starts from) when their rotations differ by more than `max_deg`."""
+    if before is None or np.degrees(rotation_angle(before[0].T @ motion[0])) <= max_deg:
+        return motion
+    return before
+
+
+def unit_step(T_a: np.ndarray, T_b: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:  # noqa: N803
+    """(R, unit t) of the motion between two (4, 4) poses T_world_cam (T_a⁻¹·T_b); None without translation."""
+    step = invert_pose(T_a) @ T_b
+    length = float(np.linalg.norm(step[:3, 3]))
+    return (step[:3, :3], step[:3, 3] / length) if length > 0 else None
 
 
 class DeadReckoning:
@@ -110,25 +132,28 @@ class DeadReckoning:
         self.T_world_cam = np.eye(4)  # the last frame's pose, measured, dead-reckoned or held
         self._image: np.ndarray | None = None
         self._position = -1
+        self._step: tuple[np.ndarray, np.ndarray] | None = None  # (R, unit t) into the last frame from the one before
         self.in_gap = False
 
     def remember(self, image: np.ndarray, T_world_cam: np.ndarray, position: int) -> None:  # noqa: N803
         """This readable frame's image and pose are where the next dead reckoning starts."""
+        self._step = unit_step(self.T_world_cam, T_world_cam) if position == self._position + 1 else None
         self.T_world_cam = T_world_cam.copy()
         self._image, self._position = image, position
 
     def reckon(self, image: np.ndarray, position: int) -> np.ndarray | None:
         """(4, 4) T_world_cam of the frame at run `position` from the last readable one: rotation and direction
-        from the two images (`degraded_motion`), step length from the scale source. None when disabled or
-        when the images give no motion."""
+        from the two images (`degraded_motion`, `steady` against the step before), step length from the scale
+        source. None when disabled or when the images give no motion."""
         if not self.enabled or self._image is None:
             return None
         motion = degraded_motion(self._image, image, self._K, self._lens)
         if motion is None:
             return None
+        rotation, direction = steady(motion, self._step if position == self._position + 1 else None)
         empty = np.zeros((0, 3))
         step, _ = self._scale.step_length(TwoView(self._position, position, empty, empty[:, :2]))
-        return self.T_world_cam @ pose_matrix(motion[0], step * motion[1])
+        return self.T_world_cam @ pose_matrix(rotation, step * direction)
 
 
 def agrees(R_world_measured: np.ndarray, T_world_reckoned: np.ndarray, frames: int) -> bool:  # noqa: N803

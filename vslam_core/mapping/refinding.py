@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from vslam_core.coasting import steady, unit_step
 from vslam_core.config import MapConfig, TrackerConfig
-from vslam_core.geometry import invert_pose, rotation_angle
 from vslam_core.mapping.local_map import FrameCorners, LocalMapSearcher, local_keyframes, refind_by_flow
 from vslam_core.mapping.local_mapping import LocalMapping
 from vslam_core.mapping.map import Map
@@ -78,17 +78,18 @@ class MapRefinding:
         return self._motion.predict(self._time)
 
     def trusted_motion(self, T_world_last: np.ndarray, rotation: np.ndarray, direction: np.ndarray,  # noqa: N803
-                       max_disagreement_deg: float) -> tuple[np.ndarray, np.ndarray]:
+                       max_disagreement_deg: float, first: bool) -> tuple[np.ndarray, np.ndarray]:
         """A dead-reckoned motion from the last posed frame (T_world_last (4, 4)): (3, 3) `rotation` and unit (3,)
-        `direction`, or the motion model's own for this frame's time instead when its rotation is over
-        `max_disagreement_deg` from the prediction's (the measured one then comes from degraded images)."""
+        `direction`; on a gap's `first` frame the motion model's own for this frame's time instead when its
+        rotation is over `max_disagreement_deg` from the prediction's, on the others the step before it
+        (`coasting.steady`: the model's trend fitted on dead-reckoned poses fed back into itself and ran away)."""
+        if not first:
+            return steady((rotation, direction), self._motion.last_step(), max_disagreement_deg)
         predicted = self._motion.predict(self._time)
         if predicted is None:
             return rotation, direction
-        expected = invert_pose(T_world_last) @ predicted
-        if np.degrees(rotation_angle(expected[:3, :3].T @ rotation)) <= max_disagreement_deg:
-            return rotation, direction
-        return expected[:3, :3], expected[:3, 3] / max(float(np.linalg.norm(expected[:3, 3])), 1e-12)
+        expected = unit_step(T_world_last, predicted)
+        return steady((rotation, direction), expected, max_disagreement_deg)
 
     def bridge(self, length: float | None) -> np.ndarray | None:
         """(4, 4) pose of a frame after frames missing from the log that nothing else could place: the motion

@@ -24,6 +24,7 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
+from vslam_core.coasting import unit_step
 from vslam_core.config import MapConfig
 from vslam_core.features import match_descriptors
 from vslam_core.geometry import invert_pose, pose_matrix, rotation_angle, so3_exp, so3_log
@@ -54,6 +55,10 @@ class MotionModel:
     def update(self, time: float, T_world_cam: np.ndarray) -> None:  # noqa: N803
         """A frame's final pose at `time` (later than every earlier one)."""
         self._last = [*self._last[-(HISTORY - 1):], (time, T_world_cam.copy())]
+
+    def last_step(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(R, unit t) of the motion between the last two poses; None before two (or without translation)."""
+        return unit_step(self._last[-2][1], self._last[-1][1]) if len(self._last) >= 2 else None
 
     def predict(self, time: float) -> np.ndarray | None:
         """(4, 4) pose at `time`: the last motion (T_a⁻¹·T_b between the last two poses) continued for

@@ -300,18 +300,15 @@ class MapTracking:
 
     def _coast(self, image: np.ndarray, position: int, checked: bool = False) -> np.ndarray | None:
         """Dead reckoning from the previous frame: the rotation and direction the degraded images still give
-        (vslam_core/coasting.py), the step length from the scale source; None if they give none. `checked` (the
-        first frame of a gap: the model's last poses are measured ones, never dead-reckoned ones, which fed back
-        into its trend): a rotation over `COAST_DISAGREEMENT_DEG` from its prediction gives way to the prediction."""
+        (vslam_core/coasting.py), the step length from the scale source; None if they give none. A rotation over
+        `COAST_DISAGREEMENT_DEG` from the motion model's gives way to it: its prediction on a gap's first frame
+        (`checked`: the model's last poses are measured ones), else the step before (`refinding.trusted_motion`)."""
         if self._previous_image is None or self._reference < 0:
             return None
         motion = degraded_motion(self._previous_image, image, self._K, self._lens)
         if motion is None:
             return None
-        rotation, direction = motion
-        if checked:
-            rotation, direction = self.refinding.trusted_motion(self._last_pose, rotation, direction,
-                                                                COAST_DISAGREEMENT_DEG)
+        rotation, direction = self.refinding.trusted_motion(self._last_pose, *motion, COAST_DISAGREEMENT_DEG, checked)
         empty = np.zeros((0, 3))
         step, _ = self._scale.step_length(TwoView(position - 1, position, empty, empty[:, :2]))
         return self._last_pose @ pose_matrix(rotation, step * direction)
