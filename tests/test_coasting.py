@@ -9,8 +9,8 @@ import cv2
 import numpy as np
 import pytest
 
-from vslam_core.coasting import DeadReckoning, agrees, degraded_motion
-from vslam_core.geometry import pose_matrix, rotation_angle
+from vslam_core.coasting import DeadReckoning, agrees, degraded_motion, steady, unit_step
+from vslam_core.geometry import pose_matrix, rotation_angle, so3_exp
 from vslam_core.scale import GroundTruthScale
 from vslam_core.sources.kitti import KittiSource
 from vslam_core.trajectory.io import read_kitti_poses
@@ -102,3 +102,19 @@ def test_agreement_allows_dead_reckoning_its_drift() -> None:
     assert not agrees(np.eye(3), turned(2.1), frames=2)
     assert agrees(np.eye(3), turned(3.5), frames=12)  # 0.3° a frame since the keyframe
     assert not agrees(np.eye(3), turned(6.7), frames=12)  # the wrong match after a blurred turn on KITTI 00
+
+
+def test_a_step_far_from_the_one_before_repeats_it() -> None:
+    """`steady`: a dead-reckoned step within 1.5° of rotation of the step before it is kept, one farther away gives
+    way to that step; without a step before, the measured one is kept. `unit_step` is the motion between two
+    poses with a unit translation."""
+    before = unit_step(np.eye(4), pose_matrix(so3_exp(np.radians([0.0, -2.4, 0.0])), np.array([0.0, 0.0, 0.9])))
+    assert before is not None
+    np.testing.assert_allclose(before[1], [0.0, 0.0, 1.0])
+    close = (so3_exp(np.radians([0.0, -3.5, 0.0])), np.array([0.0, 0.0, 1.0]))
+    turned = (so3_exp(np.radians([0.0, 1.6, 0.0])), np.array([-0.86, 0.0, 0.5]))
+    assert steady(close, before) is close
+    assert steady(turned, before) is before
+    assert steady(turned, None) is turned
+    assert unit_step(np.eye(4), np.eye(4)) is None
+
