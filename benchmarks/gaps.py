@@ -17,6 +17,10 @@ map segments started (map backend), next to the clean run's t_err on the same se
 passes when ``t_err <= 1.5 × clean t_err + 0.3`` and ``heading <= 2°``. Poses are the run's output (for the
 map backend, refined by bundle adjustment). With `drop`, the dropped frames have no pose and no ground truth.
 
+`--lens` runs the same on the window's frames re-imaged through a strong radial–tangential lens (the tests' lens,
+tests/ros_logs.py: k1 −0.28, k2 0.07) as an image folder with its camera_info YAML, the faults at the same KITTI
+frames: the lens path of dead reckoning, bridging and relocalisation.
+
 Runs go to a multiprocessing pool of `--jobs` workers (default 2) with ``threads = 1``: pool workers are
 daemonic and may not start the map backend's bundle-adjustment process; trajectories are identical for any
 threads value.
@@ -27,7 +31,8 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
-from multiprocessing import Pool
+import tempfile
+from multiprocessing import get_context
 from pathlib import Path
 
 import polars as pl
@@ -36,7 +41,9 @@ from vslam_core.config import Backend, EngineConfig
 from vslam_core.geometry import rotation_angle
 from vslam_core.pipeline import run_odometry
 from vslam_core.results import FrameResult, FrameStatus, TrackingMode
-from vslam_core.sources.base import FrameRange
+from vslam_core.sources.base import FrameRange, FrameSource
+from vslam_core.sources.faults import FaultInjector, parse_faults
+from vslam_core.sources.folder import ImageFolderSource
 from vslam_core.sources.open import open_source
 from vslam_core.trajectory.metrics import kitti_errors
 
@@ -65,6 +72,7 @@ class Job:
     backend: Backend
     turn: str | None  # None for a clean run
     inject: str | None  # KIND@FIRST:LAST
+    lens_folder: str | None = None  # the window's frames re-imaged through a lens (`--lens`), else KITTI itself
 
 
 def parse_turns(text: str) -> list[Turn]:
@@ -92,18 +100,50 @@ def placement(turn: Turn, length: int, where: str) -> tuple[int, int]:
 
 
 def make_jobs(root: str, frames: str, turns: list[Turn], kinds: list[str], lengths: list[int], placements: list[str],
-              backends: list[Backend]) -> list[Job]:
-    """Clean runs first, then every fault; map runs before vo runs (the longer ones start first)."""
+              backends: list[Backend], lens_folders: dict[str, str] | None = None) -> list[Job]:
+    """Clean runs first, then every fault; map runs before vo runs (the longer ones start first). `lens_folders`:
+    sequence → its frames re-imaged through a lens (`write_lens_folder`)."""
     order = sorted(backends, key=lambda b: b != "map")
     sequences = list(dict.fromkeys(turn.sequence for turn in turns))
-    jobs = [Job(root, sequence, frames, backend, None, None) for backend in order for sequence in sequences]
+    folders = lens_folders or {}
+    jobs = [Job(root, sequence, frames, backend, None, None, folders.get(sequence)) for backend in order
+            for sequence in sequences]
     for backend in order:
         for turn in turns:
             spans = list(dict.fromkeys(placement(turn, length, where) for length in lengths for where in placements))
             for kind in kinds:
                 for first, last in spans:
-                    jobs.append(Job(root, turn.sequence, frames, backend, str(turn), f"{kind}@{first}:{last}"))
+                    jobs.append(Job(root, turn.sequence, frames, backend, str(turn), f"{kind}@{first}:{last}",
+                                    folders.get(turn.sequence)))
     return jobs
+
+
+def write_lens_folder(root: str, sequence: str, frames: str, out: Path) -> str:
+    """The window's KITTI frames re-imaged through the tests' strong radial–tangential lens (k1 −0.28, k2 0.07) as
+    an image folder with ``times.txt``, ``gt.txt`` and the lens as ``FOLDER.yaml`` (`tests/ros_logs.py`)."""
+    from tests.ros_logs import PLUMB_BOB, kitti_clip, make_reimager
+    from tests.ros_logs import write_lens_folder as write
+
+    window = FrameRange.parse(frames)
+    count = len(list((Path(root) / "sequences" / sequence / "image_0").glob("*.png")))
+    clip = kitti_clip(Path(root), sequence, range(window.start or 0, count if window.end is None else window.end))
+    folder = out / f"lens-{sequence}"
+    write(clip, make_reimager(clip.camera, "plumb_bob", PLUMB_BOB), folder)
+    return str(folder)
+
+
+def _source(job: Job) -> FrameSource:
+    """KITTI with the fault injected, or the lens folder with the fault at the same KITTI frames."""
+    if job.lens_folder is None:
+        return open_source(job.root, sequence=job.sequence, frames=FrameRange.parse(job.frames), inject=job.inject)
+    source: FrameSource = ImageFolderSource(job.lens_folder, calib=f"{job.lens_folder}.yaml",
+                                            ground_truth=f"{job.lens_folder}/gt.txt")
+    if job.inject is None:
+        return source
+    start = FrameRange.parse(job.frames).start or 0  # the folder's frame 0
+    kind, _, span = job.inject.partition("@")
+    first, _, last = span.partition(":")
+    return FaultInjector(source, parse_faults(f"{kind}@{int(first) - start}:{int(last) - start}"))
 
 
 def _segments_started(results: list[FrameResult]) -> int:
@@ -113,7 +153,7 @@ def _segments_started(results: list[FrameResult]) -> int:
 
 def run_job(job: Job) -> dict[str, object]:
     """One run, summarised (in a pool worker: threads = 1)."""
-    source = open_source(job.root, sequence=job.sequence, frames=FrameRange.parse(job.frames), inject=job.inject)
+    source = _source(job)
     gt = source.ground_truth
     assert gt is not None
     config = dataclasses.replace(EngineConfig(scale="gt", backend=job.backend), threads=1)
@@ -195,6 +235,8 @@ def main() -> None:
     parser.add_argument("--backends", default=",".join(BACKENDS))
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--csv", type=Path, default=None)
+    parser.add_argument("--lens", action="store_true", help="run on the frames re-imaged through a strong "
+                        "radial–tangential lens (tests/ros_logs.py), as a folder with its calibration YAML")
     args = parser.parse_args()
     try:
         turns = parse_turns(args.turns)
@@ -212,18 +254,23 @@ def main() -> None:
     lengths = [int(length) for length in _list(args.lengths)]
     if not lengths or min(lengths) < 1:
         parser.error(f"--lengths {args.lengths!r}: positive frame counts, e.g. 8,10")
-    jobs = make_jobs(args.root, args.frames, turns, kinds, lengths, placements,
-                     [b for b in BACKENDS if b in backends])
-    with Pool(args.jobs) as pool:
-        rows = pool.map(run_job, jobs, chunksize=1)
+    with tempfile.TemporaryDirectory() as scratch:
+        folders = {sequence: write_lens_folder(args.root, sequence, args.frames, Path(scratch))
+                   for sequence in dict.fromkeys(turn.sequence for turn in turns)} if args.lens else None
+        jobs = make_jobs(args.root, args.frames, turns, kinds, lengths, placements,
+                         [b for b in BACKENDS if b in backends], folders)
+        # spawned, not forked: the parent has used OpenCV (its thread pool does not survive a fork: the workers hung)
+        with get_context("spawn").Pool(args.jobs) as pool:
+            rows = pool.map(run_job, jobs, chunksize=1)
     order = {backend: n for n, backend in enumerate(BACKENDS)}
     table = with_verdicts(pl.DataFrame(rows, infer_schema_length=None))
     table = table.sort(pl.col("sequence"), pl.col("kind") != "none", pl.col("turn"), pl.col("kind"), pl.col("first"),
                        pl.col("last"), pl.col("backend").replace_strict(order), maintain_order=True)
     if args.csv:
         table.write_csv(args.csv)
-    print(f"KITTI frames {args.frames}, scale gt; pass: t_err <= {MAX_T_FACTOR:g} × clean + {MAX_T_SLACK:g} and "
-          f"final heading <= {MAX_HEADING_DEG:g}°")
+    through = " re-imaged through a strong radial–tangential lens" if args.lens else ""
+    print(f"KITTI frames {args.frames}{through}, scale gt; pass: t_err <= {MAX_T_FACTOR:g} × clean + "
+          f"{MAX_T_SLACK:g} and final heading <= {MAX_HEADING_DEG:g}°")
     print(markdown(table))
 
 

@@ -338,6 +338,28 @@ def write_lens_log(name: str, clip: KittiClip, out_dir: Path, reimager: Reimager
     return LensLog(path, gt_path, reimager.camera, topic, kind)
 
 
+def camera_info_yaml(lens: CameraIntrinsics) -> str:
+    """`lens` as a ROS camera_info YAML (what `--calib` reads)."""
+    return (f"image_width: {lens.width}\nimage_height: {lens.height}\ncamera_name: lens\n"
+            f"camera_matrix:\n  rows: 3\n  cols: 3\n"
+            f"  data: [{lens.fx}, 0, {lens.cx}, 0, {lens.fy}, {lens.cy}, 0, 0, 1]\n"
+            f"distortion_model: {lens.model}\ndistortion_coefficients:\n  rows: 1\n  cols: {len(lens.coefficients)}\n"
+            f"  data: [{', '.join(map(str, lens.coefficients))}]\n")
+
+
+def write_lens_folder(clip: KittiClip, reimager: Reimager, folder: Path) -> Path:
+    """The clip re-imaged through the lens as an image folder (PNGs, ``times.txt``, ``gt.txt`` of KITTI poses) and
+    the lens as ``FOLDER.yaml`` beside it (returned): a distorted camera with exact ground truth."""
+    folder.mkdir(parents=True)
+    for k, image in enumerate(clip.images()):
+        cv2.imwrite(str(folder / f"{k:06d}.png"), reimager(image))
+    (folder / "times.txt").write_text("".join(f"{(t - clip.stamps_ns[0]) / 1e9:.6f}\n" for t in clip.stamps_ns))
+    np.savetxt(folder / "gt.txt", clip.poses[:, :3, :].reshape(-1, 12))
+    calib = folder.parent / f"{folder.name}.yaml"
+    calib.write_text(camera_info_yaml(reimager.camera))
+    return calib
+
+
 def write_lens_logs(kitti_root: Path, sequence: str, frames: range, out_dir: Path
                     ) -> dict[str, tuple[Path, Path, CameraIntrinsics]]:
     """Write every log of `LOGS` for KITTI `sequence`'s `frames` into `out_dir`:

@@ -6,11 +6,10 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 from cli_helpers import vslam
-from ros_logs import PLUMB_BOB, kitti_clip, make_reimager
+from ros_logs import PLUMB_BOB, kitti_clip, make_reimager, write_lens_folder
 
 from vslam.rrd.read import read_entity
 from vslam_core.config import EngineConfig
@@ -117,20 +116,8 @@ def lens_folder(kitti_root: Path, tmp_path_factory: pytest.TempPathFactory) -> t
     """KITTI 00 frames 100–299 re-imaged through a strong radial–tangential lens (tests/ros_logs.py) as a folder
     of PNGs with times and ground truth, and the lens as a ROS camera_info YAML: what a user brings."""
     clip = kitti_clip(kitti_root, "00", range(100, 300))
-    reimager = make_reimager(clip.camera, "plumb_bob", PLUMB_BOB)
     folder = tmp_path_factory.mktemp("lens") / "frames"
-    folder.mkdir()
-    for k, image in enumerate(clip.images()):
-        cv2.imwrite(str(folder / f"{k:06d}.png"), reimager(image))
-    (folder / "times.txt").write_text("".join(f"{(t - clip.stamps_ns[0]) / 1e9:.6f}\n" for t in clip.stamps_ns))
-    np.savetxt(folder / "gt.txt", clip.poses[:, :3, :].reshape(-1, 12))
-    lens = reimager.camera
-    calib = folder.parent / "lens.yaml"
-    calib.write_text(
-        f"image_width: {lens.width}\nimage_height: {lens.height}\ncamera_name: lens\n"
-        f"camera_matrix:\n  rows: 3\n  cols: 3\n  data: [{lens.fx}, 0, {lens.cx}, 0, {lens.fy}, {lens.cy}, 0, 0, 1]\n"
-        f"distortion_model: plumb_bob\ndistortion_coefficients:\n  rows: 1\n  cols: 5\n"
-        f"  data: [{', '.join(map(str, lens.coefficients))}]\n")
+    calib = write_lens_folder(clip, make_reimager(clip.camera, "plumb_bob", PLUMB_BOB), folder)
     return folder, calib
 
 

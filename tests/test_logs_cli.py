@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 import pytest
 from kitti_runs import MapRun
-from ros_logs import LOGS, LensLog, LogWriter, kitti_clip, make_reimager, write_lens_log
+from ros_logs import LOGS, LensLog, LogWriter, camera_info_yaml, kitti_clip, make_reimager, write_lens_log
 from test_cli_inputs import assert_one_line_error, vslam
 
 from vslam.rrd.provenance import PROPERTIES, read_properties
@@ -243,13 +243,8 @@ def test_calib_yaml_gives_an_image_folder_its_lens(logs: dict[str, LensLog], tmp
     source = RosbagSource(log.path, frames=FrameRange(0, 30))
     for frame in source:
         cv2.imwrite(str(folder / f"{frame.index:06d}.png"), frame.image)
-    lens = log.camera
     calib = tmp_path / "camera.yaml"
-    calib.write_text(
-        f"image_width: {lens.width}\nimage_height: {lens.height}\ncamera_name: lens\n"
-        f"camera_matrix:\n  rows: 3\n  cols: 3\n  data: [{lens.fx}, 0, {lens.cx}, 0, {lens.fy}, {lens.cy}, 0, 0, 1]\n"
-        f"distortion_model: plumb_bob\ndistortion_coefficients:\n  rows: 1\n  cols: 5\n"
-        f"  data: [{', '.join(map(str, lens.coefficients))}]\n")
+    calib.write_text(camera_info_yaml(log.camera))
     kitti_gt = tmp_path / "gt.txt"
     shutil.copy(log.gt_path, kitti_gt)
     trajectory_folder, trajectory_log = tmp_path / "folder.txt", tmp_path / "log.txt"
