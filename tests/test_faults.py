@@ -15,7 +15,7 @@ from vslam.rrd.read import read_entity
 from vslam_core.config import EngineConfig
 from vslam_core.errors import SourceError
 from vslam_core.geometry import rotation_angle
-from vslam_core.pipeline import run_odometry
+from vslam_core.pipeline import RunResult, run_odometry
 from vslam_core.results import FrameResult, HealthStatus, Reason
 from vslam_core.sources.base import FrameRange
 from vslam_core.sources.faults import Fault, FaultInjector, parse_faults
@@ -113,36 +113,36 @@ def test_a_turn_taken_while_blind_is_not_lost(kitti_root: Path) -> None:
 
 @pytest.fixture(scope="module")
 def lens_folder(kitti_root: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
-    """KITTI 00 frames 100–299 re-imaged through a strong radial–tangential lens (tests/ros_logs.py) as a folder
-    of PNGs with times and ground truth, and the lens as a ROS camera_info YAML: what a user brings."""
-    clip = kitti_clip(kitti_root, "00", range(100, 300))
+    """KITTI 00 frames 170–239 (the second turn) re-imaged through a strong radial–tangential lens
+    (tests/ros_logs.py) as a folder of PNGs with times and ground truth, and the lens as a ROS camera_info YAML:
+    what a user brings."""
+    clip = kitti_clip(kitti_root, "00", range(170, 240))
     folder = tmp_path_factory.mktemp("lens") / "frames"
     calib = write_lens_folder(clip, make_reimager(clip.camera, "plumb_bob", PLUMB_BOB), folder)
     return folder, calib
 
 
+def _through_lens(lens_folder: tuple[Path, Path], inject: str, backend: str) -> tuple[RunResult, float]:
+    """The run of `backend` on the lens folder with `inject` (folder frame numbers), and its final heading error."""
+    folder, calib = lens_folder
+    source = FaultInjector(ImageFolderSource(folder, calib=calib, ground_truth=folder / "gt.txt"), parse_faults(inject))
+    assert source.intrinsics.distorted
+    run = run_odometry(source, EngineConfig(backend=backend, threads=1))  # type: ignore[arg-type]
+    gt = source.ground_truth
+    assert gt is not None
+    return run, float(np.degrees(rotation_angle(gt[-1, :3, :3].T @ run.poses[-1][:3, :3])))
+
+
 @pytest.mark.kitti
 @pytest.mark.parametrize("backend", ["vo", "map"])
 def test_a_turn_taken_while_blind_through_a_lens_is_not_lost(lens_folder: tuple[Path, Path], backend: str) -> None:
-    """The turn above (KITTI 00 frames 200–210 blurred, of 100–299) through a strong radial–tangential lens:
-    dead reckoning tracks the raw images and undistorts the corners before the essential matrix. Measured
-    t_err 1.76 % / 1.78 % and final heading 1.7° / 1.4° (`vo` / map; the clean runs through the lens:
-    1.77 % / 1.86 %); before, a distorted lens was never dead-reckoned, the frames were held and the turn
-    was lost: 32 %, 44.7°."""
-    folder, calib = lens_folder
-    source = FaultInjector(ImageFolderSource(folder, calib=calib, ground_truth=folder / "gt.txt"),
-                           parse_faults("blur@100:110"))
-    assert source.intrinsics.distorted
-    results: list[FrameResult] = []
-    run = run_odometry(source, EngineConfig(backend=backend, threads=1),  # type: ignore[arg-type]
-                       sinks=(lambda _f, r: results.append(r),))
-    gt = source.ground_truth
-    assert gt is not None
-    coasted = [r.index for r in results if Reason.COASTED in r.health.reasons]
-    assert set(range(100, 111)) <= set(coasted), coasted
-    t_err, _ = kitti_errors(gt, run.pose_array())
-    heading = np.degrees(rotation_angle(gt[-1, :3, :3].T @ run.poses[-1][:3, :3]))
-    assert t_err < 2.5 and heading < 2.5, (t_err, heading)  # %, degrees
+    """The turn above (KITTI 00 frames 200–210 blurred) through a strong radial–tangential lens: dead reckoning
+    tracks the raw images and undistorts the corners before the essential matrix. Measured final heading 1.5°
+    (`vo`) / 1.4° (map), clean 0.6° / 0.7°; before, a distorted lens was never dead-reckoned, the frames were
+    held and the turn was lost: 44°."""
+    run, heading = _through_lens(lens_folder, "blur@30:40", backend)
+    assert run.coasted >= 11
+    assert heading < 2.5, heading
 
 
 @pytest.mark.kitti
@@ -150,17 +150,11 @@ def test_a_dead_reckoned_step_the_ambiguity_turned_around_repeats_the_step_befor
         lens_folder: tuple[Path, Path]) -> None:
     """KITTI 00 frames 191–198 blurred, through the lens: the blurred pair 197 → 198 measures 1.6° of yaw the wrong
     way (the car turned 2.6°) with the car sliding sideways, the rotation–translation ambiguity's other solution;
-    a step over 1.5° from the one before it repeats that one (`coasting.steady`). Measured: final heading 0.5°,
-    t_err 1.77 % (the clean run through the lens: 1.77 %); without the check 8.2° and 5.1 %."""
-    folder, calib = lens_folder
-    source = FaultInjector(ImageFolderSource(folder, calib=calib, ground_truth=folder / "gt.txt"),
-                           parse_faults("blur@91:98"))
-    run = run_odometry(source, EngineConfig(threads=1))
-    gt = source.ground_truth
-    assert gt is not None and run.coasted >= 8
-    t_err, _ = kitti_errors(gt, run.pose_array())
-    heading = np.degrees(rotation_angle(gt[-1, :3, :3].T @ run.poses[-1][:3, :3]))
-    assert t_err < 2.5 and heading < 2.0, (t_err, heading)
+    a step over 1.5° from the one before it repeats that one (`coasting.steady`). Measured final heading 0.7°,
+    without the check 7.4°."""
+    run, heading = _through_lens(lens_folder, "blur@21:28", "vo")
+    assert run.coasted >= 8
+    assert heading < 2.0, heading
 
 
 @pytest.mark.kitti
