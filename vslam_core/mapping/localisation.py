@@ -22,6 +22,7 @@ import numpy as np
 from vslam_core.config import EngineConfig
 from vslam_core.features import match_descriptors
 from vslam_core.geometry import invert_pose
+from vslam_core.lens import distort_pixels, undistort_pixels
 from vslam_core.loop.places import describe_image
 from vslam_core.loop.vocabulary import BinaryVocabulary, similarity
 from vslam_core.mapping.local_mapping import DESCRIPTOR_PATCH
@@ -46,6 +47,7 @@ class MapLocalisation:
     def __init__(self, intrinsics: CameraIntrinsics, config: EngineConfig, prior: StoredMap) -> None:
         self.config = config
         self.prior = prior
+        self._lens = intrinsics  # features are found on raw pixels; PnP and projections on ideal ones (lens.py)
         self._K = intrinsics.K
         self._size = (intrinsics.width, intrinsics.height)
         self._describer = cv2.ORB_create(edgeThreshold=int(DESCRIPTOR_PATCH), patchSize=int(DESCRIPTOR_PATCH))
@@ -69,8 +71,11 @@ class MapLocalisation:
 
     def process(self, frame: Frame) -> FrameResult:
         clock = time.perf_counter()
-        pixels, descriptors = describe_image(frame.image, FEATURES, self.config.map.reloc_fast_threshold,
-                                             self._describer)
+        raw, descriptors = describe_image(frame.image, FEATURES, self.config.map.reloc_fast_threshold,
+                                          self._describer)
+        pixels = undistort_pixels(raw, self._lens)
+        usable = np.isfinite(pixels).all(axis=1)  # outside a strong lens's usable field: no ideal pixel
+        pixels, descriptors = pixels[usable], descriptors[usable]
         timings = {"describe": _lap(clock)}
         clock = time.perf_counter()
         estimate, mode = None, TrackingMode.LOST
@@ -191,8 +196,15 @@ class MapLocalisation:
             points_world=np.zeros((0, 3)), scale=None, parallax_px=0.0,
             health=Health.of(reason, [Reason.RELOCALISED] if found and mode == TrackingMode.RELOCALISED else []),
             timings_ms=timings,
-            mapping=MapFrame(mode, 0, None, estimate),
+            mapping=MapFrame(mode, 0, None, self._at_raw_pixels(estimate)),
         )
+
+    def _at_raw_pixels(self, estimate: PnPEstimate | None) -> PnPEstimate | None:
+        """The estimate with its pixels on the raw image, where overlays are drawn."""
+        if estimate is None or not self._lens.distorted:
+            return estimate
+        return replace(estimate, observed=distort_pixels(estimate.observed, self._lens),
+                       projected=distort_pixels(estimate.projected, self._lens))
 
 
 def _lap(start: float) -> float:
