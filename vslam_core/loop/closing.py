@@ -26,6 +26,7 @@ from vslam_core.loop.search import GraphSolution, SearchJob, SearchResult
 from vslam_core.loop.worker import LoopWorker
 from vslam_core.mapping.map import Map
 from vslam_core.results import LoopClosed, LoopStep
+from vslam_core.sources.base import CameraIntrinsics
 
 NO_IMAGE = np.zeros((0, 0), np.uint8)
 
@@ -33,10 +34,12 @@ NO_IMAGE = np.zeros((0, 0), np.uint8)
 class LoopClosing:
     """Hands keyframes to the loop search and applies the loops it closes to the map."""
 
-    def __init__(self, K: np.ndarray, config: EngineConfig, background: bool) -> None:  # noqa: N803
+    def __init__(self, K: np.ndarray, config: EngineConfig, background: bool,  # noqa: N803
+                 lens: CameraIntrinsics | None = None) -> None:
+        """`lens`: the camera's, when distorted (keyframes are described on raw images, verified on ideal pixels)."""
         self._config = config.loop
         self._settled = config.map.ba_window + config.map.ba_max_fixed + 1  # keyframes after which BA is done
-        self._worker = LoopWorker(K, config, background)
+        self._worker = LoopWorker(K, config, background, lens)
         self._waiting: tuple[int, np.ndarray] | None = None  # (keyframe id, image) not submitted yet
         self.places: dict[int, KeyframePlace] = {}  # every keyframe searched, with its features (the map file)
         self.closed: list[LoopClosed] = []

@@ -24,6 +24,7 @@ from vslam_core.loop.pose_graph import LoopEdge, optimise
 from vslam_core.loop.verification import Verification, verify
 from vslam_core.mapping.local_mapping import DESCRIPTOR_PATCH
 from vslam_core.results import LoopCandidate
+from vslam_core.sources.base import CameraIntrinsics
 
 CONSISTENT_KEYFRAMES = 5  # verified candidates of consecutive queries are this close (keyframe ids) to agree
 NEIGHBOURS = 2  # keyframes on each side of a candidate whose landmarks join its verification
@@ -79,8 +80,9 @@ class SearchResult:
 class LoopSearch:
     """The place database and the loop-acceptance state; `run` handles one job."""
 
-    def __init__(self, K: np.ndarray, config: EngineConfig) -> None:  # noqa: N803
+    def __init__(self, K: np.ndarray, config: EngineConfig, lens: CameraIntrinsics | None = None) -> None:  # noqa: N803
         self._K = K
+        self._lens = lens  # a distorted camera's: its keyframes' features are undistorted for verification
         self._config = config.loop
         self._seed = config.pose.seed
         self._metric = config.scale != "none"
@@ -110,7 +112,7 @@ class LoopSearch:
         timings["query"] = _lap(clock)
         clock = time.perf_counter()
         checked = [(candidate, score, verify(query, self._with_neighbours(candidate), self._K, self._config,
-                                             (self._seed, query.position, candidate, 2), self._metric))
+                                             (self._seed, query.position, candidate, 2), self._metric, self._lens))
                    for candidate, score in found]
         timings["verify"] = _lap(clock)
         best = max((c for c in checked if c[2].rejected is None), key=lambda c: (c[2].inliers, -c[0]), default=None)

@@ -14,8 +14,10 @@ import numpy as np
 from vslam_core.config import LoopConfig
 from vslam_core.features import match_descriptors
 from vslam_core.geometry import invert_pose
+from vslam_core.lens import undistort_pixels
 from vslam_core.loop.places import KeyframePlace
 from vslam_core.mapping.pnp import solve_pnp
+from vslam_core.sources.base import CameraIntrinsics
 
 #: A landmark matched between query and candidate measures the scale if its two positions are this close in
 #: direction from the query camera.
@@ -41,16 +43,22 @@ class Verification:
 
 
 def verify(query: KeyframePlace, candidate: KeyframePlace, K: np.ndarray, config: LoopConfig,  # noqa: N803
-           seed: tuple[int, ...], metric: bool) -> Verification:
-    """PnP of the query's features against the candidate's landmarks, with the inlier checks of `config`."""
+           seed: tuple[int, ...], metric: bool, lens: CameraIntrinsics | None = None) -> Verification:
+    """PnP of the query's features against the candidate's landmarks, with the inlier checks of `config`. The
+    query's features are raw pixels of its image: with a distorted `lens` they are undistorted for the PnP (the
+    landmarks are in ideal pinhole geometry; a feature outside the lens's usable field is no match)."""
     query_index, train_index = match_descriptors(query.descriptors, candidate.point_descriptors, config.match_ratio)
+    if lens is not None and lens.distorted:
+        usable = np.isfinite(undistort_pixels(query.pixels[query_index], lens)).all(axis=1)
+        query_index, train_index = query_index[usable], train_index[usable]
     query_pixels = query.pixels[query_index].astype(np.float64).reshape(-1, 2)
+    ideal_pixels = undistort_pixels(query_pixels, lens) if lens is not None else query_pixels
     candidate_pixels = candidate.point_pixels[train_index].astype(np.float64).reshape(-1, 2)
     none = np.zeros(len(query_index), bool)
     if len(query_index) < config.min_inliers:
         return Verification(query_pixels, candidate_pixels, none, None, 1.0,
                             f"{len(query_index)} matches < {config.min_inliers}")
-    solution = solve_pnp(candidate.points_cam[train_index], query_pixels, K, config.pnp_threshold_px,
+    solution = solve_pnp(candidate.points_cam[train_index], ideal_pixels, K, config.pnp_threshold_px,
                          config.pnp_iterations, seed)
     inliers = int(solution.inlier_mask.sum())
     if solution.T_world_cam is None or inliers < config.min_inliers:

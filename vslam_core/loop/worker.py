@@ -28,6 +28,7 @@ from vslam_core.mapping.worker_process import (
     take_idle_worker,
     without_main,
 )
+from vslam_core.sources.base import CameraIntrinsics
 
 
 @dataclass(frozen=True)
@@ -37,12 +38,14 @@ class _Restart:
 
     K: np.ndarray | None  # noqa: N815
     config: EngineConfig | None
+    lens: CameraIntrinsics | None = None
 
 
-def _serve(jobs: Any, connection: Connection, K: np.ndarray, config: EngineConfig) -> None:  # noqa: N803
+def _serve(jobs: Any, connection: Connection, K: np.ndarray, config: EngineConfig,  # noqa: N803
+           lens: CameraIntrinsics | None = None) -> None:
     """The worker process: run each job received, until None arrives; a `_Restart` starts a new run's search."""
     cv2.setNumThreads(1)  # one core's worth: the other is tracking's
-    search: LoopSearch | None = LoopSearch(K, config)
+    search: LoopSearch | None = LoopSearch(K, config, lens)
     assert search is not None
     # gtsam (a few seconds to import) is needed only when a loop is accepted: imported beside the first searches
     threading.Thread(target=search.warm_up, name="vslam-gtsam-import", daemon=True).start()
@@ -57,7 +60,8 @@ def _serve(jobs: Any, connection: Connection, K: np.ndarray, config: EngineConfi
         if job is None:
             return
         if isinstance(job, _Restart):
-            search = LoopSearch(job.K, job.config) if job.K is not None and job.config is not None else None
+            search = LoopSearch(job.K, job.config, job.lens) if job.K is not None and job.config is not None \
+                else None
             continue
         assert search is not None, "a job before its run's restart"
         try:
@@ -69,9 +73,11 @@ def _serve(jobs: Any, connection: Connection, K: np.ndarray, config: EngineConfi
 class LoopWorker:
     """Submit a job, collect its result later (waiting for it if it is not done)."""
 
-    def __init__(self, K: np.ndarray, config: EngineConfig, background: bool) -> None:  # noqa: N803
+    def __init__(self, K: np.ndarray, config: EngineConfig, background: bool,  # noqa: N803
+                 lens: CameraIntrinsics | None = None) -> None:
         self._K = K
         self._config = config
+        self._lens = lens
         self._pending: SearchJob | None = None
         self._connection: Connection | None = None
         self._process: Any = None
@@ -80,20 +86,20 @@ class LoopWorker:
         self._jobs: Any = None
         if background and (idle := take_idle_worker("loop-search")) is not None:
             self._jobs, self._connection, self._process = idle.jobs, idle.connection, idle.process
-            self._jobs.put(_Restart(K, config))  # a fresh search: the same results as a new worker's
+            self._jobs.put(_Restart(K, config, lens))  # a fresh search: the same results as a new worker's
         elif background:
             context = multiprocessing.get_context("spawn")
             # jobs through a queue: its feeder thread writes the keyframe's image to the pipe, so submitting does
             # not block tracking; results come back through a pipe
             self._jobs = context.Queue()
             self._connection, child = context.Pipe(duplex=False)
-            self._process = context.Process(target=_serve, args=(self._jobs, child, K, config), name="vslam-loop",
+            self._process = context.Process(target=_serve, args=(self._jobs, child, K, config, lens), name="vslam-loop",
                                             daemon=True)
             with without_main():
                 self._process.start()
             child.close()
         else:
-            self._local = LoopSearch(K, config)
+            self._local = LoopSearch(K, config, lens)
 
     @property
     def busy(self) -> bool:
@@ -114,7 +120,7 @@ class LoopWorker:
         if self._connection is not None:
             self._connection.close()
         self._connection = None
-        self._local = LoopSearch(self._K, self._config)
+        self._local = LoopSearch(self._K, self._config, self._lens)
 
     def collect(self) -> SearchResult | None:
         """The submitted job's result (waiting for it), or None if nothing was submitted."""

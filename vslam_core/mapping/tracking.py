@@ -91,7 +91,7 @@ class MapTracking:
         self._segment_lost = False  # relocalisation failed: a new segment starts at the next frame with a pose
         self._initialised = False  # --scale none: the segment's map was started by a well-conditioned two-view
         self._before_map = FramesBeforeMap()  # --scale none: the frames tracked while it waits for that
-        self.loop = LoopClosing(self._K, config, background=config.threads > 1) if config.loop.enabled else None
+        self.loop = LoopClosing(self._K, config, config.threads > 1, intrinsics) if config.loop.enabled else None
         self.loops_at_end: list[LoopStep] = []  # what the loop searches collected when the run ended did
         self._refound: dict[int, np.ndarray] = {}  # landmark id -> ideal pixel: re-found, for a keyframe now
         self.refinding = MapRefinding(self._K, self._cfg, LocalMapSearcher(self._K, self._cfg, intrinsics),
