@@ -9,11 +9,13 @@ import pytest
 
 from vslam_core.config import LoopConfig
 from vslam_core.geometry import pose_matrix
+from vslam_core.lens import distort_pixels
 from vslam_core.loop.closing import rescale_relative
 from vslam_core.loop.places import KeyframePlace
 from vslam_core.loop.verification import map_scale, verify
 from vslam_core.mapping.map_scale import MapSpeed
 from vslam_core.results import LoopClosed
+from vslam_core.sources.base import CameraIntrinsics
 
 K = np.array([[718.9, 0.0, 607.2], [0.0, 718.9, 185.2], [0.0, 0.0, 1.0]])
 T_CANDIDATE_QUERY = pose_matrix(cv2.Rodrigues(np.array([0.0, 0.05, 0.0]))[0], np.array([0.3, 0.0, -1.5]))
@@ -114,3 +116,27 @@ def test_the_maps_speed_follows_a_similarity_correction() -> None:
     assert speed.speed == pytest.approx(1.0)
     speed.observe(4, pose_matrix(np.eye(3), np.array([5.0, 0.0, 4.0])), measured=True)  # 0.5 * 8 + 1 step
     assert speed.speed == pytest.approx(1.0)
+
+
+def test_a_candidate_seen_through_a_lens_is_verified_on_undistorted_features() -> None:
+    """The query keyframe's features are raw pixels of a strongly distorted lens (k1 −0.28, k2 0.07, as the tests'
+    re-imaged logs): with the lens they are undistorted for the PnP and every one is an inlier at the true pose;
+    taken as pinhole pixels, PnP finds a pose off by decimetres or fails."""
+    rng = np.random.default_rng(5)
+    lens = CameraIntrinsics(K[0, 0], K[1, 1], K[0, 2], K[1, 2], 1241, 376, "plumb_bob", (-0.28, 0.07, 1e-4, -2e-4, 0.0))
+    seen_points = rng.uniform([-8, -2, 6], [8, 2, 30], (80, 3))  # in the candidate's frame
+    in_query = (seen_points - T_CANDIDATE_QUERY[:3, 3]) @ T_CANDIDATE_QUERY[:3, :3]
+    ideal = in_query @ K.T
+    raw = distort_pixels(ideal[:, :2] / ideal[:, 2:], lens)
+    features = rng.integers(0, 256, (80, 32), dtype=np.uint8)
+    query = _place(np.zeros((0, 3)), np.zeros((0, 32), np.uint8), raw, features)
+    candidate = _place(seen_points, features)
+    config = LoopConfig()
+    through = verify(query, candidate, K, config, (0,), metric=True, lens=lens)
+    assert through.rejected is None and through.inliers == 80
+    assert through.T_candidate_query is not None
+    np.testing.assert_allclose(through.T_candidate_query, T_CANDIDATE_QUERY, atol=1e-3)
+    np.testing.assert_allclose(through.query_pixels, raw, atol=1e-3)  # drawn where the features are: raw pixels
+    pinhole = verify(query, candidate, K, config, (0,), metric=True)
+    assert pinhole.T_candidate_query is None or \
+        np.linalg.norm(pinhole.T_candidate_query[:3, 3] - T_CANDIDATE_QUERY[:3, 3]) > 0.1
