@@ -19,6 +19,7 @@ import numpy as np
 
 from vslam_core.config import EngineConfig
 from vslam_core.geometry import invert_pose
+from vslam_core.lens import distort_pixels
 from vslam_core.loop.places import KeyframePlace, PlaceDatabase, describe_image
 from vslam_core.loop.pose_graph import LoopEdge, optimise
 from vslam_core.loop.verification import Verification, verify
@@ -190,9 +191,13 @@ class LoopSearch:
             query_keyframe=query.keyframe_id, query_position=query.position, candidate_keyframe=candidate,
             candidate_position=place.position, score=score, matches=len(result.inlier_mask), inliers=result.inliers,
             accepted=accepted, why=result.rejected if result.rejected is not None else why,
-            query_pixels=result.query_pixels, candidate_pixels=result.candidate_pixels,
+            query_pixels=result.query_pixels, candidate_pixels=self._raw(result.candidate_pixels),
             inlier_mask=result.inlier_mask, T_candidate_query=result.T_candidate_query,
             query_image=query.thumbnail, candidate_image=place.thumbnail)
+
+    def _raw(self, ideal: np.ndarray) -> np.ndarray:
+        """(M, 2) ideal pixels (the map's observations) on the raw image, where overlays are drawn (NaN stays)."""
+        return distort_pixels(ideal, self._lens) if self._lens is not None and self._lens.distorted else ideal
 
     def _rescale_edges(self, index: dict[int, int], scales: np.ndarray) -> None:
         """After a Sim(3) correction the map around node i is s_i times larger (it is applied at the fixed point,
