@@ -48,11 +48,12 @@ def verify(query: KeyframePlace, candidate: KeyframePlace, K: np.ndarray, config
     query's features are raw pixels of its image: with a distorted `lens` they are undistorted for the PnP (the
     landmarks are in ideal pinhole geometry; a feature outside the lens's usable field is no match)."""
     query_index, train_index = match_descriptors(query.descriptors, candidate.point_descriptors, config.match_ratio)
-    if lens is not None and lens.distorted:
-        usable = np.isfinite(undistort_pixels(query.pixels[query_index], lens)).all(axis=1)
-        query_index, train_index = query_index[usable], train_index[usable]
     query_pixels = query.pixels[query_index].astype(np.float64).reshape(-1, 2)
     ideal_pixels = undistort_pixels(query_pixels, lens) if lens is not None else query_pixels
+    usable = np.isfinite(ideal_pixels).all(axis=1)
+    if not usable.all():
+        query_index, train_index = query_index[usable], train_index[usable]
+        query_pixels, ideal_pixels = query_pixels[usable], ideal_pixels[usable]
     candidate_pixels = candidate.point_pixels[train_index].astype(np.float64).reshape(-1, 2)
     none = np.zeros(len(query_index), bool)
     if len(query_index) < config.min_inliers:

@@ -22,12 +22,12 @@ import numpy as np
 from vslam_core.config import EngineConfig
 from vslam_core.features import match_descriptors
 from vslam_core.geometry import invert_pose
-from vslam_core.lens import distort_pixels, undistort_pixels
+from vslam_core.lens import undistort_pixels
 from vslam_core.loop.places import describe_image
 from vslam_core.loop.vocabulary import BinaryVocabulary, similarity
 from vslam_core.mapping.local_mapping import DESCRIPTOR_PATCH
 from vslam_core.mapping.localisation_refine import match_by_projection, refine_pose
-from vslam_core.mapping.pnp import project, solve_pnp
+from vslam_core.mapping.pnp import at_raw_pixels, project, solve_pnp
 from vslam_core.results import FrameResult, FrameStatus, Health, MapFrame, PnPEstimate, Reason, TrackingMode
 from vslam_core.sources.base import CameraIntrinsics, Frame
 
@@ -196,15 +196,8 @@ class MapLocalisation:
             points_world=np.zeros((0, 3)), scale=None, parallax_px=0.0,
             health=Health.of(reason, [Reason.RELOCALISED] if found and mode == TrackingMode.RELOCALISED else []),
             timings_ms=timings,
-            mapping=MapFrame(mode, 0, None, self._at_raw_pixels(estimate)),
+            mapping=MapFrame(mode, 0, None, at_raw_pixels(estimate, self._lens)),
         )
-
-    def _at_raw_pixels(self, estimate: PnPEstimate | None) -> PnPEstimate | None:
-        """The estimate with its pixels on the raw image, where overlays are drawn."""
-        if estimate is None or not self._lens.distorted:
-            return estimate
-        return replace(estimate, observed=distort_pixels(estimate.observed, self._lens),
-                       projected=distort_pixels(estimate.projected, self._lens))
 
 
 def _lap(start: float) -> float:

@@ -5,12 +5,15 @@ Points: (L, 3) world landmarks and (L, 2) pixels. Poses are camera-to-world (4, 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
 
 from vslam_core.geometry import invert_pose, pose_matrix
+from vslam_core.lens import distort_pixels
+from vslam_core.results import PnPEstimate
+from vslam_core.sources.base import CameraIntrinsics
 
 
 @dataclass(frozen=True)
@@ -55,3 +58,12 @@ def solve_pnp(points: np.ndarray, pixels: np.ndarray, K: np.ndarray, threshold_p
     with np.errstate(invalid="ignore"):
         inlier_mask = np.linalg.norm(projected - pixels, axis=1) <= threshold_px
     return PnPSolution(T_world_cam, inlier_mask, projected)
+
+
+def at_raw_pixels(estimate: PnPEstimate | None, lens: CameraIntrinsics) -> PnPEstimate | None:
+    """The estimate with its observed and projected pixels (ideal pinhole pixels inside the engine) on the raw
+    image of `lens`, where overlays are drawn."""
+    if estimate is None or not lens.distorted:
+        return estimate
+    return replace(estimate, observed=distort_pixels(estimate.observed, lens),
+                   projected=distort_pixels(estimate.projected, lens))

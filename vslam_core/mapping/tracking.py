@@ -35,7 +35,7 @@ from vslam_core.mapping.map_scale import (
     slow_camera,
     translation_parallax,
 )
-from vslam_core.mapping.pnp import PnPSolution, solve_pnp
+from vslam_core.mapping.pnp import PnPSolution, at_raw_pixels, solve_pnp
 from vslam_core.mapping.refinding import MapRefinding, suspended_at_keyframe
 from vslam_core.mapping.relocalisation import relocalise_by_descriptors
 from vslam_core.results import (
@@ -436,7 +436,7 @@ class MapTracking:
             self._odometry.rebase_keyframe()  # the front end measures the next frame from this one
         self._odometry.set_keyframe_pose(self.pose_of(self._odometry.key_position))
         return self._result(vo, pose, held, mode, warnings, two_view,
-                            MapFrame(mode, self._segment, two_view, self._at_raw_pixels(pnp), keyframe, bundle,
+                            MapFrame(mode, self._segment, two_view, at_raw_pixels(pnp, self._lens), keyframe, bundle,
                                      relocalisation, view, loop, self._search_at_raw_pixels()))
 
     def _start_map(self, keyframe: KeyframeInserted, links: dict[int, int]) -> None:
@@ -454,13 +454,6 @@ class MapTracking:
     def _ideal(self, raw: np.ndarray) -> np.ndarray:
         """(N, 2) raw image pixels → (N, 2) float64 ideal pinhole pixels of K (a copy when the lens has none)."""
         return undistort_pixels(raw, self._lens)
-
-    def _at_raw_pixels(self, pnp: PnPEstimate | None) -> PnPEstimate | None:
-        """The estimate with its observed and projected pixels on the raw image, where overlays are drawn."""
-        if pnp is None or not self._lens.distorted:
-            return pnp
-        return replace(pnp, observed=distort_pixels(pnp.observed, self._lens),
-                       projected=distort_pixels(pnp.projected, self._lens))
 
     def _search_at_raw_pixels(self) -> LocalMapSearch | None:
         """The frame's local-map search with its pixels on the raw image, where overlays are drawn."""
