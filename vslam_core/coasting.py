@@ -132,12 +132,12 @@ class DeadReckoning:
         self.T_world_cam = np.eye(4)  # the last frame's pose, measured, dead-reckoned or held
         self._image: np.ndarray | None = None
         self._position = -1
-        self._step: tuple[np.ndarray, np.ndarray] | None = None  # (R, unit t) into the last frame from the one before
+        self._before: tuple[int, np.ndarray] | None = None  # (position, T_world_cam) of the frame remembered before
         self.in_gap = False
 
     def remember(self, image: np.ndarray, T_world_cam: np.ndarray, position: int) -> None:  # noqa: N803
         """This readable frame's image and pose are where the next dead reckoning starts."""
-        self._step = unit_step(self.T_world_cam, T_world_cam) if position == self._position + 1 else None
+        self._before = (self._position, self.T_world_cam)
         self.T_world_cam = T_world_cam.copy()
         self._image, self._position = image, position
 
@@ -150,7 +150,10 @@ class DeadReckoning:
         motion = degraded_motion(self._image, image, self._K, self._lens)
         if motion is None:
             return None
-        rotation, direction = steady(motion, self._step if position == self._position + 1 else None)
+        before = None  # the step into the frame it starts from, when both are consecutive
+        if self._before is not None and self._before[0] == self._position - 1 and position == self._position + 1:
+            before = unit_step(self._before[1], self.T_world_cam)
+        rotation, direction = steady(motion, before)
         empty = np.zeros((0, 3))
         step, _ = self._scale.step_length(TwoView(self._position, position, empty, empty[:, :2]))
         return self.T_world_cam @ pose_matrix(rotation, step * direction)
