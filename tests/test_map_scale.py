@@ -28,7 +28,7 @@ from vslam_core.trajectory.io import read_kitti_poses
 from vslam_core.trajectory.metrics import ate, kitti_errors, sim3_aligned
 
 #: KITTI 05 frames 0:150: ~150 m, a turn at frames 116–153 (05 ground truth agrees with its images).
-FRAMES = (0, 150)
+FRAMES = (0, 200)  # KITTI 05: its sharp turn (frames 116-153) is where the scale used to jump
 EMPTY = np.zeros((0, 3))
 
 
@@ -92,10 +92,12 @@ def series(rrd: Path, entity: str) -> tuple[np.ndarray, np.ndarray]:
 @pytest.mark.kitti
 def test_scale_none_keeps_the_maps_scale(unit_run: tuple[Path, np.ndarray, np.ndarray]) -> None:
     """The trajectory has the right shape (Sim(3)-aligned t_err) and one scale: the step over the ground
-    truth's, read back from the recording, stays within a narrow band over the whole window, a turn included."""
+    truth's, read back from the recording, stays within a narrow band over the whole window, a sharp turn
+    included. Before bundle adjustment held the front end's two-view rotations between keyframes, the scale
+    fell by 10 % in the turn (t_err 1.7 %, band 1.20); unit steps chained frame by frame gave 8.6 % on 0:300."""
     rrd, poses, gt = unit_run
     aligned_t, _ = kitti_errors(gt, sim3_aligned(gt, poses))
-    assert aligned_t < 3.0, aligned_t  # unit steps chained frame by frame gave 8.6 % on 05 0:300
+    assert aligned_t < 1.2, aligned_t
     frames, steps = series(rrd, "/metrics/map_scale/step")
     ratio_frames, ratios = series(rrd, "/metrics/map_scale/step_over_truth")
     assert len(frames) >= 140 and set(ratio_frames) <= set(frames)
@@ -103,7 +105,7 @@ def test_scale_none_keeps_the_maps_scale(unit_run: tuple[Path, np.ndarray, np.nd
     np.testing.assert_allclose(ratios, steps[np.isin(frames, ratio_frames)] / truth[ratio_frames - 1], rtol=1e-5)
     settled = ratios[ratio_frames >= 20]  # after the map's first keyframes
     low, high = np.percentile(settled, [5, 95])
-    assert high / low < 1.3, (low, high)  # unit steps would follow the car's speed instead
+    assert high / low < 1.15, (low, high)  # unit steps would follow the car's speed instead
 
 
 @pytest.mark.kitti

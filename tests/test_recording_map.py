@@ -197,6 +197,10 @@ def test_bundle_adjustment_series_residuals_and_events(full: tuple[Path, list[Fr
         assert ba is not None
         assert series["iterations"][frame]["Scalars:scalars"] == [ba.iterations]
         assert np.isclose(after[frame], ba.mean_error_after)
+        # every adjusted keyframe after the first has the front end's chained rotation as a prior, and keeps to it
+        assert len(ba.rotation_errors_deg) >= len(ba.keyframe_ids) - 1
+        largest = series["rotation_prior_max_deg"][frame]["Scalars:scalars"][0]
+        assert largest == pytest.approx(ba.rotation_errors_deg.max()) and largest < 0.2
 
     residuals = by_frame(path, "/world/map/ba_residuals")
     assert sorted(residuals) == sorted(runs)

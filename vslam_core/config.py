@@ -145,6 +145,7 @@ class MapConfig:
     ba_iterations: int = 3
     ba_huber_px: float = 1.5  # Huber threshold of the reprojection error (sigma 1 px)
     ba_max_landmarks: int = 400  # the window's landmarks with the most observations
+    rotation_prior_deg: float = 0.05  # sigma of the front end's chained rotation between keyframes (0: none)
     scale_sigma_gt: float = 0.01  # m: keyframe-to-keyframe distance prior with --scale gt
     scale_sigma_height: float = 0.05  # fraction of the distance with --scale height
     # --scale none: the map's own scale carries the trajectory (vslam_core/mapping/map_scale.py). The first

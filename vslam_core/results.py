@@ -165,6 +165,9 @@ class BundleAdjusted:
     factors: int  # projection factors
     # (P,) keyframes observing each landmark when the solution was applied (its lifetime in keyframes)
     landmark_keyframes: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    # (Q,) degrees between each pair of consecutive keyframes' rotation and the front end's chained two-view
+    # rotation (the BA's relative-rotation priors), after the adjustment
+    rotation_errors_deg: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 @dataclass(frozen=True)

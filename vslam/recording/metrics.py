@@ -121,6 +121,8 @@ MAP_METRICS: dict[str, dict[str, tuple[str, tuple[int, int, int]]]] = {
         "factors": ("projection factors", (40, 120, 255)),
         "culled": ("landmarks culled", (255, 60, 60)),
         "landmark_keyframes_mean": ("keyframes per landmark (mean)", (255, 255, 255)),
+        "rotation_prior_max_deg": ("largest disagreement with the front end's rotation between keyframes (°)",
+                                   (255, 0, 120)),
     },
     "local_map": {
         "projected": ("local-map landmarks projected into the image", (80, 160, 255)),
@@ -162,5 +164,6 @@ def bundle_adjustment_metrics(ba: BundleAdjusted) -> dict[str, float]:
         "max_error_before_px": ba.max_error_before, "max_error_after_px": ba.max_error_after,
         "milliseconds": ba.milliseconds, "factors": ba.factors, "culled": ba.culled,
         "landmark_keyframes_mean": float(ba.landmark_keyframes.mean()) if len(ba.landmark_keyframes) else np.nan,
+        "rotation_prior_max_deg": float(ba.rotation_errors_deg.max()) if len(ba.rotation_errors_deg) else np.nan,
     }
     return {name: float(value) for name, value in values.items() if np.isfinite(value)}

@@ -6,7 +6,9 @@ gtsam's `GenericProjectionFactorCal3_S2`, Levenberg–Marquardt). Older keyframe
 landmarks are held fixed (`NonlinearEquality`), which fixes the gauge. The scale source stays in charge:
 with a metric scale, the distance between consecutive keyframes enters as a `RangeFactorPose3` with the
 scale source's length; with the map's own scale (`--scale none`) two poses are held fixed instead, and the
-distance enters at its length before the adjustment, with a sigma of `none_step_sigma` times it.
+distance enters at its length before the adjustment, with a sigma of `none_step_sigma` times it. Whatever the
+scale, the front end's two-view rotation between consecutive keyframes enters as a `BetweenFactorPose3` whose
+translation has no weight (sigma 1e6): a relative-rotation prior.
 
 `solve` is a pure function of a `Problem` (arrays in, arrays out), so it runs the same in this process or
 in the background worker (`BundleAdjuster`), and the same input always gives the same output. The module
@@ -18,7 +20,7 @@ from __future__ import annotations
 
 import multiprocessing
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
 from typing import Any
 
@@ -47,6 +49,9 @@ class Problem:
     fix_first: int  # window poses held fixed as well (gauge/scale when too few older keyframes exist)
     iterations: int
     huber_px: float
+    rotations: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))  # (Q, 2) pose indices a, b
+    rotation_measurements: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))  # (Q, 3, 3) R_a_b
+    rotation_sigma: float = 0.0  # rad
 
 
 @dataclass(frozen=True)
@@ -59,6 +64,15 @@ class Solution:
     cost_before: float
     cost_after: float
     milliseconds: float
+    rotation_errors_before: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (Q,) deg from each prior
+    rotation_errors_after: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (Q,) ... and after
+
+
+def rotation_errors(poses: np.ndarray, rotations: np.ndarray, measurements: np.ndarray) -> np.ndarray:
+    """(Q,) angle (deg) between each measured relative rotation R_a_b and the one the (N, 4, 4) poses give."""
+    relative = poses[rotations[:, 0], :3, :3].transpose(0, 2, 1) @ poses[rotations[:, 1], :3, :3]
+    cosine = (np.trace(measurements.transpose(0, 2, 1) @ relative, axis1=1, axis2=2) - 1.0) / 2.0
+    return np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0)))
 
 
 def reprojection_errors(K: np.ndarray, poses: np.ndarray, points: np.ndarray, pose_index: np.ndarray,  # noqa: N803
@@ -102,6 +116,11 @@ def solve(problem: Problem) -> Solution:
     for a, b, distance, sigma in problem.ranges:
         graph.add(gtsam.RangeFactorPose3(X(int(a)), X(int(b)), float(distance),
                                          gtsam.noiseModel.Isotropic.Sigma(1, float(sigma))))
+    if len(problem.rotations):
+        rotation_noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([problem.rotation_sigma] * 3 + [1e6] * 3))
+        for (a, b), rotation in zip(problem.rotations.tolist(), problem.rotation_measurements, strict=True):
+            graph.add(gtsam.BetweenFactorPose3(X(a), X(b), gtsam.Pose3(gtsam.Rot3(rotation), np.zeros(3)),
+                                               rotation_noise))
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(problem.iterations)
     params.setLinearSolverType("SEQUENTIAL_CHOLESKY")
@@ -128,6 +147,8 @@ def solve(problem: Problem) -> Solution:
         cost_before=float(cost_before),
         cost_after=float(cost_after),
         milliseconds=(time.perf_counter() - start) * 1000.0,
+        rotation_errors_before=rotation_errors(problem.poses, problem.rotations, problem.rotation_measurements),
+        rotation_errors_after=rotation_errors(all_poses, problem.rotations, problem.rotation_measurements),
     )
 
 

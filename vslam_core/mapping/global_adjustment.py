@@ -5,7 +5,8 @@ The same factor graph as the windowed BA (vslam_core/mapping/bundle_adjustment.p
 Triggs et al. 2000, eq. 2) over the whole map instead of a window, with the scale source's priors kept: with a
 metric scale, each pair of consecutive keyframes of a segment keeps its `RangeFactorPose3` (the scale source's
 step length; sigma as in the windowed BA). The gauge: each segment's first keyframe is held fixed (its first two
-with unit scale, which also fix the scale). Afterwards observations that reproject worse than
+with unit scale, which also fix the scale), and so are the front end's two-view rotations between consecutive
+keyframes (`rotation_prior_deg`). Afterwards observations that reproject worse than
 `cull_reprojection_px` are dropped, and landmarks left with fewer than two observations.
 """
 
@@ -18,6 +19,7 @@ import numpy as np
 from vslam_core.config import MapConfig, ScaleSource
 from vslam_core.geometry import orthonormalise
 from vslam_core.mapping.bundle_adjustment import Problem, solve
+from vslam_core.mapping.local_mapping import rotation_priors
 from vslam_core.mapping.map import Map
 
 GLOBAL_ITERATIONS = 20  # Levenberg–Marquardt iterations
@@ -65,7 +67,7 @@ def adjust_map(map_: Map, K: np.ndarray, config: MapConfig, scale: ScaleSource, 
         observation_point=np.array(point_index, np.int64),
         observation_pixels=np.array(pixels, np.float64).reshape(-1, 2),
         ranges=_ranges(map_, by_segment, index, config, scale), fix_first=0, iterations=iterations,
-        huber_px=config.ba_huber_px)
+        huber_px=config.ba_huber_px, **rotation_priors(map_, index, config))
     solution = solve(problem)
     for keyframe_id, pose in zip(free, solution.poses, strict=True):
         map_.keyframes[keyframe_id].T_world_cam = orthonormalise(pose)

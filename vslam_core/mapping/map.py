@@ -22,6 +22,7 @@ class Keyframe:
     track_ids: np.ndarray  # (N,) int64 tracks alive at this keyframe
     pixels: np.ndarray  # (N, 2) float32 their positions
     metric_step: float | None  # distance from the previous keyframe given by the scale source (None: unit scale)
+    chained_rotation: np.ndarray | None = None  # (3, 3) R_previous_this by the front end's two-view chain
     landmark_ids: set[int] = field(default_factory=set)  # landmarks observed here
 
 
@@ -51,8 +52,10 @@ class Map:
         self._next_landmark = 0
 
     def add_keyframe(self, position: int, segment: int, T_world_cam: np.ndarray, track_ids: np.ndarray,  # noqa: N803
-                     pixels: np.ndarray, metric_step: float | None) -> Keyframe:
-        keyframe = Keyframe(self._next_keyframe, position, segment, T_world_cam.copy(), track_ids, pixels, metric_step)
+                     pixels: np.ndarray, metric_step: float | None,
+                     chained_rotation: np.ndarray | None = None) -> Keyframe:
+        keyframe = Keyframe(self._next_keyframe, position, segment, T_world_cam.copy(), track_ids, pixels, metric_step,
+                            chained_rotation=chained_rotation)
         self.keyframes[keyframe.id] = keyframe
         self._next_keyframe += 1
         return keyframe
