@@ -87,7 +87,8 @@ def test_a_relative_rotation_prior_holds_the_rotation_and_leaves_the_translation
     pose_index, point_index, pixels, seen = _observe(poses, points, rng, noise_px=0.3)
     noisy = np.array([_perturbed(p, rng, 0.5, 0.05) if i >= 2 else p for i, p in enumerate(poses)])
     truth = poses[2, :3, :3].T @ poses[3, :3, :3]
-    ranges = np.array([(i, i + 1, float(np.linalg.norm(poses[i + 1, :3, 3] - poses[i, :3, 3])), 0.01) for i in range(7)])
+    steps = np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1)
+    ranges = np.array([(i, i + 1, float(step), 0.01) for i, step in enumerate(steps)])
 
     def adjusted(measured: np.ndarray | None) -> np.ndarray:
         problem = Problem(K, noisy, 8, seen, pose_index, point_index, pixels, ranges, fix_first=2, iterations=20,
