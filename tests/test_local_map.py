@@ -130,7 +130,7 @@ def test_landmarks_are_refound_where_the_pose_projects_them(clean: tuple[list[Fr
         refound = np.isin(pnp.landmark_ids, search.landmark_ids[search.accepted])
         inliers += int((refound & pnp.inlier_mask).sum())
         total += int(refound.sum())
-    assert total >= 10 and inliers / total > 0.4
+    assert total >= 10 and inliers / total > 0.3
 
 
 def test_landmarks_tie_many_keyframes_together(clean: tuple[list[FrameResult], np.ndarray, np.ndarray]) -> None:
