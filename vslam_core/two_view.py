@@ -184,6 +184,35 @@ def find_essential(
     return essential[:3, :3], mask.reshape(-1).astype(bool)
 
 
+class RotationChain:
+    """The front end's two-view rotations chained frame by frame: each frame's rotation from its front-end
+    keyframe times that keyframe's chained rotation, so any two frames of one chain have a relative rotation
+    measured by essential matrices alone (all tracks, far points included) and never by the map. A frame
+    whose rotation is not the front end's starts a new chain; frames before `forget_before` are dropped."""
+
+    def __init__(self) -> None:
+        self._chain: dict[int, tuple[int, np.ndarray]] = {}  # run position -> (chain id, (3, 3) R_chain_cam)
+
+    def extend(self, position: int, key_position: int, R_key_cur: np.ndarray | None) -> None:  # noqa: N803
+        """Frame `position`'s rotation from the front end's keyframe at `key_position`; None: a new chain."""
+        start = self._chain.get(key_position)
+        if R_key_cur is None or start is None:
+            self._chain[position] = (position, np.eye(3))
+        else:
+            self._chain[position] = (start[0], start[1] @ R_key_cur)
+
+    def between(self, before: int, after: int) -> np.ndarray | None:
+        """(3, 3) R_before_after if one chain links the two frames, else None."""
+        first, second = self._chain.get(before), self._chain.get(after)
+        if first is None or second is None or first[0] != second[0]:
+            return None
+        return first[1].T @ second[1]
+
+    def forget_before(self, position: int) -> None:
+        for old in [p for p in self._chain if p < position]:
+            del self._chain[old]
+
+
 def derotated_parallax(rotation: np.ndarray, p_cur: np.ndarray, p_key: np.ndarray, K: np.ndarray) -> float:  # noqa: N803
     """Median distance (px) between the (N, 2) keyframe points and the current points moved by the rotation
     alone (x_key ∝ K·R·K⁻¹·x_cur for X_key = R·X_cur + t at infinity): the parallax translation caused."""

@@ -56,6 +56,7 @@ from vslam_core.results import (
 )
 from vslam_core.scale import ScaleProvider, TwoView
 from vslam_core.sources.base import CameraIntrinsics, Frame
+from vslam_core.two_view import RotationChain
 
 UNUSABLE_IMAGE = {Reason.UNREADABLE_IMAGE, Reason.IMAGE_TOO_DARK, Reason.IMAGE_TOO_BRIGHT, Reason.IMAGE_BLURRED}
 COAST_DISAGREEMENT_DEG = 1.5  # a dead-reckoned rotation this far from the motion model's is not trusted
@@ -94,7 +95,7 @@ class MapTracking:
         self.loop = LoopClosing(self._K, config, config.threads > 1, intrinsics) if config.loop.enabled else None
         self.loops_at_end: list[LoopStep] = []  # what the loop searches collected when the run ended did
         self._refound: dict[int, np.ndarray] = {}  # landmark id -> ideal pixel: re-found, for a keyframe now
-        self._chain: dict[int, tuple[int, np.ndarray]] = {}  # run position -> (chain, R_chain_cam): two-view rotations
+        self._chain = RotationChain()  # the front end's rotations, a prior between keyframes in BA
         self.refinding = MapRefinding(self._K, self._cfg, LocalMapSearcher(self._K, self._cfg, intrinsics),
                                       config.tracker, intrinsics)
 
@@ -376,7 +377,11 @@ class MapTracking:
         """Keyframe insertion when due, the pose stored relative to its keyframe, the front end re-anchored,
         and the frame's result."""
         held = pose is None
-        self._extend_chain(vo, mode, warnings, held)
+        own = mode in (TrackingMode.MAP, TrackingMode.TWO_VIEW) and Reason.TWO_VIEW_OUTVOTED not in warnings
+        self._chain.extend(vo.position, vo.keyframe_position,  # a rotation not the front end's starts a new chain
+                           vo.T_key_cur[:3, :3] if not held and own and vo.T_key_cur is not None else None)
+        reference = self.mapping.map.keyframes[self._reference].position if self._reference >= 0 else vo.position
+        self._chain.forget_before(min(vo.keyframe_position, reference))
         if pose is None:
             pose = self._last_pose.copy()
             self._held.add(vo.position)
@@ -410,7 +415,8 @@ class MapTracking:
                 vo.position, self._segment, pose, track_ids, pixels, frame.image,
                 self._metric_step(vo.position, pose),
                 why, {**self._links, **tied}, self._refound, landmark_settings(self._cfg, self._slow),
-                self._chained_rotation(vo.position))
+                self._chain.between(self.mapping.map.keyframes[self._reference].position, vo.position)
+                if self._reference >= 0 else None)
             live = set(track_ids.tolist())
             landmarks = self.mapping.map.landmarks
             self._links = {t: m for t, m in {**self._links, **links}.items() if t in live and m in landmarks}
@@ -441,30 +447,6 @@ class MapTracking:
         return self._result(vo, pose, held, mode, warnings, two_view,
                             MapFrame(mode, self._segment, two_view, at_raw_pixels(pnp, self._lens), keyframe, bundle,
                                      relocalisation, view, loop, self._search_at_raw_pixels()))
-
-    def _extend_chain(self, vo: FrameResult, mode: TrackingMode, warnings: list[Reason], held: bool) -> None:
-        """The front end's rotation chain: each frame's two-view rotation from its front-end keyframe, chained.
-        A frame whose rotation is not the front end's (held, coasted, relocalised, outvoted) starts a new chain."""
-        start = self._chain.get(vo.keyframe_position)
-        if (not held and start is not None and vo.T_key_cur is not None
-                and mode in (TrackingMode.MAP, TrackingMode.TWO_VIEW) and Reason.TWO_VIEW_OUTVOTED not in warnings):
-            self._chain[vo.position] = (start[0], start[1] @ vo.T_key_cur[:3, :3])
-        else:
-            self._chain[vo.position] = (vo.position, np.eye(3))
-        oldest = min(vo.keyframe_position, self.mapping.map.keyframes[self._reference].position
-                     if self._reference >= 0 else vo.position)
-        for position in [p for p in self._chain if p < oldest]:
-            del self._chain[position]
-
-    def _chained_rotation(self, position: int) -> np.ndarray | None:
-        """(3, 3) R_reference_frame by the front end's chain of two-view rotations, if one chain links them."""
-        if self._reference < 0:
-            return None
-        before = self._chain.get(self.mapping.map.keyframes[self._reference].position)
-        now = self._chain.get(position)
-        if before is None or now is None or before[0] != now[0]:
-            return None
-        return before[1].T @ now[1]
 
     def _start_map(self, keyframe: KeyframeInserted, links: dict[int, int]) -> None:
         """--scale none: did this keyframe start the segment's map? Then the frames tracked since the last
