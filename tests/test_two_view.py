@@ -17,11 +17,11 @@ import pytest
 from vslam_core.config import EngineConfig
 from vslam_core.engine import Odometry
 from vslam_core.features import detect_corners, track_points
-from vslam_core.geometry import rotation_angle
+from vslam_core.geometry import rotation_angle, so3_exp
 from vslam_core.scale import GroundTruthScale
 from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange
 from vslam_core.sources.kitti import KittiSource
-from vslam_core.two_view import two_view_motion
+from vslam_core.two_view import RotationChain, two_view_motion
 
 WIDTH, HEIGHT = 640, 200
 
@@ -113,3 +113,23 @@ def test_odometry_keeps_its_heading_through_a_narrow_view_of_a_turn(kitti_root: 
     results = [engine.process(Frame(n, None, image)) for n, image in enumerate(images)]
     relative_truth = np.linalg.inv(truth[0]) @ truth[-1]  # the run starts at the identity
     assert _degrees(results[-1].T_world_cam[:3, :3], relative_truth[:3, :3]) < 2.0
+
+
+def test_the_rotation_chain_links_frames_through_front_end_keyframes_and_breaks_where_told() -> None:
+    """Rotations chained through keyframes give the relative rotation between any two frames of one chain;
+    a frame without the front end's rotation starts a new chain, so nothing links across it."""
+    rng = np.random.default_rng(0)
+    steps = [so3_exp(rng.normal(0, 0.05, 3)) for _ in range(6)]
+    chain = RotationChain()
+    chain.extend(0, 0, None)
+    chain.extend(1, 0, steps[1])
+    chain.extend(2, 1, steps[2])  # frame 1 became the front end's keyframe
+    chain.extend(3, 1, steps[2] @ steps[3])
+    between = chain.between(0, 3)
+    assert between is not None
+    np.testing.assert_allclose(between, steps[1] @ steps[2] @ steps[3], atol=1e-12)
+    chain.extend(4, 3, None)  # e.g. a coasted frame
+    chain.extend(5, 4, steps[5])
+    assert chain.between(3, 5) is None and chain.between(4, 5) is not None
+    chain.forget_before(4)
+    assert chain.between(0, 3) is None

@@ -64,8 +64,7 @@ class Solution:
     cost_before: float
     cost_after: float
     milliseconds: float
-    rotation_errors_before: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (Q,) deg from each prior
-    rotation_errors_after: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (Q,) ... and after
+    rotation_errors_after: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (Q,) deg from each prior
 
 
 def rotation_errors(poses: np.ndarray, rotations: np.ndarray, measurements: np.ndarray) -> np.ndarray:
@@ -147,7 +146,6 @@ def solve(problem: Problem) -> Solution:
         cost_before=float(cost_before),
         cost_after=float(cost_after),
         milliseconds=(time.perf_counter() - start) * 1000.0,
-        rotation_errors_before=rotation_errors(problem.poses, problem.rotations, problem.rotation_measurements),
         rotation_errors_after=rotation_errors(all_poses, problem.rotations, problem.rotation_measurements),
     )
 

@@ -4,9 +4,9 @@ saved (`vslam run --save-map`), so a later drive localises against a self-consis
 The same factor graph as the windowed BA (vslam_core/mapping/bundle_adjustment.py: robust reprojection errors,
 Triggs et al. 2000, eq. 2) over the whole map instead of a window, with the scale source's priors kept: with a
 metric scale, each pair of consecutive keyframes of a segment keeps its `RangeFactorPose3` (the scale source's
-step length; sigma as in the windowed BA). The gauge: each segment's first keyframe is held fixed (its first two
-with unit scale, which also fix the scale), and so are the front end's two-view rotations between consecutive
-keyframes (`rotation_prior_deg`). Afterwards observations that reproject worse than
+step length; sigma as in the windowed BA), and so do the front end's two-view rotations between consecutive
+keyframes (`rotation_prior_deg`). The gauge: each segment's first keyframe is held fixed (its first two with unit
+scale, which also fix the scale). Afterwards observations that reproject worse than
 `cull_reprojection_px` are dropped, and landmarks left with fewer than two observations.
 """
 
