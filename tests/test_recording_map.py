@@ -266,7 +266,8 @@ def test_blueprint_shows_the_map_plots_and_keeps_the_retired_map(full: tuple[Pat
             views[batch.column("ViewBlueprint:display_name").to_pylist()[-1][0]] = {"path": chunk.entity_path}
         if "/ViewContents/overrides/" in chunk.entity_path:
             overrides.add(chunk.entity_path.split("/overrides", 1)[1].rsplit("/visualizers", 1)[0])
-    assert {"tracking mode", "landmarks tracked", "bundle adjustment", "bundle adjustment error (px)"} <= set(views)
+    assert {"tracking mode", "landmarks tracked", "bundle adjustment", "bundle adjustment error (px)",
+            "bundle adjustment rotation vs front end (°)"} <= set(views)
     assert {"/world/map/keyframes/retired", "/world/map/landmarks/retired", "/world/trajectory/estimate"} <= overrides
 
 

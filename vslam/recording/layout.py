@@ -120,13 +120,17 @@ def health_view() -> rrb.TimeSeriesView:
 
 
 def _map_plots() -> list[rrb.TimeSeriesView]:
-    """Tracking mode | landmarks tracked and PnP inliers | BA reprojection errors | the rest of each BA run."""
-    work = [f"/metrics/ba/{name}" for name in MAP_METRICS["ba"] if name not in BA_ERROR_SERIES]
+    """Tracking mode | landmarks tracked and PnP inliers | BA reprojection errors | BA against the front end's
+    rotations (°) | the rest of each BA run."""
+    rotation = "rotation_prior_max_deg"
+    work = [f"/metrics/ba/{name}" for name in MAP_METRICS["ba"] if name not in (*BA_ERROR_SERIES, rotation)]
     return [
         rrb.TimeSeriesView(name="tracking mode", origin="/metrics/tracking", contents=["/metrics/tracking/mode"]),
         rrb.TimeSeriesView(name="landmarks tracked", origin="/metrics/tracking",
                            contents=["/metrics/tracking/pnp_inliers", "/metrics/tracking/landmarks_tracked"]),
         rrb.TimeSeriesView(name="bundle adjustment error (px)", origin="/metrics/ba",
                            contents=[f"/metrics/ba/{name}" for name in BA_ERROR_SERIES]),
+        rrb.TimeSeriesView(name="bundle adjustment rotation vs front end (°)", origin="/metrics/ba",
+                           contents=[f"/metrics/ba/{rotation}"]),
         rrb.TimeSeriesView(name="bundle adjustment", origin="/metrics/ba", contents=work),
     ]
