@@ -23,7 +23,7 @@ from vslam_core.geometry import (
     refine_relative_pose,
     rotation_angle,
 )
-from vslam_core.lens import undistort_pixels
+from vslam_core.lens import undistort_pairs
 from vslam_core.quality import sharpness
 from vslam_core.scale import ScaleProvider, TwoView
 from vslam_core.sources.base import CameraIntrinsics
@@ -71,10 +71,8 @@ def degraded_motion(previous: np.ndarray, current: np.ndarray, K: np.ndarray,  #
                                                   maxLevel=_LEVELS)
     ok = status.reshape(-1) == 1
     p_prev, p_cur = corners.reshape(-1, 2)[ok].astype(np.float64), tracked.reshape(-1, 2)[ok].astype(np.float64)
-    if lens is not None and lens.distorted:
-        p_prev, p_cur = undistort_pixels(p_prev, lens), undistort_pixels(p_cur, lens)
-        finite = np.isfinite(p_prev).all(axis=1) & np.isfinite(p_cur).all(axis=1)
-        p_prev, p_cur = p_prev[finite], p_cur[finite]
+    if lens is not None:
+        p_prev, p_cur = undistort_pairs(p_prev, p_cur, lens)
     if len(p_cur) < _MIN_INLIERS:
         return None
     essential, mask = cv2.findEssentialMat(p_cur, p_prev, K, method=cv2.RANSAC, prob=0.999, threshold=1.0)

@@ -54,6 +54,16 @@ def undistort_pixels(raw: np.ndarray, camera: CameraIntrinsics) -> np.ndarray:
     return ideal.reshape(-1, 2)
 
 
+def undistort_pairs(a: np.ndarray, b: np.ndarray, camera: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray]:
+    """Matched (N, 2) raw pixels `a` and `b` → their float64 ideal pixels, without the pairs where either lies
+    outside the lens's usable field (no ideal pixel); `a` and `b` themselves when the camera has no distortion."""
+    if not camera.distorted:
+        return a, b
+    a, b = undistort_pixels(a, camera), undistort_pixels(b, camera)
+    finite = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1)
+    return a[finite], b[finite]
+
+
 def distort_normalised(xy: np.ndarray, camera: CameraIntrinsics) -> np.ndarray:
     """(N, 2) ideal normalised coordinates → (N, 2) distorted normalised coordinates (the models above)."""
     xy = np.asarray(xy, np.float64).reshape(-1, 2)

@@ -28,7 +28,7 @@ from vslam_core.coasting import unit_step
 from vslam_core.config import MapConfig
 from vslam_core.features import match_descriptors
 from vslam_core.geometry import invert_pose, pose_matrix, rotation_angle, so3_exp, so3_log
-from vslam_core.lens import distort_pixels, undistort_pixels
+from vslam_core.lens import distort_pixels, undistort_pairs, undistort_pixels
 from vslam_core.mapping.local_map import FrameCorners, LocalMapSearcher
 from vslam_core.mapping.local_mapping import DESCRIPTOR_PATCH
 from vslam_core.mapping.map import Map
@@ -164,10 +164,7 @@ def _essential_motion(p_cur: np.ndarray, p_prev: np.ndarray, lens: CameraIntrins
     ideal pixels); None with fewer than `GAP_MIN_INLIERS` inliers or a rotation over `GAP_MAX_CORRECTION_DEG`
     from `predicted`'s."""
     K = lens.K  # noqa: N806
-    if lens.distorted:
-        p_cur, p_prev = undistort_pixels(p_cur, lens), undistort_pixels(p_prev, lens)
-        finite = np.isfinite(p_cur).all(axis=1) & np.isfinite(p_prev).all(axis=1)
-        p_cur, p_prev = p_cur[finite], p_prev[finite]
+    p_cur, p_prev = undistort_pairs(p_cur, p_prev, lens)
     if len(p_cur) < GAP_MIN_INLIERS:
         return None
     essential, mask = cv2.findEssentialMat(p_cur, p_prev, K, cv2.RANSAC, 0.999, 1.0)
