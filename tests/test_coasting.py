@@ -28,7 +28,7 @@ def dark(image: np.ndarray) -> np.ndarray:
 
 class Kitti00:
     def __init__(self, root: Path) -> None:
-        self.K = KittiSource(root, "00").intrinsics.K
+        self.camera = KittiSource(root, "00").intrinsics
         self.gt = read_kitti_poses(root / "poses" / "00.txt")  # (N, 4, 4), indexed by frame
         self._images = root / "sequences" / "00" / "image_0"
         self._read: dict[int, np.ndarray] = {}  # each frame decoded once per module (~60 frames, 0.5 MB each)
@@ -73,7 +73,7 @@ def test_rotation_through_degraded_frames(kitti00: Kitti00, first_kind: str, sec
             degrade = DEGRADE[kind]
             if degrade is not None:
                 images[k] = degrade(images[k])
-        motion = degraded_motion(images[0], images[1], kitti00.K)
+        motion = degraded_motion(images[0], images[1], kitti00.camera)
         assert motion is not None, first
         errors.append(rotation_error_deg(kitti00.gt, first, motion[0]))
     assert np.mean(errors) < mean_deg and max(errors) < worst_deg, (np.mean(errors), max(errors))
@@ -82,14 +82,14 @@ def test_rotation_through_degraded_frames(kitti00: Kitti00, first_kind: str, sec
 @pytest.mark.kitti
 def test_dead_reckoning_chains_from_the_last_readable_frame(kitti00: Kitti00) -> None:
     first, gt = TURN[1], kitti00.gt
-    reckoning = DeadReckoning(kitti00.K, GroundTruthScale(gt))
+    reckoning = DeadReckoning(kitti00.camera, GroundTruthScale(gt))
     assert reckoning.reckon(kitti00.image(first), first) is None  # nothing to continue from yet
     reckoning.remember(kitti00.image(first), gt[first], first)
     pose = reckoning.reckon(dark(kitti00.image(first + 1)), first + 1)
     assert pose is not None  # the step's direction from a dark frame is good to ~1.4° (blurred: ~5°)
     assert np.linalg.norm(pose[:3, 3] - gt[first + 1, :3, 3]) < 0.05  # metres, in a 0.45 m step (its length: gt)
     assert np.degrees(rotation_angle(gt[first + 1, :3, :3].T @ pose[:3, :3])) < 0.3
-    disabled = DeadReckoning(kitti00.K, GroundTruthScale(gt), enabled=False)
+    disabled = DeadReckoning(kitti00.camera, GroundTruthScale(gt), enabled=False)
     disabled.remember(kitti00.image(first), gt[first], first)
     assert disabled.reckon(kitti00.image(first + 1), first + 1) is None
 

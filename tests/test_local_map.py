@@ -83,7 +83,7 @@ def test_descriptors_at_a_coarser_level_are_those_of_the_downscaled_image(kitti_
     """Level 1 of `describe_levels` describes a corner as ORB describes it in the image scaled by 1/1.2
     (the landmark seen 1.2 times closer matches there); level 0 as ORB does at full size."""
     image = cv2.imread(str(kitti_root / "sequences" / "00" / "image_0" / "000100.png"), cv2.IMREAD_GRAYSCALE)
-    searcher = LocalMapSearcher(np.eye(3), MapConfig())
+    searcher = LocalMapSearcher(open_source(kitti_root, sequence="00").intrinsics, MapConfig())
     corners = searcher.corners(image)
     pixels = corners.pixels[::50]
     descriptors, valid = searcher.describe_levels(corners, pixels)
@@ -209,8 +209,8 @@ def test_the_clock_tells_missing_frames_from_a_run_that_starts_at_time_zero() ->
     """A regular 10 Hz clock starting at 0 s never looks like missing frames (the first frame has no
     interval: taking 0 s before it once made every later frame look like a gap, so every PnP failure tried
     relocalisation and started new map segments); 0.9 s between two frames (8 dropped) does."""
-    refinding = MapRefinding(np.eye(3), MapConfig(), LocalMapSearcher(np.eye(3), MapConfig()), TrackerConfig(),
-                             CameraIntrinsics(1.0, 1.0, 0.0, 0.0, 10, 10))
+    camera = CameraIntrinsics(1.0, 1.0, 0.0, 0.0, 10, 10)
+    refinding = MapRefinding(camera, MapConfig(), LocalMapSearcher(camera, MapConfig()), TrackerConfig())
     image = np.zeros((10, 10), np.uint8)
     missing = []
     for index, time in enumerate([0.0, 0.1, 0.2, 0.3, 1.2, 1.3]):

@@ -17,7 +17,8 @@ from vslam_core.mapping.map_scale import MapSpeed
 from vslam_core.results import LoopClosed
 from vslam_core.sources.base import CameraIntrinsics
 
-K = np.array([[718.9, 0.0, 607.2], [0.0, 718.9, 185.2], [0.0, 0.0, 1.0]])
+CAMERA = CameraIntrinsics(718.9, 718.9, 607.2, 185.2, 1241, 376)  # KITTI 00's pinhole
+K = CAMERA.K
 T_CANDIDATE_QUERY = pose_matrix(cv2.Rodrigues(np.array([0.0, 0.05, 0.0]))[0], np.array([0.3, 0.0, -1.5]))
 SCALE = 0.8  # candidate units per query unit
 
@@ -71,10 +72,10 @@ def test_a_loop_whose_scale_cannot_be_measured_is_rejected_with_scale_none() -> 
     candidate = _place(np.vstack([candidate.points_cam, seen_points]),
                        np.vstack([candidate.point_descriptors, features]))
     config = LoopConfig()
-    unit = verify(query, candidate, K, config, (0,), metric=False)
+    unit = verify(query, candidate, CAMERA, config, (0,), metric=False)
     assert unit.T_candidate_query is None
     assert unit.rejected is not None and unit.rejected.startswith("scale not measured")
-    metric = verify(query, candidate, K, config, (0,), metric=True)
+    metric = verify(query, candidate, CAMERA, config, (0,), metric=True)
     assert metric.rejected is None and metric.inliers >= config.min_inliers and metric.scale == 1.0
     assert metric.T_candidate_query is not None
     np.testing.assert_allclose(metric.T_candidate_query, T_CANDIDATE_QUERY, atol=1e-3)
@@ -132,11 +133,11 @@ def test_a_candidate_seen_through_a_lens_is_verified_on_undistorted_features() -
     query = _place(np.zeros((0, 3)), np.zeros((0, 32), np.uint8), raw, features)
     candidate = _place(seen_points, features)
     config = LoopConfig()
-    through = verify(query, candidate, K, config, (0,), metric=True, lens=lens)
+    through = verify(query, candidate, lens, config, (0,), metric=True)
     assert through.rejected is None and through.inliers == 80
     assert through.T_candidate_query is not None
     np.testing.assert_allclose(through.T_candidate_query, T_CANDIDATE_QUERY, atol=1e-3)
     np.testing.assert_allclose(through.query_pixels, raw, atol=1e-3)  # drawn where the features are: raw pixels
-    pinhole = verify(query, candidate, K, config, (0,), metric=True)
+    pinhole = verify(query, candidate, CAMERA, config, (0,), metric=True)
     assert pinhole.T_candidate_query is None or \
         np.linalg.norm(pinhole.T_candidate_query[:3, 3] - T_CANDIDATE_QUERY[:3, 3]) > 0.1

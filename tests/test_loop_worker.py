@@ -14,9 +14,10 @@ import numpy as np
 from vslam_core.config import EngineConfig
 from vslam_core.loop.search import SearchJob
 from vslam_core.loop.worker import LoopWorker
+from vslam_core.sources.base import CameraIntrinsics
 
 ROOT = Path(__file__).resolve().parents[1]
-K = np.array([[700.0, 0.0, 320.0], [0.0, 700.0, 120.0], [0.0, 0.0, 1.0]])
+CAMERA = CameraIntrinsics(700.0, 700.0, 320.0, 120.0, 640, 240)
 
 
 def _job(keyframe_id: int) -> SearchJob:
@@ -33,7 +34,7 @@ def _job(keyframe_id: int) -> SearchJob:
 
 def test_worker_process_matches_the_search_in_this_process() -> None:
     config = EngineConfig(backend="map")
-    inline, background = LoopWorker(K, config, background=False), LoopWorker(K, config, background=True)
+    inline, background = LoopWorker(CAMERA, config, background=False), LoopWorker(CAMERA, config, background=True)
     try:
         for keyframe_id in range(3):
             results = []
@@ -54,7 +55,7 @@ def test_worker_process_matches_the_search_in_this_process() -> None:
 
 
 def test_a_dead_worker_is_replaced_by_the_search_in_this_process() -> None:
-    worker = LoopWorker(K, EngineConfig(backend="map"), background=True)
+    worker = LoopWorker(CAMERA, EngineConfig(backend="map"), background=True)
     try:
         worker.submit(_job(0))
         assert worker.collect() is not None

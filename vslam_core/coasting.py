@@ -58,11 +58,11 @@ def _matched_blur(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     return (blurred, b) if sharp_a > sharp_b else (a, blurred)
 
 
-def degraded_motion(previous: np.ndarray, current: np.ndarray, K: np.ndarray,  # noqa: N803
-                    lens: CameraIntrinsics | None = None) -> tuple[np.ndarray, np.ndarray] | None:
-    """(R (3, 3), unit t (3,)) from `previous` to `current`, or None when too few corners agree. With a
-    distorted `lens` (whose pinhole is K) the corners are tracked on the raw images and their pixels
-    undistorted (vslam_core/lens.py) before the essential matrix."""
+def degraded_motion(previous: np.ndarray, current: np.ndarray,
+                    camera: CameraIntrinsics) -> tuple[np.ndarray, np.ndarray] | None:
+    """(R (3, 3), unit t (3,)) from `previous` to `current`, or None when too few corners agree. The corners
+    are tracked on the raw images; through a distorted lens their pixels are undistorted (vslam_core/lens.py)
+    before the essential matrix."""
     a, b = _matched_blur(_normalised(previous), _normalised(current))
     corners = cv2.goodFeaturesToTrack(a, _CORNERS, 0.01, 15)
     if corners is None or len(corners) < _MIN_INLIERS:
@@ -71,8 +71,8 @@ def degraded_motion(previous: np.ndarray, current: np.ndarray, K: np.ndarray,  #
                                                   maxLevel=_LEVELS)
     ok = status.reshape(-1) == 1
     p_prev, p_cur = corners.reshape(-1, 2)[ok].astype(np.float64), tracked.reshape(-1, 2)[ok].astype(np.float64)
-    if lens is not None:
-        p_prev, p_cur = undistort_pairs(p_prev, p_cur, lens)
+    p_prev, p_cur = undistort_pairs(p_prev, p_cur, camera)
+    K = camera.K  # noqa: N806
     if len(p_cur) < _MIN_INLIERS:
         return None
     essential, mask = cv2.findEssentialMat(p_cur, p_prev, K, method=cv2.RANSAC, prob=0.999, threshold=1.0)
@@ -121,10 +121,8 @@ class DeadReckoning:
     """Where dead reckoning continues from: the last pose given out and the last readable image (usable or
     degraded), and whether the frames since the keyframe were dead-reckoned (a gap)."""
 
-    def __init__(self, K: np.ndarray, scale: ScaleProvider, enabled: bool = True,  # noqa: N803
-                 lens: CameraIntrinsics | None = None) -> None:
-        self._K = K
-        self._lens = lens
+    def __init__(self, camera: CameraIntrinsics, scale: ScaleProvider, enabled: bool = True) -> None:
+        self._camera = camera
         self._scale = scale
         self.enabled = enabled
         self.T_world_cam = np.eye(4)  # the last frame's pose, measured, dead-reckoned or held
@@ -145,7 +143,7 @@ class DeadReckoning:
         source. None when disabled or when the images give no motion."""
         if not self.enabled or self._image is None:
             return None
-        motion = degraded_motion(self._image, image, self._K, self._lens)
+        motion = degraded_motion(self._image, image, self._camera)
         if motion is None:
             return None
         before = None  # the step into the frame it starts from, when both are consecutive

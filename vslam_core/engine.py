@@ -81,7 +81,7 @@ class Odometry:
         self._last_mean: float | None = None  # grey level of the last usable frame
         self._last_step: tuple[float, float] | None = None  # (step length, de-rotated parallax) last accepted
         # Dead reckoning through frames tracking cannot place (through the lens: on ideal pixels)
-        self._reckoning = DeadReckoning(self._K, scale, enabled=coast, lens=intrinsics)
+        self._reckoning = DeadReckoning(intrinsics, scale, enabled=coast)
 
     def process(self, frame: Frame) -> FrameResult:
         """Estimate this frame's pose from the previous ones."""

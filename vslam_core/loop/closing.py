@@ -34,12 +34,10 @@ NO_IMAGE = np.zeros((0, 0), np.uint8)
 class LoopClosing:
     """Hands keyframes to the loop search and applies the loops it closes to the map."""
 
-    def __init__(self, K: np.ndarray, config: EngineConfig, background: bool,  # noqa: N803
-                 lens: CameraIntrinsics | None = None) -> None:
-        """`lens`: the camera's, when distorted (keyframes are described on raw images, verified on ideal pixels)."""
+    def __init__(self, camera: CameraIntrinsics, config: EngineConfig, background: bool) -> None:
         self._config = config.loop
         self._settled = config.map.ba_window + config.map.ba_max_fixed + 1  # keyframes after which BA is done
-        self._worker = LoopWorker(K, config, background, lens)
+        self._worker = LoopWorker(camera, config, background)
         self._waiting: tuple[int, np.ndarray] | None = None  # (keyframe id, image) not submitted yet
         self.places: dict[int, KeyframePlace] = {}  # every keyframe searched, with its features (the map file)
         self.closed: list[LoopClosed] = []

@@ -81,9 +81,10 @@ class SearchResult:
 class LoopSearch:
     """The place database and the loop-acceptance state; `run` handles one job."""
 
-    def __init__(self, K: np.ndarray, config: EngineConfig, lens: CameraIntrinsics | None = None) -> None:  # noqa: N803
-        self._K = K
-        self._lens = lens  # a distorted camera's: its keyframes' features are undistorted for verification
+    def __init__(self, camera: CameraIntrinsics, config: EngineConfig) -> None:
+        """Keyframes are described on raw images; through a distorted lens their features are undistorted for
+        verification."""
+        self._camera = camera
         self._config = config.loop
         self._seed = config.pose.seed
         self._metric = config.scale != "none"
@@ -112,8 +113,8 @@ class LoopSearch:
         found = self.database.candidates(query)
         timings["query"] = _lap(clock)
         clock = time.perf_counter()
-        checked = [(candidate, score, verify(query, self._with_neighbours(candidate), self._K, self._config,
-                                             (self._seed, query.position, candidate, 2), self._metric, self._lens))
+        checked = [(candidate, score, verify(query, self._with_neighbours(candidate), self._camera, self._config,
+                                             (self._seed, query.position, candidate, 2), self._metric))
                    for candidate, score in found]
         timings["verify"] = _lap(clock)
         best = max((c for c in checked if c[2].rejected is None), key=lambda c: (c[2].inliers, -c[0]), default=None)
@@ -197,7 +198,7 @@ class LoopSearch:
 
     def _raw(self, ideal: np.ndarray) -> np.ndarray:
         """(M, 2) ideal pixels (the map's observations) on the raw image, where overlays are drawn (NaN stays)."""
-        return distort_pixels(ideal, self._lens) if self._lens is not None and self._lens.distorted else ideal
+        return distort_pixels(ideal, self._camera) if self._camera.distorted else ideal
 
     def _rescale_edges(self, index: dict[int, int], scales: np.ndarray) -> None:
         """After a Sim(3) correction the map around node i is s_i times larger (it is applied at the fixed point,

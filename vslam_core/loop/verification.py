@@ -42,14 +42,14 @@ class Verification:
         return int(self.inlier_mask.sum())
 
 
-def verify(query: KeyframePlace, candidate: KeyframePlace, K: np.ndarray, config: LoopConfig,  # noqa: N803
-           seed: tuple[int, ...], metric: bool, lens: CameraIntrinsics | None = None) -> Verification:
+def verify(query: KeyframePlace, candidate: KeyframePlace, camera: CameraIntrinsics, config: LoopConfig,
+           seed: tuple[int, ...], metric: bool) -> Verification:
     """PnP of the query's features against the candidate's landmarks, with the inlier checks of `config`. The
-    query's features are raw pixels of its image: with a distorted `lens` they are undistorted for the PnP (the
+    query's features are raw pixels of its image: through a distorted lens they are undistorted for the PnP (the
     landmarks are in ideal pinhole geometry; a feature outside the lens's usable field is no match)."""
     query_index, train_index = match_descriptors(query.descriptors, candidate.point_descriptors, config.match_ratio)
     query_pixels = query.pixels[query_index].astype(np.float64).reshape(-1, 2)
-    ideal_pixels = undistort_pixels(query_pixels, lens) if lens is not None else query_pixels
+    ideal_pixels = undistort_pixels(query_pixels, camera)
     usable = np.isfinite(ideal_pixels).all(axis=1)
     if not usable.all():
         query_index, train_index = query_index[usable], train_index[usable]
@@ -59,7 +59,7 @@ def verify(query: KeyframePlace, candidate: KeyframePlace, K: np.ndarray, config
     if len(query_index) < config.min_inliers:
         return Verification(query_pixels, candidate_pixels, none, None, 1.0,
                             f"{len(query_index)} matches < {config.min_inliers}")
-    solution = solve_pnp(candidate.points_cam[train_index], ideal_pixels, K, config.pnp_threshold_px,
+    solution = solve_pnp(candidate.points_cam[train_index], ideal_pixels, camera.K, config.pnp_threshold_px,
                          config.pnp_iterations, seed)
     inliers = int(solution.inlier_mask.sum())
     if solution.T_world_cam is None or inliers < config.min_inliers:

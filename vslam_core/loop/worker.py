@@ -18,7 +18,6 @@ from multiprocessing.connection import Connection
 from typing import Any
 
 import cv2
-import numpy as np
 
 from vslam_core.config import EngineConfig
 from vslam_core.loop.search import LoopSearch, SearchJob, SearchResult
@@ -36,16 +35,14 @@ class _Restart:
     """To a kept worker: forget the last run's search and start a new one for this camera and config (None: a
     run closed; the worker stays idle, holding nothing, until a new run takes it)."""
 
-    K: np.ndarray | None  # noqa: N815
+    camera: CameraIntrinsics | None
     config: EngineConfig | None
-    lens: CameraIntrinsics | None = None
 
 
-def _serve(jobs: Any, connection: Connection, K: np.ndarray, config: EngineConfig,  # noqa: N803
-           lens: CameraIntrinsics | None = None) -> None:
+def _serve(jobs: Any, connection: Connection, camera: CameraIntrinsics, config: EngineConfig) -> None:
     """The worker process: run each job received, until None arrives; a `_Restart` starts a new run's search."""
     cv2.setNumThreads(1)  # one core's worth: the other is tracking's
-    search: LoopSearch | None = LoopSearch(K, config, lens)
+    search: LoopSearch | None = LoopSearch(camera, config)
     assert search is not None
     # gtsam (a few seconds to import) is needed only when a loop is accepted: imported beside the first searches
     threading.Thread(target=search.warm_up, name="vslam-gtsam-import", daemon=True).start()
@@ -60,7 +57,7 @@ def _serve(jobs: Any, connection: Connection, K: np.ndarray, config: EngineConfi
         if job is None:
             return
         if isinstance(job, _Restart):
-            search = LoopSearch(job.K, job.config, job.lens) if job.K is not None and job.config is not None \
+            search = LoopSearch(job.camera, job.config) if job.camera is not None and job.config is not None \
                 else None
             continue
         assert search is not None, "a job before its run's restart"
@@ -73,11 +70,9 @@ def _serve(jobs: Any, connection: Connection, K: np.ndarray, config: EngineConfi
 class LoopWorker:
     """Submit a job, collect its result later (waiting for it if it is not done)."""
 
-    def __init__(self, K: np.ndarray, config: EngineConfig, background: bool,  # noqa: N803
-                 lens: CameraIntrinsics | None = None) -> None:
-        self._K = K
+    def __init__(self, camera: CameraIntrinsics, config: EngineConfig, background: bool) -> None:
+        self._camera = camera
         self._config = config
-        self._lens = lens
         self._pending: SearchJob | None = None
         self._connection: Connection | None = None
         self._process: Any = None
@@ -86,20 +81,20 @@ class LoopWorker:
         self._jobs: Any = None
         if background and (idle := take_idle_worker("loop-search")) is not None:
             self._jobs, self._connection, self._process = idle.jobs, idle.connection, idle.process
-            self._jobs.put(_Restart(K, config, lens))  # a fresh search: the same results as a new worker's
+            self._jobs.put(_Restart(camera, config))  # a fresh search: the same results as a new worker's
         elif background:
             context = multiprocessing.get_context("spawn")
             # jobs through a queue: its feeder thread writes the keyframe's image to the pipe, so submitting does
             # not block tracking; results come back through a pipe
             self._jobs = context.Queue()
             self._connection, child = context.Pipe(duplex=False)
-            self._process = context.Process(target=_serve, args=(self._jobs, child, K, config, lens), name="vslam-loop",
+            self._process = context.Process(target=_serve, args=(self._jobs, child, camera, config), name="vslam-loop",
                                             daemon=True)
             with without_main():
                 self._process.start()
             child.close()
         else:
-            self._local = LoopSearch(K, config, lens)
+            self._local = LoopSearch(camera, config)
 
     @property
     def busy(self) -> bool:
@@ -120,7 +115,7 @@ class LoopWorker:
         if self._connection is not None:
             self._connection.close()
         self._connection = None
-        self._local = LoopSearch(self._K, self._config, self._lens)
+        self._local = LoopSearch(self._camera, self._config)
 
     def collect(self) -> SearchResult | None:
         """The submitted job's result (waiting for it), or None if nothing was submitted."""

@@ -90,9 +90,9 @@ def hamming(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 class LocalMapSearcher:
     """Projects the local map into a frame and re-finds its landmarks among the frame's corners."""
 
-    def __init__(self, K: np.ndarray, config: MapConfig, lens: CameraIntrinsics | None = None) -> None:  # noqa: N803
-        self._K = K
-        self._lens = lens
+    def __init__(self, camera: CameraIntrinsics, config: MapConfig) -> None:
+        self._camera = camera
+        self._K = camera.K
         self._config = config
         self._fast = cv2.FastFeatureDetector_create(threshold=config.reloc_fast_threshold)
         self._describer = cv2.ORB_create(nlevels=1, edgeThreshold=int(DESCRIPTOR_PATCH),
@@ -104,7 +104,7 @@ class LocalMapSearcher:
         from scipy.spatial import cKDTree  # here: scipy takes ~0.5 s to import, and only map runs need it
 
         raw = cv2.KeyPoint_convert(self._fast.detect(image, None)).astype(np.float64).reshape(-1, 2)
-        pixels = undistort_pixels(raw, self._lens) if self._lens is not None else raw.copy()
+        pixels = undistort_pixels(raw, self._camera)
         return FrameCorners(image, pixels, raw, cKDTree(pixels if len(pixels) else np.zeros((1, 2)) - 1e9))
 
     def describe_levels(self, corners: FrameCorners, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -203,9 +203,8 @@ def _best_in_window(pair_landmark: np.ndarray, pair_corner: np.ndarray, pair_dis
 
 
 def refind_by_flow(world: Map, keyframe_images: dict[int, np.ndarray], image: np.ndarray, keyframe_ids: list[int],
-                   T_world_cam: np.ndarray, K: np.ndarray, lens: CameraIntrinsics | None,  # noqa: N803
-                   config: MapConfig, tracker: TrackerConfig, describer: cv2.ORB,
-                   exclude: set[int]) -> tuple[LocalMapSearch, np.ndarray]:
+                   T_world_cam: np.ndarray, camera: CameraIntrinsics, config: MapConfig, tracker: TrackerConfig,
+                   describer: cv2.ORB, exclude: set[int]) -> tuple[LocalMapSearch, np.ndarray]:
     """Landmarks of `keyframe_ids` (except `exclude`) re-found in this frame's (H, W) uint8 `image` with the
     tracked pose `T_world_cam` (module docstring). Each landmark inside the image is tracked by pyramidal LK
     from its pixel in the newest keyframe that observed it and has an image in `keyframe_images`, starting at
@@ -221,7 +220,7 @@ def refind_by_flow(world: Map, keyframe_images: dict[int, np.ndarray], image: np
                for i in seen - exclude if landmarks[i].descriptor is not None}
     landmark_ids = np.array(sorted(i for i, k in sources.items() if k >= 0), np.int64)
     height, width = image.shape[:2]
-    projected = project(world.positions(landmark_ids), T_world_cam, K).reshape(-1, 2)
+    projected = project(world.positions(landmark_ids), T_world_cam, camera.K).reshape(-1, 2)
     margin = DESCRIPTOR_PATCH / 2 + 1.0
     with np.errstate(invalid="ignore"):
         inside = ((projected[:, 0] >= margin) & (projected[:, 0] < width - margin) & (projected[:, 1] >= margin)
@@ -237,7 +236,7 @@ def refind_by_flow(world: Map, keyframe_images: dict[int, np.ndarray], image: np
         return search, np.zeros(0, bool)
 
     def to_raw(pixels: np.ndarray) -> np.ndarray:
-        return distort_pixels(pixels, lens) if lens is not None and lens.distorted else pixels
+        return distort_pixels(pixels, camera) if camera.distorted else pixels
 
     source_of = np.array([sources[int(i)] for i in landmark_ids], np.int64)
     window = (tracker.window_px, tracker.window_px)
@@ -255,8 +254,7 @@ def refind_by_flow(world: Map, keyframe_images: dict[int, np.ndarray], image: np
                                                     flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
         good = (ok.reshape(-1) == 1) & (ok_back.reshape(-1) == 1) & (
             np.linalg.norm((back - start).reshape(-1, 2), axis=1) <= tracker.fb_threshold_px)
-        ideal = undistort_pixels(ahead.reshape(-1, 2).astype(np.float64), lens) if lens is not None \
-            else ahead.reshape(-1, 2).astype(np.float64)
+        ideal = undistort_pixels(ahead.reshape(-1, 2).astype(np.float64), camera)
         good &= np.abs(ideal - projected[rows]).max(axis=1) <= radius
         found[rows[good]] = ideal[good]
     described = np.flatnonzero(np.isfinite(found[:, 0]))

@@ -41,13 +41,12 @@ class _Submitted:
 class LocalMapping:
     """Owns the map; tracking hands it keyframes and reads landmarks back."""
 
-    def __init__(self, K: np.ndarray, config: MapConfig, scale: ScaleSource, background: bool,  # noqa: N803
-                 lens: CameraIntrinsics | None = None) -> None:
-        """Pixels handed in are ideal pinhole pixels of K; `lens` (if distorted) places them on the raw image
-        for the descriptors."""
+    def __init__(self, camera: CameraIntrinsics, config: MapConfig, scale: ScaleSource, background: bool) -> None:
+        """Pixels handed in are ideal pinhole pixels of the camera's K; a distorted lens places them on the raw
+        image for the descriptors."""
         self.map = Map()
-        self._lens = lens
-        self._K = K
+        self._camera = camera
+        self._K = camera.K
         self._config = config
         self._scale = scale
         self._adjuster = BundleAdjuster(background)
@@ -265,7 +264,7 @@ class LocalMapping:
         if not landmark_ids:
             return
         ideal = np.array([self.map.landmarks[i].observations[keyframe.id] for i in landmark_ids], np.float64)
-        raw = distort_pixels(ideal, self._lens) if self._lens is not None and self._lens.distorted else ideal
+        raw = distort_pixels(ideal, self._camera) if self._camera.distorted else ideal
         keypoints = [cv2.KeyPoint(float(p[0]), float(p[1]), DESCRIPTOR_PATCH, 0.0, 0.0, 0, i)
                      for i, p in zip(landmark_ids, raw, strict=True)]
         described, descriptors = self.describer.compute(image, keypoints)

@@ -29,10 +29,9 @@ MISSING_FACTOR = 1.5  # an interval this much longer than usual: frames are miss
 class MapRefinding:
     """Re-finds the map's landmarks in each frame (see the module docstring)."""
 
-    def __init__(self, K: np.ndarray, config: MapConfig, searcher: LocalMapSearcher,  # noqa: N803
-                 tracker: TrackerConfig, lens: CameraIntrinsics) -> None:
-        self._K = K
-        self._lens = lens
+    def __init__(self, camera: CameraIntrinsics, config: MapConfig, searcher: LocalMapSearcher,
+                 tracker: TrackerConfig) -> None:
+        self._camera = camera
         self._tracker = tracker
         self._config = config
         self._searcher = searcher
@@ -101,7 +100,7 @@ class MapRefinding:
         predicted = self._motion.predict(self._time)
         if predicted is None or self._image is None or self._posed is None:
             return None
-        bridged = bridged_prediction(self._posed[0], self._image, self._posed[1], predicted, self._lens)
+        bridged = bridged_prediction(self._posed[0], self._image, self._posed[1], predicted, self._camera)
         step = np.linalg.inv(self._posed[1]) @ bridged
         if length is not None:
             step[:3, 3] *= length / max(float(np.linalg.norm(step[:3, 3])), 1e-12)
@@ -122,7 +121,7 @@ class MapRefinding:
         world = mapping.map
         keyframe_ids = local_keyframes(world, reference, segment, self._config.local_map_keyframes)
         search, agrees = refind_by_flow(world, mapping.keyframe_images, self._image, keyframe_ids, T_world_cam,
-                                        self._K, self._lens, self._config, self._tracker, mapping.describer, exclude)
+                                        self._camera, self._config, self._tracker, mapping.describer, exclude)
         self.search = search
         found = search.found_mask
         return PnPEstimate(search.landmark_ids[found], search.found_pixels[found], search.projected[found],
@@ -136,10 +135,10 @@ class MapRefinding:
         predicted = self._motion.predict(self._time)
         if predicted is None or self._image is None or self._posed is None:
             return Relocalisation(False, None, 0, 0, 0), None
-        predicted = bridged_prediction(self._posed[0], self._image, self._posed[1], predicted, self._lens)
+        predicted = bridged_prediction(self._posed[0], self._image, self._posed[1], predicted, self._camera)
         keyframe_ids = local_keyframes(world, reference, segment, self._config.local_map_keyframes)
-        outcome = relocalise_guided(self._searcher, world, self._frame_corners(), keyframe_ids, predicted, self._K,
-                                    self._config, seed)
+        outcome = relocalise_guided(self._searcher, world, self._frame_corners(), keyframe_ids, predicted,
+                                    self._camera.K, self._config, seed)
         self.search = outcome.search
         candidates = len(outcome.search.landmark_ids)
         solution = outcome.solution

@@ -77,7 +77,7 @@ class MapTracking:
         self._slow = False  # --scale none: a slow camera (map_scale.slow_camera), its landmarks at a smaller angle
         self._scale: ScaleProvider = self._speed if self._speed is not None else scale
         self._odometry = Odometry(intrinsics, config, self._scale, coast=False)  # coasting is done here, with the map
-        self.mapping = LocalMapping(self._K, self._cfg, config.scale, background=config.threads > 1, lens=intrinsics)
+        self.mapping = LocalMapping(intrinsics, self._cfg, config.scale, background=config.threads > 1)
         self._links: dict[int, int] = {}  # live track id -> landmark id
         self._suspended: dict[int, int] = {}  # tracks PnP rejected -> their landmark (observed at keyframes only)
         self._segment = 0
@@ -92,12 +92,11 @@ class MapTracking:
         self._segment_lost = False  # relocalisation failed: a new segment starts at the next frame with a pose
         self._initialised = False  # --scale none: the segment's map was started by a well-conditioned two-view
         self._before_map = FramesBeforeMap()  # --scale none: the frames tracked while it waits for that
-        self.loop = LoopClosing(self._K, config, config.threads > 1, intrinsics) if config.loop.enabled else None
+        self.loop = LoopClosing(intrinsics, config, config.threads > 1) if config.loop.enabled else None
         self.loops_at_end: list[LoopStep] = []  # what the loop searches collected when the run ended did
         self._refound: dict[int, np.ndarray] = {}  # landmark id -> ideal pixel: re-found, for a keyframe now
         self._chain = RotationChain()  # the front end's rotations, a prior between keyframes in BA
-        self.refinding = MapRefinding(self._K, self._cfg, LocalMapSearcher(self._K, self._cfg, intrinsics),
-                                      config.tracker, intrinsics)
+        self.refinding = MapRefinding(intrinsics, self._cfg, LocalMapSearcher(intrinsics, self._cfg), config.tracker)
 
     def close(self) -> None:
         self.mapping.close()
@@ -307,7 +306,7 @@ class MapTracking:
         (`checked`: the model's last poses are measured ones), else the step before (`refinding.trusted_motion`)."""
         if self._previous_image is None or self._reference < 0:
             return None
-        motion = degraded_motion(self._previous_image, image, self._K, self._lens)
+        motion = degraded_motion(self._previous_image, image, self._lens)
         if motion is None:
             return None
         rotation, direction = self.refinding.trusted_motion(self._last_pose, *motion, COAST_DISAGREEMENT_DEG, checked)
