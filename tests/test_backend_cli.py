@@ -22,6 +22,14 @@ def backend_line(stdout: str) -> str:
     return re.sub(r"\s+", " ", lines[0].strip())
 
 
+def placed(stdout: str) -> tuple[dict[str, int], str]:
+    """The summary's `placed` line (map backend): frames by how they were placed, and the line."""
+    lines = [line for line in stdout.splitlines() if line.startswith("placed")]
+    assert len(lines) == 1, stdout
+    counts = {words.strip(): int(n) for n, words in re.findall(r"(\d+) ([a-zA-Z ()-]+?)(?:,|$| \()", lines[0][12:])}
+    return counts, lines[0]
+
+
 @pytest.mark.kitti
 def test_run_with_the_map_backend(kitti_root: Path, tmp_path: Path) -> None:
     trajectory = tmp_path / "x.txt"
@@ -30,6 +38,20 @@ def test_run_with_the_map_backend(kitti_root: Path, tmp_path: Path) -> None:
     assert result.returncode == 0, result.stderr
     assert backend_line(result.stdout) == "backend map"
     assert len(trajectory.read_text().splitlines()) == 30
+    counts, line = placed(result.stdout)  # where each frame's pose came from
+    assert sum(counts.values()) == 30 and counts["by PnP against the map"] >= 20, line
+    assert "scale can drift" not in line  # ground-truth scale: two-view steps have their true length
+
+
+@pytest.mark.kitti
+def test_without_a_scale_source_the_summary_says_which_steps_took_the_maps_speed(kitti_root: Path) -> None:
+    result = vslam("run", kitti_root, "--sequence", "05", "--frames", "0:20", "--backend", "map", "--scale", "none",
+                   "--detail", "off")
+    assert result.returncode == 0, result.stderr
+    counts, line = placed(result.stdout)
+    assert sum(counts.values()) == 20 and counts["by two-view motion"] > 0, line
+    assert line.endswith("(--scale none: a two-view step's length is the map's recent speed; the scale can drift "
+                         "there)"), line
 
 
 def test_unknown_backend_is_a_usage_error() -> None:
@@ -58,6 +80,7 @@ def test_backend_option_overrides_the_config_file(kitti_root: Path, tmp_path: Pa
         result = vslam(*common, *args, "--trajectory-out", trajectories[name])
         assert result.returncode == 0, (name, result.stderr)
         assert backend_line(result.stdout) == "backend vo", name
+        assert not any(line.startswith("placed") for line in result.stdout.splitlines())  # vo keeps no map
     expected = trajectories["config"].read_bytes()
     assert expected and all(path.read_bytes() == expected for path in trajectories.values())
 

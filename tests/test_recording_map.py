@@ -115,6 +115,12 @@ def test_tracking_mode_series_and_values(full: tuple[Path, list[FrameResult]]) -
     assert style["SeriesLines:names"].to_list() == [[MAP_METRICS["tracking"]["mode"][0]]]
     assert len(read_entity(path, "/metrics/timing_ms/pnp")) >= FRAMES - 2
 
+    # the report says where the poses came from, counted over the frames' modes
+    report = read_entity(path, "/report", static=True)["TextDocument:text"].to_list()[-1][0]
+    counts = {mode: modes.count(str(mode)) for mode in TrackingMode}
+    assert f"Placed: {counts[TrackingMode.MAP]} by PnP against the map" in report, report
+    assert f"{counts[TrackingMode.INIT]} starting a map" in report, report
+
 
 @pytest.mark.kitti
 def test_keyframes_as_frusta(full: tuple[Path, list[FrameResult]]) -> None:

@@ -14,11 +14,11 @@ from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 
-from vslam_core.config import EngineConfig
+from vslam_core.config import EngineConfig, ScaleSource
 from vslam_core.engine import Odometry
 from vslam_core.mapping.localisation import MapLocalisation
 from vslam_core.mapping.tracking import MapTracking
-from vslam_core.results import FrameResult, FrameStatus, LoopStep, Reason
+from vslam_core.results import FrameResult, FrameStatus, LoopStep, Reason, TrackingMode
 from vslam_core.scale import make_scale_provider
 from vslam_core.sources.base import Frame, FrameSource
 
@@ -28,6 +28,12 @@ if TYPE_CHECKING:
 FrameSink = Callable[[Frame, FrameResult], None]
 Engine = Odometry | MapTracking | MapLocalisation
 T = TypeVar("T")
+
+
+#: How the map backend placed a frame, by tracking mode, in the order a summary lists them.
+PLACED = {TrackingMode.MAP: "by PnP against the map", TrackingMode.TWO_VIEW: "by two-view motion",
+          TrackingMode.RELOCALISED: "relocalised", TrackingMode.COASTED: "dead-reckoned",
+          TrackingMode.INIT: "starting a map", TrackingMode.LOST: "lost (the pose held)"}
 
 
 @dataclass
@@ -42,12 +48,23 @@ class RunResult:
     tracked: int = 0  # frames whose motion was measured (status ok) or dead-reckoned
     held_reasons: dict[str, int] = field(default_factory=dict)  # why frames were held: reason -> frames
     seconds: float = 0.0  # wall time of the whole run, decoding and sinks included
+    modes: dict[TrackingMode, int] = field(default_factory=dict)  # map backend: frames per tracking mode
     loops_at_end: list[LoopStep] = field(default_factory=list)  # map backend: the loop searches collected when
     # the run ended (vslam_core/loop/closing.py `finish`); a loop they closed corrected `poses`
 
     @property
     def frames(self) -> int:
         return len(self.poses)
+
+    def placed_summary(self, scale: ScaleSource) -> str | None:
+        """Where the map backend's poses came from, e.g. ``281 by PnP against the map, 18 by two-view motion, 1
+        starting a map`` (None with `vo`); with `--scale none`, where a two-view step's length came from."""
+        if not self.modes:
+            return None
+        text = ", ".join(f"{self.modes[mode]} {words}" for mode, words in PLACED.items() if self.modes.get(mode))
+        if scale == "none" and self.modes.get(TrackingMode.TWO_VIEW):
+            text += " (--scale none: a two-view step's length is the map's recent speed; the scale can drift there)"
+        return text
 
     @property
     def held_summary(self) -> str:
@@ -153,6 +170,9 @@ def run_odometry(
             coasted = Reason.COASTED in reasons
             run.coasted += frame_result.status == FrameStatus.HELD and coasted
             run.tracked += frame_result.status == FrameStatus.OK or coasted
+            if frame_result.mapping is not None:
+                mode = frame_result.mapping.mode
+                run.modes[mode] = run.modes.get(mode, 0) + 1
             if frame_result.status == FrameStatus.HELD and reasons and not coasted:  # why the pose was held
                 run.held_reasons[reasons[0]] = run.held_reasons.get(reasons[0], 0) + 1
             for sink in sinks:

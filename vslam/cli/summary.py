@@ -39,6 +39,8 @@ def print_summary(source: FrameSource, run: RunResult, config: EngineConfig, in_
         + (f" (camera {default_camera_height(source.camera_height, config):.2f} m above the road; no ground truth "
            "used)" if config.scale == "height" else ""),
     ]
+    if (placed := run.placed_summary(config.scale)) is not None:
+        lines.append(f"placed      {placed}")
     lines.append(f"camera      {camera_line(source.intrinsics)}")
     gt = source.ground_truth
     if in_map and gt is not None:  # poses in the prior map's frame, ground truth in this run's first frame's

@@ -167,6 +167,8 @@ class Recorder:
                                            run.loops_at_end)
             lines = [f"# {self._name}", "", f"{run.frames} frames, {run.held_summary}"
                      + (f" — {stopped}" if stopped else "")]
+            if (placed := run.placed_summary(self._scale)) is not None:
+                lines += ["", f"Placed: {placed}."]
             if self._gt is not None and run.frames > 2:
                 row = metrics_row(self._source_name, self._gt[: run.frames], run.pose_array(), self._scale)
                 lines += ["", markdown_table([row])]
@@ -174,7 +176,8 @@ class Recorder:
                 if self._scale == "none":
                     aligned = self._log_aligned(run)
                     lines += ["", "Every number is of the estimate after Sim(3) alignment onto the ground truth "
-                              "(--scale none: unit steps, no metric scale)."]
+                              "(--scale none: no metric scale; "
+                              + ("the map's own scale)." if self._map is not None else "unit steps).")]
                 if self._drift is not None:
                     lines += ["", *self._drift.finish(self._rec, self._columns, aligned)]
             self._rec.log("/report", rr.TextDocument("\n".join(lines), media_type=rr.MediaType.MARKDOWN),
