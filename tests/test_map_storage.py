@@ -94,6 +94,25 @@ def test_odd_frames_localised_in_the_map(kitti_root: Path, saved: Path, localise
     assert json.loads((saved / "header.json").read_text())["version"] == VERSION  # the map was not rewritten
 
 
+def test_landmarks_matched_by_projection_from_the_predicted_pose_localise_frames_descriptors_alone_miss(
+        kitti_root: Path, saved: Path, tmp_path: Path) -> None:
+    """With a ratio test so strict (0.3) that matching against every landmark in view places 2 of the 30 odd
+    frames, the landmarks matched near their projection from the predicted pose place most of them, as well."""
+    config, rrd, trajectory = tmp_path / "strict.toml", tmp_path / "odd.rrd", tmp_path / "odd.txt"
+    config.write_text("[map]\nreloc_ratio = 0.3\n")
+    result = cli_helpers.vslam("run", kitti_root, "--sequence", "05", "--frames", "1:60:2", "--map", saved,
+                               "--config", config, "--detail", "summary", "-o", rrd, "--trajectory-out", trajectory)
+    assert result.returncode == 0, result.stderr
+    placed = next(line for line in result.stdout.splitlines() if line.startswith("placed"))
+    against_map = int(placed.split()[1])  # "placed      N by PnP against the map, …"
+    assert "by PnP against the map" in placed and against_map >= 20, placed
+    modes = np.array([m[0] for m in read_entity(rrd, "/tracking")["mode"].to_list()])
+    estimate = np.loadtxt(trajectory).reshape(-1, 3, 4)[modes == "map"]
+    truth = np.loadtxt(kitti_root / "poses" / "05.txt").reshape(-1, 3, 4)[1:60:2][modes == "map"]
+    error = np.linalg.norm(estimate[:, :, 3] - truth[:, :, 3], axis=1)
+    assert np.sqrt(np.mean(error**2)) < 0.3
+
+
 def test_save_map_refusals(kitti_root: Path, saved: Path, tmp_path: Path) -> None:
     again = cli_helpers.vslam_here("run", kitti_root, "--sequence", "05", "--frames", "0:4", "--backend", "map",
                                    "--detail", "off", "--save-map", saved)

@@ -3,11 +3,13 @@
 Per frame: upright ORB features (as the map's landmarks were described) → the prior map's landmarks that
 should be in view from the predicted pose (the last pose, moved by the last motion; within `VIEW_RANGE_M`, in
 front, inside the image) matched by descriptor (mutual nearest, Lowe's ratio) → PnP in RANSAC refined on the
-inliers (vslam_core/mapping/pnp.py) in the map's frame (`MAP`). Without a prediction, or when that fails: the
-prior keyframes most alike by bag of words (vocabulary built from the map's own features) give the landmarks
-to match (`RELOCALISED`). A pose far from the prediction is rejected. The pose found is then refined on every
-landmark in view re-found by projection (vslam_core/mapping/localisation_refine.py). A frame neither places keeps
-the last pose and is flagged held (`LOST`).
+inliers (vslam_core/mapping/pnp.py) in the map's frame (`MAP`); if too few matches pass the ratio test, the
+landmarks in view are matched to the features near their projection from the predicted pose, then PnP again
+(`MAP`). Without a prediction, or when both fail: the prior keyframes most alike by bag of words (vocabulary
+built from the map's own features) give the landmarks to match (`RELOCALISED`). A pose far from the prediction
+is rejected. The pose found is then refined on every landmark in view re-found by projection
+(vslam_core/mapping/localisation_refine.py). A frame neither places keeps the last pose and is flagged held
+(`LOST`).
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ VIEW_RANGE_M = 80.0  # landmarks farther than this from the predicted camera are
 PREDICTION_FRAMES = 5  # a prediction older than this many frames is not trusted: place recognition instead
 PLACES_SEARCHED = 3  # most alike keyframes whose landmarks are matched when relocalising
 MAX_JUMP_M = 2.0  # a pose this far (per frame since the last localised one) from the prediction is rejected
+GUIDED_RADIUS_PX = 15.0  # search window about a landmark's projection from the predicted pose (constant velocity)
 
 
 class MapLocalisation:
@@ -83,6 +86,8 @@ class MapLocalisation:
         if self._last_pose is not None and self._since_localised <= PREDICTION_FRAMES:
             predicted = self._last_pose @ np.linalg.matrix_power(self._motion, self._since_localised)
             estimate = self._checked(self._localise(pixels, descriptors, self._in_view(predicted), 0), predicted)
+            if estimate is None or estimate.rejected is not None:
+                estimate = self._checked(self._guided(pixels, descriptors, predicted), predicted)
             mode = TrackingMode.MAP
         if estimate is None or estimate.rejected is not None:
             estimate = self._checked(self._localise(pixels, descriptors, self._recognised(descriptors), 1), predicted)
@@ -133,6 +138,30 @@ class MapLocalisation:
             return estimate
         return PnPEstimate(self.prior.landmark_ids[landmarks[which]], observed, solution.projected,
                            solution.inlier_mask, solution.T_world_cam)
+
+    def _guided(self, pixels: np.ndarray, descriptors: np.ndarray, predicted: np.ndarray) -> PnPEstimate | None:
+        """PnP on the landmarks in view of the predicted pose matched to the features near their projection
+        (`GUIDED_RADIUS_PX`; ORB-SLAM's tracking with the motion model, Mur-Artal et al. 2015, sec. V-B): where
+        matching against every landmark in view leaves too few matches through Lowe's ratio test."""
+        cfg = self.config.map
+        landmarks = self._in_view(predicted)
+        if len(landmarks) < cfg.pnp_min_landmarks or not len(descriptors):
+            return None
+        positions = self.prior.landmark_positions[landmarks]
+        which, feature = match_by_projection(project(positions, predicted, self._K),
+                                             self.prior.landmark_descriptors[landmarks], pixels, descriptors,
+                                             GUIDED_RADIUS_PX)
+        ids = self.prior.landmark_ids[landmarks[which]]
+        observed = pixels[feature].astype(np.float64).reshape(-1, 2)
+        if len(which) < cfg.pnp_min_inliers:
+            return PnPEstimate(ids, observed, np.full_like(observed, np.nan), np.zeros(len(which), bool), None,
+                               f"{len(which)} matches by projection")
+        solution = solve_pnp(positions[which], observed, self._K, cfg.reloc_threshold_px, cfg.reloc_iterations,
+                             (self.config.pose.seed, self._position, 2))
+        inliers = int(solution.inlier_mask.sum())
+        rejected = None if solution.T_world_cam is not None and inliers >= cfg.pnp_min_inliers else \
+            f"{inliers} inliers by projection"
+        return PnPEstimate(ids, observed, solution.projected, solution.inlier_mask, solution.T_world_cam, rejected)
 
     def _in_view(self, T_world_cam: np.ndarray) -> np.ndarray:  # noqa: N803
         """Indices of the prior landmarks in front of the camera, within range, projecting into the image."""
