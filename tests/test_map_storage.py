@@ -80,10 +80,13 @@ def test_odd_frames_localised_in_the_map(kitti_root: Path, saved: Path, localise
     health = read_entity(rrd, "/health")
     statuses = [s[0] for s in health["status"].to_list()]
     assert len(statuses) == 30
-    assert statuses.count("fail") <= 0.05 * len(statuses)  # localised: ok, or warn (relocalised)
+    assert statuses.count("fail") == 0  # every frame localised: ok, or warn (relocalised)
     tracking = read_entity(rrd, "/tracking")
     modes = [m[0] for m in tracking["mode"].to_list()]
     assert modes.count("map") >= 20  # most frames tracked against the map from the predicted pose
+    # the first frame has no prediction: bag of words finds it, and the landmarks re-found by projection from
+    # that pose confirm it (before that check it had too few inliers alone and was lost)
+    assert modes[0] == "relocalised"
     prior = read_entity(rrd, "/world/prior_map/landmarks", static=True)  # the map localised in is recorded
     header = json.loads((saved / "header.json").read_text())
     assert len(prior["Points3D:positions"].to_list()[0]) == header["landmarks"]

@@ -87,11 +87,16 @@ class MapLocalisation:
             predicted = self._last_pose @ np.linalg.matrix_power(self._motion, self._since_localised)
             estimate = self._checked(self._localise(pixels, descriptors, self._in_view(predicted), 0), predicted)
             if estimate is None or estimate.rejected is not None:
-                estimate = self._checked(self._guided(pixels, descriptors, predicted), predicted)
+                estimate = self._checked(self._guided(pixels, descriptors, predicted, self.config.map.pnp_min_inliers),
+                                         predicted)
             mode = TrackingMode.MAP
         if estimate is None or estimate.rejected is not None:
             estimate = self._checked(self._localise(pixels, descriptors, self._recognised(descriptors), 1), predicted)
             mode = TrackingMode.RELOCALISED
+            if estimate is not None and estimate.rejected is not None and estimate.T_world_cam is not None:
+                # too few inliers to trust alone: as many landmarks near their projection from it must agree
+                estimate = self._checked(self._guided(pixels, descriptors, estimate.T_world_cam,
+                                                      self.config.map.reloc_min_inliers), predicted)
         timings["pnp"] = _lap(clock)
         found = estimate is not None and estimate.rejected is None and estimate.T_world_cam is not None
         if found:
@@ -139,10 +144,13 @@ class MapLocalisation:
         return PnPEstimate(self.prior.landmark_ids[landmarks[which]], observed, solution.projected,
                            solution.inlier_mask, solution.T_world_cam)
 
-    def _guided(self, pixels: np.ndarray, descriptors: np.ndarray, predicted: np.ndarray) -> PnPEstimate | None:
-        """PnP on the landmarks in view of the predicted pose matched to the features near their projection
-        (`GUIDED_RADIUS_PX`; ORB-SLAM's tracking with the motion model, Mur-Artal et al. 2015, sec. V-B): where
-        matching against every landmark in view leaves too few matches through Lowe's ratio test."""
+    def _guided(self, pixels: np.ndarray, descriptors: np.ndarray, predicted: np.ndarray,
+                needed: int) -> PnPEstimate | None:
+        """PnP on the landmarks in view of the `predicted` pose matched to the features near their projection
+        (`GUIDED_RADIUS_PX`), with at least `needed` inliers: ORB-SLAM's tracking with the motion model
+        (Mur-Artal et al. 2015, sec. V-B) where matching against every landmark in view leaves too few matches
+        through Lowe's ratio test, and its check of a relocalisation by projection (sec. V-C) where a pose
+        from bag of words has too few inliers to be trusted alone."""
         cfg = self.config.map
         landmarks = self._in_view(predicted)
         if len(landmarks) < cfg.pnp_min_landmarks or not len(descriptors):
@@ -153,13 +161,13 @@ class MapLocalisation:
                                              GUIDED_RADIUS_PX)
         ids = self.prior.landmark_ids[landmarks[which]]
         observed = pixels[feature].astype(np.float64).reshape(-1, 2)
-        if len(which) < cfg.pnp_min_inliers:
+        if len(which) < needed:
             return PnPEstimate(ids, observed, np.full_like(observed, np.nan), np.zeros(len(which), bool), None,
                                f"{len(which)} matches by projection")
         solution = solve_pnp(positions[which], observed, self._K, cfg.reloc_threshold_px, cfg.reloc_iterations,
                              (self.config.pose.seed, self._position, 2))
         inliers = int(solution.inlier_mask.sum())
-        rejected = None if solution.T_world_cam is not None and inliers >= cfg.pnp_min_inliers else \
+        rejected = None if solution.T_world_cam is not None and inliers >= needed else \
             f"{inliers} inliers by projection"
         return PnPEstimate(ids, observed, solution.projected, solution.inlier_mask, solution.T_world_cam, rejected)
 
