@@ -87,8 +87,8 @@ class MapLocalisation:
             predicted = self._last_pose @ np.linalg.matrix_power(self._motion, self._since_localised)
             estimate = self._checked(self._localise(pixels, descriptors, self._in_view(predicted), 0), predicted)
             if estimate is None or estimate.rejected is not None:
-                estimate = self._checked(self._guided(pixels, descriptors, predicted, self.config.map.pnp_min_inliers),
-                                         predicted)
+                estimate = self._checked(self._guided(pixels, descriptors, predicted, self.config.map.pnp_min_inliers,
+                                                      2), predicted)
             mode = TrackingMode.MAP
         if estimate is None or estimate.rejected is not None:
             estimate = self._checked(self._localise(pixels, descriptors, self._recognised(descriptors), 1), predicted)
@@ -96,7 +96,7 @@ class MapLocalisation:
             if estimate is not None and estimate.rejected is not None and estimate.T_world_cam is not None:
                 # too few inliers to trust alone: as many landmarks near their projection from it must agree
                 estimate = self._checked(self._guided(pixels, descriptors, estimate.T_world_cam,
-                                                      self.config.map.reloc_min_inliers), predicted)
+                                                      self.config.map.reloc_min_inliers, 3), predicted)
         timings["pnp"] = _lap(clock)
         found = estimate is not None and estimate.rejected is None and estimate.T_world_cam is not None
         if found:
@@ -144,8 +144,8 @@ class MapLocalisation:
         return PnPEstimate(self.prior.landmark_ids[landmarks[which]], observed, solution.projected,
                            solution.inlier_mask, solution.T_world_cam)
 
-    def _guided(self, pixels: np.ndarray, descriptors: np.ndarray, predicted: np.ndarray,
-                needed: int) -> PnPEstimate | None:
+    def _guided(self, pixels: np.ndarray, descriptors: np.ndarray, predicted: np.ndarray, needed: int,
+                attempt: int) -> PnPEstimate | None:
         """PnP on the landmarks in view of the `predicted` pose matched to the features near their projection
         (`GUIDED_RADIUS_PX`), with at least `needed` inliers: ORB-SLAM's tracking with the motion model
         (Mur-Artal et al. 2015, sec. V-B) where matching against every landmark in view leaves too few matches
@@ -165,7 +165,7 @@ class MapLocalisation:
             return PnPEstimate(ids, observed, np.full_like(observed, np.nan), np.zeros(len(which), bool), None,
                                f"{len(which)} matches by projection")
         solution = solve_pnp(positions[which], observed, self._K, cfg.reloc_threshold_px, cfg.reloc_iterations,
-                             (self.config.pose.seed, self._position, 2))
+                             (self.config.pose.seed, self._position, attempt))
         inliers = int(solution.inlier_mask.sum())
         rejected = None if solution.T_world_cam is not None and inliers >= needed else \
             f"{inliers} inliers by projection"
