@@ -28,7 +28,7 @@ from vslam_core.lens import undistort_pixels
 from vslam_core.loop.places import describe_image
 from vslam_core.loop.vocabulary import BinaryVocabulary, similarity
 from vslam_core.mapping.local_mapping import DESCRIPTOR_PATCH
-from vslam_core.mapping.localisation_refine import match_by_projection, refine_pose
+from vslam_core.mapping.localisation_refine import RADIUS_PX, match_by_projection, refine_pose
 from vslam_core.mapping.pnp import at_raw_pixels, project, solve_pnp
 from vslam_core.results import FrameResult, FrameStatus, Health, MapFrame, PnPEstimate, Reason, TrackingMode
 from vslam_core.sources.base import CameraIntrinsics, Frame
@@ -85,18 +85,20 @@ class MapLocalisation:
         predicted = None
         if self._last_pose is not None and self._since_localised <= PREDICTION_FRAMES:
             predicted = self._last_pose @ np.linalg.matrix_power(self._motion, self._since_localised)
-            estimate = self._checked(self._localise(pixels, descriptors, self._in_view(predicted), 0), predicted)
+            in_view = self._in_view(predicted)
+            estimate = self._checked(self._localise(pixels, descriptors, in_view, 0), predicted)
             if estimate is None or estimate.rejected is not None:
-                estimate = self._checked(self._guided(pixels, descriptors, predicted, self.config.map.pnp_min_inliers,
-                                                      2), predicted)
+                estimate = self._checked(self._guided(pixels, descriptors, in_view, predicted,
+                                                      self.config.map.pnp_min_inliers, 2), predicted)
             mode = TrackingMode.MAP
         if estimate is None or estimate.rejected is not None:
             estimate = self._checked(self._localise(pixels, descriptors, self._recognised(descriptors), 1), predicted)
             mode = TrackingMode.RELOCALISED
             if estimate is not None and estimate.rejected is not None and estimate.T_world_cam is not None:
                 # too few inliers to trust alone: as many landmarks near their projection from it must agree
-                estimate = self._checked(self._guided(pixels, descriptors, estimate.T_world_cam,
-                                                      self.config.map.reloc_min_inliers, 3), predicted)
+                estimate = self._checked(self._guided(pixels, descriptors, self._in_view(estimate.T_world_cam),
+                                                      estimate.T_world_cam, self.config.map.reloc_min_inliers, 3),
+                                         predicted)
         timings["pnp"] = _lap(clock)
         found = estimate is not None and estimate.rejected is None and estimate.T_world_cam is not None
         if found:
@@ -130,46 +132,38 @@ class MapLocalisation:
         """The pose refined on every landmark in view re-found by projection (localisation_refine.py); the
         first estimate if that gives fewer inliers."""
         assert estimate.T_world_cam is not None
-        landmarks = self._in_view(estimate.T_world_cam)
-        positions = self.prior.landmark_positions[landmarks]
-        which, feature = match_by_projection(project(positions, estimate.T_world_cam, self._K),
-                                             self.prior.landmark_descriptors[landmarks], pixels, descriptors)
-        if len(which) < self.config.map.pnp_min_inliers:
+        rows, observed = self._by_projection(self._in_view(estimate.T_world_cam), estimate.T_world_cam, pixels,
+                                             descriptors, RADIUS_PX)
+        if len(rows) < self.config.map.pnp_min_inliers:
             return estimate
-        observed = pixels[feature].astype(np.float64).reshape(-1, 2)
-        solution = refine_pose(positions[which], observed, self._K, estimate.T_world_cam,
+        solution = refine_pose(self.prior.landmark_positions[rows], observed, self._K, estimate.T_world_cam,
                                self.config.map.reloc_threshold_px)
         if solution.T_world_cam is None or solution.inlier_mask.sum() < estimate.inlier_mask.sum():
             return estimate
-        return PnPEstimate(self.prior.landmark_ids[landmarks[which]], observed, solution.projected,
-                           solution.inlier_mask, solution.T_world_cam)
+        return PnPEstimate(self.prior.landmark_ids[rows], observed, solution.projected, solution.inlier_mask,
+                           solution.T_world_cam)
 
-    def _guided(self, pixels: np.ndarray, descriptors: np.ndarray, predicted: np.ndarray, needed: int,
-                attempt: int) -> PnPEstimate | None:
-        """PnP on the landmarks in view of the `predicted` pose matched to the features near their projection
+    def _by_projection(self, landmarks: np.ndarray, T_world_cam: np.ndarray, pixels: np.ndarray,  # noqa: N803
+                       descriptors: np.ndarray, radius_px: float) -> tuple[np.ndarray, np.ndarray]:
+        """The (M,) prior landmarks (indices, among `landmarks`) matched to a frame feature within `radius_px`
+        of their projection from `T_world_cam` (localisation_refine.match_by_projection), and those features'
+        (M, 2) ideal pixels."""
+        which, feature = match_by_projection(project(self.prior.landmark_positions[landmarks], T_world_cam, self._K),
+                                             self.prior.landmark_descriptors[landmarks], pixels, descriptors,
+                                             radius_px)
+        return landmarks[which], pixels[feature].astype(np.float64).reshape(-1, 2)
+
+    def _guided(self, pixels: np.ndarray, descriptors: np.ndarray, in_view: np.ndarray, predicted: np.ndarray,
+                needed: int, attempt: int) -> PnPEstimate | None:
+        """PnP on the landmarks `in_view` of the `predicted` pose matched to the features near their projection
         (`GUIDED_RADIUS_PX`), with at least `needed` inliers: ORB-SLAM's tracking with the motion model
         (Mur-Artal et al. 2015, sec. V-B) where matching against every landmark in view leaves too few matches
         through Lowe's ratio test, and its check of a relocalisation by projection (sec. V-C) where a pose
         from bag of words has too few inliers to be trusted alone."""
-        cfg = self.config.map
-        landmarks = self._in_view(predicted)
-        if len(landmarks) < cfg.pnp_min_landmarks or not len(descriptors):
+        if len(in_view) < self.config.map.pnp_min_landmarks or not len(descriptors):
             return None
-        positions = self.prior.landmark_positions[landmarks]
-        which, feature = match_by_projection(project(positions, predicted, self._K),
-                                             self.prior.landmark_descriptors[landmarks], pixels, descriptors,
-                                             GUIDED_RADIUS_PX)
-        ids = self.prior.landmark_ids[landmarks[which]]
-        observed = pixels[feature].astype(np.float64).reshape(-1, 2)
-        if len(which) < needed:
-            return PnPEstimate(ids, observed, np.full_like(observed, np.nan), np.zeros(len(which), bool), None,
-                               f"{len(which)} matches by projection")
-        solution = solve_pnp(positions[which], observed, self._K, cfg.reloc_threshold_px, cfg.reloc_iterations,
-                             (self.config.pose.seed, self._position, attempt))
-        inliers = int(solution.inlier_mask.sum())
-        rejected = None if solution.T_world_cam is not None and inliers >= needed else \
-            f"{inliers} inliers by projection"
-        return PnPEstimate(ids, observed, solution.projected, solution.inlier_mask, solution.T_world_cam, rejected)
+        rows, observed = self._by_projection(in_view, predicted, pixels, descriptors, GUIDED_RADIUS_PX)
+        return self._solved(rows, observed, needed, attempt, " by projection")
 
     def _in_view(self, T_world_cam: np.ndarray) -> np.ndarray:  # noqa: N803
         """Indices of the prior landmarks in front of the camera, within range, projecting into the image."""
@@ -204,19 +198,23 @@ class MapLocalisation:
         if len(landmarks) < cfg.pnp_min_landmarks or not len(descriptors):
             return None
         query, train = match_descriptors(descriptors, self.prior.landmark_descriptors[landmarks], cfg.reloc_ratio)
-        ids = self.prior.landmark_ids[landmarks[train]]
-        observed = pixels[query].astype(np.float64).reshape(-1, 2)
         needed = cfg.pnp_min_inliers if attempt == 0 else cfg.reloc_min_inliers  # with a prediction (checked)
-        if len(query) < needed:
-            return PnPEstimate(ids, observed, np.full_like(observed, np.nan), np.zeros(len(query), bool), None,
-                               f"{len(query)} matches")
-        solution = solve_pnp(self.prior.landmark_positions[landmarks[train]], observed, self._K,
-                             cfg.reloc_threshold_px, cfg.reloc_iterations, (self.config.pose.seed, self._position,
-                                                                             attempt))
+        return self._solved(landmarks[train], pixels[query].astype(np.float64).reshape(-1, 2), needed, attempt, "")
+
+    def _solved(self, rows: np.ndarray, observed: np.ndarray, needed: int, attempt: int, how: str) -> PnPEstimate:
+        """PnP in RANSAC of the (M,) prior landmarks (indices) at the (M, 2) ideal pixels, rejected (saying
+        why, `how` they were matched) with fewer than `needed` matches or inliers."""
+        cfg = self.config.map
+        ids = self.prior.landmark_ids[rows]
+        if len(rows) < needed:
+            return PnPEstimate(ids, observed, np.full_like(observed, np.nan), np.zeros(len(rows), bool), None,
+                               f"{len(rows)} matches{how}")
+        solution = solve_pnp(self.prior.landmark_positions[rows], observed, self._K, cfg.reloc_threshold_px,
+                             cfg.reloc_iterations, (self.config.pose.seed, self._position, attempt))
         inliers = int(solution.inlier_mask.sum())
         rejected = None
         if solution.T_world_cam is None or inliers < needed:
-            rejected = f"{inliers} inliers"
+            rejected = f"{inliers} inliers{how}"
         return PnPEstimate(ids, observed, solution.projected, solution.inlier_mask, solution.T_world_cam, rejected)
 
     def _result(self, frame: Frame, pose: np.ndarray, found: bool, mode: TrackingMode,
