@@ -6,8 +6,9 @@
 Runs every (system, backend, sequence, window, seed) in a multiprocessing pool of `--jobs` workers and prints
 a markdown table with one row per (system, backend): per sequence the mean and [min–max] over seeds and
 windows of KITTI t_err (%) and r_err (°/100 m), then the mean over sequences (of the per-sequence means).
-A second table gives runs, ATE Sim(3) and fps per sequence. One CSV row per run (`--csv`), with a `backend`
-column.
+A second table gives runs, ATE Sim(3), the relative pose error from each frame to the next (RPE, Sturm et al.
+2012, after the alignment t_err is scored with: how steady the poses are) and fps per sequence. One CSV row per
+run (`--csv`), with a `backend` column.
 
 The paper configuration (benchmarks/paper_baseline.py) has no backend and always takes its step length from
 ground truth: it runs once per (sequence, window, seed), with backend `-`, whatever `--backends` and
@@ -38,7 +39,7 @@ from vslam_core.config import Backend, EngineConfig, ScaleSource, load_config
 from vslam_core.pipeline import run_odometry
 from vslam_core.sources.base import FrameRange
 from vslam_core.sources.kitti import KittiSource
-from vslam_core.trajectory.metrics import ate, kitti_errors, sim3_aligned
+from vslam_core.trajectory.metrics import ate, kitti_errors, rpe, sim3_aligned
 
 BACKENDS: tuple[Backend, ...] = ("vo", "map")
 SCALES: tuple[ScaleSource, ...] = ("gt", "height", "none")
@@ -78,10 +79,12 @@ def _one(job: Job) -> dict[str, object]:
         config = benchmark_config(job.config_path, job.backend, job.scale, job.seed)
         run = run_odometry(source, config)
         poses, seconds, scale = run.pose_array(), run.seconds, config.scale
-    t_err, r_err = kitti_errors(gt, sim3_aligned(gt, poses) if job.align == "sim3" else poses)
+    scored = sim3_aligned(gt, poses) if job.align == "sim3" else poses
+    t_err, r_err = kitti_errors(gt, scored)
+    rpe_m, rpe_deg = rpe(gt, scored, 1)  # from each frame to the next: how steady the poses are
     return {"system": job.system, "backend": job.backend, "scale": scale, "sequence": job.sequence,
             "window": job.window, "seed": job.seed, "t_err": t_err, "r_err": r_err,
-            "ate_sim3": ate(gt, poses, "sim3"), "fps": len(poses) / seconds}
+            "ate_sim3": ate(gt, poses, "sim3"), "rpe_m": rpe_m, "rpe_deg": rpe_deg, "fps": len(poses) / seconds}
 
 
 def make_jobs(root: str, systems: list[str], backends: list[str], sequences: list[str], windows: list[str],
@@ -120,7 +123,7 @@ def summary_tables(table: pl.DataFrame) -> str:
     header = ["system", "backend"] + [f"{s} {m}" for s in sequences for m in ("t_err %", "r_err °/100 m")]
     header += ["mean over sequences t_err %", "mean over sequences r_err °/100 m"]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    details = ["| system | backend | seq | runs | ATE Sim3 m | fps |", "|---|---|---|---|---|---|"]
+    details = ["| system | backend | seq | runs | ATE Sim3 m | RPE 1 frame cm / ° | fps |", "|---" * 7 + "|"]
     for system, backend in groups:
         part = table.filter((pl.col("system") == system) & (pl.col("backend") == backend))
         cells: list[str] = []
@@ -130,8 +133,9 @@ def summary_tables(table: pl.DataFrame) -> str:
             for metric in ("t_err", "r_err"):
                 cells.append(_range_cell(runs[metric]))
                 means[metric].append(_mean(runs[metric].to_list()))
-            details.append(f"| {system} | {backend} | {sequence} | {len(runs)} | "
-                           f"{_number(_mean(runs['ate_sim3'].to_list()))} | {_mean(runs['fps'].to_list()):.1f} |")
+            ate_m, rpe_m, rpe_deg, fps = (_mean(runs[c].to_list()) for c in ("ate_sim3", "rpe_m", "rpe_deg", "fps"))
+            details.append(f"| {system} | {backend} | {sequence} | {len(runs)} | {_number(ate_m)} | "
+                           f"{_number(100 * rpe_m)} / {rpe_deg:.3f} | {fps:.1f} |")
         cells += [_number(_mean(means["t_err"])), _number(_mean(means["r_err"]))]
         lines.append(f"| {system} | {backend} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n\n" + "\n".join(details)
