@@ -76,17 +76,23 @@ def test_the_last_keyframe_is_searched_when_the_run_ends(revisit: tuple[Path, li
     """The run's last keyframe has no later keyframe to collect its search at: it is searched when the run ends,
     without the cooldown after a loop (no tracking is left to disturb). Here it revisits the start two keyframes
     after the loop before it was closed: the loop is recorded at the last frame, and its correction is in the
-    trajectory written after the run, not in the pose tracking logged for that frame."""
+    trajectory written after the run (the query keyframe where the corrected keyframe path puts it, the
+    correction away from where it was), not in the pose tracking logged for the last frame."""
     rrd, order = revisit
     closed = read_entity(rrd, "/loops/closed")
     at_end = closed.filter(closed["frame"] == len(order) - 1)
     assert len(at_end) == 1 and len(closed) >= 2
     query, matched = at_end["query_frame"].to_list()[0][0], at_end["candidate_frame"].to_list()[0][0]
     assert query >= FORWARD > matched and abs(order[query] - order[matched]) <= 3
+    written = np.loadtxt(rrd.parent / "run.txt").reshape(-1, 3, 4)[:, :, 3]
+    before, after = (np.array(read_entity(rrd, name)["LineStrips3D:strips"].to_list()[-1][0][-1])
+                     for name in ("/world/loops/before", "/world/loops/after"))  # the newest keyframe: the query
+    correction = at_end["correction_m"].to_list()[0][0]
+    assert np.linalg.norm(written[query] - after) < 1e-4
+    assert np.linalg.norm(written[query] - before) == pytest.approx(correction, abs=1e-4) and correction > 0.01
     camera = read_entity(rrd, "/world/camera")
     tracked = np.array(camera.filter(camera["frame"] == len(order) - 1)["Transform3D:translation"].to_list()[0][0])
-    written = np.loadtxt(rrd.parent / "run.txt").reshape(-1, 3, 4)[-1, :, 3]
-    assert np.linalg.norm(written - tracked) >= 0.5 * at_end["correction_m"].to_list()[0][0] > 0.01
+    assert np.linalg.norm(written[-1] - tracked) > 0.01
 
 
 def test_candidates_and_images_are_recorded(revisit: tuple[Path, list[int]]) -> None:

@@ -139,6 +139,9 @@ class MapConfig:
     pnp_min_inliers: int = 25
     pnp_min_inlier_ratio: float = 0.5
     max_rotation_disagreement_deg: float = 3.0  # PnP and two-view rotation since the keyframe must agree
+    # with a scale source a frame PnP places takes the front end's motion if the two rotations agree within this
+    # (each is good to ~0.05° frame to frame on KITTI; a two-view rotation 1-3° off keeps PnP's pose)
+    front_end_agreement_deg: float = 0.5
     # windowed bundle adjustment
     ba_window: int = 6  # keyframes optimised
     ba_max_fixed: int = 4  # older keyframes seeing the window's landmarks, held fixed (the nearest ones)

@@ -145,6 +145,7 @@ RANGES: dict[str, Range] = {
     "map.pnp_min_inliers": closed(4, 100_000),
     "map.pnp_min_inlier_ratio": FRACTION,
     "map.max_rotation_disagreement_deg": positive(180.0),
+    "map.front_end_agreement_deg": positive(180.0),
     "map.ba_window": closed(1, 1000),
     "map.ba_max_fixed": closed(0, 1000),
     "map.ba_iterations": closed(1, 1000),

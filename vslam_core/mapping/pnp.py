@@ -10,7 +10,7 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
-from vslam_core.geometry import invert_pose, pose_matrix
+from vslam_core.geometry import invert_pose, pose_matrix, rotation_angle
 from vslam_core.lens import distort_pixels
 from vslam_core.results import PnPEstimate
 from vslam_core.sources.base import CameraIntrinsics
@@ -58,6 +58,25 @@ def solve_pnp(points: np.ndarray, pixels: np.ndarray, K: np.ndarray, threshold_p
     with np.errstate(invalid="ignore"):
         inlier_mask = np.linalg.norm(projected - pixels, axis=1) <= threshold_px
     return PnPSolution(T_world_cam, inlier_mask, projected)
+
+
+def metric_pose(pnp_pose: np.ndarray, two_view: np.ndarray | None, T_world_key: np.ndarray,  # noqa: N803
+                step_length: float, agreement_deg: float) -> np.ndarray:
+    """(4, 4) T_world_cam of a frame PnP placed, with a scale source (gt, height) giving `step_length`, the
+    distance from the front end's keyframe (pose `T_world_key`). The front end's motion from that keyframe
+    (`two_view`: T_world_key · T_key_cur, already at that length) when its rotation agrees with PnP's within
+    `agreement_deg`: frame to frame it is far steadier than PnP against triangulated landmarks (the rotation
+    between consecutive frames 0.003° against 0.05° on the synthetic street) and is chained from a pose the map
+    placed. Otherwise (a two-view rotation 1-3° off over a short baseline, or none) PnP's pose with its step
+    from the keyframe scaled to `step_length`: the map's scale never overrides the scale source."""
+    if two_view is not None and np.degrees(rotation_angle(two_view[:3, :3].T @ pnp_pose[:3, :3])) <= agreement_deg:
+        return two_view
+    step = invert_pose(T_world_key) @ pnp_pose
+    length = float(np.linalg.norm(step[:3, 3]))
+    if length < 1e-9:
+        return pnp_pose
+    step[:3, 3] *= step_length / length
+    return np.asarray(T_world_key @ step)
 
 
 def at_raw_pixels(estimate: PnPEstimate | None, lens: CameraIntrinsics) -> PnPEstimate | None:

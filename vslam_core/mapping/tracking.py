@@ -2,8 +2,9 @@
 
 Per frame: KLT tracks and the 5-point motion from the keyframe (vslam_core/engine.py) → the landmarks linked
 to surviving tracks (and, with `map.local_map_tracking`, landmarks re-found by projection: refinding.py) →
-PnP in RANSAC refined on the inliers (`MAP`), the step length the scale source's (gt, height) or, with none,
-the map's own (map_scale.py) → else the two-view pose (`TWO_VIEW`) → tracks lost: relocalisation against
+PnP in RANSAC refined on the inliers (`MAP`: with none its pose, in the map's own scale, map_scale.py; with
+gt or height the front end's motion it confirmed, pnp.metric_pose) → else the two-view pose (`TWO_VIEW`) →
+tracks lost: relocalisation against
 recent keyframes (`RELOCALISED`), failing that a new map segment. Tracks live on raw pixels; PnP, landmarks
 and BA on ideal pinhole pixels (vslam_core/lens.py). A frame the health checks refuse is dead-reckoned
 (`COASTED`, vslam_core/coasting.py); one nothing can place keeps the last pose (`LOST`). Keyframes go to
@@ -35,7 +36,7 @@ from vslam_core.mapping.map_scale import (
     slow_camera,
     translation_parallax,
 )
-from vslam_core.mapping.pnp import PnPSolution, at_raw_pixels, solve_pnp
+from vslam_core.mapping.pnp import PnPSolution, at_raw_pixels, metric_pose, solve_pnp
 from vslam_core.mapping.refinding import MapRefinding, suspended_at_keyframe
 from vslam_core.mapping.relocalisation import relocalise_by_descriptors
 from vslam_core.results import (
@@ -156,7 +157,10 @@ class MapTracking:
         relocalisation = None
         pose, mode, why = None, TrackingMode.LOST, None
         if pnp is not None and pnp.rejected is None and pnp.T_world_cam is not None:
-            pose, mode = self._placed(pnp.T_world_cam, pnp.outvoted_two_view, two_view, vo), TrackingMode.MAP
+            pose, mode = pnp.T_world_cam, TrackingMode.MAP  # --scale none: the map carries the scale
+            if self.config.scale != "none" and vo.scale is not None:
+                pose = metric_pose(pose, None if pnp.outvoted_two_view else two_view,
+                                   self.pose_of(vo.keyframe_position), vo.scale, self._cfg.front_end_agreement_deg)
             warnings += [Reason.TWO_VIEW_OUTVOTED] if pnp.outvoted_two_view else []
         elif self._has_map() and (lost_tracks or self._gap):
             clock = time.perf_counter()
@@ -275,26 +279,6 @@ class MapTracking:
                     return f"rotation {disagreement:.1f}° from the two-view motion", False
                 return None, True
         return None, False
-
-    def _placed(self, pnp_pose: np.ndarray, outvoted: bool, two_view: np.ndarray | None,
-                vo: FrameResult) -> np.ndarray:
-        """The pose of a frame PnP placed (`outvoted`: its rotation overruled the two-view one). With --scale none, PnP's own: the map carries the scale. With a scale
-        source (gt, height), the front end's motion from its keyframe (`two_view`, at the source's length), which
-        PnP checked: measured frame to frame it is ~10 times steadier than PnP against triangulated landmarks
-        (consecutive frames' rotation jitter 0.003° against 0.05° on the synthetic street), and the map still
-        places the keyframes it is chained from (bundle adjustment). PnP's pose, at the source's length, when it
-        outvoted the two-view rotation or there is none."""
-        if self.config.scale == "none" or vo.scale is None:
-            return pnp_pose
-        if two_view is not None and not outvoted:
-            return two_view
-        reference = self.pose_of(vo.keyframe_position)
-        step = invert_pose(reference) @ pnp_pose
-        length = float(np.linalg.norm(step[:3, 3]))
-        if length < 1e-9:
-            return pnp_pose
-        step[:3, 3] *= vo.scale / length
-        return reference @ step
 
     def relocalise(self, image: np.ndarray, position: int) -> tuple[Relocalisation, PnPEstimate | None]:
         """Unguided relocalisation against the segment's recent keyframes (`relocalise_by_descriptors`). Returns
