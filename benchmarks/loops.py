@@ -112,7 +112,7 @@ def main() -> None:
         for row in _similarity_rows(args.root, args.skip_synthetic):
             print(row, flush=True)
         return
-    rows: list[str] = []
+    print("| data | run | loops | accuracy |\n|---|---|---|---|", flush=True)
     if not args.skip_synthetic:
         loop = SyntheticStreet(route="loop")
         truth = loop.ground_truth
@@ -125,30 +125,27 @@ def main() -> None:
             # closes onto), on the first half of the route
             half = len(truth) // 2
             first = int(np.argmin(np.linalg.norm(truth[:half, :3, 3] - truth[-1, :3, 3], axis=1)))
-            rows.append(f"| synthetic loop, 660 frames, seed {seed} | map + loop closing | loops {closed} | final "
-                        f"error {final_on:.3f} m = {100 * final_on / final_off:.1f} % of {final_off:.3f} m without; "
-                        f"{errors[first]:.3f} m at frame {first}, the first pass there |")
-            print(rows[-1], flush=True)
+            print(f"| synthetic loop, 660 frames, seed {seed} | map + loop closing | loops {closed} | final error "
+                  f"{final_on:.3f} m = {100 * final_on / final_off:.1f} % of {final_off:.3f} m without; "
+                  f"{errors[first]:.3f} m at frame {first}, the first pass there |", flush=True)
     with tempfile.TemporaryDirectory() as folder:
         revisit = _revisit_folder(args.root, Path(folder), 150)
-        truth = revisit.ground_truth
-        assert truth is not None
+        revisit_truth = revisit.ground_truth
+        assert revisit_truth is not None
         mapped, closed = _run(revisit, "map", True)
         vo, _ = _run(revisit, "vo", False)
-        ate_map, ate_vo = (float(np.sqrt(np.mean(_errors(p, truth) ** 2))) for p in (mapped, vo))
+        ate_map, ate_vo = (float(np.sqrt(np.mean(_errors(p, revisit_truth) ** 2))) for p in (mapped, vo))
         order = list(range(150)) + list(range(149, -1, -1))
         same = [abs(order[a] - order[b]) for a, b in closed]
-        rows.append(f"| KITTI 05 0:150 then 149:0 | map + loop closing vs vo | {len(closed)} loops, KITTI frames "
-                    f"apart: {same} | ATE {ate_map:.3f} m vs vo {ate_vo:.3f} m |")
+        print(f"| KITTI 05 0:150 then 149:0 | map + loop closing vs vo | {len(closed)} loops, KITTI frames "
+              f"apart: {same} | ATE {ate_map:.3f} m vs vo {ate_vo:.3f} m |", flush=True)
     sources: list[tuple[str, FrameSource]] = [
         (f"KITTI {s} 0:300", KittiSource(args.root, sequence=s, frames=FrameRange(0, 300))) for s in ("00", "05")]
     if not args.skip_synthetic:
         sources.append(("synthetic street 0:300", SyntheticStreet()))
     for name, source in sources:
         _, closed = _run(source, "map", True)
-        rows.append(f"| {name} (open route) | map + loop closing | loops accepted: {len(closed)} {closed} | |")
-    print("| data | run | loops | accuracy |\n|---|---|---|---|")
-    print("\n".join(rows))
+        print(f"| {name} (open route) | map + loop closing | loops accepted: {len(closed)} {closed} | |", flush=True)
 
 
 if __name__ == "__main__":

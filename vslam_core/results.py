@@ -108,7 +108,9 @@ class TrackingMode(StrEnum):
 
     INIT = "init"  # the first frame of a map segment
     TWO_VIEW = "two_view"  # essential matrix from the keyframe: before the map exists, or PnP failed its checks
-    MAP = "map"  # PnP in RANSAC on the landmarks the frame's tracks see, refined on the inliers
+    # PnP in RANSAC on the landmarks the frame's tracks see, refined on the inliers: its pose (--scale none), or
+    # with a scale source the front end's motion when the two rotations agree (mapping/pnp.py metric_pose)
+    MAP = "map"
     RELOCALISED = "relocalised"  # tracks were lost: descriptors matched to the map's landmarks, then PnP
     COASTED = "coasted"  # a degraded frame: rotation from its contrast-normalised image, step from the scale source
     LOST = "lost"  # no pose: the previous one is held
