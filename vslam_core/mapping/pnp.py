@@ -1,4 +1,5 @@
-"""Camera pose from 2-D–3-D correspondences: PnP in RANSAC, refined on the inliers.
+"""Camera pose from 2-D–3-D correspondences: PnP in RANSAC, refined on the inliers; and the pose a frame PnP
+placed takes when a scale source gives its step's length (`metric_pose`).
 
 Points: (L, 3) world landmarks and (L, 2) pixels. Poses are camera-to-world (4, 4).
 """
