@@ -7,8 +7,10 @@ Each configuration runs in its own fresh Python process (``python -m benchmarks.
 one after the other, on the same frames: frames per second (decoding included), its ratio to the paper
 configuration's (with `--repeat` N the rows run round by round, N rounds, and the ratio is the median of the N
 ratios within a round: the host's speed may drift between rounds), the cost of recording over the same threading
-with recording off, ms per frame per stage, peak RSS, KB per frame of recording, and KITTI t_err / r_err. With
-2 threads the next frame is decoded in the background, so `decode` overlaps the other stages.
+with recording off, the CPU time the run took per frame (all its threads and the map backend's worker process:
+on a shared host a steadier measure of work than fps), ms per frame per stage, peak RSS, KB per frame of
+recording, and KITTI t_err / r_err. With 2 threads the next frame is decoded in the background, so `decode`
+overlaps the other stages.
 
 The `--backend map` rows (recording off, 1 and 2 threads) add: `pnp` (tracking against the map) and
 `mapping` (keyframe insertion and local mapping in the tracking thread, including the wait for the pending
@@ -16,10 +18,10 @@ bundle adjustment and, with loop closing on, the wait for the loop search) in ms
 frames, and bundle-adjustment solver ms per keyframe
 (gtsam's time as reported in `FrameResult.mapping.bundle_adjustment`, summed over the run and divided by
 its keyframes; the adjustment still pending at the end is applied to the output poses but reported by no
-frame, so it is not counted; with 2 threads it runs in a worker process beside tracking, with 1 thread
+frame, so it is not counted; with 2 threads it runs in the worker process beside tracking, with 1 thread
 inside `mapping`). Relocalisation time (`relocalise_ms`) is in the CSV only. Peak RSS is the measuring
-process's; the map backend's bundle-adjustment worker's (2 threads; 0 with 1 thread) is in the CSV as
-`worker_peak_rss_mb`.
+process's; the map backend's worker's (bundle adjustment and loop search; 2 threads; 0 with 1 thread) is in the
+CSV as `worker_peak_rss_mb`.
 
 Loop closing: the map backend with 2 threads runs once with it on (the default) and once off; the table after the
 main one gives both fps and ms per keyframe of each part of loop closing (`--rows "backend map"` runs only these
@@ -92,6 +94,7 @@ def _measure(label: str, root: str, sequence: str, frames: str) -> dict[str, obj
     size = 0
     keyframes, ba_ms = 0, 0.0
     loop_ms: dict[str, float] = {}
+    cpu_before = resource.getrusage(resource.RUSAGE_SELF)
     if system == "paper":
         baseline = run_paper_configuration(source)
         poses, seconds = baseline.poses, baseline.seconds
@@ -126,14 +129,19 @@ def _measure(label: str, root: str, sequence: str, frames: str) -> dict[str, obj
                 recorder.close()
                 size = path.stat().st_size
         poses, seconds = run.pose_array(), run.seconds
+    cpu_after, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    # this process's threads during the run and its finished children (the map backend's worker, stopped at the
+    # run's end; a fresh process per run, so no other child counts)
+    cpu_s = (cpu_after.ru_utime + cpu_after.ru_stime - cpu_before.ru_utime - cpu_before.ru_stime
+             + children.ru_utime + children.ru_stime)
     t_err, r_err = kitti_errors(gt, poses)
     n = len(poses)
     is_map = backend == "map"
     return {"system": label, "backend": backend + (" (no loop closing)" if label in LOOP_OFF else ""),
             "sequence": sequence, "frames": frames, "threads": threads,
-            "detail": str(detail), "fps": n / seconds, "t_err": t_err, "r_err": r_err,
+            "detail": str(detail), "fps": n / seconds, "cpu_ms": 1000 * cpu_s / n, "t_err": t_err, "r_err": r_err,
             "peak_rss_mb": status_mb("VmHWM"), "kb_per_frame": size / 1024 / n,
-            # the map backend's bundle-adjustment worker (2 threads), reaped by then: ru_maxrss is in KB
+            # the map backend's worker process (2 threads), reaped by then: ru_maxrss is in KB
             "worker_peak_rss_mb": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024 if is_map else None,
             "keyframes_per_100": 100 * keyframes / n if is_map else None,
             "ba_ms_per_keyframe": (ba_ms / keyframes if keyframes else 0.0) if is_map else None,
@@ -168,13 +176,15 @@ def _median_runs(labels: list[str], root: str, sequence: str, frames: str, repea
     for label in labels:
         ordered = sorted(runs[label], key=lambda r: float(r["fps"]))  # type: ignore[arg-type]
         medians.append({**ordered[len(ordered) // 2],
-                        "fps_runs": " ".join(f"{float(r['fps']):.2f}" for r in runs[label])})  # type: ignore[arg-type]
+                        "fps_runs": " ".join(f"{float(r['fps']):.2f}" for r in runs[label]),  # type: ignore[arg-type]
+                        "cpu_runs": " ".join(f"{float(r['cpu_ms']):.2f}" for r in runs[label])})  # type: ignore[arg-type]
     return medians
 
 
 def _paired(fps_runs: str, against: str) -> list[float]:
-    """Per round, a row's fps over another row's (two `fps_runs` strings, rounds in order): the rows of a round
-    ran one after the other, so a change in the machine's speed between rounds cancels out of each ratio."""
+    """Per round, a row's fps (or CPU) over another row's (two `fps_runs` or `cpu_runs` strings, rounds in order):
+    the rows of a round ran one after the other, so a change in the machine's speed between rounds cancels out of
+    each ratio."""
     return [float(a) / float(b) for a, b in zip(fps_runs.split(), against.split(), strict=True)]
 
 
@@ -224,13 +234,14 @@ def main() -> None:
     print(f"KITTI {args.sequences}, frames {args.frames}; median-fps run of {args.repeat} (rows measured in turn, "
           "round by round); × paper: the median over rounds of the ratio within each round; ms per frame per stage"
           + pinned)
-    print(f"| system | seq | fps | × paper | recording cost | t_err % | r_err °/100 m | {stages} | keyframes/100 "
-          "frames | BA ms/keyframe | peak RSS MB | KB/frame |")
-    print("|---|---|---|---|---|---|---|" + "---|" * len(STAGES) + "---|---|---|---|")
+    print(f"| system | seq | fps | × paper | CPU ms/frame | recording cost | t_err % | r_err °/100 m | {stages} | "
+          "keyframes/100 frames | BA ms/keyframe | peak RSS MB | KB/frame |")
+    print("|---|---|---|---|---|---|---|---|" + "---|" * len(STAGES) + "---|---|---|---|")
     for r in table.iter_rows(named=True):
         cells = " | ".join(f"{r[f'{stage}_ms']:.1f}" for stage in STAGES)
         cost = "—" if r["detail"] == str(Detail.OFF) else f"{r['recording_cost_pct']:+.1f} %"
-        print(f"| {r['system']} | {r['sequence']} | {r['fps']:.1f} | {r['x_paper']:.2f} | {cost} | {r['t_err']:.2f} "
+        print(f"| {r['system']} | {r['sequence']} | {r['fps']:.1f} | {r['x_paper']:.2f} | {r['cpu_ms']:.1f} | {cost} "
+              f"| {r['t_err']:.2f} "
               f"| {r['r_err']:.2f} | {cells} | {_optional(r['keyframes_per_100'], '{:.1f}')} "
               f"| {_optional(r['ba_ms_per_keyframe'], '{:.1f}')} | {r['peak_rss_mb']:.0f} | {r['kb_per_frame']:.1f} |")
     _loop_table(table)
@@ -255,18 +266,24 @@ def _loop_table(table: pl.DataFrame) -> None:
     off = table.filter(pl.col("system").is_in(list(LOOP_OFF)))
     if on.is_empty() or off.is_empty():
         return
-    print("\nLoop closing (map backend, 2 threads, recording off): fps on / off and ms per keyframe; describe, query,"
-          "\nverify and optimise run in the loop worker process, wait (for the worker, at the fixed point), apply"
-          "\n(a closed loop to the map) and submit (the next keyframe's snapshot) in the tracking thread")
+    print("\nLoop closing (map backend, 2 threads, recording off): fps on / off, the CPU time the run took (all its"
+          "\nthreads and its worker process) on / off, and ms per keyframe; describe, query, verify and optimise run in"
+          "\nthe worker process, wait (for the worker, at the fixed point), apply (a closed loop to the map) and submit"
+          "\n(the next keyframe's snapshot) in the tracking thread")
     print("(change: the median over rounds of on / off within each round, and its range)")
-    print("| seq | fps on | fps off | change | " + " | ".join(LOOP_PARTS) + " |")
-    print("|---|---|---|---|" + "---|" * len(LOOP_PARTS))
-    for row in on.join(off.select("sequence", fps_off="fps", runs_off="fps_runs"), on="sequence").iter_rows(named=True):
+    print("| seq | fps on | fps off | change | CPU ms/frame on | off | change | " + " | ".join(LOOP_PARTS) + " |")
+    print("|---|---|---|---|---|---|---|" + "---|" * len(LOOP_PARTS))
+    joined = on.join(off.select("sequence", fps_off="fps", runs_off="fps_runs", cpu_off="cpu_ms",
+                                cpu_runs_off="cpu_runs"), on="sequence")
+    for row in joined.iter_rows(named=True):
         parts = " | ".join(f"{row[f'loop_{part}_ms_per_keyframe']:.1f}" for part in LOOP_PARTS)
-        change = [100 * (ratio - 1) for ratio in _paired(row["fps_runs"], row["runs_off"])]
-        spread = f" [{min(change):+.1f} to {max(change):+.1f}]" if len(change) > 1 else ""
-        print(f"| {row['sequence']} | {row['fps']:.1f} | {row['fps_off']:.1f} | "
-              f"{statistics.median(change):+.1f} %{spread} | {parts} |")
+        changes = []
+        for runs, runs_off in (("fps_runs", "runs_off"), ("cpu_runs", "cpu_runs_off")):
+            change = [100 * (ratio - 1) for ratio in _paired(row[runs], row[runs_off])]
+            spread = f" [{min(change):+.1f} to {max(change):+.1f}]" if len(change) > 1 else ""
+            changes.append(f"{statistics.median(change):+.1f} %{spread}")
+        print(f"| {row['sequence']} | {row['fps']:.1f} | {row['fps_off']:.1f} | {changes[0]} | {row['cpu_ms']:.1f} | "
+              f"{row['cpu_off']:.1f} | {changes[1]} | {parts} |")
 
 
 if __name__ == "__main__":

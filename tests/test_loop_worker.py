@@ -1,5 +1,6 @@
-"""The loop search's hand-over (vslam_core/loop/worker.py): the worker process gives the same results as the
-search run in the tracking thread, and a run carries on (searching in its own process) if the worker dies."""
+"""The loop search's hand-over (vslam_core/loop/worker.py): the run's worker process gives the same results as the
+search run in the tracking thread, shares the process with bundle adjustment, and a run carries on (searching and
+adjusting in its own process) if the worker dies."""
 
 from __future__ import annotations
 
@@ -14,6 +15,8 @@ import numpy as np
 from vslam_core.config import EngineConfig
 from vslam_core.loop.search import SearchJob
 from vslam_core.loop.worker import LoopWorker
+from vslam_core.mapping.bundle_adjustment import BundleAdjuster, Problem, solve
+from vslam_core.mapping.worker_process import BackendWorker
 from vslam_core.sources.base import CameraIntrinsics
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -32,9 +35,26 @@ def _job(keyframe_id: int) -> SearchJob:
                      graph_poses=np.tile(np.eye(4), (keyframe_id + 1, 1, 1)))
 
 
+def _problem(seed: int) -> Problem:
+    """A small BA problem: 4 cameras along a street, 60 points seen by all, the first two held."""
+    rng = np.random.default_rng(seed)
+    K = np.array([[700.0, 0, 320], [0, 700, 120], [0, 0, 1]])  # noqa: N806
+    poses = np.tile(np.eye(4), (4, 1, 1))
+    poses[:, 2, 3] = np.arange(4.0)
+    points = np.column_stack((rng.uniform(-8, 8, 60), rng.uniform(-2, 2, 60), rng.uniform(12, 30, 60)))
+    pose_index, point_index = np.repeat(np.arange(4), 60), np.tile(np.arange(60), 4)
+    camera = points[point_index] - poses[pose_index, :3, 3]
+    pixels = camera[:, :2] / camera[:, 2:] * 700.0 + [320.0, 120.0] + rng.normal(0, 0.5, (240, 2))
+    noisy = poses.copy()
+    noisy[2:, :3, 3] += rng.normal(0, 0.05, (2, 3))
+    return Problem(K, noisy, 4, points + rng.normal(0, 0.1, points.shape), pose_index, point_index, pixels,
+                   np.zeros((0, 4)), fix_first=2, iterations=5, huber_px=1.5)
+
+
 def test_worker_process_matches_the_search_in_this_process() -> None:
     config = EngineConfig(backend="map")
-    inline, background = LoopWorker(CAMERA, config, background=False), LoopWorker(CAMERA, config, background=True)
+    process = BackendWorker()
+    inline, background = LoopWorker(CAMERA, config, None), LoopWorker(CAMERA, config, process)
     try:
         for keyframe_id in range(3):
             results = []
@@ -50,23 +70,44 @@ def test_worker_process_matches_the_search_in_this_process() -> None:
             np.testing.assert_array_equal(ours.descriptors, theirs.descriptors)
         assert background.collect() is None  # nothing pending
     finally:
-        inline.close()
-        background.close()
+        process.close()
+
+
+def test_bundle_adjustment_and_loop_search_share_one_worker_process() -> None:
+    """Jobs of both kinds in flight at once in the one process: each client gets its own results, in order,
+    the same as in this process."""
+    process = BackendWorker()
+    adjuster, search = BundleAdjuster(process), LoopWorker(CAMERA, EngineConfig(backend="map"), process)
+    try:
+        for step in range(3):
+            search.submit(_job(step))
+            adjuster.submit(_problem(step))
+            collected = adjuster.collect()  # read past the search's result, which is kept for its client
+            assert collected is not None
+            np.testing.assert_array_equal(collected[1].poses, solve(_problem(step)).poses)
+            result = search.collect()
+            assert result is not None and result.keyframe_id == step and len(result.pixels) > 100
+    finally:
+        process.close()
 
 
 def test_a_dead_worker_is_replaced_by_the_search_in_this_process() -> None:
-    worker = LoopWorker(CAMERA, EngineConfig(backend="map"), background=True)
+    process = BackendWorker()
+    adjuster, search = BundleAdjuster(process), LoopWorker(CAMERA, EngineConfig(backend="map"), process)
     try:
-        worker.submit(_job(0))
-        assert worker.collect() is not None
-        process = worker._process  # the worker this test started
-        process.kill()
-        process.join(timeout=10)
-        worker.submit(_job(1))
-        result = worker.collect()
+        search.submit(_job(0))
+        assert search.collect() is not None
+        adjuster.submit(_problem(0))  # in flight when the worker dies
+        process._process.kill()  # the worker this test started
+        process._process.join(timeout=10)
+        collected = adjuster.collect()
+        assert collected is not None
+        np.testing.assert_array_equal(collected[1].poses, solve(_problem(0)).poses)
+        search.submit(_job(1))
+        result = search.collect()
         assert result is not None and result.keyframe_id == 1 and len(result.pixels) > 100
     finally:
-        worker.close()
+        process.close()
 
 
 def test_worker_processes_start_without_the_callers_main_module(kitti_root: Path, tmp_path: Path) -> None:

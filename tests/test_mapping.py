@@ -16,6 +16,7 @@ from vslam_core.geometry import interpolate_pose, invert_pose, pose_matrix, rota
 from vslam_core.mapping.bundle_adjustment import BundleAdjuster, Problem, solve
 from vslam_core.mapping.pnp import metric_pose, project, solve_pnp
 from vslam_core.mapping.tracking import MapTracking
+from vslam_core.mapping.worker_process import BackendWorker
 from vslam_core.pipeline import run_odometry
 from vslam_core.results import FrameResult, FrameStatus, Reason, TrackingMode
 from vslam_core.scale import GroundTruthScale
@@ -116,12 +117,13 @@ def test_bundle_adjustment_in_the_worker_process_gives_the_same_solution() -> No
     noisy = np.array([_perturbed(p, rng, 0.5, 0.05) if i >= 2 else p for i, p in enumerate(poses)])
     problem = Problem(K, noisy, 8, seen, pose_index, point_index, pixels, np.zeros((0, 4)), fix_first=2,
                       iterations=5, huber_px=1.5)
-    adjuster = BundleAdjuster(background=True)
+    worker = BackendWorker()
     try:
+        adjuster = BundleAdjuster(worker)
         adjuster.submit(problem)
         collected = adjuster.collect()
     finally:
-        adjuster.close()
+        worker.close()
     assert collected is not None
     np.testing.assert_array_equal(collected[1].poses, solve(problem).poses)
 

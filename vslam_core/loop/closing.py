@@ -25,6 +25,7 @@ from vslam_core.loop.places import EMPTY_DESCRIPTORS, KeyframePlace
 from vslam_core.loop.search import GraphSolution, SearchJob, SearchResult
 from vslam_core.loop.worker import LoopWorker
 from vslam_core.mapping.map import Map
+from vslam_core.mapping.worker_process import BackendWorker
 from vslam_core.results import LoopClosed, LoopStep
 from vslam_core.sources.base import CameraIntrinsics
 
@@ -34,16 +35,13 @@ NO_IMAGE = np.zeros((0, 0), np.uint8)
 class LoopClosing:
     """Hands keyframes to the loop search and applies the loops it closes to the map."""
 
-    def __init__(self, camera: CameraIntrinsics, config: EngineConfig, background: bool) -> None:
+    def __init__(self, camera: CameraIntrinsics, config: EngineConfig, worker: BackendWorker | None) -> None:
         self._config = config.loop
         self._settled = config.map.ba_window + config.map.ba_max_fixed + 1  # keyframes after which BA is done
-        self._worker = LoopWorker(camera, config, background)
+        self._worker = LoopWorker(camera, config, worker)
         self._waiting: tuple[int, np.ndarray] | None = None  # (keyframe id, image) not submitted yet
         self.places: dict[int, KeyframePlace] = {}  # every keyframe searched, with its features (the map file)
         self.closed: list[LoopClosed] = []
-
-    def close(self) -> None:
-        self._worker.close()
 
     def submit(self, keyframe_id: int, image: np.ndarray) -> None:
         """A keyframe was inserted: its search is submitted at the next insertion (after its bundle adjustment)."""

@@ -96,10 +96,6 @@ class LoopSearch:
         self._edges: list[tuple[int, int, np.ndarray, float]] = []  # (candidate, query, T_candidate_query, scale)
         self._poses: dict[int, np.ndarray] = {}  # keyframe id -> T_world_cam, as of the latest job
 
-    def warm_up(self) -> None:
-        """Import what the pose graph needs (gtsam, a few seconds) before the first loop is closed."""
-        import gtsam  # noqa: F401
-
     def run(self, job: SearchJob) -> SearchResult:
         timings: dict[str, float] = {}
         clock = time.perf_counter()

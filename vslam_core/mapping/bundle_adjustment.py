@@ -11,27 +11,19 @@ scale, the front end's two-view rotation between consecutive keyframes enters as
 translation has no weight (sigma 1e6): a relative-rotation prior.
 
 `solve` is a pure function of a `Problem` (arrays in, arrays out), so it runs the same in this process or
-in the background worker (`BundleAdjuster`), and the same input always gives the same output. The module
-imports numpy and (when solving) gtsam, never OpenCV: the worker process starts with the run, when both cores are
-busiest, and OpenCV's import costs 0.03–0.18 s of CPU there (measured in a spawned process, warm and cold).
+in the run's worker process (`BundleAdjuster`), and the same input always gives the same output. The module
+imports numpy and (when solving) gtsam, not OpenCV: with loop closing off the worker process never needs it (its
+import costs 0.03–0.18 s of CPU there, when both cores are busiest).
 """
 
 from __future__ import annotations
 
-import multiprocessing
 import time
 from dataclasses import dataclass, field
-from multiprocessing.connection import Connection
-from typing import Any
 
 import numpy as np
 
-from vslam_core.mapping.worker_process import (
-    IdleWorker,
-    release_worker,
-    take_idle_worker,
-    without_main,
-)
+from vslam_core.mapping.worker_process import BackendWorker, WorkerGone
 
 
 @dataclass(frozen=True)
@@ -150,38 +142,27 @@ def solve(problem: Problem) -> Solution:
     )
 
 
-def _serve(connection: Connection) -> None:
-    """The worker process: solve each problem received, until None arrives."""
-    import gtsam  # noqa: F401 - import before the first problem, while the engine starts up
+class Solver:
+    """The worker process's bundle-adjustment service (`worker_process.BackendWorker`): `solve`, which keeps no
+    state."""
 
-    while True:
-        try:
-            problem = connection.recv()
-        except EOFError:  # this side's process is gone (killed, or exited with this worker kept idle)
-            return
-        if problem is None:
-            return
-        connection.send(solve(problem))
+    def run(self, problem: Problem) -> Solution:
+        return solve(problem)
 
 
 class BundleAdjuster:
-    """Runs `solve` beside tracking. With `background`, in a worker process (gtsam holds the GIL, so a
-    thread would stall tracking); otherwise when the result is asked for. Either way a problem's solution
-    is collected at a fixed point chosen by the caller, so results do not depend on timing."""
+    """Runs `solve` beside tracking. Given the run's worker process, there (gtsam holds the GIL, so a thread
+    would stall tracking); otherwise, or once that process is gone, when the result is asked for. Either way a
+    problem's solution is collected at a fixed point chosen by the caller, so results do not depend on timing."""
 
-    def __init__(self, background: bool) -> None:
+    SERVICE = "bundle-adjustment"
+
+    def __init__(self, worker: BackendWorker | None) -> None:
         self._pending: Problem | None = None
-        self._connection: Connection | None = None
-        self._process: Any = None
-        if background and (idle := take_idle_worker("bundle-adjustment")) is not None:
-            self._connection, self._process = idle.connection, idle.process  # it solves each problem afresh
-        elif background:
-            context = multiprocessing.get_context("spawn")
-            self._connection, child = context.Pipe()
-            self._process = context.Process(target=_serve, args=(child,), name="vslam-ba", daemon=True)
-            with without_main():
-                self._process.start()
-            child.close()
+        self._sent = False  # the pending problem went to the worker
+        self._worker = worker
+        if worker is not None:
+            worker.setup(self.SERVICE, Solver)
 
     @property
     def busy(self) -> bool:
@@ -189,27 +170,23 @@ class BundleAdjuster:
 
     def submit(self, problem: Problem) -> None:
         assert self._pending is None, "collect the previous solution first"
-        self._pending = problem
-        if self._connection is not None:
-            self._connection.send(problem)
+        self._pending, self._sent = problem, False
+        if self._worker is not None:
+            try:
+                self._worker.submit(self.SERVICE, problem)
+                self._sent = True
+            except WorkerGone:
+                self._worker = None
 
     def collect(self) -> tuple[Problem, Solution] | None:
         """The solution of the submitted problem (waiting for it), or None if nothing was submitted."""
         problem, self._pending = self._pending, None
         if problem is None:
             return None
-        if self._connection is None:
-            return problem, solve(problem)
-        try:
-            return problem, self._connection.recv()
-        except EOFError:  # the worker died (e.g. killed): solve here from now on
-            self._connection = None
-            return problem, solve(problem)
-
-    def close(self) -> None:
-        if self._connection is not None and self._process is not None:
-            release_worker("bundle-adjustment", IdleWorker(self._process, self._connection),
-                           awaiting_result=self._pending is not None)
-        self._pending = None
-        self._connection = None
-        self._process = None
+        if self._worker is not None and self._sent:
+            try:
+                solution: Solution = self._worker.receive(self.SERVICE)
+                return problem, solution
+            except WorkerGone:  # the worker died (e.g. killed): solve here from now on
+                self._worker = None
+        return problem, solve(problem)

@@ -22,6 +22,7 @@ from vslam_core.geometry import invert_pose, normalise_points, orthonormalise, t
 from vslam_core.lens import distort_pixels
 from vslam_core.mapping.bundle_adjustment import BundleAdjuster, Problem, Solution
 from vslam_core.mapping.map import Keyframe, Map
+from vslam_core.mapping.worker_process import BackendWorker
 from vslam_core.results import BundleAdjusted, KeyframeInserted, MapView
 from vslam_core.sources.base import CameraIntrinsics
 
@@ -41,24 +42,22 @@ class _Submitted:
 class LocalMapping:
     """Owns the map; tracking hands it keyframes and reads landmarks back."""
 
-    def __init__(self, camera: CameraIntrinsics, config: MapConfig, scale: ScaleSource, background: bool) -> None:
+    def __init__(self, camera: CameraIntrinsics, config: MapConfig, scale: ScaleSource,
+                 worker: BackendWorker | None) -> None:
         """Pixels handed in are ideal pinhole pixels of the camera's K; a distorted lens places them on the raw
-        image for the descriptors."""
+        image for the descriptors. Bundle adjustment runs in `worker` if given, else when it is collected."""
         self.map = Map()
         self._camera = camera
         self._K = camera.K
         self._config = config
         self._scale = scale
-        self._adjuster = BundleAdjuster(background)
+        self._adjuster = BundleAdjuster(worker)
         self._submitted: _Submitted | None = None
         self._sightings: dict[int, list[tuple[int, np.ndarray]]] = {}  # track id -> (keyframe id, pixel)s
         # upright ORB descriptors at level 0 (the car's camera hardly rolls): landmarks and relocalisation
         self.describer = cv2.ORB_create(edgeThreshold=int(DESCRIPTOR_PATCH), patchSize=int(DESCRIPTOR_PATCH))
         self._window: list[int] = []  # keyframe ids of the current BA window
         self.keyframe_images: dict[int, np.ndarray] = {}  # the newest KEYFRAME_IMAGES keyframes' (H, W) images
-
-    def close(self) -> None:
-        self._adjuster.close()
 
     # -- bundle adjustment ---------------------------------------------------------------------------------
 

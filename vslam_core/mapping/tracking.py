@@ -39,6 +39,7 @@ from vslam_core.mapping.map_scale import (
 from vslam_core.mapping.pnp import PnPSolution, at_raw_pixels, metric_pose, solve_pnp
 from vslam_core.mapping.refinding import MapRefinding, suspended_at_keyframe
 from vslam_core.mapping.relocalisation import relocalise_by_descriptors
+from vslam_core.mapping.worker_process import BackendWorker
 from vslam_core.results import (
     STANDING_STILL,
     BundleAdjusted,
@@ -78,7 +79,9 @@ class MapTracking:
         self._slow = False  # --scale none: a slow camera (map_scale.slow_camera), its landmarks at a smaller angle
         self._scale: ScaleProvider = self._speed if self._speed is not None else scale
         self._odometry = Odometry(intrinsics, config, self._scale, coast=False)  # coasting is done here, with the map
-        self.mapping = LocalMapping(intrinsics, self._cfg, config.scale, background=config.threads > 1)
+        # bundle adjustment and the loop search run in one worker process beside tracking (with 2 threads)
+        self._worker = BackendWorker() if config.threads > 1 else None
+        self.mapping = LocalMapping(intrinsics, self._cfg, config.scale, self._worker)
         self._links: dict[int, int] = {}  # live track id -> landmark id
         self._suspended: dict[int, int] = {}  # tracks PnP rejected -> their landmark (observed at keyframes only)
         self._segment = 0
@@ -93,16 +96,15 @@ class MapTracking:
         self._segment_lost = False  # relocalisation failed: a new segment starts at the next frame with a pose
         self._initialised = False  # --scale none: the segment's map was started by a well-conditioned two-view
         self._before_map = FramesBeforeMap()  # --scale none: the frames tracked while it waits for that
-        self.loop = LoopClosing(intrinsics, config, config.threads > 1) if config.loop.enabled else None
+        self.loop = LoopClosing(intrinsics, config, self._worker) if config.loop.enabled else None
         self.loops_at_end: list[LoopStep] = []  # what the loop searches collected when the run ended did
         self._refound: dict[int, np.ndarray] = {}  # landmark id -> ideal pixel: re-found, for a keyframe now
         self._chain = RotationChain()  # the front end's rotations, a prior between keyframes in BA
         self.refinding = MapRefinding(intrinsics, self._cfg, LocalMapSearcher(intrinsics, self._cfg), config.tracker)
 
     def close(self) -> None:
-        self.mapping.close()
-        if self.loop is not None:
-            self.loop.close()
+        if self._worker is not None:
+            self._worker.close()
 
     def refined_poses(self, count: int) -> list[np.ndarray]:
         """(4, 4) poses of the first `count` frames after the last bundle adjustment: each frame moved with

@@ -1,19 +1,54 @@
-"""Starting and stopping a background worker process (the bundle adjuster's, the loop search's) the same way
-each time, and keeping idle ones for the next run when asked to (`reuse_workers`)."""
+"""The map backend's worker process: one per run, beside tracking, serving the bundle adjuster's problems and the
+loop search's keyframes in the order they were submitted (`BackendWorker`); started and stopped the same way each
+time, and kept idle for the next run when asked to (`reuse_workers`).
+
+One process, not one per job kind: starting a process costs Python's start, numpy's, OpenCV's and gtsam's imports,
+~1.2 s of CPU for the loop search's own process (measured: on KITTI 05 0:300 that was nearly all the CPU loop closing
+cost, its 73 searches ~0.35 s), taken from tracking on 2 cores. The two kinds of job share the process's core in turn;
+each result is still collected at a fixed point chosen by its client, so runs stay deterministic.
+"""
 
 from __future__ import annotations
 
+import collections
 import contextlib
+import importlib
+import multiprocessing
 import os
+import queue
 import sys
 import threading
 import types
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from multiprocessing.process import BaseProcess
 from multiprocessing.queues import Queue
-from typing import Any
+from typing import Any, Protocol
+
+
+class WorkerGone(Exception):
+    """The worker process is gone (killed, crashed): its client does the job in this process from now on."""
+
+
+class Service(Protocol):
+    """What the worker process runs jobs on: a bundle adjuster, a loop search."""
+
+    def run(self, job: Any) -> Any: ...
+
+
+@dataclass(frozen=True)
+class _Setup:
+    """To the worker: (re)create the service `name` as `factory(*args)` (a picklable module-level callable)."""
+
+    name: str
+    factory: Callable[..., Service]
+    args: tuple[Any, ...]
+
+
+@dataclass(frozen=True)
+class _Reset:
+    """To a kept worker: a run closed; forget its services (and what they hold) until the next run sets them up."""
 
 
 @contextlib.contextmanager
@@ -32,23 +67,49 @@ def without_main() -> Iterator[None]:
         sys.modules["__main__"] = main
 
 
-def stop_worker(connection: Connection | None, process: BaseProcess | None, *, awaiting_result: bool,
-                jobs: Queue[Any] | None = None, timeout_s: float = 5.0) -> None:
+def _serve(jobs: Any, connection: Connection, preload: tuple[str, ...]) -> None:
+    """The worker process: import `preload`, then handle the messages on `jobs` in order until None arrives. A job
+    `(name, job)` is run by the service `name` and its result sent back as `(name, result)`."""
+    for module in preload:  # before the first job, while the run starts up (gtsam: ~0.5 s)
+        importlib.import_module(module)
+    services: dict[str, Service] = {}
+    parent = multiprocessing.parent_process()
+    while True:
+        try:
+            message = jobs.get(timeout=1.0)
+        except queue.Empty:  # nothing to do: stop if the run's process is gone (killed: no None will come)
+            if parent is not None and not parent.is_alive():
+                return
+            continue
+        if message is None:
+            return
+        if isinstance(message, _Setup):
+            services[message.name] = message.factory(*message.args)
+        elif isinstance(message, _Reset):
+            services.clear()
+        else:
+            name, job = message
+            try:
+                connection.send((name, services[name].run(job)))
+            except (BrokenPipeError, OSError):  # the run's process is gone
+                return
+
+
+def stop_worker(connection: Connection | None, process: BaseProcess | None, jobs: Queue[Any] | None, *,
+                awaiting: int = 0, timeout_s: float = 5.0) -> None:
     """Drain, stop, join and if need be kill a worker process.
 
-    `connection` is this side of the pipe the worker answers on; if `awaiting_result`, the answer to the job
-    still in flight is received (and dropped) first, so the worker is not left blocked on a full pipe. The
-    stop message (None) goes on `jobs` if the worker takes its jobs from a queue, else through `connection`.
-    A worker already gone (closed pipe) is not an error. The worker gets `timeout_s` to exit, then is killed.
+    `connection` is this side of the pipe the worker answers on; the `awaiting` answers still in flight are
+    received (and dropped) first, so the worker is not left blocked on a full pipe. The stop message (None) goes
+    on `jobs`. A worker already gone (closed pipe) is not an error. The worker gets `timeout_s` to exit, then is
+    killed.
     """
     if connection is not None:
         try:
-            if awaiting_result:
+            for _ in range(awaiting):
                 connection.recv()
             if jobs is not None:
                 jobs.put(None)
-            else:
-                connection.send(None)
         except (OSError, EOFError):
             pass
         connection.close()
@@ -63,76 +124,137 @@ def stop_worker(connection: Connection | None, process: BaseProcess | None, *, a
 
 @dataclass(frozen=True)
 class IdleWorker:
-    """A worker process whose run closed, with this side of its channels: `connection` (results, or both ways)
-    and `jobs` (a queue of jobs, for workers that take them from one)."""
+    """A worker process whose run closed, with this side of its channels: `jobs` (a queue) and `connection`
+    (the pipe its results come back on)."""
 
     process: BaseProcess
     connection: Connection
-    jobs: Queue[Any] | None = None
+    jobs: Queue[Any]
 
 
-MAX_IDLE = 2  # idle workers kept per kind
-_pool: dict[str, list[IdleWorker]] = {}
+MAX_IDLE = 2  # idle workers kept
+_pool: list[IdleWorker] = []
 _pool_lock = threading.Lock()
 _pool_owner = os.getpid()
 _reuse = False
 
 
 def reuse_workers(enabled: bool = True) -> None:
-    """Keep the map backend's worker processes when a run closes, for the next run of this process (a test
-    session, a batch worker running many short windows): starting one costs ~0.7 s of CPU (Python, numpy and
-    gtsam imports), as much as a short run's work. A reused worker starts each run from a fresh state, so results
-    are the same. Off by default: a run then stops its workers when it closes (so their CPU time and peak RSS
-    count as this process's finished children, which `benchmarks/speed.py` reads). Turning it off stops the idle
-    ones."""
+    """Keep the map backend's worker process when a run closes, for the next run of this process (a test
+    session, a batch worker running many short windows): starting one costs ~1 s of CPU (Python, numpy, gtsam
+    and OpenCV imports), as much as a short run's work. A reused worker starts each run with fresh services, so
+    results are the same. Off by default: a run then stops its worker when it closes (so its CPU time and peak
+    RSS count as this process's finished children, which `benchmarks/speed.py` reads). Turning it off stops the
+    idle ones."""
     global _reuse
     with _pool_lock:
         _reuse = enabled
-        stopping = [] if enabled else [w for workers in _pool.values() for w in workers]
+        stopping = [] if enabled else list(_pool)
         if not enabled:
             _pool.clear()
     for worker in stopping:
-        stop_worker(worker.connection, worker.process, awaiting_result=False, jobs=worker.jobs)
+        stop_worker(worker.connection, worker.process, worker.jobs)
 
 
-def take_idle_worker(kind: str) -> IdleWorker | None:
-    """A live idle worker of this kind kept by an earlier run of this process, or None."""
+def _take_idle_worker() -> IdleWorker | None:
+    """A live idle worker kept by an earlier run of this process, or None."""
     global _pool_owner
     with _pool_lock:
         if os.getpid() != _pool_owner:  # a forked child: the workers and their channels are its parent's
             _pool.clear()
             _pool_owner = os.getpid()
-        workers = _pool.get(kind, [])
-        while workers:
-            worker = workers.pop()
+        while _pool:
+            worker = _pool.pop()
             if worker.process.is_alive():
                 return worker
     return None
 
 
-def keep_idle_worker(kind: str, worker: IdleWorker) -> bool:
+def _keep_idle_worker(worker: IdleWorker) -> bool:
     """Keep a worker that finished its run (nothing in flight) for the next one, if `reuse_workers` is on and it
     is alive; False if it was not kept (the caller stops it)."""
     with _pool_lock:
-        workers = _pool.setdefault(kind, [])
-        if not _reuse or os.getpid() != _pool_owner or len(workers) >= MAX_IDLE or not worker.process.is_alive():
+        if not _reuse or os.getpid() != _pool_owner or len(_pool) >= MAX_IDLE or not worker.process.is_alive():
             return False
-        workers.append(worker)
+        _pool.append(worker)
         return True
 
 
-def release_worker(kind: str, worker: IdleWorker, *, awaiting_result: bool, restart: Any = None) -> None:
-    """A run is done with its worker: the answer in flight, if `awaiting_result`, is received and dropped;
-    `restart`, if given, goes on the worker's job queue (it lets go of the run's state); then the worker is kept
-    idle for the next run (`keep_idle_worker`) or stopped (`stop_worker`). A worker already gone is stopped."""
-    try:
-        if awaiting_result:
-            worker.connection.recv()
-            awaiting_result = False
-        if restart is not None and worker.jobs is not None:
-            worker.jobs.put(restart)
-        if keep_idle_worker(kind, worker):
+class BackendWorker:
+    """This side of a run's worker process: set services up, submit jobs to them, receive their results.
+
+    Jobs are run one at a time in the order submitted, whatever their service; `receive(name)` returns the
+    oldest result of that service not yet received, waiting for it (results of other services read meanwhile
+    are kept for their own `receive`). Jobs go through a queue, whose feeder thread writes them to the pipe, so
+    submitting a keyframe's image does not block tracking. If the process is gone, `submit` and `receive` raise
+    `WorkerGone` and every client does its jobs itself from then on.
+    """
+
+    def __init__(self, preload: tuple[str, ...] = ("gtsam",)) -> None:
+        self._results: dict[str, collections.deque[Any]] = collections.defaultdict(collections.deque)
+        self._awaiting = 0  # jobs submitted whose result has not been read from the pipe
+        self._gone = False
+        self._process: BaseProcess
+        if (idle := _take_idle_worker()) is not None:
+            self._process, self._connection, self._jobs = idle.process, idle.connection, idle.jobs
             return
-    except (OSError, EOFError):  # the worker is gone
-        awaiting_result = False
-    stop_worker(worker.connection, worker.process, awaiting_result=awaiting_result, jobs=worker.jobs)
+        context = multiprocessing.get_context("spawn")
+        self._jobs = context.Queue()
+        self._connection, child = context.Pipe(duplex=False)
+        self._process = context.Process(target=_serve, args=(self._jobs, child, preload), name="vslam-backend",
+                                        daemon=True)
+        with without_main():
+            self._process.start()
+        child.close()
+
+    @property
+    def alive(self) -> bool:
+        return not self._gone and self._process.is_alive()
+
+    def setup(self, name: str, factory: Callable[..., Service], *args: Any) -> None:
+        """Create the service `name` in the worker as `factory(*args)` (before its first job)."""
+        self._jobs.put(_Setup(name, factory, args))
+
+    def submit(self, name: str, job: Any) -> None:
+        if not self.alive:
+            self._gone = True
+            raise WorkerGone
+        self._jobs.put((name, job))
+        self._awaiting += 1
+
+    def receive(self, name: str) -> Any:
+        waiting = self._results[name]
+        while not waiting:
+            if self._gone:
+                raise WorkerGone
+            try:
+                service, result = self._connection.recv()
+            except (EOFError, OSError):
+                self._gone = True
+                raise WorkerGone from None
+            self._awaiting -= 1
+            self._results[service].append(result)
+        return waiting.popleft()
+
+    def close(self) -> None:
+        """The run is done with its worker: the results in flight are received and dropped, its services reset,
+        then the worker is kept idle for the next run (`reuse_workers`) or stopped."""
+        worker = IdleWorker(self._process, self._connection, self._jobs)
+        awaiting, self._awaiting = self._awaiting, 0
+        self._results.clear()
+        if self._gone:  # nothing will read the queue: do not wait for its feeder thread
+            self._connection.close()
+            self._jobs.cancel_join_thread()
+            self._jobs.close()
+            stop_worker(None, self._process, None)
+            return
+        try:
+            for _ in range(awaiting):
+                self._connection.recv()
+            awaiting = 0
+            self._jobs.put(_Reset())
+            if _keep_idle_worker(worker):
+                return
+        except (OSError, EOFError):  # the worker is gone
+            awaiting = 0
+        stop_worker(self._connection, self._process, self._jobs, awaiting=awaiting)
