@@ -15,6 +15,7 @@ import numpy as np
 from vslam_core.config import EngineConfig
 from vslam_core.loop.search import SearchJob
 from vslam_core.loop.worker import LoopWorker
+from vslam_core.mapping import worker_process
 from vslam_core.mapping.bundle_adjustment import BundleAdjuster, Problem, solve
 from vslam_core.mapping.worker_process import BackendWorker
 from vslam_core.sources.base import CameraIntrinsics
@@ -71,6 +72,8 @@ def test_worker_process_matches_the_search_in_this_process() -> None:
         assert background.collect() is None  # nothing pending
     finally:
         process.close()
+        process.close()  # a second close does nothing: the worker is not kept (or stopped) twice
+        assert sum(idle.process is process._process for idle in worker_process._pool) <= 1
 
 
 def test_bundle_adjustment_and_loop_search_share_one_worker_process() -> None:

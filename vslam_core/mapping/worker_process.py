@@ -194,6 +194,7 @@ class BackendWorker:
         self._results: dict[str, collections.deque[Any]] = collections.defaultdict(collections.deque)
         self._awaiting = 0  # jobs submitted whose result has not been read from the pipe
         self._gone = False
+        self._closed = False
         self._process: BaseProcess
         if (idle := _take_idle_worker()) is not None:
             self._process, self._connection, self._jobs = idle.process, idle.connection, idle.jobs
@@ -216,7 +217,7 @@ class BackendWorker:
         self._jobs.put(_Setup(name, factory, args))
 
     def submit(self, name: str, job: Any) -> None:
-        if not self.alive:
+        if self._closed or not self.alive:
             self._gone = True
             raise WorkerGone
         self._jobs.put((name, job))
@@ -238,7 +239,10 @@ class BackendWorker:
 
     def close(self) -> None:
         """The run is done with its worker: the results in flight are received and dropped, its services reset,
-        then the worker is kept idle for the next run (`reuse_workers`) or stopped."""
+        then the worker is kept idle for the next run (`reuse_workers`) or stopped. Closing again does nothing."""
+        if self._closed:
+            return
+        self._closed = True
         worker = IdleWorker(self._process, self._connection, self._jobs)
         awaiting, self._awaiting = self._awaiting, 0
         self._results.clear()
