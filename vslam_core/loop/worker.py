@@ -16,7 +16,7 @@ import cv2
 
 from vslam_core.config import EngineConfig
 from vslam_core.loop.search import LoopSearch, SearchJob, SearchResult
-from vslam_core.mapping.worker_process import BackendWorker, WorkerGone
+from vslam_core.mapping.worker_process import BackendWorker, ServiceClient
 from vslam_core.sources.base import CameraIntrinsics
 
 
@@ -29,58 +29,33 @@ def worker_search(camera: CameraIntrinsics, config: EngineConfig) -> LoopSearch:
 class LoopWorker:
     """Submit a job, collect its result later (waiting for it if it is not done)."""
 
-    SERVICE = "loop-search"
-
     def __init__(self, camera: CameraIntrinsics, config: EngineConfig, worker: BackendWorker | None) -> None:
         self._camera = camera
         self._config = config
-        self._pending: SearchJob | None = None
-        self._sent = False  # the pending job went to the worker
-        self._worker = worker
-        self._local: LoopSearch | None = None
+        self._local = LoopSearch(camera, config) if worker is None else None
+        self._client: ServiceClient[SearchJob, SearchResult] = ServiceClient(
+            worker, "loop-search", self._search_here, worker_search, camera, config, on_gone=self._fall_back)
         self.waited_ms = 0.0  # how long the last `collect` waited for the worker
-        if worker is not None:
-            worker.setup(self.SERVICE, worker_search, camera, config)
-        else:
-            self._local = LoopSearch(camera, config)
 
     @property
     def busy(self) -> bool:
-        return self._pending is not None
+        return self._client.busy
 
     def submit(self, job: SearchJob) -> None:
-        assert self._pending is None, "collect the previous result first"
-        self._pending, self._sent = job, False
-        if self._worker is not None:
-            try:
-                self._worker.submit(self.SERVICE, job)
-                self._sent = True
-            except WorkerGone:
-                self._fall_back()
+        self._client.submit(job)
+
+    def _search_here(self, job: SearchJob) -> SearchResult:
+        assert self._local is not None
+        return self._local.run(job)
 
     def _fall_back(self) -> None:
         """The worker process is gone (e.g. killed): search in this process from now on, with an empty place
         database (the keyframes before are no longer candidates)."""
-        self._worker = None
         self._local = LoopSearch(self._camera, self._config)
 
     def collect(self) -> SearchResult | None:
         """The submitted job's result (waiting for it), or None if nothing was submitted."""
-        job, self._pending = self._pending, None
-        self.waited_ms = 0.0
-        if job is None:
-            return None
         start = time.perf_counter()
-        result = self._receive(job)
-        self.waited_ms = (time.perf_counter() - start) * 1000.0  # in one thread: the whole search
-        return result
-
-    def _receive(self, job: SearchJob) -> SearchResult:
-        if self._worker is not None and self._sent:
-            try:
-                result: SearchResult = self._worker.receive(self.SERVICE)
-                return result
-            except WorkerGone:
-                self._fall_back()
-        assert self._local is not None
-        return self._local.run(job)
+        collected = self._client.collect()
+        self.waited_ms = (time.perf_counter() - start) * 1000.0 if collected else 0.0  # in one thread: the search
+        return collected[1] if collected else None

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vslam_core.mapping.worker_process import BackendWorker, WorkerGone
+from vslam_core.mapping.worker_process import BackendWorker, ServiceClient
 
 
 @dataclass(frozen=True)
@@ -155,38 +155,16 @@ class BundleAdjuster:
     would stall tracking); otherwise, or once that process is gone, when the result is asked for. Either way a
     problem's solution is collected at a fixed point chosen by the caller, so results do not depend on timing."""
 
-    SERVICE = "bundle-adjustment"
-
     def __init__(self, worker: BackendWorker | None) -> None:
-        self._pending: Problem | None = None
-        self._sent = False  # the pending problem went to the worker
-        self._worker = worker
-        if worker is not None:
-            worker.setup(self.SERVICE, Solver)
+        self._client: ServiceClient[Problem, Solution] = ServiceClient(worker, "bundle-adjustment", solve, Solver)
 
     @property
     def busy(self) -> bool:
-        return self._pending is not None
+        return self._client.busy
 
     def submit(self, problem: Problem) -> None:
-        assert self._pending is None, "collect the previous solution first"
-        self._pending, self._sent = problem, False
-        if self._worker is not None:
-            try:
-                self._worker.submit(self.SERVICE, problem)
-                self._sent = True
-            except WorkerGone:
-                self._worker = None
+        self._client.submit(problem)
 
     def collect(self) -> tuple[Problem, Solution] | None:
         """The solution of the submitted problem (waiting for it), or None if nothing was submitted."""
-        problem, self._pending = self._pending, None
-        if problem is None:
-            return None
-        if self._worker is not None and self._sent:
-            try:
-                solution: Solution = self._worker.receive(self.SERVICE)
-                return problem, solution
-            except WorkerGone:  # the worker died (e.g. killed): solve here from now on
-                self._worker = None
-        return problem, solve(problem)
+        return self._client.collect()

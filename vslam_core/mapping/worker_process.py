@@ -1,6 +1,7 @@
 """The map backend's worker process: one per run, beside tracking, serving the bundle adjuster's problems and the
-loop search's keyframes in the order they were submitted (`BackendWorker`); started and stopped the same way each
-time, and kept idle for the next run when asked to (`reuse_workers`).
+loop search's keyframes in the order they were submitted (`BackendWorker`, and each service's side of it,
+`ServiceClient`); started and stopped the same way each time, and kept idle for the next run when asked to
+(`reuse_workers`).
 
 One process, not one per job kind: starting a process costs Python's start, numpy's, OpenCV's and gtsam's imports,
 ~1.2 s of CPU for the loop search's own process (measured: on KITTI 05 0:300 that was nearly all the CPU loop closing
@@ -24,7 +25,7 @@ from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from multiprocessing.process import BaseProcess
 from multiprocessing.queues import Queue
-from typing import Any, Protocol
+from typing import Any, Generic, Protocol, TypeVar
 
 
 class WorkerGone(Exception):
@@ -95,31 +96,31 @@ def _serve(jobs: Any, connection: Connection, preload: tuple[str, ...]) -> None:
                 return
 
 
-def stop_worker(connection: Connection | None, process: BaseProcess | None, jobs: Queue[Any] | None, *,
-                awaiting: int = 0, timeout_s: float = 5.0) -> None:
+def stop_worker(connection: Connection, process: BaseProcess, jobs: Queue[Any], *, awaiting: int = 0,
+                gone: bool = False, timeout_s: float = 5.0) -> None:
     """Drain, stop, join and if need be kill a worker process.
 
     `connection` is this side of the pipe the worker answers on; the `awaiting` answers still in flight are
     received (and dropped) first, so the worker is not left blocked on a full pipe. The stop message (None) goes
-    on `jobs`. A worker already gone (closed pipe) is not an error. The worker gets `timeout_s` to exit, then is
-    killed.
+    on `jobs`. A worker already gone (closed pipe) is not an error; one known `gone` is sent nothing, and what
+    is left in its queue is dropped. The worker gets `timeout_s` to exit, then is killed.
     """
-    if connection is not None:
+    if not gone:
         try:
             for _ in range(awaiting):
                 connection.recv()
-            if jobs is not None:
-                jobs.put(None)
+            jobs.put(None)
         except (OSError, EOFError):
             pass
-        connection.close()
-    if jobs is not None:
-        jobs.close()
+    connection.close()
+    jobs.close()
+    if gone:  # nothing will read the queue: do not wait for its feeder thread
+        jobs.cancel_join_thread()
+    else:
         jobs.join_thread()  # the queue's feeder thread has written everything to the pipe
-    if process is not None:
-        process.join(timeout=timeout_s)
-        if process.is_alive():
-            process.kill()
+    process.join(timeout=timeout_s)
+    if process.is_alive():
+        process.kill()
 
 
 @dataclass(frozen=True)
@@ -246,11 +247,8 @@ class BackendWorker:
         worker = IdleWorker(self._process, self._connection, self._jobs)
         awaiting, self._awaiting = self._awaiting, 0
         self._results.clear()
-        if self._gone:  # nothing will read the queue: do not wait for its feeder thread
-            self._connection.close()
-            self._jobs.cancel_join_thread()
-            self._jobs.close()
-            stop_worker(None, self._process, None)
+        if self._gone:
+            stop_worker(self._connection, self._process, self._jobs, gone=True)
             return
         try:
             for _ in range(awaiting):
@@ -262,3 +260,58 @@ class BackendWorker:
         except (OSError, EOFError):  # the worker is gone
             awaiting = 0
         stop_worker(self._connection, self._process, self._jobs, awaiting=awaiting)
+
+
+Job = TypeVar("Job")
+Result = TypeVar("Result")
+
+
+class ServiceClient(Generic[Job, Result]):
+    """One service's side of the run's worker (the bundle adjuster's, the loop search's): one job at a time,
+    submitted now and collected at a fixed point chosen by the caller. Without a worker, or once it is gone, the
+    job is run here by `run_here` when it is collected; `on_gone` is called when the worker is found gone (to
+    start the service's state afresh in this process)."""
+
+    def __init__(self, worker: BackendWorker | None, name: str, run_here: Callable[[Job], Result],
+                 factory: Callable[..., Service], *args: Any, on_gone: Callable[[], None] | None = None) -> None:
+        """`factory(*args)` creates the service in the worker."""
+        self._worker = worker
+        self._name = name
+        self._run_here = run_here
+        self._on_gone = on_gone
+        self._pending: Job | None = None
+        self._sent = False  # the pending job went to the worker
+        if worker is not None:
+            worker.setup(name, factory, *args)
+
+    @property
+    def busy(self) -> bool:
+        return self._pending is not None
+
+    def submit(self, job: Job) -> None:
+        assert self._pending is None, "collect the previous result first"
+        self._pending, self._sent = job, False
+        if self._worker is not None:
+            try:
+                self._worker.submit(self._name, job)
+                self._sent = True
+            except WorkerGone:
+                self._gone()
+
+    def collect(self) -> tuple[Job, Result] | None:
+        """The submitted job and its result (waiting for it), or None if nothing was submitted."""
+        job, self._pending = self._pending, None
+        if job is None:
+            return None
+        if self._worker is not None and self._sent:
+            try:
+                result: Result = self._worker.receive(self._name)
+                return job, result
+            except WorkerGone:  # the worker died (e.g. killed): run here from now on
+                self._gone()
+        return job, self._run_here(job)
+
+    def _gone(self) -> None:
+        self._worker = None
+        if self._on_gone is not None:
+            self._on_gone()
