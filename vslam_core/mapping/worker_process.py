@@ -96,22 +96,17 @@ def _serve(jobs: Any, connection: Connection, preload: tuple[str, ...]) -> None:
                 return
 
 
-def stop_worker(connection: Connection, process: BaseProcess, jobs: Queue[Any], *, awaiting: int = 0,
-                gone: bool = False, timeout_s: float = 5.0) -> None:
-    """Drain, stop, join and if need be kill a worker process.
+def stop_worker(connection: Connection, process: BaseProcess, jobs: Queue[Any], *, gone: bool = False,
+                timeout_s: float = 5.0) -> None:
+    """Stop, join and if need be kill a worker process whose answers were all received.
 
-    `connection` is this side of the pipe the worker answers on; the `awaiting` answers still in flight are
-    received (and dropped) first, so the worker is not left blocked on a full pipe. The stop message (None) goes
-    on `jobs`. A worker already gone (closed pipe) is not an error; one known `gone` is sent nothing, and what
-    is left in its queue is dropped. The worker gets `timeout_s` to exit, then is killed.
+    `connection` is this side of the pipe the worker answers on. The stop message (None) goes on `jobs`. A worker
+    already gone (closed pipe) is not an error; one known `gone` is sent nothing, and what is left in its queue
+    is dropped. The worker gets `timeout_s` to exit, then is killed.
     """
     if not gone:
-        try:
-            for _ in range(awaiting):
-                connection.recv()
+        with contextlib.suppress(OSError, EOFError):
             jobs.put(None)
-        except (OSError, EOFError):
-            pass
     connection.close()
     jobs.close()
     if gone:  # nothing will read the queue: do not wait for its feeder thread
@@ -251,15 +246,14 @@ class BackendWorker:
             stop_worker(self._connection, self._process, self._jobs, gone=True)
             return
         try:
-            for _ in range(awaiting):
+            for _ in range(awaiting):  # received and dropped, so the worker is not left blocked on a full pipe
                 self._connection.recv()
-            awaiting = 0
             self._jobs.put(_Reset())
             if _keep_idle_worker(worker):
                 return
         except (OSError, EOFError):  # the worker is gone
-            awaiting = 0
-        stop_worker(self._connection, self._process, self._jobs, awaiting=awaiting)
+            pass
+        stop_worker(self._connection, self._process, self._jobs)
 
 
 Job = TypeVar("Job")
