@@ -50,12 +50,14 @@ def test_kitti_accuracy_beats_the_paper_configuration(kitti_runs: dict[str, tupl
 
 def test_synthetic_street_is_tracked_within_one_percent() -> None:
     """At half the image size (a quarter of the rendering time; fewer pixels per feature, so no easier): the
-    renderer's full-size frames are tested in test_synthetic.py and the engine's full size on KITTI above."""
-    source = SyntheticStreet(frames=FrameRange(0, 300), resolution=0.5)
+    renderer's full-size frames are tested in test_synthetic.py and the engine's full size on KITTI above.
+    150 frames, ~150 m (t_err's segments start at 100 m): measured 0.11 % and 0.35 °/100 m (0:300: 0.19 %,
+    0.48 °/100 m)."""
+    source = SyntheticStreet(frames=FrameRange(0, 150), resolution=0.5)
     result = run_odometry(source, EngineConfig())
     assert source.ground_truth is not None
     t_err, r_err = kitti_errors(source.ground_truth, result.pose_array())
-    assert result.frames == 300
+    assert result.frames == 150
     assert t_err < 1.0
     assert r_err < 1.0
 
