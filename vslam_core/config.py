@@ -122,7 +122,9 @@ class MapConfig:
     """`backend = "map"`: keyframes, landmarks, tracking against the map, windowed BA, relocalisation."""
 
     # keyframe selection: a frame becomes a keyframe when any of these holds
-    keyframe_parallax_px: float = 30.0  # median track displacement since the last keyframe reaches this
+    # the median translation parallax (px, the rotation removed: map_scale.translation_parallax) since the last
+    # keyframe reaches this; counting the rotation's displacement too made a keyframe of every frame of a turn
+    keyframe_parallax_px: float = 30.0
     keyframe_overlap: float = 0.5  # fewer than this share of the last keyframe's landmarks are still tracked
     keyframe_min_landmarks: int = 120  # fewer landmarks tracked than this
     keyframe_max_frames: int = 10  # this many frames since the last keyframe
@@ -148,14 +150,14 @@ class MapConfig:
     ba_iterations: int = 3
     ba_huber_px: float = 1.5  # Huber threshold of the reprojection error (sigma 1 px)
     ba_max_landmarks: int = 400  # the window's landmarks with the most observations
-    rotation_prior_deg: float = 0.05  # sigma of the front end's chained rotation between keyframes (0: none)
+    rotation_prior_deg: float = 0.01  # sigma of the front end's chained rotation between keyframes (0: none)
     # m: keyframe-to-keyframe distance prior with --scale gt (vo takes each step's length exactly; at 1 cm BA let
     # the steps drift: mean ATE after Sim(3) over 36 KITTI runs 0.119 m, at 1-5 mm 0.109-0.110, at 3 cm 0.187)
     scale_sigma_gt: float = 0.003
     scale_sigma_height: float = 0.05  # fraction of the distance with --scale height
     # --scale none: the map's own scale carries the trajectory (vslam_core/mapping/map_scale.py). The first
     # baseline waits for this much translation parallax; then these replace min_triangulation_deg and
-    # ba_iterations, and the keyframe parallax counts only the displacement translation caused
+    # ba_iterations
     init_parallax_px: float = 20.0
     init_min_landmarks: int = 50  # ... and must triangulate this many landmarks, else it is tried again
     init_wait_frames: int = 10  # ... or, after this many frames without that parallax, on the landmarks alone

@@ -340,8 +340,7 @@ class MapTracking:
         if len(in_frame):
             pixels = self._ideal(vo.track_cur[alive][in_frame])
             parallax = translation_parallax(reference.T_world_cam, pose, pixels, reference.pixels[in_reference],
-                                            self._K) if self._speed is not None else \
-                float(np.median(np.linalg.norm(pixels - reference.pixels[in_reference], axis=1)))
+                                            self._K)
             if parallax >= cfg.keyframe_parallax_px:
                 return f"parallax {parallax:.0f} px", pose
         if pnp is not None and pnp.T_world_cam is not None and reference.landmark_ids:
