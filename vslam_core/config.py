@@ -150,7 +150,9 @@ class MapConfig:
     ba_iterations: int = 3
     ba_huber_px: float = 1.5  # Huber threshold of the reprojection error (sigma 1 px)
     ba_max_landmarks: int = 400  # the window's landmarks with the most observations
-    rotation_prior_deg: float = 0.01  # sigma of the front end's chained rotation between keyframes (0: none)
+    # sigma of the front end's chained rotation between keyframes with a scale source (0: none): at 0.05 deg
+    # bundle adjustment let the keyframes' yaw drift 0.45 deg in KITTI 05's turn (docs/map-backend-history.md)
+    rotation_prior_deg: float = 0.01
     # m: keyframe-to-keyframe distance prior with --scale gt (vo takes each step's length exactly; at 1 cm BA let
     # the steps drift: mean ATE after Sim(3) over 36 KITTI runs 0.119 m, at 1-5 mm 0.109-0.110, at 3 cm 0.187)
     scale_sigma_gt: float = 0.003
@@ -169,6 +171,9 @@ class MapConfig:
     slow_depth_frames: float = 100.0
     slow_min_triangulation_deg: float = 1.0
     none_ba_iterations: int = 10
+    # ... and the front end's rotations are held more loosely: at 0.01 deg loop closing made two of five
+    # --scale none routes worse and the hand-held walk's ATE after Sim(3) grew from 1.0 to 1.4 cm
+    none_rotation_prior_deg: float = 0.05
     # ... and each keyframe-to-keyframe distance enters BA as a prior at its length before the adjustment, with
     # this sigma (a fraction of it; 0: no prior): left free, BA lengthened each step by 0.3-0.5 %, which
     # accumulated into scale drift (KITTI 00/05 Sim(3) t_err mean 3.31 -> 2.70 %, docs/map-backend.md)
@@ -197,6 +202,10 @@ class MapConfig:
     # a landmark re-found, or followed by a track PnP rejected, this close to its projection (px) is observed by
     # a keyframe made then (for BA only); within pnp_threshold_px it is linked again
     keyframe_observation_px: float = 4.0
+
+    def rotation_prior_for(self, scale: ScaleSource) -> float:
+        """Sigma (deg) of the front end's rotation between keyframes in bundle adjustment with `scale`."""
+        return self.none_rotation_prior_deg if scale == "none" else self.rotation_prior_deg
 
 
 @dataclass(frozen=True)

@@ -160,6 +160,7 @@ RANGES: dict[str, Range] = {
     "map.none_step_sigma": closed(0.0, 10.0),
     "map.ba_max_landmarks": closed(1, 10_000_000),
     "map.rotation_prior_deg": closed(0.0, 180.0),
+    "map.none_rotation_prior_deg": closed(0.0, 180.0),
     "map.scale_sigma_gt": positive(100.0),
     "map.scale_sigma_height": positive(10.0),
     "map.reloc_keyframes": closed(1, 1000),
