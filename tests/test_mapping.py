@@ -110,6 +110,23 @@ def test_a_relative_rotation_prior_holds_the_rotation_and_leaves_the_translation
     assert np.linalg.norm(right[:, :3, 3] - poses[:, :3, 3], axis=1).max() < 0.02
 
 
+@pytest.mark.kitti
+@pytest.mark.parametrize(("scale", "sigma_deg"), [("gt", 0.01), ("none", 0.05)])
+def test_the_rotation_prior_sigma_follows_the_scale_source(kitti_root: Path, monkeypatch: pytest.MonkeyPatch,
+                                                           scale: str, sigma_deg: float) -> None:
+    """The windowed BA holds the front end's rotations at `rotation_prior_deg` with a scale source and at
+    `none_rotation_prior_deg` without one (KITTI 05 needed the tighter one with ground truth; without it, the
+    tighter one cost loop closing and the hand-held walk: docs/map-backend-history.md, 2026-11-28)."""
+    submitted: list[Problem] = []
+    monkeypatch.setattr(BundleAdjuster, "submit", lambda self, problem: (submitted.append(problem),
+                                                                        self._client.submit(problem)))
+    source = KittiSource(kitti_root, sequence="05", frames=FrameRange(0, 30))
+    run_odometry(source, EngineConfig(backend="map", scale=scale, threads=1))  # type: ignore[arg-type]
+    with_priors = [p for p in submitted if len(p.rotations)]
+    assert len(with_priors) >= 3
+    assert all(p.rotation_sigma == pytest.approx(np.radians(sigma_deg)) for p in with_priors)
+
+
 def test_bundle_adjustment_in_the_worker_process_gives_the_same_solution() -> None:
     rng = np.random.default_rng(3)
     poses, points = _street(rng)
