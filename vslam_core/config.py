@@ -203,10 +203,6 @@ class MapConfig:
     # a keyframe made then (for BA only); within pnp_threshold_px it is linked again
     keyframe_observation_px: float = 4.0
 
-    def rotation_prior_for(self, scale: ScaleSource) -> float:
-        """Sigma (deg) of the front end's rotation between keyframes in bundle adjustment with `scale`."""
-        return self.none_rotation_prior_deg if scale == "none" else self.rotation_prior_deg
-
 
 @dataclass(frozen=True)
 class LoopConfig:

@@ -5,8 +5,8 @@ The same factor graph as the windowed BA (vslam_core/mapping/bundle_adjustment.p
 Triggs et al. 2000, eq. 2) over the whole map instead of a window, with the scale source's priors kept: with a
 metric scale, each pair of consecutive keyframes of a segment keeps its `RangeFactorPose3` (the scale source's
 step length; sigma as in the windowed BA), and so do the front end's two-view rotations between consecutive
-keyframes (`MapConfig.rotation_prior_for`). The gauge: each segment's first keyframe is held fixed (its first
-two with unit scale, which also fix the scale). Afterwards observations that reproject worse than
+keyframes (`rotation_prior_deg`). The gauge: each segment's first keyframe is held fixed (its first two with unit
+scale, which also fix the scale). Afterwards observations that reproject worse than
 `cull_reprojection_px` are dropped, and landmarks left with fewer than two observations.
 """
 
@@ -67,7 +67,7 @@ def adjust_map(map_: Map, K: np.ndarray, config: MapConfig, scale: ScaleSource, 
         observation_point=np.array(point_index, np.int64),
         observation_pixels=np.array(pixels, np.float64).reshape(-1, 2),
         ranges=_ranges(map_, by_segment, index, config, scale), fix_first=0, iterations=iterations,
-        huber_px=config.ba_huber_px, **rotation_priors(map_, index, config.rotation_prior_for(scale)))
+        huber_px=config.ba_huber_px, **rotation_priors(map_, index, config))
     solution = solve(problem)
     for keyframe_id, pose in zip(free, solution.poses, strict=True):
         map_.keyframes[keyframe_id].T_world_cam = orthonormalise(pose)

@@ -162,7 +162,7 @@ class LocalMapping:
             fix_first=max(gauge - len(fixed), 0),
             iterations=cfg.ba_iterations,
             huber_px=cfg.ba_huber_px,
-            **rotation_priors(self.map, index, cfg.rotation_prior_for(self._scale)),
+            **rotation_priors(self.map, index, cfg),
         )
         self._submitted = _Submitted(keyframe_ids, len(self._window), np.array(kept_ids, np.int64))
         self._adjuster.submit(problem)
@@ -333,20 +333,20 @@ class LocalMapping:
         )
 
 
-def rotation_priors(map_: Map, index: dict[int, int], sigma_deg: float) -> dict[str, Any]:
+def rotation_priors(map_: Map, index: dict[int, int], config: MapConfig) -> dict[str, Any]:
     """A BA problem's relative-rotation priors (`Problem.rotations`, `rotation_measurements`, `rotation_sigma`):
     the front end's chained two-view rotation (`Keyframe.chained_rotation`) between each keyframe of the problem
     (`index`: keyframe id -> pose index) and the one before it, when both are in the problem, with a sigma of
-    `sigma_deg` (0: none; `MapConfig.rotation_prior_for`). The essential matrix's rotation rests on every track,
-    far points included, where PnP and BA see only the landmarks, whose rays had to meet at an angle: on KITTI 05
-    0:300 the map's keyframes drifted 0.13° in yaw in 35 frames where the front end's chain drifted 0.01°
-    (docs/map-backend.md)."""
+    `rotation_prior_deg` (0: none; `map_scale.for_scale` sets it for `--scale none`). The essential matrix's
+    rotation rests on every track, far points included, where PnP and BA see only the landmarks, whose rays had
+    to meet at an angle: on KITTI 05 0:300 the map's keyframes drifted 0.13° in yaw in 35 frames where the front
+    end's chain drifted 0.01° (docs/map-backend.md)."""
     keyframes = [k for k in index if k - 1 in index and map_.keyframes[k].chained_rotation is not None] \
-        if sigma_deg > 0 else []
+        if config.rotation_prior_deg > 0 else []
     return {"rotations": np.array([(index[k - 1], index[k]) for k in keyframes], np.int64).reshape(-1, 2),
             "rotation_measurements": np.array([map_.keyframes[k].chained_rotation for k in keyframes],
                                               np.float64).reshape(-1, 3, 3),
-            "rotation_sigma": float(np.radians(sigma_deg))}
+            "rotation_sigma": float(np.radians(config.rotation_prior_deg))}
 
 
 def _window_observations(observations: list[dict[int, np.ndarray]], keyframe_ids: list[int],

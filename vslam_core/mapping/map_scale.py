@@ -76,11 +76,13 @@ def for_scale(config: MapConfig, scale: ScaleSource) -> MapConfig:
     """The map's settings under this scale source. With `none` nothing outside the map holds the scale, so a
     landmark's depth must be well conditioned (rays meeting at `none_min_triangulation_deg`) and bundle
     adjustment must converge (`none_ba_iterations`): on KITTI 05 0:300 these took the Sim(3)-aligned t_err
-    from 8.6 % to 6.7 % and 7.0 % (6.4 % together with keyframes spaced by translation parallax)."""
+    from 8.6 % to 6.7 % and 7.0 % (6.4 % together with keyframes spaced by translation parallax). The front
+    end's rotations are held more loosely (`none_rotation_prior_deg`: at the metric sources' 0.01° loop closing
+    made two of five routes worse, docs/map-backend-history.md)."""
     if scale != "none":
         return config
     return replace(config, min_triangulation_deg=config.none_min_triangulation_deg,
-                   ba_iterations=config.none_ba_iterations)
+                   ba_iterations=config.none_ba_iterations, rotation_prior_deg=config.none_rotation_prior_deg)
 
 
 def translation_parallax(T_world_key: np.ndarray, T_world_cur: np.ndarray, pixels_cur: np.ndarray,  # noqa: N803
