@@ -118,8 +118,13 @@ def test_the_rotation_prior_sigma_follows_the_scale_source(kitti_root: Path, mon
     `none_rotation_prior_deg` without one (KITTI 05 needed the tighter one with ground truth; without it, the
     tighter one cost loop closing and the hand-held walk: docs/map-backend-history.md, 2026-11-28)."""
     submitted: list[Problem] = []
-    monkeypatch.setattr(BundleAdjuster, "submit", lambda self, problem: (submitted.append(problem),
-                                                                        self._client.submit(problem)))
+    submit = BundleAdjuster.submit
+
+    def recorded(adjuster: BundleAdjuster, problem: Problem) -> None:
+        submitted.append(problem)
+        submit(adjuster, problem)
+
+    monkeypatch.setattr(BundleAdjuster, "submit", recorded)
     source = KittiSource(kitti_root, sequence="05", frames=FrameRange(0, 30))
     run_odometry(source, EngineConfig(backend="map", scale=scale, threads=1))  # type: ignore[arg-type]
     with_priors = [p for p in submitted if len(p.rotations)]
