@@ -30,7 +30,7 @@ START_TIMEOUT_S = 90.0
 #: `ray start --block` runs through this (PR_SET_PDEATHSIG, as the viewer processes): it gets SIGTERM, on which it stops
 #: its daemons, when the process that started it dies, even by SIGKILL, so a test session killed by a signal leaves no
 #: cluster behind (one was found still running 70 minutes after such a kill).
-DIE_WITH_PARENT = ROOT / "vslam" / "viewer" / "die_with_parent.py"
+DIE_WITH_PARENT = ROOT / "app" / "vslam" / "viewer" / "die_with_parent.py"
 
 #: Measured by the last `start_cluster` call (reported by the tests and the benchmark).
 last_start_seconds: float = float("nan")

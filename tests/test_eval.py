@@ -135,7 +135,7 @@ def test_report_folder_another_eval_is_writing_is_refused(tmp_path: Path) -> Non
     import fcntl
     import os
 
-    from vslam.runs.outputs import FOLDER_LOCK
+    from vslam.common.outputs import FOLDER_LOCK
 
     fd = os.open(tmp_path / FOLDER_LOCK, os.O_WRONLY | os.O_CREAT)
     try:
@@ -150,7 +150,7 @@ def test_report_folder_another_eval_is_writing_is_refused(tmp_path: Path) -> Non
 
 def test_json_ready_replaces_nan_at_any_depth() -> None:
     """`inspect --json` and `eval --json` print JSON, which has no NaN (e.g. a metric on a too-short path)."""
-    from vslam.evaluation.report import json_ready
+    from vslam.common.metric_rows import json_ready
 
     data = {"a": float("nan"), "b": [1.0, float("inf"), {"c": float("nan"), "d": "x"}], "e": 2}
     assert json.loads(json.dumps(json_ready(data), allow_nan=False)) == {"a": None, "b": [1.0, None, {"c": None,

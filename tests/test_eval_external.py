@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from cli_helpers import need_vulkan, vslam
 
+from vslam.common.trajectory_images import stamps_from_names
 from vslam.evaluation.matching import MatchMode, match_images
 from vslam.evaluation.plots import ESTIMATES_BGR, GROUND_TRUTH_BGR, top_view
-from vslam.evaluation.trajectory_images import stamps_from_names
 from vslam.rrd.read import read_entity
 from vslam_core.errors import TrajectoryFormatError
 from vslam_core.sources.kitti import read_times

@@ -14,14 +14,16 @@ from packaging.utils import canonicalize_name as canonical
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("vslam", "vslam_core")
+#: Where each package's folder is: the application in app/ (src-style), the engine at the top level.
+FOLDERS = {"vslam": ROOT / "app" / "vslam", "vslam_core": ROOT / "vslam_core"}
 
 
 def _modules() -> list[Path]:
-    return [p for package in PACKAGES for p in (ROOT / package).rglob("*.py") if "__pycache__" not in p.parts]
+    return [p for package in PACKAGES for p in FOLDERS[package].rglob("*.py") if "__pycache__" not in p.parts]
 
 
 def test_no_subpackage_imports_a_siblings_modules() -> None:
-    app = ROOT / "vslam"
+    app = FOLDERS["vslam"]
     subpackages = {p.name for p in app.iterdir() if (p / "__init__.py").is_file()}
     offences = []
     for path in app.rglob("*.py"):
@@ -47,9 +49,10 @@ def test_no_module_over_500_lines_and_no_folder_over_15_modules() -> None:
 
 def test_only_the_projects_own_names_are_installed() -> None:
     text = (ROOT / "pyproject.toml").read_text()
-    assert 'include = ["vslam*", "vslam_core*"]' in text
+    assert 'where = ["app", "."]' in text and 'include = ["vslam*", "vslam_core*"]' in text
     assert 'vslam = "vslam.cli:main"' in text
-    assert not any((ROOT / "app").rglob("*.py"))
+    assert not (ROOT / "app" / "__init__.py").exists() and not (ROOT / "vslam").exists()
+    assert [p.name for p in (ROOT / "app").iterdir() if p.name != "__pycache__"] == ["vslam"]
 
 
 def _imported_top_level_names() -> dict[str, str]:
@@ -84,3 +87,25 @@ def test_every_imported_package_is_a_declared_dependency() -> None:
         if not owners & declared:
             undeclared.append(f"{name} ({where}; distribution {', '.join(sorted(owners))})")
     assert undeclared == []
+
+
+#: The application's layers, lowest first: a package imports only from its own layer or those below it, so
+#: writing recordings depends on nothing that reads or scores them (issue 56).
+LAYERS = (("common",), ("recording",), ("rrd",), ("runs",), ("evaluation",), ("batch", "compare", "viewer", "cli"))
+
+
+def test_the_applications_layers_import_downwards() -> None:
+    rank = {package: level for level, packages in enumerate(LAYERS) for package in packages}
+    app = FOLDERS["vslam"]
+    upward = []
+    for path in app.rglob("*.py"):
+        parts = path.relative_to(app).parts
+        if len(parts) < 2 or parts[0] not in rank:
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                names = node.module.split(".")
+                if names[0] == "vslam" and len(names) > 1 and rank.get(names[1], -1) > rank[parts[0]]:
+                    upward.append(f"{path.relative_to(ROOT)}:{node.lineno} from {node.module}")
+    assert upward == []
+    assert set(rank) <= {p.name for p in app.iterdir() if (p / "__init__.py").is_file()}

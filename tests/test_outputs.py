@@ -22,13 +22,13 @@ import numpy as np
 import pytest
 from cli_helpers import need_vulkan, vslam
 
+from vslam.common import outputs
+from vslam.common.outputs import OutputError, claim, default_recording
 from vslam.recording import Detail
 from vslam.recording import recorder as recorder_module
 from vslam.recording import stream as stream_module
 from vslam.rrd.provenance import read_properties
 from vslam.rrd.read import has_footer, read_entity, readable
-from vslam.runs import outputs
-from vslam.runs.outputs import OutputError, claim, default_recording
 from vslam.viewer.headless import snapshot
 from vslam.viewer.processes import recording_frames
 from vslam_core.config import EngineConfig

@@ -104,7 +104,7 @@ def test_config_page_lists_every_key_with_its_default() -> None:
 
 def test_layout_page_names_every_module() -> None:
     page = (ROOT / "docs" / "layout.md").read_text()
-    packages = [ROOT / "vslam", ROOT / "vslam_core"]
+    packages = [ROOT / "app" / "vslam", ROOT / "vslam_core"]
     unnamed = [str(path.relative_to(ROOT)) for package in packages for path in package.rglob("*.py")
                if path.name not in ("__init__.py", "__main__.py") and path.name not in page]
     folders = [str(path.relative_to(ROOT)) for package in packages for path in package.rglob("*/")

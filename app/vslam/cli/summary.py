@@ -1,0 +1,65 @@
+"""The summary `vslam run` prints: what was run, on which camera and scale, and how well it did."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from vslam.cli.common import out
+
+if TYPE_CHECKING:
+    from vslam_core.config import EngineConfig
+    from vslam_core.pipeline import RunResult
+    from vslam_core.sources.base import FrameSource
+
+
+def held_reasons(run: RunResult) -> str:
+    """``: stationary 299`` — why frames were held, most frequent first (empty when none was)."""
+    ranked = sorted(run.held_reasons.items(), key=lambda item: (-item[1], item[0]))
+    return (": " + ", ".join(f"{reason} {count}" for reason, count in ranked)) if ranked else ""
+
+
+def print_summary(source: FrameSource, run: RunResult, config: EngineConfig, in_map: bool = False) -> None:
+    """`vslam run`'s summary on stdout: frames and why some were held, time, backend, scale source, camera and
+    where its calibration came from, how ground truth was paired, and the accuracy against it (`in_map`: the
+    poses are in a prior map's frame, so they are not scored against this run's ground truth)."""
+    import numpy as np
+
+    from vslam.common import scored_estimate
+    from vslam_core.scale import default_camera_height
+    from vslam_core.sources.base import ground_truth_matching
+    from vslam_core.sources.calibration import camera_line
+    from vslam_core.trajectory.metrics import kitti_errors, paper_rms_error, scale_errors
+
+    fps = run.frames / run.seconds if run.seconds > 0 else float("nan")
+    lines = [
+        f"frames      {run.frames} ({run.held_summary}" + held_reasons(run) + ")",
+        f"time        {run.seconds:.1f} s, {fps:.1f} frames/s",
+        f"backend     {config.backend}",
+        f"scale       {config.scale}"
+        + (f" (camera {default_camera_height(source.camera_height, config):.2f} m above the road; no ground truth "
+           "used)" if config.scale == "height" else ""),
+    ]
+    if (placed := run.placed_summary(config.scale)) is not None:
+        lines.append(f"placed      {placed}")
+    lines.append(f"camera      {camera_line(source.intrinsics)}")
+    gt = source.ground_truth
+    if in_map and gt is not None:  # poses in the prior map's frame, ground truth in this run's first frame's
+        lines.append("accuracy    not scored here: the poses are in the prior map's frame (see README, Saving a map)")
+        gt = None
+    if (matching := ground_truth_matching(source)) is not None:
+        lines.append(f"ground truth {matching}")
+    if gt is not None and run.frames > 1:
+        gt = gt[: run.frames]
+        if config.scale == "height":
+            median, _, path = scale_errors(gt, run.pose_array())
+            lines.append(f"step length {median:+.1f} % median error per frame, path length {path:+.1f} % vs ground "
+                         "truth")
+        scored = scored_estimate(gt, run.pose_array(), config.scale)  # --scale none: Sim(3)-aligned, as eval
+        aligned = config.scale == "none"
+        t_err, r_err = kitti_errors(gt, scored)
+        lines.append(f"KITTI       t_err {t_err:.2f} %   r_err {r_err:.2f} °/100 m"
+                     + ("   (path < 100 m: no segment)" if np.isnan(t_err) else "")
+                     + ("   (after Sim(3) alignment: --scale none has no metric scale)" if aligned else ""))
+        lines.append(f"paper RMS   {paper_rms_error(gt, scored):.2f} m (x–z, "
+                     + ("after Sim(3) alignment)" if aligned else "no alignment)"))
+    out.print("\n".join(lines), highlight=False)
