@@ -7,6 +7,7 @@ import rerun.blueprint as rrb
 
 from vslam.recording.drift import DRIFT_ENTITY
 from vslam.recording.metrics import BA_ERROR_SERIES, MAP_METRICS
+from vslam.recording.overview import CANVAS, OVERVIEW_SUMMARY
 from vslam.recording.styles import HEALTH_LEVELS_ROOT, LEGEND_ENTITY
 
 #: Entities of the map backend that keep their whole past in the 3-D view (logged once each, they accumulate).
@@ -28,36 +29,85 @@ DRIFT_PLOTS = (("drift per frame (°, m)", ("rotation_deg", "translation_m")),
 def blueprint(map_backend: bool = False, *, image: bool = True, road_scale: bool = False,
               ground_truth: bool = True, undistorted: bool = False, engine: bool = True,
               frustum: bool = True, own_series: bool = False) -> rrb.Blueprint:
-    """Frame with overlays and 3-D world following the car | metric plots; below, events | report; on `frame`.
+    """A few large views, the rest one click away in tabs, readable at 1280×720 (`vslam snapshot`'s ``all.png``):
+
+    - left: the frame with its overlays (tabs: the overlays' legend, the undistorted frame) above the 3-D world
+      following the car (tab: the whole drive from above, `vslam.recording.overview`);
+    - right: tabs of plots, the first (``overview``) four single-series plots without legends (the title names the
+      series), then every plot with its legend by topic (tracking, accuracy, map, timing, the pipeline's own);
+    - below: the events (INFO and above) and the run's summary (tab: the full report).
 
     Views that would stay empty are left out: the frame without `image` (detail `summary`), "scale from the
-    road" without `road_scale` (`--scale height`), the error plots without `ground_truth`. `map_backend`: also
-    the map (retired keyframes and landmarks keep their whole past) and the plots of the tracking mode and
-    bundle adjustment. `undistorted` (a distorted lens): the undistorted frame beside the raw one. Without
-    `engine` (another system's trajectory, `vslam.recording.external`) only the error plots: there are no tracks,
-    inliers, health or timings; without `frustum` (no camera known) the frame stays out of the 3-D view.
-    `own_series`: a plot of another pipeline's own series (``/metrics/custom``, `vslam.log`)."""
-    left: list[rrb.Spatial2DView | rrb.Spatial3DView | rrb.Horizontal] = [world_view(map_backend, frustum)]
+    road" without `road_scale` (`--scale height`), the error plots without `ground_truth`. `map_backend`: the map
+    (retired keyframes and landmarks keep their whole past) and the map's plots. `undistorted` (a distorted lens):
+    the undistorted frame. Without `engine` (another system's trajectory, `vslam.recording.external`) only the
+    error plots: there are no tracks, inliers, health or timings; without `frustum` (no camera known) the frame
+    stays out of the 3-D view. `own_series`: a plot of another pipeline's own series (``/metrics/custom``,
+    `vslam.log`)."""
+    worlds = rrb.Tabs(world_view(map_backend, frustum), drive_view(), active_tab=0)
+    left: list[rrb.Container] = [worlds]
     if image:
-        frame = rrb.Spatial2DView(name="frame", origin="/world/camera/image")
-        legend = rrb.TextDocumentView(name="overlays", origin=LEGEND_ENTITY)
-        views = [frame, *([rrb.Spatial2DView(name="undistorted", origin=UNDISTORTED)] if undistorted else [])]
-        left.insert(0, rrb.Horizontal(*views, legend, column_shares=[*([3] * len(views)), 1]))
-    plots = _plots(road_scale, ground_truth, engine) + (_map_plots() if map_backend else [])
-    if own_series:
-        plots.append(rrb.TimeSeriesView(name="pipeline series", origin="/metrics/custom"))
+        frames = [rrb.Spatial2DView(name="frame", origin="/world/camera/image"),
+                  *([rrb.Spatial2DView(name="undistorted", origin=UNDISTORTED)] if undistorted else []),
+                  rrb.TextDocumentView(name="overlays", origin=LEGEND_ENTITY)]
+        left.insert(0, rrb.Tabs(*frames, active_tab=0))
+    plots = plot_tabs(map_backend, road_scale=road_scale, ground_truth=ground_truth, engine=engine,
+                      own_series=own_series)
+    summary = rrb.Tabs(rrb.TextDocumentView(name="summary", origin=OVERVIEW_SUMMARY),
+                       rrb.TextDocumentView(name="report", origin="/report"), active_tab=0)
     return rrb.Blueprint(
         rrb.Vertical(
-            rrb.Horizontal(rrb.Vertical(*left, row_shares=[1, 2][-len(left):]), rrb.Grid(*plots, grid_columns=2),
-                           column_shares=[3, 2]),
+            rrb.Horizontal(rrb.Vertical(*left, row_shares=[2, 3][-len(left):]), plots, column_shares=[3, 2]),
             # the events across the window: their messages (up to ~100 characters) fit whole
-            rrb.Horizontal(events_view(), rrb.TextDocumentView(name="report", origin="/report"),
-                           column_shares=[4, 1]),
-            row_shares=[4, 1],
+            rrb.Horizontal(events_view(), summary, column_shares=[3, 2]),
+            row_shares=[5, 2],
         ),
         rrb.TimePanel(timeline="frame", state="collapsed"),  # the recordings also hold `time`: the viewer picked it
         collapse_panels=True,
     )
+
+
+def plot_tabs(map_backend: bool, *, road_scale: bool, ground_truth: bool, engine: bool,
+              own_series: bool) -> rrb.Tabs:
+    """The plots in tabs: ``overview`` (a few single-series plots, no legend), then every plot by topic."""
+    tabs: list[rrb.Container | rrb.View] = []
+    if overview := _overview_plots(ground_truth, engine):
+        tabs.append(rrb.Vertical(*overview, name="overview"))
+    plots = _plots(road_scale, ground_truth, engine)
+    timing = [p for p in plots if p.name == "timing (ms)"]
+    accuracy = [p for p in plots if p.name in ACCURACY_PLOTS]
+    tracking = [p for p in plots if p not in timing and p not in accuracy]
+    for name, group in (("tracking", tracking), ("accuracy", accuracy),
+                        ("map", _map_plots() if map_backend else []), ("timing", timing)):
+        if group:
+            tabs.append(rrb.Grid(*group, grid_columns=1 if len(group) <= 3 else 2, name=name))
+    if own_series:
+        tabs.append(rrb.TimeSeriesView(name="pipeline series", origin="/metrics/custom"))
+    return rrb.Tabs(*tabs, active_tab=0)
+
+
+#: The plots of the ``accuracy`` tab (with ground truth).
+ACCURACY_PLOTS = ("position error (m)", "angle errors (°)", *(name for name, _ in DRIFT_PLOTS))
+
+
+def _overview_plots(ground_truth: bool, engine: bool) -> list[rrb.TimeSeriesView]:
+    """One series each, so no legend is needed (hidden: it would cover the data); the title names the series."""
+    chosen = [("position error (m)", "/metrics/error/position_m")] if ground_truth else []
+    if engine:
+        chosen += [("rotation per frame (°)", "/metrics/motion/rotation_deg"),
+                   ("step length", "/metrics/motion/scale"),
+                   ("RANSAC inliers", "/metrics/ransac/inliers")]
+        if not ground_truth:
+            chosen.insert(0, ("health (0 ok, 1 warn, 2 fail)", "/metrics/health/status"))
+    return [rrb.TimeSeriesView(name=name, origin=entity, contents=[entity], plot_legend=rrb.PlotLegend(visible=False))
+            for name, entity in chosen]
+
+
+def drive_view() -> rrb.Spatial2DView:
+    """The whole drive from above (`vslam.recording.overview`): the path coloured by each frame's error (or health),
+    the ground truth in blue, the worst stretches (white), loops (magenta) and failed frames (red) marked."""
+    return rrb.Spatial2DView(name="drive", origin="/overview", contents=["+ /overview/**"],
+                             visual_bounds=rrb.VisualBounds2D(x_range=[0.0, CANVAS], y_range=[0.0, CANVAS]))
 
 
 def world_view(map_backend: bool, frustum: bool = True) -> rrb.Spatial3DView:
@@ -76,7 +126,9 @@ def world_view(map_backend: bool, frustum: bool = True) -> rrb.Spatial3DView:
         eye_controls=rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, eye_up=[0.0, -1.0, 0.0],
                                        position=list(EYE_OFFSET), look_target=[0.0, 0.0, 0.0],
                                        tracking_entity=CAR_ENTITY),
-        overrides={entity: rrb.VisibleTimeRanges([whole_past]) for entity in entities},
+        # the chosen candidate's label ("chosen #2 — in front …") would cover the car: selected, it is shown
+        overrides={**{entity: rrb.VisibleTimeRanges([whole_past]) for entity in entities},
+                   "/world/candidates": rr.Points3D.from_fields(show_labels=False)},
     )
 
 

@@ -44,6 +44,7 @@ class LoopRecording:
         self._detail = detail
         self._indices: dict[int, int] = {}  # run position -> source frame index
         self._edges: list[np.ndarray] = []
+        self.closed: list[tuple[int, int]] = []  # (query frame, candidate frame) of each closed loop
         rec.log("/world/loops/edges", rr.LineStrips3D.from_fields(radii=0.15, colors=EDGE_COLOUR), static=True)
         rec.log("/world/loops/before", rr.LineStrips3D.from_fields(radii=0.06, colors=BEFORE_COLOUR), static=True)
         rec.log("/world/loops/after", rr.LineStrips3D.from_fields(radii=0.08, colors=AFTER_COLOUR), static=True)
@@ -64,6 +65,7 @@ class LoopRecording:
         after = {int(k): p for k, p in zip(closed.keyframe_ids, closed.poses_after, strict=True)}
         self._edges.append(np.array([after[closed.candidate_keyframe][:3, 3], after[closed.query_keyframe][:3, 3]],
                                     np.float32))
+        self.closed.append((query, candidate))
         self._set_time(frame)
         rec = self._rec
         rec.log("/loops/closed", rr.AnyValues(

@@ -161,6 +161,11 @@ class MapRecording:
         self._log_events(frame, mapping, new_segment)
         self._loops.log_frame(frame, result.position, mapping.loop)
 
+    @property
+    def closed_loops(self) -> list[tuple[int, int]]:
+        """(query frame, candidate frame) of each loop closed so far."""
+        return self._loops.closed
+
     def log_loops_at_end(self, frame: Frame, position: int, steps: list[LoopStep]) -> None:
         """The loop searches collected when the run ended (`RunResult.loops_at_end`), at the last frame."""
         for step in steps:

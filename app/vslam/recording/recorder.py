@@ -28,7 +28,8 @@ from vslam.recording.drift import DriftRecording
 from vslam.recording.layout import UNDISTORTED, blueprint
 from vslam.recording.levels import Detail, ImageCodec
 from vslam.recording.map import MapRecording
-from vslam.recording.metrics import METRICS, STAGES, frame_metrics
+from vslam.recording.metrics import HEALTH_LEVELS, METRICS, STAGES, frame_metrics
+from vslam.recording.overview import DriveOverview
 from vslam.recording.schema import SCHEMA_VERSION
 from vslam.recording.stream import StreamStopped, close_stream, flush_or_stop, log_world, open_stream, pinhole
 from vslam.recording.styles import (
@@ -95,6 +96,7 @@ class Recorder:
         self._drift = (DriftRecording(source.ground_truth, online=config.scale != "none")
                        if source.ground_truth is not None else None)
         self._previous_position: np.ndarray | None = None
+        self._overview = DriveOverview()
         self._frames = 0
         self._failed = False  # Rerun's writer stopped (full disk): reported once
         self._stuck = False  # …and a flush of it never returned: the stream must not be touched again
@@ -172,6 +174,7 @@ class Recorder:
             if self._map is not None and run.loops_at_end and run.indices:  # at the last frame's time
                 self._map.log_loops_at_end(Frame(run.indices[-1], run.timestamps[-1], NO_IMAGE), run.frames - 1,
                                            run.loops_at_end)
+            aligned: np.ndarray | None = None
             lines = [f"# {self._name}", "", f"{run.frames} frames, {run.held_summary}"
                      + (f" — {stopped}" if stopped else "")]
             if (placed := run.placed_summary(self._scale)) is not None:
@@ -179,7 +182,6 @@ class Recorder:
             if self._gt is not None and run.frames > 2:
                 row = metrics_row(self._source_name, self._gt[: run.frames], run.pose_array(), self._scale)
                 lines += ["", markdown_table([row])]
-                aligned = None
                 if self._scale == "none":
                     aligned = self._log_aligned(run)
                     lines += ["", "Every number is of the estimate after Sim(3) alignment onto the ground truth "
@@ -189,9 +191,31 @@ class Recorder:
                     lines += ["", *self._drift.finish(self._rec, self._columns, aligned)]
             self._rec.log("/report", rr.TextDocument("\n".join(lines), media_type=rr.MediaType.MARKDOWN),
                           static=True)
+            self._log_overview(run, aligned, stopped)
             self._log_health_levels(run)
         finally:
             self.close()
+
+    def _log_overview(self, run: RunResult, aligned: np.ndarray | None, stopped: str | None) -> None:
+        """The drive at a glance (`vslam.recording.overview`): the path coloured by each frame's own error (by
+        its health without ground truth), the worst stretches and loops marked, a short summary."""
+        headline = [self._name, f"{run.frames} frames, {run.held_summary}" + (f" — {stopped}" if stopped
+                                                                                         else "")]
+        errors = self._drift.errors if self._drift is not None else None
+        if self._gt is not None and run.frames > 2:
+            row = metrics_row(self._source_name, self._gt[: run.frames], run.pose_array(), self._scale)
+            headline.append(f"t_err {row['t_err']:.2f} %, ATE {row['ate_sim3']:.3f} m after Sim(3) (scale "
+                            f"{self._scale})")
+        if self._map is not None:
+            for query, candidate in self._map.closed_loops:
+                self._overview.add_loop(query, candidate)
+        usable = errors is not None and len(errors.translation_m) == len(self._overview.frames)
+        self._overview.finish(
+            self._rec, headline, estimate=aligned[:, :3, 3] if aligned is not None else None,
+            ground_truth=self._gt[: run.frames, :3, 3] if self._gt is not None else None,
+            translation_m=errors.translation_m if usable and errors is not None else None,
+            translation_pct=errors.translation_pct if usable and errors is not None else None,
+            rotation_deg=errors.rotation_deg if usable and errors is not None else None)
 
     def _log_health_levels(self, run: RunResult) -> None:
         """The health plot's levels by name: a constant line at 0 (ok), 1 (warn) and 2 (fail) from the first
@@ -290,6 +314,8 @@ class Recorder:
             if self._map is None:
                 self._map = MapRecording(self._rec, columns, self._intrinsics, self.detail, self._gt)
             self._map.log_frame(frame, result, result.mapping)
+        self._overview.add(frame.index, pose[:3, 3],
+                           0 if "status" in unreported else HEALTH_LEVELS[result.health.status])
         if "status" not in unreported:
             columns.add("/health", frame, (rr.AnyValues.columns, {"status": str(result.health.status),
                                                                   "reasons": ",".join(result.health.reasons)}))

@@ -22,7 +22,11 @@ ROAD_COLOUR = (255, 120, 220)
 AXIS_COLOURS = [(255, 60, 60), (60, 255, 60), (60, 120, 255)]  # x, y, z of each candidate's camera
 CAR_COLOUR = (230, 230, 230)
 ESTIMATE_COLOUR = (255, 80, 80)
-GROUND_TRUTH_COLOUR = (80, 255, 120)
+#: Blue: no error colour map uses it (drift: green -> yellow -> red; health: green, yellow, red).
+GROUND_TRUTH_COLOUR = (70, 130, 255)
+#: The drive overview's marks: the worst stretches and closed loops (failed frames: the health's red).
+WORST_MARK_COLOUR = (255, 255, 255)
+LOOP_MARK_COLOUR = (200, 0, 200)
 
 #: A static Markdown text beside the frame view: what each overlay colour means (`overlay_legend`).
 LEGEND_ENTITY = "/legend"

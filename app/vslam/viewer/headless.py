@@ -207,7 +207,11 @@ def _settled_screenshots(
     if only:
         views, whole_window = chosen_views(views, only, rrd)
 
-    window = _settled(client, None, rrd, deadline) if whole_window else b""
+    window = b""
+    if whole_window:  # without the viewer's top bar (its menu and "Software rasterizer" / "Docker" banners)
+        client.set_blueprint(without_top_bar(layout), store_id=store_id)
+        _pause_at(client, store_id, frame, rrd, deadline)
+        window = crop_blank_top(_settled(client, None, rrd, deadline))
     shots = []
     for view in views:  # each view alone, maximised: as large as the window allows
         client.set_blueprint(maximised(layout, view.view_id), store_id=store_id)
@@ -259,6 +263,32 @@ def maximised(layout: dict[str, Any], view_id: str) -> dict[str, Any]:
     copied = copy.deepcopy(layout)
     copied.setdefault("/viewport", {}).setdefault("ViewportBlueprint", {})["maximized"] = view_id
     return copied
+
+
+def without_top_bar(layout: dict[str, Any]) -> dict[str, Any]:
+    """A copy of the blueprint `layout` with the viewer's top bar hidden."""
+    copied = copy.deepcopy(layout)
+    copied["/top_panel"] = {"PanelBlueprint": {"state": "Hidden"}}
+    return copied
+
+
+#: The blank band a hidden top bar leaves is cropped when it is at least this many rows (Rerun 0.41: 37 at 1280x720).
+MIN_BLANK_ROWS = 8
+
+
+def crop_blank_top(png: bytes) -> bytes:
+    """The PNG without the band a hidden top bar leaves: the leading rows that are one colour across the window
+    (the window's rounded corners, 20 px each side, left out of the test), when there are `MIN_BLANK_ROWS`."""
+    image = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED)
+    if image is None or image.shape[1] <= 40:
+        return png
+    centre = image[:, 20:-20].reshape(image.shape[0], image.shape[1] - 40, -1)
+    blank = (centre == centre[:, :1]).all(axis=(1, 2))
+    rows = len(blank) if blank.all() else int(np.argmin(blank))
+    if rows < MIN_BLANK_ROWS or rows == len(blank):
+        return png
+    ok, encoded = cv2.imencode(".png", image[rows:])
+    return encoded.tobytes() if ok else png
 
 
 def _time_cursor_at(state: ViewerState, store_id: str, frame: int) -> bool:
