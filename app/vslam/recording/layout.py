@@ -75,8 +75,8 @@ def plot_tabs(map_backend: bool, *, road_scale: bool, ground_truth: bool, engine
         tabs.append(rrb.Vertical(*overview, name="overview"))
     plots = _plots(road_scale, ground_truth, engine)
     timing = [p for p in plots if p.name == "timing (ms)"]
-    accuracy = [p for p in plots if p.name in ACCURACY_PLOTS]
-    tracking = [p for p in plots if p not in timing and p not in accuracy]
+    accuracy = [p for p in plots if p.name in ACCURACY_PLOTS]  # the position error is the overview's first plot
+    tracking = [p for p in plots if p not in timing and p not in accuracy and p.name != "position error (m)"]
     for name, group in (("tracking", tracking), ("accuracy", accuracy),
                         ("map", _map_plots() if map_backend else []), ("timing", timing)):
         if group:
@@ -87,7 +87,7 @@ def plot_tabs(map_backend: bool, *, road_scale: bool, ground_truth: bool, engine
 
 
 #: The plots of the ``accuracy`` tab (with ground truth).
-ACCURACY_PLOTS = ("position error (m)", "angle errors (°)", *(name for name, _ in DRIFT_PLOTS))
+ACCURACY_PLOTS = ("angle errors (°)", *(name for name, _ in DRIFT_PLOTS))
 
 
 def _overview_plots(ground_truth: bool, engine: bool) -> list[rrb.TimeSeriesView]:

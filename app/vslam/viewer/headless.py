@@ -125,7 +125,9 @@ def _snapshot(rrd: Path, index: int, out_dir: Path, timeout_s: float, window_siz
               only: Sequence[str]) -> list[Path]:
     started = time.monotonic()
     deadline = started + timeout_s
-    with viewer.stop_viewer_on_sigterm(), viewer.headless_viewer(deadline, window_size) as (process, client):
+    # the window is taller by the top bar, which the whole-layout picture leaves out: all.png is `window_size`
+    window = (window_size[0], window_size[1] + TOP_BAR_ROWS)
+    with viewer.stop_viewer_on_sigterm(), viewer.headless_viewer(deadline, window) as (process, client):
         try:
             shots = _settled_screenshots(client, rrd, index, deadline, only)
         except ViewerError:
@@ -272,8 +274,10 @@ def without_top_bar(layout: dict[str, Any]) -> dict[str, Any]:
     return copied
 
 
-#: The blank band a hidden top bar leaves is cropped when it is at least this many rows (Rerun 0.41: 37 at 1280x720).
+#: The blank band a hidden top bar leaves is cropped when it is at least this many rows.
 MIN_BLANK_ROWS = 8
+#: The rows of the viewer's top bar (Rerun 0.41, any window size): the headless window is this much taller.
+TOP_BAR_ROWS = 37
 
 
 def crop_blank_top(png: bytes) -> bytes:
