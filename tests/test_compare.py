@@ -183,7 +183,7 @@ def test_embedded_blueprint_has_both_runs_and_overlaid_plots(compared: Compariso
         plot = views[plot_title(group)]
         assert plot["class"] == "TimeSeries"
         assert plot["contents"] == [f"/a/metrics/{group}/**", f"/b/metrics/{group}/**"]
-    trajectories = views["trajectories: A red, B blue, truth green"]
+    trajectories = views["trajectories: A red, B orange, truth blue"]
     # every trajectory but the drift-coloured copies of the estimates (they would hide the runs' hues)
     assert trajectories["contents"] == ["/a/world/trajectory/**", "/b/world/trajectory/**",
                                         *(f"- /{p}/world/trajectory/{e}" for p in "ab" for e in ("drift", "gt_links"))]
@@ -301,7 +301,7 @@ def test_snapshot_shows_both_runs_and_overlaid_plots(shots: dict[str, Path]) -> 
     plots = [view_file_name(plot_title(group)) for group in METRICS if group != "road"]  # no --scale height run
     plots += [view_file_name(title) for title in DIFFERENCE_TITLES.values()]
     expected = ["a_frame", "a_world", "b_frame", "b_world", *plots, "events",
-                "trajectories_a_red_b_blue_truth_green", "all"]
+                "trajectories_a_red_b_orange_truth_blue", "all"]
     assert sorted(shots) == sorted(expected)
     pictures = {name: cv2.imread(str(path)) for name, path in shots.items()}
     for name, picture in pictures.items():  # each view maximised in the window: thin lines, large dark background
@@ -317,11 +317,11 @@ def test_snapshot_shows_both_runs_and_overlaid_plots(shots: dict[str, Path]) -> 
         lighter = [round(c + (255 - c) * LIGHTEN_B) for c in colour]
         picture = pictures[view_file_name(plot_title(group))]
         assert _columns(picture, colour) > 60 and _columns(picture, lighter) > 60, group
-    # the shared 3-D view: the estimates (A red, B blue) and the ground truth (green). Here the runs agree within
+    # the shared 3-D view: the estimates (A red, B orange) and the ground truth (blue). Here the runs agree within
     # 3 cm, so the lines lie on each other: which one is on top depends on their heights, not on their order.
-    b, g, r = (pictures["trajectories_a_red_b_blue_truth_green"].astype(int)[..., i] for i in range(3))
-    estimates = ((r > 150) & (r > g + 60) & (r > b + 60)) | ((b > 150) & (b > r + 60))
-    truth = (g > 150) & (g > r + 60) & (g > b + 30)
+    b, g, r = (pictures["trajectories_a_red_b_orange_truth_blue"].astype(int)[..., i] for i in range(3))
+    estimates = (r > 150) & (r > b + 60)  # red or orange
+    truth = (b > 200) & (b > r + 60) & (g < 180)
     assert estimates.sum() > 100 and truth.sum() > 100
 
 
@@ -406,7 +406,7 @@ def test_three_real_runs_in_one_valid_recording(kitti_runs: list[Path],
                for label, p, run in zip(labels, "abc", kitti_runs, strict=True)), summary
 
     views = _views(output)
-    assert views["trajectories: base red, tracks400 blue, later orange, truth green"]["contents"][:3] == [
+    assert views["trajectories: base red, tracks400 orange, later purple, truth blue"]["contents"][:3] == [
         f"/{p}/world/trajectory/**" for p in "abc"]
     assert views["events"]["contents"] == ["/compare/events", "/a/events", "/b/events", "/c/events"]
     assert views[plot_title("tracks")]["contents"] == [f"/{p}/metrics/tracks/**" for p in "abc"]
@@ -463,7 +463,7 @@ def test_snapshot_of_three_runs(three: tuple[Path, subprocess.CompletedProcess[s
     output, _ = three
     # the smallest window --size allows, four of the views: that each run has its views (--view refuses a view the
     # blueprint does not have) and that the pictures are not blank is checked
-    trajectories = "trajectories_base_red_tracks400_blue_later_orange_truth_green"
+    trajectories = "trajectories_base_red_tracks400_orange_later_purple_truth_blue"
     views = ("all", "base_frame", "later_world", trajectories)
     result = vslam("snapshot", output, "--frame", "120", "--size", "320x240", "--out", tmp_path,
                    *(arg for view in views for arg in ("--view", view)))

@@ -10,7 +10,7 @@ Telling runs apart: in the plots each run keeps the series' own colours, graded 
 run by run (`run_style`: the first run full colour and widest, the last `LIGHTEN_LAST` lighter and
 `SERIES_WIDTHS[1]` wide), so a later run's line runs inside an earlier one's where they agree, and the
 legend names the run ("B: tracks alive"). In the 3-D view each run's estimate has its own hue
-(`ESTIMATE_COLOURS`: red, blue, orange, purple, cyan, pink, then again), the ground truth stays green.
+(`ESTIMATE_COLOURS`: red, orange, purple, cyan, pink, yellow, then again), the ground truth stays blue.
 """
 
 from __future__ import annotations
@@ -35,10 +35,10 @@ LIGHTEN_LAST = 0.55
 #: run's thinner line runs inside an earlier one's where they are equal.
 SERIES_WIDTHS = (2.5, 1.0)
 #: (name, colour) of each run's estimated trajectory in the shared 3-D view, cycled; None keeps the
-#: recording's own colour (red). Not green: that is the ground truth.
+#: recording's own colour (red). Not blue: that is the ground truth (`vslam.recording.styles`).
 ESTIMATE_COLOURS: tuple[tuple[str, tuple[int, int, int] | None], ...] = (
-    ("red", None), ("blue", (60, 170, 255)), ("orange", (255, 160, 0)), ("purple", (190, 90, 255)),
-    ("cyan", (0, 220, 220)), ("pink", (255, 110, 190)))
+    ("red", None), ("orange", (255, 160, 0)), ("purple", (190, 90, 255)), ("cyan", (0, 220, 220)),
+    ("pink", (255, 110, 190)), ("yellow", (240, 230, 60)))
 #: Plot titles per metric group (as in vslam.recording.layout); groups not listed use their own name.
 GROUP_TITLES = {
     "tracks": "tracks",
@@ -79,9 +79,9 @@ def estimate_colour(index: int) -> tuple[str, tuple[int, int, int] | None]:
 
 
 def trajectories_title(labels: tuple[str, ...]) -> str:
-    """Name of the shared 3-D view: "trajectories: A red, B blue, truth green"."""
+    """Name of the shared 3-D view: "trajectories: A red, B orange, truth blue"."""
     runs = ", ".join(f"{label} {estimate_colour(i)[0]}" for i, label in enumerate(labels))
-    return f"trajectories: {runs}, truth green"
+    return f"trajectories: {runs}, truth blue"
 
 
 def plot_title(group: str) -> str:
@@ -142,7 +142,7 @@ def blueprint(labels: tuple[str, ...] = ("A", "B"),
         name=trajectories_title(labels),
         origin=f"/{prefixes[0]}/world",  # for its view coordinates (RDF); every /<prefix>/world is the same space
         # not the drift-coloured copies of the estimates (nor their links to the truth): they would hide the
-        # runs' own hues and look like the green ground truth
+        # runs' own hues and look like the error colours
         contents=[*(f"/{prefix}/world/trajectory/**" for prefix in prefixes),
                   *(f"- /{prefix}{entity}" for prefix in prefixes for entity in (DRIFT_ENTITY, LINKS_ENTITY))],
         eye_controls=_top_down(bounds),
