@@ -140,6 +140,29 @@ def test_the_walk_route_is_a_hand_held_camera() -> None:
     assert np.abs(heights - walk.camera_height).max() == pytest.approx(0.02, abs=1e-3)  # the bob of each step
 
 
+def test_the_drive_route_is_a_whole_drive_with_revisits_at_changing_speeds() -> None:
+    """`route="drive"`: KITTI 00's 4541 frames at 10 Hz, lap after lap round a closed circuit of two blocks
+    (five left turns and one right), at 0.45..1.7 m a frame: every place is passed three times or more, at
+    different speeds; more frames than an open street allows, since the scene is the circuit's."""
+    drive = SyntheticStreet(route="drive")
+    assert len(drive) == 4541
+    gt = drive.ground_truth
+    position = gt[:, :3, 3]
+    steps = np.linalg.norm(np.diff(position, axis=0), axis=1)
+    assert 0.4 < steps.min() < 0.55 and 1.6 < steps.max() < 1.8 and 4400 < steps.sum() < 4900
+    near_start = np.linalg.norm(position - position[0], axis=1) < 2.0
+    laps = np.flatnonzero(near_start[1:] & ~near_start[:-1])  # re-entries into the start's 2 m
+    assert len(laps) >= 3
+    assert not np.isclose(steps[laps[0]], steps[laps[1]], rtol=0.1)  # the same place at another speed
+    yaw = np.degrees(np.unwrap(np.arctan2(gt[:, 0, 2], gt[:, 2, 2])))  # heading about the world's vertical (RDF y)
+    assert abs(yaw[-1] - yaw[0]) / 360 == pytest.approx(steps.sum() / 1237, rel=0.05)  # one turn a lap
+    turning = np.diff(yaw)
+    assert (turning > 0.8).sum() > 100 and (turning < -0.8).sum() > 20  # the left turns, and the right one
+    assert SyntheticStreet(route="drive", n_frames=12000).ground_truth.shape == (12000, 4, 4)
+    with pytest.raises(SourceError, match="n_frames must be in 1..2000 on route street"):
+        SyntheticStreet(route="street", n_frames=4541)
+
+
 def test_frame_range_selection(street: SyntheticStreet) -> None:
     selected = SyntheticStreet(frames=FrameRange(10, 20, 2))
     assert len(selected) == 5

@@ -46,7 +46,7 @@ def open_source(
     monoVO; with ``rgb.txt`` and ``rgb/``: TUM RGB-D. Any other folder: `ImageFolderSource`. `inject` wraps the
     source in a `FaultInjector` (e.g. ``"dark@120,blur@200:210"``). `gt_tolerance_s` (None: 10 ms) applies
     where ground truth is matched to the frames by time; given where it is not (no ground truth, or paired row
-    by row), it is a `SourceError`. `route` picks the synthetic street's route ("street", "loop" or "walk")."""
+    by row), it is a `SourceError`. `route` picks the synthetic street's route ("street", "loop", "walk" or "drive")."""
     tolerance = DEFAULT_GT_TOLERANCE_S if gt_tolerance_s is None else gt_tolerance_s
     request = _Request(spec, sequence, frames, intrinsics, calib, ground_truth, gt_format, on_bad_frame, topic,
                        gt_topic, tolerance, route)

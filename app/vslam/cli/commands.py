@@ -130,8 +130,10 @@ def run(
     force: Annotated[bool, typer.Option("--force", help="replace existing output files (never one another run "
                                         "is writing)")] = False,
     route: Annotated[str | None, typer.Option(help="synthetic street's route: street (default), loop (around "
-                                              "a block and back past the start, 660 frames) or walk (a "
-                                              "hand-held camera carried down the street, 30 Hz, 450 frames)")] = None,
+                                              "a block and back past the start, 660 frames), walk (a "
+                                              "hand-held camera carried down the street, 30 Hz, 450 frames) or "
+                                              "drive (lap after lap round two blocks at changing speeds, "
+                                              "4541 frames)")] = None,
     save_map: Annotated[Path | None, typer.Option(help="--backend map: save the map into this new folder after "
                                                   "the run (Parquet tables + header.json)")] = None,
     prior_map: Annotated[Path | None, typer.Option("--map", help="localise each frame in this saved map (poses in "

@@ -83,6 +83,15 @@ def make_centreline(length: float, rng: np.random.Generator) -> Centreline:
 
 LOOP_PLAN = ((110.0, 0.0), (70.0, 90.0), (50.0, 0.0), (70.0, 90.0)) * 2  # around a block: 600 m
 
+#: Length of each corner of `DRIVE_PLAN` (a 90° turn with sin^2 ramps): it cuts this share of it off each side.
+_DRIVE_CORNER = 50.0
+_CORNER_CUT = 0.605437922 * _DRIVE_CORNER  # forward (= sideways) displacement of one corner, measured
+#: The long drive's circuit: an L-shaped pair of blocks, 300 m east, 200 north, 150 west, 150 north (a right
+#: turn), 150 west, 350 south, the corners rounded: five left turns and one right, 1237 m a lap.
+DRIVE_PLAN = tuple(segment for side, turn in ((300.0, 90.0), (200.0, 90.0), (150.0, -90.0), (150.0, 90.0),
+                                             (150.0, 90.0), (350.0, 90.0))
+                   for segment in ((side - 2 * _CORNER_CUT, 0.0), (_DRIVE_CORNER, turn)))
+
 
 def make_loop_centreline(plan: tuple[tuple[float, float], ...] = LOOP_PLAN) -> Centreline:
     """A closed road around a block (rounded rectangle, four left turns of exactly 90 degrees with the
@@ -119,15 +128,19 @@ def _rotation_z(angle: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-def camera_path(line: Centreline, n_frames: int, camera_height: float, rng: np.random.Generator) -> np.ndarray:
+def camera_path(line: Centreline, n_frames: int, camera_height: float, rng: np.random.Generator,
+                pace: np.ndarray | None = None) -> np.ndarray:
     """Camera poses T_m_c (n_frames, 4, 4) in the map frame.
 
     The camera follows the right lane at `camera_height` above the road (z = 0), looking along the road
-    tangent, with speed 0.83..1.17 m/frame (measured along its own lane) and pitch/roll oscillations.
+    tangent, with speed 0.83..1.17 m/frame (measured along its own lane; times `pace` (n_frames,) when given)
+    and pitch/roll oscillations.
     """
     phase = rng.uniform(0.0, 2.0 * np.pi, 5)
     i = np.arange(n_frames, dtype=np.float64)
     speed = 1.0 + 0.12 * np.sin(2 * np.pi * i / 83 + phase[0]) + 0.05 * np.sin(2 * np.pi * i / 19 + phase[1])
+    if pace is not None:
+        speed = speed * pace
     pitch = np.radians(0.6) * np.sin(2 * np.pi * i / 41 + phase[2]) + np.radians(0.2) * np.sin(
         2 * np.pi * i / 11 + phase[3]
     )
@@ -138,6 +151,15 @@ def camera_path(line: Centreline, n_frames: int, camera_height: float, rng: np.r
         arc[k] = arc[k - 1] + speed[k - 1] / (1.0 - _LANE_OFFSET * line.curvature_at(arc[k - 1]))
     xy, heading, normal = line.frame_at(arc)
     return _lane_poses(xy + _LANE_OFFSET * normal, heading, pitch, roll, np.full(n_frames, camera_height))
+
+
+def drive_path(line: Centreline, n_frames: int, camera_height: float, rng: np.random.Generator) -> np.ndarray:
+    """Camera poses T_m_c (n_frames, 4, 4) of a long drive round and round `line` (a closed circuit) at changing
+    speeds: `camera_path`'s times a pace that swings between 0.55 and 1.45 (periods 1300 and 470 frames), so
+    the car covers 0.45..1.7 m a frame (4.5..17 m/s at 10 Hz) and passes every place at several speeds."""
+    i = np.arange(n_frames, dtype=np.float64)
+    pace = 1.0 + 0.3 * np.sin(2 * np.pi * i / 1300) + 0.15 * np.sin(2 * np.pi * i / 470 + 1.0)
+    return camera_path(line, n_frames, camera_height, rng, pace)
 
 
 def _lane_poses(position: np.ndarray, heading: np.ndarray, pitch: np.ndarray, roll: np.ndarray,

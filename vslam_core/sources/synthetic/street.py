@@ -52,10 +52,12 @@ from vslam_core.sources.synthetic.raster import (
     surface_homography,
 )
 from vslam_core.sources.synthetic.road import (
+    DRIVE_PLAN,
     START_S,
     WALK_STEP,
     Centreline,
     camera_path,
+    drive_path,
     make_centreline,
     make_loop_centreline,
     walk_path,
@@ -66,7 +68,7 @@ from vslam_core.sources.synthetic.textures import FINE_TILE, PANO_ELEV_MAX, grou
 
 _INTRINSICS = CameraIntrinsics(fx=718.856, fy=718.856, cx=607.1928, cy=185.2157, width=1241, height=376,
                               origin="the synthetic street (KITTI 00's camera)")
-_FRAME_DT = {"street": 0.1, "loop": 0.1, "walk": 1 / 30}  # seconds between frames, by route
+_FRAME_DT = {"street": 0.1, "loop": 0.1, "walk": 1 / 30, "drive": 0.1}  # seconds between frames, by route
 _LOOK_AHEAD = 130.0  # scene generated beyond the last camera position
 _FAR = 100.0  # metres; rectangles whose nearest point is farther are culled
 _GROUND_FAR = 300.0  # metres; farther ground shows the panorama (hills) instead
@@ -74,9 +76,14 @@ _FINE_RES = 0.015  # ground speckle tile
 _SPECKLE_CONTRAST = 0.45  # ground speckle amplitude, about +-55 grey levels
 _MIP_LEVELS = 7
 _MAX_FRAMES = 2000  # textures must stay under cv2.remap's 32767-texel limit (and memory reasonable)
+#: On a closed circuit the scene does not grow with the frames (the textures are the circuit's): an hour at 10 Hz.
+_MAX_FRAMES_CLOSED = 36000
 _SCRATCH = threading.local()  # .memory: the `Scratch` of this thread's renderings (~50 MB at full size)
-Route = Literal["street", "loop", "walk"]
-ROUTES: dict[str, int] = {"street": 300, "loop": 660, "walk": 450}  # route -> default number of frames
+Route = Literal["street", "loop", "walk", "drive"]
+#: route -> default number of frames ("drive": KITTI 00's length, 4541)
+ROUTES: dict[str, int] = {"street": 300, "loop": 660, "walk": 450, "drive": 4541}
+#: The routes round a closed circuit: their scene is the circuit's, whatever the number of frames.
+CLOSED_ROUTES = ("loop", "drive")
 
 
 def _scaled(intrinsics: CameraIntrinsics, factor: float) -> CameraIntrinsics:
@@ -108,6 +115,8 @@ def _centreline(n_frames: int, seed: int, route: Route) -> Centreline:
     """The road the camera drives along (cheap; the scene around it is `_world`)."""
     if route == "loop":  # around a block and back past the start (~1 m per frame)
         return make_loop_centreline()
+    if route == "drive":  # round two blocks, lap after lap (~1 m per frame on average)
+        return make_loop_centreline(DRIVE_PLAN)
     length = (WALK_STEP * 1.25 if route == "walk" else 1.25) * n_frames
     return make_centreline(START_S + length + _LOOK_AHEAD, _streams(seed)[0])
 
@@ -141,8 +150,10 @@ class SyntheticStreet:
 
     n_frames: number of source frames (the path length is about n_frames metres); default by route.
     route: "street" (an open road with curves both ways), "loop" (around a 600 m block, four left turns,
-    and on past the start: a closed route whose end revisits its start, for loop closure) or "walk" (a
-    hand-held camera carried down the street at 30 Hz, swinging about its centre: `road.walk_path`).
+    and on past the start: a closed route whose end revisits its start, for loop closure), "walk" (a
+    hand-held camera carried down the street at 30 Hz, swinging about its centre: `road.walk_path`) or "drive"
+    (KITTI 00's 4541 frames round an L-shaped pair of blocks, 1237 m a lap, at 0.45..1.7 m a frame: revisits,
+    loops and changing speeds over a whole drive, `road.drive_path`).
     resolution: image size factor (< 1 renders smaller images, faster: for tests).
     frames: selection among them (`FrameRange.indices(n_frames)`, SourceError when out of range).
     camera_height: metres between the camera centre and the road plane.
@@ -158,8 +169,9 @@ class SyntheticStreet:
         if route not in ROUTES:
             raise SourceError(f"synthetic street: unknown route {route!r} (one of: {', '.join(ROUTES)})")
         n_frames = n_frames if n_frames is not None else ROUTES[route]
-        if not 1 <= n_frames <= _MAX_FRAMES:
-            raise SourceError(f"synthetic street: n_frames must be in 1..{_MAX_FRAMES}, got {n_frames}")
+        most = _MAX_FRAMES_CLOSED if route in CLOSED_ROUTES else _MAX_FRAMES
+        if not 1 <= n_frames <= most:
+            raise SourceError(f"synthetic street: n_frames must be in 1..{most} on route {route}, got {n_frames}")
         if not 0.1 <= resolution <= 1.0:
             raise SourceError(f"synthetic street: resolution must be in 0.1..1, got {resolution}")
         self.n_frames = n_frames
@@ -169,7 +181,7 @@ class SyntheticStreet:
         self._indices = (frames or FrameRange()).indices(n_frames)
         self._intr = intr = _INTRINSICS if resolution == 1.0 else _scaled(_INTRINSICS, resolution)
         self._k = intr.K
-        path = walk_path if route == "walk" else camera_path
+        path = {"walk": walk_path, "drive": drive_path}.get(route, camera_path)
         self._poses_map = path(_centreline(n_frames, seed, route), n_frames, self.camera_height, _streams(seed)[1])
         self._ground_truth = rebase_poses(self._poses_map[self._indices])
         self._prepared = False  # the scene is built on the first frame not found in the frame cache
