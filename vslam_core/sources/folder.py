@@ -21,6 +21,7 @@ import numpy as np
 
 from vslam_core.errors import SourceError
 from vslam_core.sources.base import CameraIntrinsics, FrameRange
+from vslam_core.sources.calibration import exact_scale, scale_hint
 from vslam_core.sources.calibration_files import read_calibration
 from vslam_core.sources.image_files import list_frame_files
 from vslam_core.sources.kitti import (
@@ -28,6 +29,7 @@ from vslam_core.sources.kitti import (
     GroundTruthFormat,
     ImageFilesSource,
     first_image,
+    orientation_notes,
     read_times,
     select,
     sixteen_bit_property,
@@ -72,10 +74,9 @@ def complete_intrinsics(
     if intrinsics.width == 0 and intrinsics.height == 0:
         return replace(intrinsics, width=width, height=height)
     if (intrinsics.width, intrinsics.height) != (width, height):
-        raise SourceError(
-            f"{where}: images are {width}x{height} but the intrinsics are for "
-            f"{intrinsics.width}x{intrinsics.height}"
-        )
+        factor = exact_scale((width, height), (intrinsics.width, intrinsics.height))
+        raise SourceError(f"{where}: images are {width}x{height} but the intrinsics are for {intrinsics.width}x"
+                          f"{intrinsics.height} ({intrinsics.origin or 'given'}){scale_hint(factor)}")
     return intrinsics
 
 
@@ -128,6 +129,7 @@ class ImageFolderSource(ImageFilesSource):
         self.notes = [note] if (note := listing.skipped_note(self.folder)) else []
         self._indices = select(frames, len(self._files), self.folder)
         self._size, self._shift = first_image(self._files, self._indices, on_bad_frame, self.folder)
+        self.notes += orientation_notes(self._files, self._indices, self._size)
         self.properties = {"frame_order": listing.order_property(), **sixteen_bit_property(self._shift)}
 
         if intrinsics is not None and calib is not None:
