@@ -155,7 +155,7 @@ def run(
         same_file_problem,
         with_camera_height,
     )
-    from vslam_core.config import EngineConfig, load_config
+    from vslam_core.config import EngineConfig, describe_pixel_scale, load_config
     from vslam_core.sources.base import FrameRange, describe_indices, ground_truth_matching
     from vslam_core.sources.open import open_source
 
@@ -210,6 +210,7 @@ def run(
         **({"inject": inject} if inject else {}),
         **({"prior_map": str(prior_map)} if prior_map is not None else {}),
         **({"gt_matching": matching} if (matching := ground_truth_matching(src)) else {}),
+        **({"pixel_scale": scaled} if (scaled := describe_pixel_scale(config, src.intrinsics.width)) else {}),
     }
     if rrd is not None:  # the recording's (--detail off has none, and then never loads the recorder and rerun)
         from vslam.recording import version_properties
