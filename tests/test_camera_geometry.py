@@ -95,17 +95,28 @@ def test_a_calibration_file_for_another_size_is_refused_naming_both(kitti_root: 
 
 
 @pytest.mark.kitti
-def test_a_principal_point_off_centre_but_inside_the_middle_60_percent_warns(kitti_root: Path, tmp_path: Path
-                                                                           ) -> None:
-    double = [cv2.resize(f, (2482, 752), interpolation=cv2.INTER_LINEAR) for f in kitti_frames(kitti_root, 2)]
-    folder = write_folder(tmp_path / "double", double)  # the 1241x376 intrinsics put it at 24 % / 25 %
-    source = open_source(str(folder), intrinsics=KITTI_00)
-    assert input_warnings(source, EngineConfig()) == [
-        "the principal point (607.193, 185.216) lies at 24% / 25% of the 2482x752 frames' width / height, outside "
-        "their middle 40%: are the intrinsics for frames of this size (a crop, or another resolution)? (if the frames "
-        "are resized copies of the calibrated camera's, --calib-scale 2 scales the calibration)"]
-    right = open_source(str(folder), intrinsics=KITTI_00, calib_scale=2.0)
+def test_frames_resized_by_less_than_the_middle_60_percent_shows_are_refused_too(kitti_root: Path, tmp_path: Path
+                                                                                ) -> None:
+    frames = kitti_frames(kitti_root, 2)
+    double = write_folder(tmp_path / "double", [cv2.resize(f, (2482, 752)) for f in frames])  # 24 % / 25 %
+    with pytest.raises(SourceError) as refused:
+        open_source(str(double), intrinsics=KITTI_00)
+    assert str(refused.value) == (
+        "the principal point (607.193, 185.216) lies at 24% / 25% of the 2482x752 frames' width / height, not near "
+        "their centre but where the centre of 1221x370 frames is (both axes agree): the intrinsics are not for frames "
+        "of this size (from --intrinsics) (if the frames are resized copies of the calibrated camera's, "
+        "--calib-scale 2 scales the calibration)")
+    larger = write_folder(tmp_path / "larger", [cv2.resize(f, (1551, 470)) for f in frames])  # 1.25x: 39 % / 39 %
+    with pytest.raises(SourceError, match=r"lies at 39% / 39% .* where the centre of 1221x370 frames is"):
+        open_source(str(larger), intrinsics=KITTI_00)
+    right = open_source(str(double), intrinsics=KITTI_00, calib_scale=2.0)
     assert input_warnings(right, EngineConfig()) == []
+    # the left 400 columns cut off, the intrinsics not moved: one axis off centre (a crop), warned only
+    cropped = write_folder(tmp_path / "cropped", [f[:, 400:] for f in frames])
+    source = open_source(str(cropped), intrinsics=KITTI_00)
+    assert input_warnings(source, EngineConfig()) == [
+        "the principal point (607.193, 185.216) lies at 72% / 49% of the 841x376 frames' width / height, outside "
+        "their middle 40%: are the intrinsics for frames of this size (a crop, or another resolution)?"]
 
 
 @pytest.mark.kitti
