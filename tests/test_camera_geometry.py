@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import os
 import struct
+import zlib
 from pathlib import Path
 
 import av
@@ -174,6 +175,20 @@ def test_exif_orientation_is_not_applied_and_is_said(kitti_root: Path, tmp_path:
         "warning: 000000.jpg: EXIF Orientation 6 (rotated 90° clockwise) ignored: the frames are read as the sensor "
         "stored them, 1241x376, the calibration's pixels (a viewer would show them turned)"]
     assert "frames      3 (0 held" in result.stdout
+
+    # a PNG's eXIf chunk (little-endian, Orientation 3): the same shape turned 180°, OpenCV turns it by default too
+    png = cv2.imencode(".png", frames[0])[1].tobytes()
+    tiff = b"II\x2a\x00" + struct.pack("<IH", 8, 1) + struct.pack("<HHIHH", 0x0112, 3, 1, 3, 0) + bytes(4)
+    chunk = struct.pack(">I", len(tiff)) + b"eXIf" + tiff + struct.pack(">I", zlib.crc32(b"eXIf" + tiff))
+    upside_down = tmp_path / "upside_down"
+    upside_down.mkdir()
+    (upside_down / "000000.png").write_bytes(png[:33] + chunk + png[33:])  # after the signature and IHDR
+    shown = cv2.imread(str(upside_down / "000000.png"), cv2.IMREAD_GRAYSCALE)
+    assert np.array_equal(shown, cv2.rotate(frames[0], cv2.ROTATE_180))
+    flagged = open_source(str(upside_down), intrinsics=KITTI_00)
+    assert np.array_equal(next(iter(flagged)).image, frames[0])
+    warning = input_warnings(flagged, EngineConfig())[0]
+    assert warning.startswith("000000.png: EXIF Orientation 3 (rotated 180°) ignored"), warning
 
 
 @pytest.mark.kitti
