@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from cli_helpers import vslam
 
+from vslam.batch.manifest import ManifestError, read_manifest
 from vslam.runs import input_warnings
 from vslam_core.config import EngineConfig, pixel_scale
 from vslam_core.errors import SourceError
@@ -118,6 +119,17 @@ def test_frames_resized_by_less_than_the_middle_60_percent_shows_are_refused_too
     assert input_warnings(source, EngineConfig()) == [
         "the principal point (607.193, 185.216) lies at 72% / 49% of the 841x376 frames' width / height, outside "
         "their middle 40%: are the intrinsics for frames of this size (a crop, or another resolution)?"]
+
+
+def test_a_manifest_row_may_resize_its_calibration(tmp_path: Path) -> None:
+    (tmp_path / "cam.yaml").write_text("K: [1, 0, 1, 0, 1, 1, 0, 0, 1]\n")
+    manifest = tmp_path / "logs.csv"
+    manifest.write_text("name,source,calib,calib_scale\nhalf,synthetic,cam.yaml,0.5\nplain,synthetic,cam.yaml,\n")
+    half, plain = read_manifest(manifest)
+    assert (half.calib_scale, plain.calib_scale) == (0.5, None)
+    manifest.write_text("name,source,calib,calib_scale\nhalf,synthetic,cam.yaml,half\n")
+    with pytest.raises(ManifestError, match="calib_scale 'half' is not a number"):
+        read_manifest(manifest)
 
 
 @pytest.mark.kitti
