@@ -65,16 +65,17 @@ def parse_intrinsics(text: str) -> PartialIntrinsics:
 
 
 def complete_intrinsics(
-    intrinsics: CameraIntrinsics | PartialIntrinsics, width: int, height: int, where: object
+    intrinsics: CameraIntrinsics | PartialIntrinsics, width: int, height: int, where: object, scalable: bool = True
 ) -> CameraIntrinsics:
     """Intrinsics for images of ``width`` x ``height``: a `PartialIntrinsics` is completed, a
-    `CameraIntrinsics` with width/height 0 gets the size, one with another size is a `SourceError`."""
+    `CameraIntrinsics` with width/height 0 gets the size, one with another size is a `SourceError` naming both
+    (and, when `scalable`, i.e. the user gave the calibration, `--calib-scale` for an exact factor)."""
     if isinstance(intrinsics, PartialIntrinsics):
         return intrinsics.complete(width, height)
     if intrinsics.width == 0 and intrinsics.height == 0:
         return replace(intrinsics, width=width, height=height)
     if (intrinsics.width, intrinsics.height) != (width, height):
-        factor = exact_scale((width, height), (intrinsics.width, intrinsics.height))
+        factor = exact_scale((width, height), (intrinsics.width, intrinsics.height)) if scalable else None
         raise SourceError(f"{where}: images are {width}x{height} but the intrinsics are for {intrinsics.width}x"
                           f"{intrinsics.height} ({intrinsics.origin or 'given'}){scale_hint(factor)}")
     return intrinsics

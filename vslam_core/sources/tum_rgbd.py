@@ -142,7 +142,8 @@ class TumRgbdSource(ImageFilesSource):
         if chosen is None:
             raise SourceError(f"{folder}: a TUM RGB-D folder has no calibration file and its name names no Freiburg "
                               "camera (freiburg1, 2 or 3): give --calib FILE or --intrinsics fx,fy,cx,cy")
-        self._intrinsics = complete_intrinsics(chosen, self._size[0], self._size[1], folder)
+        self._intrinsics = complete_intrinsics(chosen, self._size[0], self._size[1], folder,
+                                               scalable=camera is not None)  # the published one: no --calib-scale
 
         self.properties: dict[str, str] = {"dataset": "TUM RGB-D", "frame_order": "rgb.txt's stamps",
                                            **sixteen_bit_property(self._shift)}
