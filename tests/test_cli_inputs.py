@@ -141,12 +141,13 @@ def test_a_run_that_tracks_some_frames_exits_0(kitti_root: Path) -> None:
 
 
 @pytest.mark.kitti
-def test_principal_point_outside_the_image_warns(image_folder: Path) -> None:
+def test_principal_point_outside_the_image_is_refused(image_folder: Path) -> None:
     result = vslam("run", image_folder, "--intrinsics", "718.9,718.9,2000,185.2", "--scale", "none",
                    "--detail", "off")
-    lines = error_lines(result)
-    assert lines[0].startswith("warning: the principal point (2000, 185.2) lies outside the 1241x376 image"), lines
-    assert len(lines) == 1 or lines[1].startswith("error: no frame could be tracked")
+    assert result.returncode == 2, result.stderr
+    assert error_lines(result) == ["error: the principal point (2000, 185.2) lies at 161% / 49% of the 1241x376 "
+                                   "frames' width / height, outside their middle 60%: the intrinsics are not for "
+                                   "frames of this size (from --intrinsics)"]
 
 
 @pytest.mark.kitti

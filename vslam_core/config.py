@@ -15,6 +15,7 @@ naming the key.
 from __future__ import annotations
 
 import dataclasses
+import math
 import tomllib
 import types
 import typing
@@ -262,6 +263,43 @@ class EngineConfig:
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
+
+    def for_image_width(self, width: int) -> EngineConfig:
+        """The config for frames `width` pixels wide: the pixel sizes that describe image content, not
+        measurement precision, grow with the camera (`pixel_scale`): the corner spacing times the scale, the
+        KLT pyramids ``round(log2 scale)`` levels deeper (the 13-px window then sees at the top level what it
+        sees on a 1241-px frame). Identical at or under `REFERENCE_WIDTH_PX` (KITTI, TUM, EuRoC)."""
+        factor = pixel_scale(width)
+        if factor == 1.0:
+            return self
+        levels = round(math.log2(factor))
+        tracker = dataclasses.replace(
+            self.tracker, max_level=self.tracker.max_level + levels,
+            predicted_max_level=self.tracker.predicted_max_level + levels if self.tracker.predicted_max_level >= 0
+            else self.tracker.predicted_max_level)
+        detector = dataclasses.replace(self.detector, min_distance_px=round(self.detector.min_distance_px * factor))
+        return dataclasses.replace(self, tracker=tracker, detector=detector)
+
+
+#: The frame width the pixel-valued defaults were tuned on (KITTI 00's 1241 px): wider frames scale them.
+REFERENCE_WIDTH_PX = 1241
+
+
+def pixel_scale(width: int) -> float:
+    """How many times wider than `REFERENCE_WIDTH_PX` frames `width` px wide are, never under 1 (narrower cameras
+    keep the defaults they were also checked on: TUM 640 px, EuRoC 752 px)."""
+    return max(1.0, width / REFERENCE_WIDTH_PX)
+
+
+def describe_pixel_scale(config: EngineConfig, width: int) -> str | None:
+    """What `EngineConfig.for_image_width` changed for frames `width` px wide, in one line (None when nothing)."""
+    factor = pixel_scale(width)
+    if factor == 1.0:
+        return None
+    scaled = config.for_image_width(width)
+    return (f"{width} px wide, {factor:.2f}x KITTI's {REFERENCE_WIDTH_PX}: corner spacing "
+            f"{scaled.detector.min_distance_px} px, KLT pyramid {scaled.tracker.max_level} levels, image checks "
+            "measured 620 px wide")
 
 
 def _check_value(key: str, value: Any, annotation: Any) -> Any:

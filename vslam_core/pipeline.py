@@ -146,6 +146,7 @@ def run_odometry(
     processed so far if the run is interrupted). With `prior_map`, each frame is localised in that map
     (`MapLocalisation`) instead. `finish` is given the engine once every frame was processed (e.g. to save
     the map)."""
+    config = config.for_image_width(source.intrinsics.width)  # pixel sizes scaled for a wide camera
     # the height scale is never given the ground truth
     ground_truth = source.ground_truth if config.scale == "gt" else None
     scale = make_scale_provider(config, ground_truth, source.intrinsics.K, source.camera_height)

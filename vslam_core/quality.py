@@ -15,9 +15,16 @@ import numpy as np
 _NOISE_KERNEL_1D = np.array([1, -2, 1], np.float32)
 
 
+#: Frames are measured at half resolution, or narrower for a camera wider than KITTI's 1241 px: at most this wide,
+#: so a 4000-px camera's frames are judged sharp or blurred as a 1241-px one's (the variance of the Laplacian falls
+#: steeply with magnification: KITTI 05 frames, 1226 px, measure 1118-1424; upscaled to 4000x1207, 60-70 at half
+#: size (bilinear; 89-106 bicubic), under the blur gate's 100, and 750-978 (950-1223) at this width).
+MEASURED_WIDTH_PX = 620.5
+
+
 @dataclass(frozen=True)
 class ImageStats:
-    """Statistics of one (H, W) uint8 frame, measured at half resolution."""
+    """Statistics of one (H, W) uint8 frame, measured at half resolution (`MEASURED_WIDTH_PX` wide at most)."""
 
     mean: float  # grey level 0..255
     saturated: float  # fraction of pixels ≥ 250
@@ -36,12 +43,18 @@ def image_stats(image: np.ndarray) -> ImageStats:
 
 
 def sharpness(image: np.ndarray) -> float:
-    """`ImageStats.sharpness` alone: the variance of the Laplacian at half resolution."""
+    """`ImageStats.sharpness` alone: the variance of the Laplacian at half resolution (see `MEASURED_WIDTH_PX`)."""
     return _laplacian_variance(_half(image))
 
 
 def _half(image: np.ndarray) -> np.ndarray:
-    return cv2.resize(image, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
+    """The image at half size, or `MEASURED_WIDTH_PX` wide when that is smaller (a camera over 1241 px wide)."""
+    height, width = image.shape[:2]
+    if width * 0.5 <= MEASURED_WIDTH_PX:
+        return cv2.resize(image, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
+    factor = MEASURED_WIDTH_PX / width
+    size = (max(1, round(width * factor)), max(1, round(height * factor)))
+    return cv2.resize(image, size, interpolation=cv2.INTER_AREA)
 
 
 def _laplacian_variance(image: np.ndarray) -> float:

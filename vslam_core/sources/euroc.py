@@ -29,7 +29,7 @@ import numpy as np
 from vslam_core.errors import SourceError, TrajectoryFormatError
 from vslam_core.sources.base import CameraIntrinsics, FrameRange, safe_name
 from vslam_core.sources.calibration_files import load_yaml, number_list, read_calibration
-from vslam_core.sources.kitti import BadFramePolicy, ImageFilesSource, first_image, select
+from vslam_core.sources.kitti import BadFramePolicy, ImageFilesSource, first_image, orientation_notes, select
 from vslam_core.sources.stamps import (
     DEFAULT_GT_TOLERANCE_S,
     matched_by_time,
@@ -233,6 +233,7 @@ class EurocSource(ImageFilesSource):
         self.notes: list[str] = [f"{self.folder / 'data.csv'}: {note}" for note in stamp_problems(self._times)]
         self._check_missing()
         self._size, self._shift = first_image(self._files, self._indices, on_bad_frame, self.folder)
+        self.notes += orientation_notes(self._files, self._indices, self._size)
 
         intrinsics, self.t_bs = read_sensor_yaml(self.folder / "sensor.yaml")
         if (intrinsics.width, intrinsics.height) != self._size:

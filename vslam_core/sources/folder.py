@@ -21,6 +21,7 @@ import numpy as np
 
 from vslam_core.errors import SourceError
 from vslam_core.sources.base import CameraIntrinsics, FrameRange
+from vslam_core.sources.calibration import exact_scale, scale_hint
 from vslam_core.sources.calibration_files import read_calibration
 from vslam_core.sources.image_files import list_frame_files
 from vslam_core.sources.kitti import (
@@ -28,6 +29,7 @@ from vslam_core.sources.kitti import (
     GroundTruthFormat,
     ImageFilesSource,
     first_image,
+    orientation_notes,
     read_times,
     select,
     sixteen_bit_property,
@@ -63,19 +65,19 @@ def parse_intrinsics(text: str) -> PartialIntrinsics:
 
 
 def complete_intrinsics(
-    intrinsics: CameraIntrinsics | PartialIntrinsics, width: int, height: int, where: object
+    intrinsics: CameraIntrinsics | PartialIntrinsics, width: int, height: int, where: object, scalable: bool = True
 ) -> CameraIntrinsics:
     """Intrinsics for images of ``width`` x ``height``: a `PartialIntrinsics` is completed, a
-    `CameraIntrinsics` with width/height 0 gets the size, one with another size is a `SourceError`."""
+    `CameraIntrinsics` with width/height 0 gets the size, one with another size is a `SourceError` naming both
+    (and, when `scalable`, i.e. the user gave the calibration, `--calib-scale` for an exact factor)."""
     if isinstance(intrinsics, PartialIntrinsics):
         return intrinsics.complete(width, height)
     if intrinsics.width == 0 and intrinsics.height == 0:
         return replace(intrinsics, width=width, height=height)
     if (intrinsics.width, intrinsics.height) != (width, height):
-        raise SourceError(
-            f"{where}: images are {width}x{height} but the intrinsics are for "
-            f"{intrinsics.width}x{intrinsics.height}"
-        )
+        factor = exact_scale((width, height), (intrinsics.width, intrinsics.height)) if scalable else None
+        raise SourceError(f"{where}: images are {width}x{height} but the intrinsics are for {intrinsics.width}x"
+                          f"{intrinsics.height} ({intrinsics.origin or 'given'}){scale_hint(factor)}")
     return intrinsics
 
 
@@ -128,6 +130,7 @@ class ImageFolderSource(ImageFilesSource):
         self.notes = [note] if (note := listing.skipped_note(self.folder)) else []
         self._indices = select(frames, len(self._files), self.folder)
         self._size, self._shift = first_image(self._files, self._indices, on_bad_frame, self.folder)
+        self.notes += orientation_notes(self._files, self._indices, self._size)
         self.properties = {"frame_order": listing.order_property(), **sixteen_bit_property(self._shift)}
 
         if intrinsics is not None and calib is not None:

@@ -7,7 +7,9 @@ forks a Mac writes onto FAT/exFAT/network drives), other hidden files (``.name.p
 
 Decoding (`read_grey_image`): the file's bytes are read through Python's file layer and decoded with
 ``cv2.imdecode`` (OpenCV's own path handling crashes on a path that is not valid UTF-8), at the depth the
-file holds (``IMREAD_ANYDEPTH``; colour is converted to grey). 16-bit images are shifted right by ``b - 8``
+file holds (``IMREAD_ANYDEPTH``; colour is converted to grey) and as stored: an EXIF ``Orientation`` flag is
+ignored (``IMREAD_IGNORE_ORIENTATION``), since a calibration describes the sensor's pixels (`orientation_note`
+says when a flag was there). 16-bit images are shifted right by ``b - 8``
 bits, ``b`` being the bit depth (8, 10, 12, 14 or 16) that holds the brightest pixel of the source's first
 frame (`sixteen_bit_shift`), as the ``mono16`` images of a ROS log are: 10- or 12-bit sensor data stored in
 16-bit PNGs keeps its full brightness instead of becoming 0–15 (which `IMREAD_GRAYSCALE` makes of it).
@@ -19,6 +21,7 @@ import re
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -118,7 +121,7 @@ def decode_image(path: Path) -> np.ndarray:
     if (problem := png_problem(raw)) is not None:  # before libpng prints its own "libpng error: …" line
         raise SourceError(f"{path}: cannot read image (corrupt PNG: {problem})")
     data = np.frombuffer(raw, np.uint8)
-    image = cv2.imdecode(data, cv2.IMREAD_ANYDEPTH) if data.size else None
+    image = cv2.imdecode(data, cv2.IMREAD_ANYDEPTH | cv2.IMREAD_IGNORE_ORIENTATION) if data.size else None
     if image is None or image.size == 0:
         raise SourceError(f"{path}: cannot read image (missing, corrupt or not an image)")
     if image.dtype not in (np.uint8, np.uint16):
@@ -155,6 +158,57 @@ def read_grey_image(path: Path, size: tuple[int, int] | None = None, shift: int 
 
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+#: EXIF Orientation values (TIFF tag 0x0112) → how a viewer turns the stored image to show it
+ORIENTATIONS = {2: "mirrored", 3: "rotated 180°", 4: "flipped upside down", 5: "mirrored and rotated 90°",
+                6: "rotated 90° clockwise", 7: "mirrored and rotated 90°", 8: "rotated 90° anticlockwise"}
+_BYTE_ORDERS: dict[bytes, Literal["little", "big"]] = {b"II": "little", b"MM": "big"}
+_EXIF_SEARCH = 1 << 16  # the EXIF block sits at the file's start (JPEG APP1, PNG eXIf before IDAT, TIFF IFD0)
+
+
+def exif_orientation(data: bytes) -> int | None:
+    """The EXIF ``Orientation`` (1-8) of an image file's bytes (JPEG APP1 ``Exif``, PNG ``eXIf`` or a TIFF's own
+    IFD0), or None when there is none. TIFF layout: byte order ``II``/``MM``, 42, the offset of IFD0, then its
+    entries (tag 2 bytes, type 2, count 4, value 4; a SHORT value sits in the value's first 2 bytes)."""
+    head = data[:_EXIF_SEARCH]
+    if head[:4] in (b"II*\x00", b"MM\x00*"):
+        start = 0
+    elif (found := head.find(b"Exif\x00\x00")) >= 0:
+        start = found + 6
+    elif (found := head.find(b"eXIf")) >= 0:
+        start = found + 4
+    else:
+        return None
+    tiff = head[start:]
+    order = _BYTE_ORDERS.get(tiff[:2])
+    if order is None or len(tiff) < 10:
+        return None
+    ifd = int.from_bytes(tiff[4:8], order)
+    if ifd + 2 > len(tiff):
+        return None
+    entries = int.from_bytes(tiff[ifd:ifd + 2], order)
+    for i in range(entries):
+        entry = tiff[ifd + 2 + 12 * i: ifd + 14 + 12 * i]
+        if len(entry) < 12:
+            return None
+        if int.from_bytes(entry[:2], order) == 0x0112:
+            return int.from_bytes(entry[8:10], order)
+    return None
+
+
+def orientation_note(path: Path, size: tuple[int, int]) -> str | None:
+    """One line when the image file `path` (stored `size` = width, height) carries an EXIF Orientation other than
+    1 (upright), which the frames are read without; None otherwise (or when the file cannot be read)."""
+    try:
+        with path.open("rb") as file:
+            head = file.read(_EXIF_SEARCH)
+    except OSError:
+        return None
+    value = exif_orientation(head)
+    if value is None or value == 1:
+        return None
+    turned = ORIENTATIONS.get(value, "an unknown turn")
+    return (f"{path.name}: EXIF Orientation {value} ({turned}) ignored: the frames are read as the sensor stored "
+            f"them, {size[0]}x{size[1]}, the calibration's pixels (a viewer would show them turned)")
 
 
 def png_problem(data: bytes) -> str | None:

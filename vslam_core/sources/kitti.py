@@ -26,6 +26,7 @@ from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange, Selecte
 from vslam_core.sources.image_files import (
     decode_image,
     list_frame_files,
+    orientation_note,
     read_grey_image,
     sixteen_bit_shift,
 )
@@ -178,6 +179,13 @@ def first_image(files: list[Path], indices: list[int], on_bad_frame: BadFramePol
     raise SourceError(f"{where}: none of the {len(indices)} selected images can be read")
 
 
+def orientation_notes(files: list[Path], indices: list[int], size: tuple[int, int]) -> list[str]:
+    """[one line] when the first selected image carries an EXIF Orientation flag (ignored: frames are read as
+    stored, `size` = width, height), else []."""
+    note = orientation_note(files[indices[0]], size)
+    return [note] if note else []
+
+
 def sixteen_bit_property(shift: int | None) -> dict[str, str]:
     """The run property saying how 16-bit images were made 8-bit ({} for 8-bit images)."""
     if shift is None:
@@ -259,6 +267,7 @@ class KittiSource(ImageFilesSource):
         calib = self.folder / "calib.txt"
         fx, fy, cx, cy = read_p0_intrinsics(calib)
         self._size, self._shift = first_image(self._files, self._indices, on_bad_frame, self.folder)
+        self.notes += orientation_notes(self._files, self._indices, self._size)
         self.properties = {"frame_order": listing.order_property(), **sixteen_bit_property(self._shift)}
         self._intrinsics = CameraIntrinsics(fx, fy, cx, cy, width=self._size[0], height=self._size[1],
                                             origin=f"{calib} (KITTI calib.txt)")

@@ -38,6 +38,7 @@ def open_source(
     gt_topic: str | None = None,
     gt_tolerance_s: float | None = None,
     route: str | None = None,
+    calib_scale: float | None = None,
 ) -> FrameSource:
     """None or "synthetic": the embedded synthetic street. A ROS 1 ``.bag``, a ROS 2 bag folder or a bare
     ``.mcap``/``.db3``, or a ROS 2 bag folder without ``metadata.yaml`` (the recorder killed) holding one
@@ -46,11 +47,17 @@ def open_source(
     monoVO; with ``rgb.txt`` and ``rgb/``: TUM RGB-D. Any other folder: `ImageFolderSource`. `inject` wraps the
     source in a `FaultInjector` (e.g. ``"dark@120,blur@200:210"``). `gt_tolerance_s` (None: 10 ms) applies
     where ground truth is matched to the frames by time; given where it is not (no ground truth, or paired row
-    by row), it is a `SourceError`. `route` picks the synthetic street's route ("street", "loop", "walk" or "drive")."""
+    by row), it is a `SourceError`. `route` picks the synthetic street's route ("street", "loop", "walk" or "drive").
+    `calib_scale` resizes the given calibration (`--calib-scale`, `scale_calibration`). A principal point outside
+    the middle 60 % of the frames is a `SourceError` (`principal_point_problem`)."""
     tolerance = DEFAULT_GT_TOLERANCE_S if gt_tolerance_s is None else gt_tolerance_s
     request = _Request(spec, sequence, frames, intrinsics, calib, ground_truth, gt_format, on_bad_frame, topic,
-                       gt_topic, tolerance, route)
+                       gt_topic, tolerance, route, calib_scale)
     source = _open(request)
+    from vslam_core.sources.calibration import principal_point_problem
+
+    if (problem := principal_point_problem(source.intrinsics)) is not None:
+        raise SourceError(problem)
     if gt_tolerance_s is not None:
         _refuse_tolerance(source)
     if not inject:
@@ -84,10 +91,12 @@ class _Request:
     gt_topic: str | None
     gt_tolerance_s: float
     route: str | None = None
+    calib_scale: float | None = None
 
     def given(self) -> dict[str, object]:
         return {"--sequence": self.sequence, "--intrinsics": self.intrinsics, "--calib": self.calib,
-                "--gt": self.ground_truth, "--topic": self.topic, "--gt-topic": self.gt_topic}
+                "--gt": self.ground_truth, "--topic": self.topic, "--gt-topic": self.gt_topic,
+                "--calib-scale": self.calib_scale}
 
 
 def _open(r: _Request) -> FrameSource:
@@ -125,7 +134,8 @@ def _open(r: _Request) -> FrameSource:
         return VideoSource(path, camera, frames=r.frames, ground_truth=r.ground_truth, gt_format=r.gt_format,
                            gt_tolerance_s=r.gt_tolerance_s)
     if (path / "sequences").is_dir() or (path / "image_0").is_dir():
-        _refuse(given, ("--intrinsics", "--calib", "--gt"), "a KITTI sequence has its own calib.txt and poses/NN.txt")
+        _refuse(given, ("--intrinsics", "--calib", "--calib-scale", "--gt"),
+                "a KITTI sequence has its own calib.txt and poses/NN.txt")
         from vslam_core.sources.kitti import KittiSource
 
         return KittiSource(path, sequence=r.sequence, frames=r.frames, on_bad_frame=r.on_bad_frame)
@@ -136,11 +146,11 @@ def _open(r: _Request) -> FrameSource:
     from vslam_core.sources.tum_rgbd import TumRgbdSource, is_tum_rgbd
 
     if is_euroc(path):
-        _refuse(given, ("--intrinsics", "--calib"), "an EuRoC sequence has its own sensor.yaml")
+        _refuse(given, ("--intrinsics", "--calib", "--calib-scale"), "an EuRoC sequence has its own sensor.yaml")
         return EurocSource(path, frames=r.frames, ground_truth=r.ground_truth, gt_tolerance_s=r.gt_tolerance_s,
                            on_bad_frame=r.on_bad_frame)
     if is_tum_mono(path):
-        _refuse(given, ("--intrinsics", "--calib"), "a TUM monoVO sequence has its own camera.txt")
+        _refuse(given, ("--intrinsics", "--calib", "--calib-scale"), "a TUM monoVO sequence has its own camera.txt")
         return TumMonoSource(path, frames=r.frames, ground_truth=r.ground_truth, gt_tolerance_s=r.gt_tolerance_s,
                              on_bad_frame=r.on_bad_frame)
     if is_tum_rgbd(path):
@@ -174,13 +184,20 @@ def _calibration(r: _Request) -> CameraIntrinsics | None:
     calibration file, lens included), its size 0x0 when not stated (the source fills it); None if neither."""
     if r.intrinsics is not None and r.calib is not None:
         raise SourceError("--intrinsics and --calib both describe the camera: give one of them")
+    camera = None
     if r.intrinsics is not None:
         from vslam_core.sources.folder import parse_intrinsics
 
         fx, fy, cx, cy = parse_intrinsics(r.intrinsics)
-        return CameraIntrinsics(fx, fy, cx, cy, 0, 0, origin="--intrinsics")
-    if r.calib is None:
-        return None
-    from vslam_core.sources.calibration_files import read_calibration
+        camera = CameraIntrinsics(fx, fy, cx, cy, 0, 0, origin="--intrinsics")
+    elif r.calib is not None:
+        from vslam_core.sources.calibration_files import read_calibration
 
-    return read_calibration(r.calib)
+        camera = read_calibration(r.calib)
+    if r.calib_scale is None:
+        return camera
+    if camera is None:
+        raise SourceError("--calib-scale scales the calibration given with --calib or --intrinsics: give one")
+    from vslam_core.sources.calibration import scale_calibration
+
+    return scale_calibration(camera, r.calib_scale)

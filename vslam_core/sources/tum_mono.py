@@ -31,7 +31,7 @@ from vslam_core.errors import SourceError
 from vslam_core.sources.base import CameraIntrinsics, FrameRange, safe_name
 from vslam_core.sources.calibration import make_intrinsics
 from vslam_core.sources.image_files import list_frame_files
-from vslam_core.sources.kitti import BadFramePolicy, ImageFilesSource, first_image, select
+from vslam_core.sources.kitti import BadFramePolicy, ImageFilesSource, first_image, orientation_notes, select
 from vslam_core.sources.stamps import (
     DEFAULT_GT_TOLERANCE_S,
     optional_tum_camera_poses,
@@ -187,6 +187,7 @@ class TumMonoSource(ImageFilesSource):
             stamps.append(stamp)
         self._times = np.asarray(stamps, np.float64)
         self.notes: list[str] = [f"{times_file}: {note}" for note in stamp_problems(self._times)]
+        self.notes += orientation_notes(self._files, self._indices, self._size)
         if (skipped := listing.skipped_note(folder / "images")) is not None:
             self.notes.append(skipped)
         photometric = [name for name in PHOTOMETRIC_FILES if (folder / name).is_file()]

@@ -29,7 +29,14 @@ import numpy as np
 from vslam_core.errors import SourceError
 from vslam_core.sources.base import CameraIntrinsics, FrameRange, safe_name
 from vslam_core.sources.folder import complete_intrinsics
-from vslam_core.sources.kitti import BadFramePolicy, ImageFilesSource, first_image, select, sixteen_bit_property
+from vslam_core.sources.kitti import (
+    BadFramePolicy,
+    ImageFilesSource,
+    first_image,
+    orientation_notes,
+    select,
+    sixteen_bit_property,
+)
 from vslam_core.sources.stamps import (
     DEFAULT_GT_TOLERANCE_S,
     optional_tum_camera_poses,
@@ -127,6 +134,7 @@ class TumRgbdSource(ImageFilesSource):
         self._indices = select(frames, len(self._files), folder)
         self._size, self._shift = first_image(self._files, self._indices, on_bad_frame, folder)
         self.notes: list[str] = [f"{folder / 'rgb.txt'}: {note}" for note in stamp_problems(stamps)]
+        self.notes += orientation_notes(self._files, self._indices, self._size)
         if (folder / "depth.txt").is_file() or (folder / "depth").is_dir():
             self.notes.append("depth images not used: vslam is monocular (the colour frames only)")
 
@@ -134,7 +142,8 @@ class TumRgbdSource(ImageFilesSource):
         if chosen is None:
             raise SourceError(f"{folder}: a TUM RGB-D folder has no calibration file and its name names no Freiburg "
                               "camera (freiburg1, 2 or 3): give --calib FILE or --intrinsics fx,fy,cx,cy")
-        self._intrinsics = complete_intrinsics(chosen, self._size[0], self._size[1], folder)
+        self._intrinsics = complete_intrinsics(chosen, self._size[0], self._size[1], folder,
+                                               scalable=camera is not None)  # the published one: no --calib-scale
 
         self.properties: dict[str, str] = {"dataset": "TUM RGB-D", "frame_order": "rgb.txt's stamps",
                                            **sixteen_bit_property(self._shift)}

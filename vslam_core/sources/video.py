@@ -10,6 +10,10 @@ decoding pass) and records each frame's timestamp on the way.
 Timestamps: ``CAP_PROP_POS_MSEC`` of each frame when those increase strictly, else frame / fps when
 the fps is known, else None. Colour frames are converted to grey. Frames are decoded lazily in
 ``__iter__`` (frames outside the selection are skipped with ``grab()``).
+
+Orientation: frames are read as the sensor stored them, a container's rotation (an MP4's display matrix, a
+phone's portrait video) not applied (``CAP_PROP_ORIENTATION_AUTO`` = 0), since a calibration describes the
+sensor's pixels; ``notes`` says so when the container had one.
 """
 
 from __future__ import annotations
@@ -78,11 +82,17 @@ class VideoSource(SelectedSource):
             self._size = (grey.shape[1], grey.shape[0])
             fps = float(capture.get(cv2.CAP_PROP_FPS))
             stamps_ms = [float(capture.get(cv2.CAP_PROP_POS_MSEC))]
+            rotation = float(capture.get(cv2.CAP_PROP_ORIENTATION_META))
             while capture.grab():
                 stamps_ms.append(float(capture.get(cv2.CAP_PROP_POS_MSEC)))
         finally:
             capture.release()
         self._count = len(stamps_ms)
+        #: what the user should hear about this video (a display rotation not applied)
+        self.notes = [] if not math.isfinite(rotation) or rotation % 360 == 0 else [
+            f"{self.path.name}: the container says to show the frames rotated {rotation:g}° (a display matrix): "
+            f"not applied, the frames are read as the sensor stored them, {self._size[0]}x{self._size[1]}, the "
+            "calibration's pixels"]
         self._container_times = self._increasing(stamps_ms)
         self._times = self._timestamps(stamps_ms, fps)
         self.fps = fps if math.isfinite(fps) and fps > 0 else None
@@ -100,6 +110,7 @@ class VideoSource(SelectedSource):
         if not capture.isOpened():
             capture.release()
             raise SourceError(f"{self.path}: cannot open the video (not a video, or a codec OpenCV lacks)")
+        capture.set(cv2.CAP_PROP_ORIENTATION_AUTO, 0)  # the stored pixels: see the module docstring
         return capture
 
     @staticmethod

@@ -27,7 +27,7 @@ from vslam_core.sources.open import SYNTHETIC
 
 #: columns besides `name` and `source` (all optional)
 OPTIONAL = ("sequence", "frames", "intrinsics", "calib", "gt", "gt_times", "topic", "gt_topic", "scale",
-            "camera_height", "backend", "config")
+            "camera_height", "backend", "config", "calib_scale")
 COLUMNS = ("name", "source", *OPTIONAL)
 PATH_COLUMNS = ("calib", "gt", "config")
 SCALES = ("gt", "none", "height")
@@ -60,6 +60,7 @@ class LogSpec:
     camera_height: float | None = None
     backend: str | None = None
     config: Path | None = None
+    calib_scale: float | None = None  # --calib-scale: the row's calibration resized for resized frames
 
 
 def read_manifest(path: Path) -> list[LogSpec]:
@@ -188,6 +189,14 @@ def _spec(path: Path, label: str, index: int, row: dict[str, str]) -> LogSpec:
         problem = camera_height_problem(camera_height)
         if problem is not None:
             raise bad(problem.replace("--camera-height", "camera_height"))
+    calib_scale = None
+    if "calib_scale" in values:
+        try:
+            calib_scale = float(values["calib_scale"])
+        except ValueError:
+            raise bad(f"calib_scale {values['calib_scale']!r} is not a number") from None
+        if not 0.01 <= calib_scale <= 100.0:
+            raise bad(f"calib_scale {calib_scale:g} is outside [0.01, 100]")
     if "config" in paths:
         from vslam_core.config import load_config
 
@@ -197,7 +206,7 @@ def _spec(path: Path, label: str, index: int, row: dict[str, str]) -> LogSpec:
             raise bad(str(exc)) from None
     return LogSpec(index, name, source, values.get("sequence"), values.get("frames"), values.get("intrinsics"),
                    paths.get("calib"), paths.get("gt"), values.get("topic"), values.get("gt_topic"),
-                   values.get("scale"), camera_height, values.get("backend"), paths.get("config"))
+                   values.get("scale"), camera_height, values.get("backend"), paths.get("config"), calib_scale)
 
 
 def parse_shard(text: str) -> tuple[int, int]:

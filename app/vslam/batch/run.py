@@ -83,7 +83,8 @@ Executor = Callable[[list[LogJob], OnResult, bool], None]
 
 def spec_hash(spec: LogSpec) -> str:
     """A short hash of a manifest row (its position aside): what the log's result was computed from."""
-    values = {k: str(v) for k, v in dataclasses.asdict(spec).items() if k != "index"}
+    values = {k: str(v) for k, v in dataclasses.asdict(spec).items()
+              if k != "index" and not (k == "calib_scale" and v is None)}  # rows without it hash as before it was
     return hashlib.sha256(json.dumps(values, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -114,7 +115,7 @@ def run_log(job: LogJob) -> LogResult:
         config = log_config(job)
         source = open_source(spec.source, sequence=spec.sequence, frames=FrameRange.parse(spec.frames),
                              intrinsics=spec.intrinsics, calib=spec.calib, ground_truth=spec.gt, topic=spec.topic,
-                             gt_topic=spec.gt_topic)
+                             gt_topic=spec.gt_topic, calib_scale=spec.calib_scale)
         config = with_camera_height(config, spec.camera_height, source, "camera_height", "scale height")
         warnings = input_warnings(source, config)
         quiet = Console(file=io.StringIO())  # per-frame progress would interleave: the batch prints per log

@@ -15,6 +15,7 @@ import typer
 from vslam.cli.common import (
     BACKEND_HELP,
     CALIB_HELP,
+    CALIB_SCALE_HELP,
     CAMERA_HEIGHT_HELP,
     GT_HELP,
     GT_TOLERANCE_HELP,
@@ -119,6 +120,7 @@ def run(
     intrinsics: Annotated[str | None, typer.Option(help="fx,fy,cx,cy (a pinhole) for image folders, videos and logs")]
     = None,
     calib: Annotated[Path | None, typer.Option(help=CALIB_HELP)] = None,
+    calib_scale: Annotated[float | None, typer.Option(min=0.01, max=100.0, help=CALIB_SCALE_HELP)] = None,
     gt: Annotated[Path | None, typer.Option(help=GT_HELP)] = None,
     topic: Annotated[str | None, typer.Option(help=TOPIC_HELP)] = None,
     gt_topic: Annotated[str | None, typer.Option(help=GT_TOPIC_HELP)] = None,
@@ -155,7 +157,7 @@ def run(
         same_file_problem,
         with_camera_height,
     )
-    from vslam_core.config import EngineConfig, load_config
+    from vslam_core.config import EngineConfig, describe_pixel_scale, load_config
     from vslam_core.sources.base import FrameRange, describe_indices, ground_truth_matching
     from vslam_core.sources.open import open_source
 
@@ -167,7 +169,8 @@ def run(
     config = load_config(config_file) if config_file is not None else EngineConfig()
     src = open_source(source, sequence=sequence, frames=frame_range, intrinsics=intrinsics, calib=calib,
                       ground_truth=gt, on_bad_frame=on_bad_frame.value, inject=inject, topic=topic, gt_topic=gt_topic,
-                      gt_tolerance_s=None if gt_tolerance is None else gt_tolerance / 1000.0, route=route)
+                      gt_tolerance_s=None if gt_tolerance is None else gt_tolerance / 1000.0, route=route,
+                      calib_scale=calib_scale)
     if scale is not None:
         config = config.with_scale(scale.value)
     elif config_file is None and src.ground_truth is None:
@@ -209,6 +212,7 @@ def run(
         **({"inject": inject} if inject else {}),
         **({"prior_map": str(prior_map)} if prior_map is not None else {}),
         **({"gt_matching": matching} if (matching := ground_truth_matching(src)) else {}),
+        **({"pixel_scale": scaled} if (scaled := describe_pixel_scale(config, src.intrinsics.width)) else {}),
     }
     if rrd is not None:  # the recording's (--detail off has none, and then never loads the recorder and rerun)
         from vslam.recording import version_properties

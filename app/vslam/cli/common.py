@@ -71,6 +71,8 @@ CAMERA_HEIGHT_HELP = ("metres from the camera to the road, for --scale height [d
                       "1.65 m, the synthetic street's]")
 
 
+CALIB_SCALE_HELP = ("resize the camera given with --calib or --intrinsics by this factor, for frames that are resized "
+                    "copies of the calibrated camera's (0.5: half-size frames); said on the camera line")
 CALIB_HELP = ("camera calibration file, lens included: ROS camera_info YAML, Kalibr camchain or EuRoC sensor.yaml, "
               "OpenCV YAML/XML, KITTI calib.txt (for image folders, videos and logs: overrides a log's CameraInfo)")
 GT_HELP = ("ground-truth camera poses, KITTI (row i = frame i) or TUM; TUM rows are matched to a log's or "

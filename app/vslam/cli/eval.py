@@ -13,6 +13,7 @@ import typer
 from vslam.cli.common import (
     BACKEND_HELP,
     CALIB_HELP,
+    CALIB_SCALE_HELP,
     CAMERA_HEIGHT_HELP,
     GT_HELP,
     GT_TOLERANCE_HELP,
@@ -72,6 +73,7 @@ def eval_command(
     intrinsics: Annotated[str | None, typer.Option(help="fx,fy,cx,cy of an image folder, video or log SOURCE")]
     = None,
     calib: Annotated[Path | None, typer.Option(help=CALIB_HELP)] = None,
+    calib_scale: Annotated[float | None, typer.Option(min=0.01, max=100.0, help=CALIB_SCALE_HELP)] = None,
     topic: Annotated[str | None, typer.Option(help=TOPIC_HELP)] = None,
     gt_topic: Annotated[str | None, typer.Option(help=GT_TOPIC_HELP)] = None,
     gt_times: Annotated[Path | None, typer.Option(help="timestamps of a KITTI --gt (the sequence's times.txt, "
@@ -130,6 +132,8 @@ def eval_command(
                           "--camera-height": camera_height}
         for option in (name for name, value in engine_options.items() if value is not None):
             fail(f"{option} applies to runs of the engine: it does not apply to --trajectory files")
+        if calib_scale is not None:
+            fail("--calib-scale resizes a SOURCE's calibration: it does not apply to --trajectory files")
         if topic is not None or gt_topic is not None or (images is None and (intrinsics or calib)):
             fail("--intrinsics, --calib, --topic and --gt-topic describe a SOURCE: they do not apply to --trajectory "
                  "files (--intrinsics and --calib do to their --images)")
@@ -157,9 +161,9 @@ def eval_command(
         if sequences is not None:
             if source is None:
                 fail("--sequences needs SOURCE, the KITTI dataset root")
-            if intrinsics is not None or calib is not None or topic is not None or gt_topic is not None:
-                fail("--intrinsics, --calib, --topic and --gt-topic do not apply to KITTI --sequences (they have "
-                     "calib.txt and poses)")
+            if any(o is not None for o in (intrinsics, calib, calib_scale, topic, gt_topic)):
+                fail("--intrinsics, --calib, --calib-scale, --topic and --gt-topic do not apply to KITTI --sequences "
+                     "(they have calib.txt and poses)")
             sources: list[FrameSource] = [
                 open_source(source, sequence=s.strip(), frames=frame_range, ground_truth=gt,
                             on_bad_frame=on_bad_frame.value, inject=inject,
@@ -169,7 +173,8 @@ def eval_command(
         else:
             sources = [open_source(source, frames=frame_range, intrinsics=intrinsics, calib=calib, ground_truth=gt,
                                    on_bad_frame=on_bad_frame.value, inject=inject, topic=topic, gt_topic=gt_topic,
-                                   gt_tolerance_s=None if time_tolerance is None else time_tolerance / 1000.0)]
+                                   gt_tolerance_s=None if time_tolerance is None else time_tolerance / 1000.0,
+                                   calib_scale=calib_scale)]
         for src in sources:
             config = with_camera_height(config, camera_height, src)
         for warning in dict.fromkeys(w for src in sources for w in input_warnings(src, config)):

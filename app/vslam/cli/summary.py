@@ -25,6 +25,7 @@ def print_summary(source: FrameSource, run: RunResult, config: EngineConfig, in_
     import numpy as np
 
     from vslam.common import scored_estimate
+    from vslam_core.config import describe_pixel_scale
     from vslam_core.scale import default_camera_height
     from vslam_core.sources.base import ground_truth_matching
     from vslam_core.sources.calibration import camera_line
@@ -42,6 +43,8 @@ def print_summary(source: FrameSource, run: RunResult, config: EngineConfig, in_
     if (placed := run.placed_summary(config.scale)) is not None:
         lines.append(f"placed      {placed}")
     lines.append(f"camera      {camera_line(source.intrinsics)}")
+    if (scaled := describe_pixel_scale(config, source.intrinsics.width)) is not None:
+        lines.append(f"pixels      {scaled}")
     gt = source.ground_truth
     if in_map and gt is not None:  # poses in the prior map's frame, ground truth in this run's first frame's
         lines.append("accuracy    not scored here: the poses are in the prior map's frame (see README, Saving a map)")

@@ -16,6 +16,7 @@ from vslam_core.errors import ConfigError
 from vslam_core.results import STANDING_STILL
 from vslam_core.scale import default_camera_height
 from vslam_core.sources.base import FrameSource, source_notes
+from vslam_core.sources.calibration import principal_point_problem, principal_point_warning
 
 if TYPE_CHECKING:
     from vslam_core.pipeline import RunResult
@@ -28,6 +29,9 @@ PLAUSIBLE_CAMERA_HEIGHT_M = 10.0
 #: past 150° is unusable (fisheye lenses have their own models), under 1° is a telescope
 WIDEST_PINHOLE_DEG = 150.0
 NARROWEST_DEG = 1.0
+#: fx / fy beyond this (or under its inverse): pixels this far from square are a mistake (swapped values, one
+#: axis resized), not a camera (warning only)
+WIDEST_PIXEL_ASPECT = 1.5
 
 
 def camera_height_problem(metres: float | None) -> str | None:
@@ -77,9 +81,9 @@ def input_warnings(source: FrameSource, config: EngineConfig) -> list[str]:
     stamps): one line each."""
     warnings = source_notes(source)
     k = source.intrinsics
-    if not (0 <= k.cx < k.width and 0 <= k.cy < k.height):
-        warnings.append(f"the principal point ({k.cx:g}, {k.cy:g}) lies outside the {k.width}x{k.height} image "
-                        "(are the intrinsics fx,fy,cx,cy, in pixels of this image?)")
+    refused = principal_point_problem(k)  # open_source refuses it; a source made otherwise is warned about
+    if (off_centre := refused or principal_point_warning(k)) is not None:
+        warnings.append(off_centre)
     warnings += _camera_warnings(source)
     if len(source) == 1:
         warnings.append(f"the selection holds one frame ({source.indices[0]}): a motion needs two, nothing will be "
@@ -109,6 +113,10 @@ def _camera_warnings(source: FrameSource) -> list[str]:
         if too_wide or fov < NARROWEST_DEG:
             warnings.append(f"focal length {name} {focal:g} px gives a {fov:.1f}° field of view across {pixels} px: "
                             "implausible for this camera (are the intrinsics fx,fy,cx,cy in pixels of this image?)")
+    if k.fx > 0 and k.fy > 0 and max(k.fx / k.fy, k.fy / k.fx) > WIDEST_PIXEL_ASPECT:
+        ratio = max(k.fx, k.fy) / min(k.fx, k.fy)
+        warnings.append(f"focal lengths fx {k.fx:g} and fy {k.fy:g} px differ by {ratio:.2f}x: pixels that far from "
+                        "square are implausible (fx,fy,cx,cy in this order? one axis resized?)")
     return warnings
 
 

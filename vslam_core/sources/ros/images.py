@@ -53,7 +53,8 @@ class ImageDecoder:
             if "compresseddepth" in fmt.lower():
                 raise SourceError(f"compressed depth images ({fmt!r}) are not camera frames")
             data = np.asarray(msg.data, np.uint8)  # type: ignore[attr-defined]
-            image = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE) if data.size else None
+            # as stored: an EXIF Orientation in a JPEG is not applied (the calibration describes the sensor's pixels)
+            image = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION) if data.size else None
             if image is None or image.size == 0:
                 raise SourceError(f"cannot decode the compressed image (format {fmt!r}, {data.size} bytes)")
             return DecodedImage(np.ascontiguousarray(image, np.uint8), fmt.split(";")[-1].strip() or "compressed")
