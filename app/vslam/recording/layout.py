@@ -99,7 +99,8 @@ def _plots(road_scale: bool, ground_truth: bool, engine: bool = True) -> list[rr
     if road_scale:
         plots.append(("scale from the road", "road"))
     if ground_truth:
-        plots += [("position error (m)", "error"), ("angle errors (°)", "angle_error")]
+        plots += [("position error (m)", "error"), ("angle errors (°)", "angle_error"),
+                  ("ground truth vs the images", "gt_check")]
     if engine:
         plots.append(("timing (ms)", "timing_ms"))
     views = [rrb.TimeSeriesView(name=name, origin=f"/metrics/{group}") if group != "health" else health_view()

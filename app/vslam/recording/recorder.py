@@ -28,7 +28,7 @@ from vslam.recording.drift import DriftRecording
 from vslam.recording.layout import UNDISTORTED, blueprint
 from vslam.recording.levels import Detail, ImageCodec
 from vslam.recording.map import MapRecording
-from vslam.recording.metrics import METRICS, STAGES, frame_metrics
+from vslam.recording.metrics import METRICS, STAGES, frame_metrics, gt_check_metrics
 from vslam.recording.schema import SCHEMA_VERSION
 from vslam.recording.stream import StreamStopped, close_stream, flush_or_stop, log_world, open_stream, pinhole
 from vslam.recording.styles import (
@@ -50,6 +50,7 @@ from vslam_core.pipeline import RunResult
 from vslam_core.results import FrameResult, FrameStatus, HealthStatus, Reason, TrackFate
 from vslam_core.sources.base import Frame, FrameSource, describe_indices, shown_path, source_properties
 from vslam_core.sources.calibration import describe_calibration
+from vslam_core.trajectory.gt_check import GroundTruthCheck
 
 if TYPE_CHECKING:
     from vslam.recording.video import VideoEntity
@@ -76,6 +77,7 @@ class Recorder:
         image_codec: ImageCodec = ImageCodec.JPEG,
         external: bool = False,
         live_url: str | None = None,
+        gt_check: GroundTruthCheck | None = None,
     ) -> None:
         """`external`: the frames come from another pipeline through the logging API (`vslam.log`), not from
         vslam's engine: no engine config is stated, and its own series (``/metrics/custom/*``) get a plot."""
@@ -87,6 +89,7 @@ class Recorder:
         # with a second core, frames are JPEG-encoded beside the engine (cv2.imencode releases the GIL)
         self._encoder = ThreadPoolExecutor(1, thread_name_prefix="vslam-jpeg") if config.threads > 1 else None
         self._gt = source.ground_truth
+        self._gt_check = gt_check  # a frame sink run before this one: each frame's figures, then the run's
         self._gt_buffer: np.ndarray | None = None  # `extend_ground_truth`: room for more
         self._name = properties.get("name", source.name)
         self._source_name = source.name
@@ -187,6 +190,9 @@ class Recorder:
                               + ("the map's own scale)." if self._map is not None else "unit steps).")]
                 if self._drift is not None:
                     lines += ["", *self._drift.finish(self._rec, self._columns, aligned)]
+            if self._gt_check is not None and (check := self._gt_check.summary()) is not None:
+                lines += ["", f"Ground truth against the images: {check.line()}.", *(f"Warning: {w}." for w in
+                                                                                     check.warnings())]
             self._rec.log("/report", rr.TextDocument("\n".join(lines), media_type=rr.MediaType.MARKDOWN),
                           static=True)
             self._log_health_levels(run)
@@ -421,6 +427,8 @@ class Recorder:
 
     def _log_metrics(self, frame: Frame, result: FrameResult, unreported: frozenset[str]) -> None:
         values = {name: value for name, value in frame_metrics(result, self._gt).items() if name not in unreported}
+        if self._gt_check is not None and (pair := self._gt_check.pairs.get(result.position)) is not None:
+            values.update(gt_check_metrics(pair))
         if self._scale == "none":  # unit steps against metres: logged after Sim(3) alignment at the end
             values.pop("position_m", None)
         for group, series in METRICS.items():
