@@ -220,16 +220,9 @@ class GroundTruthCheck:
 
     def summary(self) -> CheckSummary | None:
         """The run's figures (None when fewer than 5 frames could be scored)."""
-        pairs = [self.pairs[p] for p in sorted(self.pairs)]
-        if len(pairs) < 5:
+        if len(self.pairs) < 5:
             return None
-        windows = []
-        for start in range(0, pairs[-1].position + 1, WINDOW):
-            inside = [p for p in pairs if start <= p.position < start + WINDOW]
-            if len(inside) >= 5:
-                windows.append(WindowFigure(start, start + WINDOW - 1, len(inside), *_figures(inside)[2:]))
-        gt_px, fit_px, ratio, rotation = _figures(pairs)
-        return CheckSummary(len(pairs), gt_px, fit_px, ratio, rotation, tuple(windows), self._time_shift())
+        return summary_of(list(self.pairs.values()), self._time_shift())
 
     def _time_shift(self) -> TimeShift | None:
         """The shift of the ground truth in time (rotations interpolated between frames) whose relative rotations
@@ -260,6 +253,21 @@ class GroundTruthCheck:
         best = int(np.argmin(costs))
         centre = len(shifts) // 2
         return TimeShift(float(shifts[best]), in_seconds, costs[best], costs[centre], interval)
+
+
+def summary_of(pairs: list[PairCheck], shift: TimeShift | None = None) -> CheckSummary | None:
+    """The run's figures of its frames' checks (positions: run positions, or the frames' indices when read back
+    from a recording), in windows of `WINDOW` frames; None with fewer than 5."""
+    pairs = sorted(pairs, key=lambda p: p.position)
+    if len(pairs) < 5:
+        return None
+    windows = []
+    first = pairs[0].position - pairs[0].position % WINDOW
+    for start in range(first, pairs[-1].position + 1, WINDOW):
+        inside = [p for p in pairs if start <= p.position < start + WINDOW]
+        if len(inside) >= 5:
+            windows.append(WindowFigure(start, start + WINDOW - 1, len(inside), *_figures(inside)[2:]))
+    return CheckSummary(len(pairs), *_figures(pairs), tuple(windows), shift)
 
 
 def _figures(pairs: list[PairCheck]) -> tuple[float, float, float, float]:
