@@ -82,8 +82,7 @@ class TimeShift:
                 and self.unshifted_rotation_deg - self.rotation_deg > 0.05)
 
     def describe(self) -> str:
-        unit = "s" if self.in_seconds else " frames"
-        return (f"{self.offset:+.3f}{unit}" if self.in_seconds else f"{self.offset:+.0f}{unit}")
+        return f"{self.offset:+.3f} s" if self.in_seconds else f"{self.offset:+.0f} frames"
 
 
 @dataclass(frozen=True)
@@ -252,7 +251,13 @@ class GroundTruthCheck:
             costs.append(float(np.median(_angles(np.einsum("nji,njk->nik", relative, estimated)))))
         best = int(np.argmin(costs))
         centre = len(shifts) // 2
-        return TimeShift(float(shifts[best]), in_seconds, costs[best], costs[centre], interval)
+        offset = float(shifts[best])
+        if in_seconds and 0 < best < len(shifts) - 1:  # the parabola's vertex through the best and its neighbours
+            left, mid, right = costs[best - 1], costs[best], costs[best + 1]
+            curvature = left - 2.0 * mid + right
+            if curvature > 0:
+                offset += 0.5 * (left - right) / curvature * (shifts[1] - shifts[0])
+        return TimeShift(offset, in_seconds, costs[best], costs[centre], interval)
 
 
 def summary_of(pairs: list[PairCheck], shift: TimeShift | None = None) -> CheckSummary | None:
@@ -266,7 +271,8 @@ def summary_of(pairs: list[PairCheck], shift: TimeShift | None = None) -> CheckS
     for start in range(first, pairs[-1].position + 1, WINDOW):
         inside = [p for p in pairs if start <= p.position < start + WINDOW]
         if len(inside) >= 5:
-            windows.append(WindowFigure(start, start + WINDOW - 1, len(inside), *_figures(inside)[2:]))
+            windows.append(WindowFigure(start, min(start + WINDOW - 1, pairs[-1].position), len(inside),
+                                        *_figures(inside)[2:]))
     return CheckSummary(len(pairs), *_figures(pairs), tuple(windows), shift)
 
 
