@@ -37,7 +37,8 @@ ROOT = Path(__file__).resolve().parents[1]
 FRAME = 10
 #: The views of vslam.recording.layout() for a run with ground truth and --scale gt, in reading order.
 VIEWS = ["frame", "overlays", "world", "tracks", "inliers", "inlier_ratio", "health", "motion", "position_error_m",
-         "angle_errors", "drift_per_frame_m", "drift_per_frame_of_step_scale_ratio", "timing_ms", "events", "report"]
+         "angle_errors", "ground_truth_vs_the_images", "drift_per_frame_m", "drift_per_frame_of_step_scale_ratio",
+         "timing_ms", "events", "report"]
 
 
 @pytest.fixture(scope="module")
