@@ -39,6 +39,9 @@ FAR_OFF_ROTATION_DEG = 1.0
 SHIFT_BETTER = 0.6
 #: ... and it is at least this many frame intervals (the shifts are tried in quarter frames)
 MIN_SHIFT_FRAMES = 1.0
+#: frames scored before the run's figures are judged (warned about): KITTI 00's first 15 frames alone score 5–30×
+#: (its ground truth's constant 0.86 m steps there; 10.8× over frames 1–10, 4.7× over 1–30)
+MIN_PAIRS = 30
 #: frames in a window (the per-window figures)
 WINDOW = 50
 #: the shifts tried span ± this many seconds (and at most a fifth of the run)
@@ -110,8 +113,13 @@ class CheckSummary:
     shift: TimeShift | None = None
 
     @property
+    def judged(self) -> bool:
+        """Enough frames were scored to warn (`MIN_PAIRS`)."""
+        return self.pairs >= MIN_PAIRS
+
+    @property
     def far_off(self) -> bool:
-        return self.ratio > FAR_OFF_RATIO or self.rotation_deg > FAR_OFF_ROTATION_DEG
+        return self.judged and (self.ratio > FAR_OFF_RATIO or self.rotation_deg > FAR_OFF_ROTATION_DEG)
 
     @property
     def worst_window(self) -> WindowFigure | None:
@@ -124,11 +132,13 @@ class CheckSummary:
         worst = self.worst_window
         if worst is not None and len(self.windows) > 1:
             text += f"; worst window {worst.start}–{worst.end} {worst.ratio:.1f}×, {worst.rotation_deg:.2f}°"
+        if not self.judged:
+            text += f" (too few to judge: {MIN_PAIRS} needed)"
         return text
 
     def warnings(self) -> list[str]:
         """One line each: the ground truth disagrees with the images; a time shift fits much better."""
-        if self.shift is not None and self.shift.better:
+        if self.judged and self.shift is not None and self.shift.better:
             option = (f"--gt-time-offset {self.shift.offset:+.3f}" if self.shift.in_seconds
                       else "ground truth whose rows are the frames' (--gt-rows, or a file with their times)")
             return [
