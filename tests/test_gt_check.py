@@ -8,13 +8,14 @@ from __future__ import annotations
 import json
 import os
 import re
-from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 from cli_helpers import vslam
 
+from vslam.rrd.read import read_entity
 from vslam_core.config import EngineConfig
 from vslam_core.pipeline import run_odometry
 from vslam_core.results import FrameResult
@@ -200,17 +201,24 @@ def test_kitti_and_time_matched_sources_refuse_what_does_not_apply(kitti_root: P
     assert tum.returncode == 2 and "--gt-rows does not apply here" in tum.stderr
 
 
-def _run(tum_xyz: Path, tmp_path: Path, gt: Path, *extra: str) -> tuple[str, str, dict[str, object]]:
+def _run(tum_xyz: Path, tmp_path: Path, gt: Path, *extra: str) -> tuple[str, str, dict[str, Any]]:
+    """`vslam run` on TUM fr1 xyz frames 0:120 with `gt` (and `extra` options): its stdout, stderr, and the
+    `gt_check` of `vslam inspect --json` on its recording (whose text `inspect` states the same)."""
     rrd = tmp_path / f"{gt.stem}{len(extra)}.rrd"
     result = vslam("run", tum_xyz, "--gt", gt, "--frames", "0:120", "--detail", "summary", "-o", rrd, *extra)
     assert result.returncode == 0, result.stderr
     report = vslam("inspect", rrd, "--json")
     assert report.returncode == 0, report.stderr
-    return result.stdout, result.stderr, json.loads(report.stdout)["gt_check"]
+    check = json.loads(report.stdout)["gt_check"]
+    text = vslam("inspect", rrd).stdout
+    assert f"gt check    {check['line']}" in text
+    assert all(f"            warning: {warning}" in text for warning in check["warnings"])
+    ratios = [v[0] for v in read_entity(rrd, "/metrics/gt_check/sampson_ratio")["Scalars:scalars"].to_list()]
+    assert len(ratios) == check["frames"]  # one value a scored frame, the series the figures come from
+    return result.stdout, result.stderr, check
 
 
-def test_cli_warns_in_one_line_and_records_the_check(tum_xyz: Path, tmp_path: Path,
-                                                      capsys: Callable[..., object]) -> None:
+def test_cli_warns_in_one_line_and_records_the_check(tum_xyz: Path, tmp_path: Path) -> None:
     stdout, stderr, check = _run(tum_xyz, tmp_path, write_wxyz(tmp_path))
     warnings = [line for line in stderr.splitlines() if "ground truth" in line]
     assert len(warnings) == 1 and "disagrees with the images" in warnings[0]
