@@ -236,3 +236,18 @@ def test_cli_warns_in_one_line_and_records_the_check(tum_xyz: Path, tmp_path: Pa
     stdout, stderr, check = _run(tum_xyz, tmp_path, write_shifted(tmp_path, 0.1), "--gt-time-offset", "0.1")
     assert "the ground truth's clock +0.100 s from the frames' (--gt-time-offset)" in stdout
     assert "ground truth" not in stderr and check["warnings"] == [] and check["far_off"] is False
+
+
+def test_rows_a_few_frames_off_are_found(kitti_run: list[FrameResult], kitti_root: Path) -> None:
+    """A KITTI-format ground truth paired row by row whose rows start 5 frames late (a car driving steadily: only
+    the turns tell them apart): the rows to use are found, and the message points to --gt-rows."""
+    poses = read_kitti_poses(kitti_root / "poses" / "05.txt", max_rows=200)[5:155]
+    source = open_source(str(kitti_root), sequence="05", frames=KITTI_FRAMES)
+    check = GroundTruthCheck(rebase_poses(poses), source.intrinsics, by_time=False)
+    for result in kitti_run:
+        check(Frame(result.index, result.timestamp, np.zeros((0, 0), np.uint8)), result)
+    summary = check.summary()
+    assert summary is not None and summary.shift is not None and summary.shift.better
+    assert summary.shift.frames == -5
+    [warning] = summary.warnings()
+    assert "frame i with row i-5" in warning and "--gt-rows A:B" in warning

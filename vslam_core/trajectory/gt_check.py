@@ -75,6 +75,12 @@ class TimeShift:
     rotation_deg: float
     unshifted_rotation_deg: float
     interval: float  # the frames' median interval (s, or 1 frame)
+    by_time: bool = True  # the ground truth was matched to the frames by time (else row by row)
+
+    @property
+    def frames(self) -> int:
+        """The shift in whole frames (rows of a ground truth paired row by row)."""
+        return round(self.offset / self.interval)
 
     @property
     def better(self) -> bool:
@@ -139,13 +145,16 @@ class CheckSummary:
     def warnings(self) -> list[str]:
         """One line each: the ground truth disagrees with the images; a time shift fits much better."""
         if self.judged and self.shift is not None and self.shift.better:
-            option = (f"--gt-time-offset {self.shift.offset:+.3f}" if self.shift.in_seconds
-                      else "ground truth whose rows are the frames' (--gt-rows, or a file with their times)")
-            return [
-                f"the ground truth fits the images best shifted by {self.shift.describe()} (its rotations "
-                f"{self.shift.rotation_deg:.2f}° a frame off instead of {self.shift.unshifted_rotation_deg:.2f}°; "
-                f"Sampson {self.ratio:.1f}× the best fit unshifted): its clock is offset from the frames'; "
-                f"to apply the offset: {option}"]
+            shift = self.shift
+            figures = (f"(its rotations {shift.rotation_deg:.2f}° a frame off instead of "
+                       f"{shift.unshifted_rotation_deg:.2f}°; Sampson {self.ratio:.1f}× the best fit unshifted)")
+            if shift.by_time and shift.in_seconds:
+                return [f"the ground truth fits the images best shifted by {shift.describe()} {figures}: its clock is "
+                        f"offset from the frames'; to apply the offset: --gt-time-offset {shift.offset:+.3f}"]
+            return [f"the ground truth fits the images best with its rows shifted: frame i with row i{shift.frames:+d} "
+                    f"{figures}: its rows are not these frames "
+                    f"(row by row pairs row i with frame i); say which rows are with --gt-rows A:B (a folder's or "
+                    "video's --gt), or give it with times"]
         lines = []
         if self.far_off:
             lines.append(
@@ -169,10 +178,12 @@ class GroundTruthCheck:
     """A frame sink (`vslam_core.pipeline.FrameSink`) scoring the ground truth against each frame's inliers.
 
     ground_truth: (N, 4, 4) T_w_c of the run's frames (run position i); intrinsics: the camera (raw pixels are
-    made ideal through its lens). `pairs` holds each scored frame's `PairCheck` by run position."""
+    made ideal through its lens); by_time: how it was paired with the frames (by time, else row by row: a shift is
+    then in rows). `pairs` holds each scored frame's `PairCheck` by run position."""
 
     ground_truth: np.ndarray
     intrinsics: CameraIntrinsics
+    by_time: bool = True  # the ground truth was matched to the frames by time (a shift is then a clock offset)
     pairs: dict[int, PairCheck] = field(default_factory=dict)
     _rotations: list[_Pair] = field(default_factory=list)
     _times: list[float | None] = field(default_factory=list)
@@ -267,7 +278,7 @@ class GroundTruthCheck:
             curvature = left - 2.0 * mid + right
             if curvature > 0:
                 offset += 0.5 * (left - right) / curvature * (shifts[1] - shifts[0])
-        return TimeShift(offset, in_seconds, costs[best], costs[centre], interval)
+        return TimeShift(offset, in_seconds, costs[best], costs[centre], interval, self.by_time)
 
 
 def summary_of(pairs: list[PairCheck], shift: TimeShift | None = None) -> CheckSummary | None:

@@ -22,7 +22,7 @@ from vslam_core.config import EngineConfig
 from vslam_core.errors import VslamError
 from vslam_core.pipeline import Engine, FrameSink, RunResult, run_odometry
 from vslam_core.results import FrameResult
-from vslam_core.sources.base import Frame, FrameSource
+from vslam_core.sources.base import Frame, FrameSource, ground_truth_matching
 from vslam_core.trajectory.gt_check import GroundTruthCheck
 
 if TYPE_CHECKING:
@@ -115,7 +115,8 @@ def record_run(
     recorder: Recorder | None = None
     # the ground truth against the images; not in a prior map's frame (the run's own tracks are still its)
     gt = source.ground_truth
-    gt_check = GroundTruthCheck(gt, source.intrinsics) if gt is not None else None
+    by_time = (ground_truth_matching(source) or "").startswith("matched by time")
+    gt_check = GroundTruthCheck(gt, source.intrinsics, by_time) if gt is not None else None
     if rrd is not None:  # `--detail off` never loads the recorder (nor rerun: ~0.7 s of CPU)
         from vslam.recording import Recorder
 
