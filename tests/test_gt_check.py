@@ -251,3 +251,10 @@ def test_rows_a_few_frames_off_are_found(kitti_run: list[FrameResult], kitti_roo
     assert summary.shift.frames == -5
     [warning] = summary.warnings()
     assert "frame i with row i-5" in warning and "--gt-rows A:B" in warning
+
+
+def test_eval_warns_about_the_ground_truth_it_scores_against(tum_xyz: Path, tmp_path: Path) -> None:
+    result = vslam("eval", tum_xyz, "--gt", write_wxyz(tmp_path), "--frames", "0:60", "--scale", "none")
+    assert result.returncode == 0, result.stderr
+    [warning] = [line for line in result.stderr.splitlines() if "ground truth" in line]
+    assert warning.startswith("warning: tum-rgbd-rgbd_dataset_freiburg1_xyz: the ground truth disagrees")
