@@ -22,7 +22,7 @@ from vslam_core.results import FrameResult
 from vslam_core.sources.base import Frame, FrameRange, FrameSource, rebase_poses
 from vslam_core.sources.open import open_source
 from vslam_core.trajectory.gt_check import FAR_OFF_RATIO, CheckSummary, GroundTruthCheck
-from vslam_core.trajectory.io import read_kitti_poses
+from vslam_core.trajectory.io import read_kitti_poses, write_tum_poses
 
 pytestmark = pytest.mark.kitti
 
@@ -258,3 +258,24 @@ def test_eval_warns_about_the_ground_truth_it_scores_against(tum_xyz: Path, tmp_
     assert result.returncode == 0, result.stderr
     [warning] = [line for line in result.stderr.splitlines() if "ground truth" in line]
     assert warning.startswith("warning: tum-rgbd-rgbd_dataset_freiburg1_xyz: the ground truth disagrees")
+
+
+def test_a_car_s_clock_one_frame_off_is_found(kitti_run: list[FrameResult], kitti_root: Path, tmp_path: Path
+                                              ) -> None:
+    """KITTI 05's frames (times.txt) with a TUM ground truth whose stamps are 0.1 s early, about one frame: below
+    the far-off ratio, but its turns fit much better shifted back, and the warning says by how much."""
+    folder = kitti_root / "sequences" / "05"
+    times = np.loadtxt(folder / "times.txt")
+    times = np.concatenate([times, times[-1] + np.median(np.diff(times)) * np.arange(1, 101)])
+    gt = tmp_path / "early.tum"
+    write_tum_poses(gt, times - 0.1, read_kitti_poses(kitti_root / "poses" / "05.txt", max_rows=len(times)))
+    source = open_source(str(folder / "image_0"), frames=KITTI_FRAMES, ground_truth=gt)
+    assert source.ground_truth is not None and (source.gt_matching or "").startswith("matched by time")
+    check = GroundTruthCheck(source.ground_truth, source.intrinsics, by_time=True)
+    for result in kitti_run:
+        check(Frame(result.index, result.timestamp, np.zeros((0, 0), np.uint8)), result)
+    summary = check.summary()
+    assert summary is not None and summary.shift is not None and summary.shift.better
+    assert summary.shift.offset == pytest.approx(-0.1, abs=0.02)
+    [warning] = summary.warnings()
+    assert re.search(r"--gt-time-offset -0\.(09|10)\d$", warning), warning
