@@ -191,6 +191,7 @@ class GroundTruthCheck:
     _rotations: list[_Pair] = field(default_factory=list)
     _times: list[float | None] = field(default_factory=list)
     _seen: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)  # position -> (ids, raw pixels)
+    _summary: tuple[int, CheckSummary | None] | None = None  # (frames seen, the summary then): asked for twice
 
     def __call__(self, _frame: Frame, result: FrameResult) -> None:
         self._times.append(result.timestamp)
@@ -243,9 +244,10 @@ class GroundTruthCheck:
 
     def summary(self) -> CheckSummary | None:
         """The run's figures (None when fewer than 5 frames could be scored)."""
-        if len(self.pairs) < 5:
-            return None
-        return summary_of(list(self.pairs.values()), self._time_shift())
+        if self._summary is None or self._summary[0] != len(self._times):  # the time shifts cost ~0.5 s
+            summary = summary_of(list(self.pairs.values()), self._time_shift()) if len(self.pairs) >= 5 else None
+            self._summary = (len(self._times), summary)
+        return self._summary[1]
 
     def _time_shift(self) -> TimeShift | None:
         """The shift of the ground truth in time (rotations interpolated between frames) whose relative rotations
