@@ -31,7 +31,8 @@ MIN_INLIERS = 20
 #: refined on the very inliers it selected, so agreeing ground truth sits well above 1: measured 3.1× on KITTI 05
 #: 0:300, 4.0× on KITTI 00 0:150 (its known disagreement), 5.7–6.3× on TUM fr1 xyz/desk (rolling shutter, mocap
 #: rows matched to the nearest), windows of 50 frames up to 8.1×; a wrong ground truth 19–53× (w x y z
-#: quaternions, the body's poses, another sequence, rows 100 frames off, a clock 0.1 s off): docs/own-data.md
+#: quaternions, the body's poses, another sequence, rows 5 or 100 frames off, a TUM clock 0.1 s off; KITTI's clock
+#: one frame off is 11.4×, caught by the time shift): docs/own-data.md
 FAR_OFF_RATIO = 12.0
 #: ... or the median angle (°) between the ground truth's and the images' relative rotations above this (0.02–0.38°
 #: agreeing, 0.26–1.13° wrong: the ratio is the sharper test, this one catches a ground truth that rotates too much)
