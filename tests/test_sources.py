@@ -201,9 +201,14 @@ def test_image_folder_tum_ground_truth(kitti_root: Path, tmp_path: Path) -> None
         assert gt is not None and gt.shape == (3, 4, 4)
         np.testing.assert_allclose(gt, rebase_poses(poses[1:4]), atol=1e-7)
     kitti_file = tmp_path / "gt.txt"
-    write_kitti_poses(kitti_file, poses)
-    source = ImageFolderSource(folder, intrinsics=partial_00(), ground_truth=kitti_file)
-    np.testing.assert_allclose(source.ground_truth, rebase_poses(poses[:4]), atol=1e-9)  # type: ignore[arg-type]
+    write_kitti_poses(kitti_file, poses)  # 6 rows, 4 frames, no clock: which rows are the frames is not known
+    with pytest.raises(SourceError, match="6 poses for 4 frames and nothing pairs them by time.*--gt-rows A:B"):
+        ImageFolderSource(folder, intrinsics=partial_00(), ground_truth=kitti_file)
+    for start in (0, 2):  # --gt-rows says
+        source = ImageFolderSource(folder, intrinsics=partial_00(), ground_truth=kitti_file, gt_rows=(start, None))
+        np.testing.assert_allclose(source.ground_truth, rebase_poses(poses[start:start + 4]),  # type: ignore[arg-type]
+                                   atol=1e-9)
+        assert source.gt_matching is not None and source.gt_matching.startswith(f"row by row from row {start}")
 
     for rows in (3, 6):  # a clock on one side only and another count: the rows are not the frames
         other = tmp_path / f"rows{rows}.tum"

@@ -37,8 +37,9 @@ ROOT = Path(__file__).resolve().parents[1]
 FRAME = 10
 #: The views of vslam.recording.layout() for a run with ground truth and --scale gt, in reading order.
 VIEWS = ["frame", "overlays", "world", "drive", "position_error_m", "rotation_per_frame", "step_length",
-         "ransac_inliers", "tracks", "inliers", "inlier_ratio", "health", "motion", "angle_errors", "drift_per_frame_m",
-         "drift_per_frame_of_step_scale_ratio", "timing_ms", "events", "summary", "report"]
+         "ransac_inliers", "tracks", "inliers", "inlier_ratio", "health", "motion", "angle_errors",
+         "ground_truth_vs_the_images", "drift_per_frame_m", "drift_per_frame_of_step_scale_ratio", "timing_ms",
+         "events", "summary", "report"]
 
 
 @pytest.fixture(scope="module")

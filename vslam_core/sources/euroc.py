@@ -209,6 +209,7 @@ class EurocSource(ImageFilesSource):
         ground_truth: str | Path | None = None,
         gt_tolerance_s: float = DEFAULT_GT_TOLERANCE_S,
         on_bad_frame: BadFramePolicy = "fail",
+        gt_time_offset_s: float = 0.0,
     ):
         self._on_bad_frame = on_bad_frame
         root = Path(path)
@@ -242,8 +243,10 @@ class EurocSource(ImageFilesSource):
                 f"are {self._size[0]}x{self._size[1]}")
         self._intrinsics = intrinsics
 
+        self._gt_offset_s = gt_time_offset_s
         self._ground_truth, label = self._read_ground_truth(ground_truth, gt_tolerance_s)
-        self.gt_matching = None if self._ground_truth is None else matched_by_time(len(self._indices), gt_tolerance_s)
+        self.gt_matching = None if self._ground_truth is None else matched_by_time(len(self._indices), gt_tolerance_s,
+                                                                                   gt_time_offset_s)
         sequence = mav0.resolve().parent.name if mav0.name == "mav0" else mav0.resolve().name
         self._name = f"euroc-{safe_name(sequence, 'sequence')}-{self.camera}"
         self.properties: dict[str, str] = {"dataset": "EuRoC", "camera": self.camera, "ground_truth": label}
@@ -263,7 +266,8 @@ class EurocSource(ImageFilesSource):
     def _read_ground_truth(self, override: str | Path | None, tolerance_s: float) -> tuple[np.ndarray | None, str]:
         """The selected frames' T_w_c (re-based) and a description of where they came from."""
         if override is not None:
-            return tum_camera_poses(Path(override), self._times, self._indices, tolerance_s, self.folder)
+            return tum_camera_poses(Path(override), self._times, self._indices, tolerance_s, self.folder,
+                                    self._gt_offset_s)
         gt_file = self.mav0 / GROUND_TRUTH_FOLDER / "data.csv"
         if not gt_file.is_file():
             return None, "none"
@@ -271,7 +275,7 @@ class EurocSource(ImageFilesSource):
         gt_stamps, gt_poses = stamps_ns / 1e9, body @ self.t_bs
         label = f"{GROUND_TRUTH_FOLDER} (body poses × T_BS)"
         return selected_ground_truth(self._times, self._indices, gt_stamps, gt_poses, tolerance_s, label,
-                                     self.folder), label
+                                     self.folder, self._gt_offset_s), label
 
     @property
     def stamps(self) -> np.ndarray:

@@ -107,8 +107,9 @@ class ImageFolderSource(ImageFilesSource):
     neither, a ``calib.txt`` in the folder or its parent is used if there is one; giving both is an error.
     ground_truth: optional KITTI or TUM poses file (``gt_format`` "auto" guesses from the columns), re-based to
     the first selected frame: a TUM file is matched to the frames by time (within ``gt_tolerance_s``) when the
-    folder has a ``times.txt``, else row i is image i (see `associate_ground_truth`; ``gt_matching`` says
-    which). Images are decoded lazily; one of another size than the first selected is a `SourceError`.
+    folder has a ``times.txt`` (at frame time + ``gt_time_offset_s``), else row i is image i, or row A + i with
+    ``gt_rows`` (A, B) (see `associate_ground_truth`: a longer file without times is refused; ``gt_matching``
+    says which). Images are decoded lazily; one of another size than the first selected is a `SourceError`.
     """
 
     def __init__(
@@ -121,6 +122,8 @@ class ImageFolderSource(ImageFilesSource):
         frames: FrameRange | None = None,
         on_bad_frame: BadFramePolicy = "fail",
         gt_tolerance_s: float = DEFAULT_GT_TOLERANCE_S,
+        gt_time_offset_s: float = 0.0,
+        gt_rows: tuple[int, int | None] | None = None,
     ):
         self._on_bad_frame = on_bad_frame
         self.folder = Path(path)
@@ -154,7 +157,7 @@ class ImageFolderSource(ImageFilesSource):
         if ground_truth is not None:
             self._ground_truth, self.gt_matching = associate_ground_truth(
                 Path(ground_truth), gt_format, self.file_times, len(self._files), self._indices, gt_tolerance_s,
-                self.folder)
+                self.folder, gt_time_offset_s, gt_rows)
         self._name = _short_name(self.folder)
 
     def __repr__(self) -> str:

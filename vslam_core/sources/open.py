@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,6 +40,8 @@ def open_source(
     gt_tolerance_s: float | None = None,
     route: str | None = None,
     calib_scale: float | None = None,
+    gt_time_offset_s: float | None = None,
+    gt_rows: str | None = None,
 ) -> FrameSource:
     """None or "synthetic": the embedded synthetic street. A ROS 1 ``.bag``, a ROS 2 bag folder or a bare
     ``.mcap``/``.db3``, or a ROS 2 bag folder without ``metadata.yaml`` (the recorder killed) holding one
@@ -47,12 +50,23 @@ def open_source(
     monoVO; with ``rgb.txt`` and ``rgb/``: TUM RGB-D. Any other folder: `ImageFolderSource`. `inject` wraps the
     source in a `FaultInjector` (e.g. ``"dark@120,blur@200:210"``). `gt_tolerance_s` (None: 10 ms) applies
     where ground truth is matched to the frames by time; given where it is not (no ground truth, or paired row
-    by row), it is a `SourceError`. `route` picks the synthetic street's route ("street", "loop", "walk" or "drive").
-    `calib_scale` resizes the given calibration (`--calib-scale`, `scale_calibration`). A principal point outside
-    the middle 60 % of the frames is a `SourceError` (`principal_point_problem`)."""
+    by row), it is a `SourceError`; so is `gt_time_offset_s` (``--gt-time-offset``: the ground truth's clock reads
+    this much more than the frames'). `gt_rows` (``--gt-rows A:B``): which rows of a ``--gt`` file without times are
+    the frames (a file with more rows than frames and nothing to pair them by time is refused without it). `route`
+    picks the synthetic street's route ("street", "loop", "walk" or "drive"). `calib_scale` resizes the given
+    calibration (`--calib-scale`, `scale_calibration`). A principal point outside the middle 60 % of the frames is
+    a `SourceError` (`principal_point_problem`)."""
     tolerance = DEFAULT_GT_TOLERANCE_S if gt_tolerance_s is None else gt_tolerance_s
+    from vslam_core.sources.stamps import parse_gt_rows
+
+    rows = None if gt_rows is None else parse_gt_rows(gt_rows)
+    if rows is not None and ground_truth is None:
+        raise SourceError("--gt-rows does not apply here: it says which rows of a --gt file are the frames, and none "
+                          "is given")
+    if gt_time_offset_s is not None and not math.isfinite(gt_time_offset_s):
+        raise SourceError(f"--gt-time-offset {gt_time_offset_s}: not a number of seconds")
     request = _Request(spec, sequence, frames, intrinsics, calib, ground_truth, gt_format, on_bad_frame, topic,
-                       gt_topic, tolerance, route, calib_scale)
+                       gt_topic, tolerance, route, calib_scale, gt_time_offset_s or 0.0, rows)
     source = _open(request)
     from vslam_core.sources.calibration import principal_point_problem
 
@@ -60,6 +74,8 @@ def open_source(
         raise SourceError(problem)
     if gt_tolerance_s is not None:
         _refuse_tolerance(source)
+    if gt_time_offset_s is not None:
+        _refuse_tolerance(source, "--gt-time-offset")
     if not inject:
         return source
     from vslam_core.sources.faults import FaultInjector, parse_faults
@@ -67,14 +83,15 @@ def open_source(
     return FaultInjector(source, parse_faults(inject))
 
 
-def _refuse_tolerance(source: FrameSource) -> None:
-    """`--gt-tolerance` where no ground truth is matched by time would be silently ignored: say why instead."""
+def _refuse_tolerance(source: FrameSource, option: str = "--gt-tolerance") -> None:
+    """`--gt-tolerance` (or `--gt-time-offset`) where no ground truth is matched by time would be silently ignored:
+    say why instead."""
     how = ground_truth_matching(source)
     if how is not None and how.startswith("matched by time"):
         return
     why = ("there is no ground truth" if how is None else f"the ground truth is not matched by time here ({how}; "
            "time matching needs timestamps on both sides: a TUM file and frames with a clock)")
-    raise SourceError(f"--gt-tolerance does not apply here: {why}")
+    raise SourceError(f"{option} does not apply here: {why}")
 
 
 @dataclass(frozen=True)
@@ -92,6 +109,8 @@ class _Request:
     gt_tolerance_s: float
     route: str | None = None
     calib_scale: float | None = None
+    gt_time_offset_s: float = 0.0
+    gt_rows: tuple[int, int | None] | None = None
 
     def given(self) -> dict[str, object]:
         return {"--sequence": self.sequence, "--intrinsics": self.intrinsics, "--calib": self.calib,
@@ -115,6 +134,9 @@ def _open(r: _Request) -> FrameSource:
     path = _unfinished_bag(path) or path
     if path.suffix.lower() in LOG_SUFFIXES or (path / "metadata.yaml").is_file():
         _refuse(given, ("--sequence",), f"{path} is a ROS log, not a KITTI dataset root")
+        if r.gt_time_offset_s or r.gt_rows is not None:
+            raise SourceError(f"{'--gt-time-offset' if r.gt_time_offset_s else '--gt-rows'} does not apply to a ROS "
+                              "log yet: its ground truth is matched to the frames' header stamps")
         from vslam_core.sources.ros.bag import RosbagSource
 
         return RosbagSource(path, topic=r.topic, frames=r.frames, calibration=_calibration(r),
@@ -132,7 +154,7 @@ def _open(r: _Request) -> FrameSource:
         from vslam_core.sources.video import VideoSource
 
         return VideoSource(path, camera, frames=r.frames, ground_truth=r.ground_truth, gt_format=r.gt_format,
-                           gt_tolerance_s=r.gt_tolerance_s)
+                           gt_tolerance_s=r.gt_tolerance_s, gt_time_offset_s=r.gt_time_offset_s, gt_rows=r.gt_rows)
     if (path / "sequences").is_dir() or (path / "image_0").is_dir():
         _refuse(given, ("--intrinsics", "--calib", "--calib-scale", "--gt"),
                 "a KITTI sequence has its own calib.txt and poses/NN.txt")
@@ -140,6 +162,9 @@ def _open(r: _Request) -> FrameSource:
 
         return KittiSource(path, sequence=r.sequence, frames=r.frames, on_bad_frame=r.on_bad_frame)
     _refuse(given, ("--sequence",), f"{path} is not a KITTI dataset root")
+    if r.gt_rows is not None and not _plain_folder(path):
+        raise SourceError(f"--gt-rows does not apply here: {path} is a dataset whose ground truth is matched to the "
+                          "frames by time (--gt-time-offset shifts its clock)")
     from vslam_core.sources.euroc import EurocSource, is_euroc
     from vslam_core.sources.folder import ImageFolderSource
     from vslam_core.sources.tum_mono import TumMonoSource, is_tum_mono
@@ -148,16 +173,27 @@ def _open(r: _Request) -> FrameSource:
     if is_euroc(path):
         _refuse(given, ("--intrinsics", "--calib", "--calib-scale"), "an EuRoC sequence has its own sensor.yaml")
         return EurocSource(path, frames=r.frames, ground_truth=r.ground_truth, gt_tolerance_s=r.gt_tolerance_s,
-                           on_bad_frame=r.on_bad_frame)
+                           on_bad_frame=r.on_bad_frame, gt_time_offset_s=r.gt_time_offset_s)
     if is_tum_mono(path):
         _refuse(given, ("--intrinsics", "--calib", "--calib-scale"), "a TUM monoVO sequence has its own camera.txt")
         return TumMonoSource(path, frames=r.frames, ground_truth=r.ground_truth, gt_tolerance_s=r.gt_tolerance_s,
-                             on_bad_frame=r.on_bad_frame)
+                             on_bad_frame=r.on_bad_frame, gt_time_offset_s=r.gt_time_offset_s)
     if is_tum_rgbd(path):
         return TumRgbdSource(path, camera=_calibration(r), frames=r.frames, ground_truth=r.ground_truth,
-                             gt_tolerance_s=r.gt_tolerance_s, on_bad_frame=r.on_bad_frame)
+                             gt_tolerance_s=r.gt_tolerance_s, on_bad_frame=r.on_bad_frame,
+                             gt_time_offset_s=r.gt_time_offset_s)
     return ImageFolderSource(path, intrinsics=_calibration(r), ground_truth=r.ground_truth, gt_format=r.gt_format,
-                             frames=r.frames, on_bad_frame=r.on_bad_frame, gt_tolerance_s=r.gt_tolerance_s)
+                             frames=r.frames, on_bad_frame=r.on_bad_frame, gt_tolerance_s=r.gt_tolerance_s,
+                             gt_time_offset_s=r.gt_time_offset_s, gt_rows=r.gt_rows)
+
+
+def _plain_folder(path: Path) -> bool:
+    """A folder of images (not EuRoC, TUM monoVO nor TUM RGB-D): its --gt may be paired row by row."""
+    from vslam_core.sources.euroc import is_euroc
+    from vslam_core.sources.tum_mono import is_tum_mono
+    from vslam_core.sources.tum_rgbd import is_tum_rgbd
+
+    return not (is_euroc(path) or is_tum_mono(path) or is_tum_rgbd(path))
 
 
 def _unfinished_bag(path: Path) -> Path | None:

@@ -16,9 +16,12 @@ DEFAULT_GT_TOLERANCE_S = 0.010
 ROW_BY_ROW = "row by row"
 
 
-def matched_by_time(frames: int, tolerance_s: float) -> str:
-    """``matched by time, 200 of 200 frames, tolerance 10 ms`` (every selected frame has its pose)."""
-    return f"matched by time, {frames} of {frames} frames, tolerance {tolerance_s * 1000:g} ms"
+def matched_by_time(frames: int, tolerance_s: float, offset_s: float = 0.0) -> str:
+    """``matched by time, 200 of 200 frames, tolerance 10 ms`` (every selected frame has its pose), and
+    ``, the ground truth's clock +0.100 s from the frames'`` with `--gt-time-offset`."""
+    text = f"matched by time, {frames} of {frames} frames, tolerance {tolerance_s * 1000:g} ms"
+    return text + (f", the ground truth's clock {offset_s:+.3f} s from the frames' (--gt-time-offset)" if offset_s
+                   else "")
 
 
 def nearest_in_time(query: np.ndarray, reference: np.ndarray, tolerance_s: float) -> tuple[np.ndarray, np.ndarray]:
@@ -110,32 +113,37 @@ def require_ground_truth(
 
 def selected_ground_truth(
     frame_stamps: np.ndarray, indices: list[int], gt_stamps: np.ndarray, gt_poses: np.ndarray, tolerance_s: float,
-    label: str, where: object,
+    label: str, where: object, offset_s: float = 0.0,
 ) -> np.ndarray:
     """(N, 4, 4) ground-truth camera poses of the selected frames (`indices` into every frame's `frame_stamps`),
     each the pose nearest in time, re-based on the first; a selected frame without a pose within `tolerance_s`
-    is the `SourceError` of `require_ground_truth` (`label`: where the poses come from)."""
+    is the `SourceError` of `require_ground_truth` (`label`: where the poses come from). `offset_s`
+    (`--gt-time-offset`): the ground truth's clock reads this much more than the frames' at the same instant, so
+    frame time t takes the pose stamped t + offset_s."""
+    frame_stamps = np.asarray(frame_stamps, np.float64) + offset_s
     require_ground_truth(frame_stamps, indices, gt_stamps, tolerance_s, label, where)
     return ground_truth_at(frame_stamps[np.asarray(indices)], gt_stamps, gt_poses, tolerance_s, f"{where} ({label})")
 
 
 def tum_camera_poses(gt_file: Path, frame_stamps: np.ndarray, indices: list[int], tolerance_s: float,
-                     where: object) -> tuple[np.ndarray, str]:
+                     where: object, offset_s: float = 0.0) -> tuple[np.ndarray, str]:
     """A TUM file of camera poses T_w_c given as a dataset's ground truth: ((N, 4, 4) poses of the selected
     frames, matched by time and re-based, as `selected_ground_truth`), and the label the run summary shows."""
     gt_stamps, gt_poses = read_tum_ground_truth(gt_file)
     label = f"{gt_file.name} (TUM, camera poses)"
-    return selected_ground_truth(frame_stamps, indices, gt_stamps, gt_poses, tolerance_s, label, where), label
+    return selected_ground_truth(frame_stamps, indices, gt_stamps, gt_poses, tolerance_s, label, where,
+                                 offset_s), label
 
 
 def optional_tum_camera_poses(gt_file: Path | None, frame_stamps: np.ndarray, indices: list[int],
-                              tolerance_s: float, where: object) -> tuple[np.ndarray | None, str, str | None]:
+                              tolerance_s: float, where: object, offset_s: float = 0.0
+                              ) -> tuple[np.ndarray | None, str, str | None]:
     """`tum_camera_poses` of `gt_file` with how they were matched (`matched_by_time`); without a file, no poses,
     the label "none" and no matching."""
     if gt_file is None:
         return None, "none", None
-    poses, label = tum_camera_poses(gt_file, frame_stamps, indices, tolerance_s, where)
-    return poses, label, matched_by_time(len(indices), tolerance_s)
+    poses, label = tum_camera_poses(gt_file, frame_stamps, indices, tolerance_s, where, offset_s)
+    return poses, label, matched_by_time(len(indices), tolerance_s, offset_s)
 
 
 def stamp_problems(stamps: np.ndarray) -> list[str]:
@@ -158,9 +166,23 @@ def _duplicates_out_of_order(stamps: np.ndarray, steps: np.ndarray) -> int:
     return len(stamps) - len(np.unique(stamps)) - int((steps == 0).sum())
 
 
+def parse_gt_rows(text: str) -> tuple[int, int | None]:
+    """``--gt-rows A:B`` (or ``A:``): the ground truth's rows A..B-1 are the frames 0.. (0-based, B excluded);
+    `SourceError` in one line when malformed."""
+    first, colon, last = text.strip().partition(":")
+    try:
+        start = int(first)
+        end = int(last) if last.strip() else None
+    except ValueError:
+        raise SourceError(f"--gt-rows {text!r}: expected A:B (rows A to B-1 of the ground truth, 0-based)") from None
+    if not colon or start < 0 or (end is not None and end <= start):
+        raise SourceError(f"--gt-rows {text!r}: expected A:B with 0 <= A < B (rows A to B-1, 0-based)")
+    return start, end
+
+
 def associate_ground_truth(
     path: Path, fmt: str, frame_times: np.ndarray | None, count: int, indices: list[int], tolerance_s: float,
-    where: object,
+    where: object, offset_s: float = 0.0, rows: tuple[int, int | None] | None = None,
 ) -> tuple[np.ndarray, str]:
     """The ground truth of the selected frames of an image folder or a video, and how it was paired with them.
 
@@ -169,42 +191,76 @@ def associate_ground_truth(
     times), or None without a clock; `indices`: the selected frames. The rule of every source:
 
     - both sides have times: each frame takes the pose nearest in time within `tolerance_s` (a TUM file at
-      another rate than the camera, or with gaps, is paired correctly); a frame without one is an error;
+      another rate than the camera, or with gaps, is paired correctly), at frame time + `offset_s`
+      (``--gt-time-offset``); a frame without one is an error;
     - one side only, or neither: row i is frame i, and the file must hold a pose for every frame; when one
       side has times, it must hold exactly as many poses as there are frames (another count means the rows
-      are not the frames: pairing them would give a wrong answer without a word).
+      are not the frames: pairing them would give a wrong answer without a word); when neither has, a file
+      with more rows than frames is refused too (the frames may be any stretch of the sequence: pairing them
+      from row 0 would be a wrong answer), unless `rows` (``--gt-rows A:B``) says which rows are the frames.
 
     Returns ((N, 4, 4) T_w_c re-based on the first selected frame, ``matched by time, …`` or ``row by row``).
     `SourceError` (or `TrajectoryFormatError` for a malformed file) in one line, naming the file."""
     if not path.is_file():
         raise SourceError(f"{path}: ground-truth file not found")
     kind = detect_format(path) if fmt == "auto" else fmt
+    if kind not in ("tum", "kitti"):
+        raise SourceError(f"{path}: unknown ground-truth format {fmt!r} (kitti, tum or auto)")
+    if kind == "tum" and frame_times is not None:
+        gt_stamps, gt_poses = read_tum_poses(path)
+        check_ground_truth_steps(path, gt_poses, gt_stamps)
+        if rows is not None:
+            raise SourceError(f"--gt-rows does not apply here: {path.name} is matched to the frames by time (a TUM "
+                              "file and frames with times); --gt-time-offset shifts its clock")
+        poses = selected_ground_truth(np.asarray(frame_times, np.float64), indices, gt_stamps, gt_poses,
+                                      tolerance_s, path.name, where, offset_s)
+        return poses, matched_by_time(len(indices), tolerance_s, offset_s)
+    if offset_s:
+        raise SourceError(f"--gt-time-offset does not apply here: {path.name} is paired with the frames row by row "
+                          "(time matching needs timestamps on both sides: a TUM file and frames with a clock)")
     if kind == "tum":
         gt_stamps, gt_poses = read_tum_poses(path)
         check_ground_truth_steps(path, gt_poses, gt_stamps)
-        if frame_times is not None:
-            poses = selected_ground_truth(np.asarray(frame_times, np.float64), indices, gt_stamps, gt_poses,
-                                          tolerance_s, path.name, where)
-            return poses, matched_by_time(len(indices), tolerance_s)
-        if len(gt_poses) != count:
-            raise SourceError(
-                f"{path}: {len(gt_poses)} timestamped poses for {count} frames without timestamps ({where} has no "
-                "times.txt): they cannot be matched by time, and row by row needs one pose per frame (put the "
-                "frames' times.txt beside the images)")
-    elif kind == "kitti":
+    else:
         gt_poses = read_kitti_poses(path)
         check_ground_truth_steps(path, gt_poses, None if frame_times is None or len(frame_times) != len(gt_poses)
                                  else np.asarray(frame_times, np.float64))
-        if frame_times is not None and len(gt_poses) != count:
-            raise SourceError(
-                f"{path}: {len(gt_poses)} poses without timestamps (KITTI format) for {count} timestamped frames: "
-                "they cannot be matched by time, and row by row needs one pose per frame (give the ground truth "
-                "as TUM, with timestamps on the frames' clock)")
-        if len(gt_poses) < count:
-            raise SourceError(f"{path}: {len(gt_poses)} poses for {count} frames (need one pose per frame)")
-    else:
-        raise SourceError(f"{path}: unknown ground-truth format {fmt!r} (kitti, tum or auto)")
+    if rows is not None:
+        return _given_rows(path, gt_poses, rows, count, indices)
+    if kind == "tum" and len(gt_poses) != count:
+        raise SourceError(
+            f"{path}: {len(gt_poses)} timestamped poses for {count} frames without timestamps ({where} has no "
+            "times.txt): they cannot be matched by time, and row by row needs one pose per frame (put the "
+            "frames' times.txt beside the images, or say which rows are the frames with --gt-rows A:B)")
+    if frame_times is not None and len(gt_poses) != count:
+        raise SourceError(
+            f"{path}: {len(gt_poses)} poses without timestamps (KITTI format) for {count} timestamped frames: "
+            "they cannot be matched by time, and row by row needs one pose per frame (give the ground truth "
+            "as TUM, with timestamps on the frames' clock, or say which rows are the frames with --gt-rows A:B)")
+    if len(gt_poses) < count:
+        raise SourceError(f"{path}: {len(gt_poses)} poses for {count} frames (need one pose per frame)")
+    if len(gt_poses) > count:
+        raise SourceError(
+            f"{path}: {len(gt_poses)} poses for {count} frames and nothing pairs them by time (no times.txt "
+            f"beside the images): row by row from row 0 is right only if the frames are the first {count} of the "
+            f"sequence; say which rows they are with --gt-rows A:B (e.g. --gt-rows 100:{100 + count} for frames "
+            "that start at the sequence's frame 100), give a TUM ground truth and the frames' times.txt, or keep "
+            "the whole sequence's frames and choose some with --frames")
     return rebase_poses(gt_poses[np.asarray(indices)]), ROW_BY_ROW
+
+
+def _given_rows(path: Path, poses: np.ndarray, rows: tuple[int, int | None], count: int, indices: list[int]
+                ) -> tuple[np.ndarray, str]:
+    """`--gt-rows A:B`: rows A..B-1 of the file are frames 0..count-1 (B - A must be the frame count)."""
+    start, end = rows
+    end = start + count if end is None else end
+    if end - start != count:
+        raise SourceError(f"--gt-rows {start}:{end} holds {end - start} rows for {count} frames: the rows must be "
+                          f"the frames, one each (e.g. --gt-rows {start}:{start + count})")
+    if end > len(poses):
+        raise SourceError(f"--gt-rows {start}:{end}: {path} has {len(poses)} poses (rows 0:{len(poses)})")
+    return (rebase_poses(poses[start:end][np.asarray(indices)]),
+            f"row by row from row {start} (--gt-rows {start}:{end}: line {start + 1} of {path.name} is frame 0)")
 
 
 def stamped_lines(path: Path, holding: str) -> Iterator[tuple[int, str, list[str]]]:

@@ -154,6 +154,7 @@ class TumMonoSource(ImageFilesSource):
         ground_truth: str | Path | None = None,
         gt_tolerance_s: float = DEFAULT_GT_TOLERANCE_S,
         on_bad_frame: BadFramePolicy = "fail",
+        gt_time_offset_s: float = 0.0,
     ):
         self._on_bad_frame = on_bad_frame
         given = Path(path)
@@ -198,7 +199,7 @@ class TumMonoSource(ImageFilesSource):
         self.properties: dict[str, str] = {"dataset": "TUM monoVO", "photometric_calibration": "not applied"}
         self._ground_truth, self.properties["ground_truth"], self.gt_matching = optional_tum_camera_poses(
             Path(ground_truth) if ground_truth is not None else None, self._times, self._indices, gt_tolerance_s,
-            folder)
+            folder, gt_time_offset_s)
         self._name = "tum-mono-" + safe_name(folder.resolve().name, "sequence")
 
     @property

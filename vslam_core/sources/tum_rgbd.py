@@ -121,6 +121,7 @@ class TumRgbdSource(ImageFilesSource):
         ground_truth: str | Path | None = None,
         gt_tolerance_s: float = DEFAULT_GT_TOLERANCE_S,
         on_bad_frame: BadFramePolicy = "fail",
+        gt_time_offset_s: float = 0.0,
     ):
         self._on_bad_frame = on_bad_frame
         given = Path(path)
@@ -150,7 +151,7 @@ class TumRgbdSource(ImageFilesSource):
         default = folder / GROUND_TRUTH_FILE
         gt_file = Path(ground_truth) if ground_truth is not None else default if default.is_file() else None
         self._ground_truth, self.properties["ground_truth"], self.gt_matching = optional_tum_camera_poses(
-            gt_file, self._times, self._indices, gt_tolerance_s, folder)
+            gt_file, self._times, self._indices, gt_tolerance_s, folder, gt_time_offset_s)
         self._name = "tum-rgbd-" + safe_name(folder.resolve().name, "sequence")
 
     def __repr__(self) -> str:

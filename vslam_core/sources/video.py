@@ -66,6 +66,8 @@ class VideoSource(SelectedSource):
         ground_truth: str | Path | None = None,
         gt_format: GroundTruthFormat = "auto",
         gt_tolerance_s: float = DEFAULT_GT_TOLERANCE_S,
+        gt_time_offset_s: float = 0.0,
+        gt_rows: tuple[int, int | None] | None = None,
     ):
         self.path = Path(path)
         if not self.path.is_file():
@@ -102,7 +104,8 @@ class VideoSource(SelectedSource):
         if ground_truth is not None:  # by time on the container's clock (a frame rate alone is no clock)
             clock = None if self._times is None or not self._container_times else np.asarray(self._times)
             self._ground_truth, self.gt_matching = associate_ground_truth(
-                Path(ground_truth), gt_format, clock, self._count, self._indices, gt_tolerance_s, self.path)
+                Path(ground_truth), gt_format, clock, self._count, self._indices, gt_tolerance_s, self.path,
+                gt_time_offset_s, gt_rows)
         self._name = "video-" + (re.sub(r"[^A-Za-z0-9._-]+", "_", self.path.stem) or "video")
 
     def _open(self) -> cv2.VideoCapture:

@@ -18,6 +18,8 @@ from vslam.cli.common import (
     CALIB_SCALE_HELP,
     CAMERA_HEIGHT_HELP,
     GT_HELP,
+    GT_ROWS_HELP,
+    GT_TIME_OFFSET_HELP,
     GT_TOLERANCE_HELP,
     GT_TOPIC_HELP,
     IMAGE_CODEC_HELP,
@@ -125,6 +127,8 @@ def run(
     topic: Annotated[str | None, typer.Option(help=TOPIC_HELP)] = None,
     gt_topic: Annotated[str | None, typer.Option(help=GT_TOPIC_HELP)] = None,
     gt_tolerance: Annotated[float | None, typer.Option(min=0.0, help=GT_TOLERANCE_HELP + " [default: 10]")] = None,
+    gt_time_offset: Annotated[float | None, typer.Option(help=GT_TIME_OFFSET_HELP)] = None,
+    gt_rows: Annotated[str | None, typer.Option(help=GT_ROWS_HELP)] = None,
     inject: Annotated[str | None, typer.Option(help="fault injection, e.g. dark@120,blur@200:210 (kinds: dark, "
                                                "overexposed, blur, frozen, drop, brightness, noise)")] = None,
     on_bad_frame: Annotated[BadFrame, typer.Option(help="an unreadable image: fail (stop, naming the file) or "
@@ -170,7 +174,7 @@ def run(
     src = open_source(source, sequence=sequence, frames=frame_range, intrinsics=intrinsics, calib=calib,
                       ground_truth=gt, on_bad_frame=on_bad_frame.value, inject=inject, topic=topic, gt_topic=gt_topic,
                       gt_tolerance_s=None if gt_tolerance is None else gt_tolerance / 1000.0, route=route,
-                      calib_scale=calib_scale)
+                      calib_scale=calib_scale, gt_time_offset_s=gt_time_offset, gt_rows=gt_rows)
     if scale is not None:
         config = config.with_scale(scale.value)
     elif config_file is None and src.ground_truth is None:
@@ -239,7 +243,10 @@ def _report_run(src: FrameSource, recorded: RecordedRun, config: EngineConfig, o
     if recorded.failure is None:
         from vslam.cli.summary import print_summary
 
-        print_summary(src, result, config, in_map=in_map)
+        check = recorded.gt_check.summary() if recorded.gt_check is not None else None
+        print_summary(src, result, config, in_map=in_map, gt_check=check)
+        for warning in check.warnings() if check is not None else []:
+            warn(warning)
     if where := describe_outputs(outputs, recorded.failure is not None):
         out.print(where, highlight=False)
     if recorded.failure is not None:

@@ -16,6 +16,8 @@ from vslam.cli.common import (
     CALIB_SCALE_HELP,
     CAMERA_HEIGHT_HELP,
     GT_HELP,
+    GT_ROWS_HELP,
+    GT_TIME_OFFSET_HELP,
     GT_TOLERANCE_HELP,
     GT_TOPIC_HELP,
     IMAGE_CODEC_HELP,
@@ -86,6 +88,8 @@ def eval_command(
     time_tolerance: Annotated[float | None, typer.Option("--time-tolerance", "--gt-tolerance", min=0.0,
                                                          help=GT_TOLERANCE_HELP + " (--trajectory rows and SOURCE "
                                                          "frames) [default: 10]")] = None,
+    gt_time_offset: Annotated[float | None, typer.Option(help=GT_TIME_OFFSET_HELP + " (SOURCE frames)")] = None,
+    gt_rows: Annotated[str | None, typer.Option(help=GT_ROWS_HELP + " (SOURCE frames)")] = None,
     trajectory_format: Annotated[TrajectoryFormat | None, typer.Option("--format", help="kitti or tum "
                                                                        "[default: from the columns]")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="print the metrics as JSON (keys in docs/evaluation.md)")]
@@ -129,7 +133,7 @@ def eval_command(
         if backend is not None:
             fail("--backend chooses how the engine runs: it does not apply to --trajectory files")
         engine_options = {"--frames": frames, "--inject": inject, "--config": config_file,
-                          "--camera-height": camera_height}
+                          "--camera-height": camera_height, "--gt-time-offset": gt_time_offset, "--gt-rows": gt_rows}
         for option in (name for name, value in engine_options.items() if value is not None):
             fail(f"{option} applies to runs of the engine: it does not apply to --trajectory files")
         if calib_scale is not None:
@@ -161,6 +165,9 @@ def eval_command(
         if sequences is not None:
             if source is None:
                 fail("--sequences needs SOURCE, the KITTI dataset root")
+            if gt_time_offset is not None or gt_rows is not None:
+                fail("--gt-time-offset and --gt-rows do not apply to KITTI --sequences (poses/NN.txt is paired row "
+                     "by row, line i = image i)")
             if any(o is not None for o in (intrinsics, calib, calib_scale, topic, gt_topic)):
                 fail("--intrinsics, --calib, --calib-scale, --topic and --gt-topic do not apply to KITTI --sequences "
                      "(they have calib.txt and poses)")
@@ -174,7 +181,7 @@ def eval_command(
             sources = [open_source(source, frames=frame_range, intrinsics=intrinsics, calib=calib, ground_truth=gt,
                                    on_bad_frame=on_bad_frame.value, inject=inject, topic=topic, gt_topic=gt_topic,
                                    gt_tolerance_s=None if time_tolerance is None else time_tolerance / 1000.0,
-                                   calib_scale=calib_scale)]
+                                   calib_scale=calib_scale, gt_time_offset_s=gt_time_offset, gt_rows=gt_rows)]
         for src in sources:
             config = with_camera_height(config, camera_height, src)
         for warning in dict.fromkeys(w for src in sources for w in input_warnings(src, config)):
@@ -208,7 +215,8 @@ def _eval_batch(options: dict[str, Any]) -> None:
                "--trajectory": o["trajectory"], "--gt": o["gt"], "--intrinsics": o["intrinsics"], "--calib": o["calib"],
                "--topic": o["topic"], "--gt-topic": o["gt_topic"], "--gt-times": o["gt_times"], "--inject": o["inject"],
                "--format": o["trajectory_format"], "--json": o["as_json"] or None,
-               "--gt-tolerance": o["time_tolerance"]}
+               "--gt-tolerance": o["time_tolerance"], "--gt-time-offset": o["gt_time_offset"],
+               "--gt-rows": o["gt_rows"]}
     for option in (name for name, value in per_log.items() if value is not None):
         fail(f"{option} does not apply to --manifest or --merge (give it per log, as a manifest column)")
     gates = Gates(o["max_t_err"], o["max_r_err"], o["max_ate"])

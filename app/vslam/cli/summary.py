@@ -10,6 +10,7 @@ if TYPE_CHECKING:
     from vslam_core.config import EngineConfig
     from vslam_core.pipeline import RunResult
     from vslam_core.sources.base import FrameSource
+    from vslam_core.trajectory.gt_check import CheckSummary
 
 
 def held_reasons(run: RunResult) -> str:
@@ -18,10 +19,12 @@ def held_reasons(run: RunResult) -> str:
     return (": " + ", ".join(f"{reason} {count}" for reason, count in ranked)) if ranked else ""
 
 
-def print_summary(source: FrameSource, run: RunResult, config: EngineConfig, in_map: bool = False) -> None:
+def print_summary(source: FrameSource, run: RunResult, config: EngineConfig, in_map: bool = False,
+                  gt_check: CheckSummary | None = None) -> None:
     """`vslam run`'s summary on stdout: frames and why some were held, time, backend, scale source, camera and
     where its calibration came from, how ground truth was paired, and the accuracy against it (`in_map`: the
-    poses are in a prior map's frame, so they are not scored against this run's ground truth)."""
+    poses are in a prior map's frame, so they are not scored against this run's ground truth); `gt_check`: the
+    ground truth against the images (its warnings are the caller's)."""
     import numpy as np
 
     from vslam.common import scored_estimate
@@ -51,6 +54,8 @@ def print_summary(source: FrameSource, run: RunResult, config: EngineConfig, in_
         gt = None
     if (matching := ground_truth_matching(source)) is not None:
         lines.append(f"ground truth {matching}")
+    if gt_check is not None:
+        lines.append(f"gt check    {gt_check.line()}")
     if gt is not None and run.frames > 1:
         gt = gt[: run.frames]
         if config.scale == "height":

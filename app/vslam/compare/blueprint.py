@@ -49,6 +49,7 @@ GROUP_TITLES = {
     "error": "position error (m)",
     "angle_error": "angle errors (°)",
     "drift": "drift per frame",
+    "gt_check": "ground truth vs the images",
     "timing_ms": "timing (ms)",
 }
 _Override = rrb.VisibleTimeRanges | rr.LineStrips3D

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 import polars as pl
 from rich.console import Console
+from rich.text import Text
 
 import vslam_core
 from vslam.common import COLUMNS, json_ready, markdown_table, mean_row, metrics_row, scored_estimate
@@ -98,6 +99,9 @@ def evaluate_sources(
         run = record_run(source, config, rrd, props, console, detail, image_codec=image_codec)
         if run.failure is not None:
             raise run.failure
+        check = run.gt_check.summary() if run.gt_check is not None else None
+        for warning in check.warnings() if check is not None else []:  # the scores against it are suspect
+            console.print(Text.assemble(("warning:", "bold yellow"), f" {source.name}: {warning}"), soft_wrap=True)
         if run.result.frames >= 3:
             row, lengths = _score(name, gt, run.result.pose_array(), config, report_dir)
             row["fps"] = run.result.frames / run.result.seconds if run.result.seconds else math.nan

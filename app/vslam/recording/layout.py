@@ -87,7 +87,7 @@ def plot_tabs(map_backend: bool, *, road_scale: bool, ground_truth: bool, engine
 
 
 #: The plots of the ``accuracy`` tab (with ground truth).
-ACCURACY_PLOTS = ("angle errors (°)", *(name for name, _ in DRIFT_PLOTS))
+ACCURACY_PLOTS = ("angle errors (°)", "ground truth vs the images", *(name for name, _ in DRIFT_PLOTS))
 
 
 def _overview_plots(ground_truth: bool, engine: bool) -> list[rrb.TimeSeriesView]:
@@ -151,7 +151,8 @@ def _plots(road_scale: bool, ground_truth: bool, engine: bool = True) -> list[rr
     if road_scale:
         plots.append(("scale from the road", "road"))
     if ground_truth:
-        plots += [("position error (m)", "error"), ("angle errors (°)", "angle_error")]
+        plots += [("position error (m)", "error"), ("angle errors (°)", "angle_error"),
+                  ("ground truth vs the images", "gt_check")]
     if engine:
         plots.append(("timing (ms)", "timing_ms"))
     views = [rrb.TimeSeriesView(name=name, origin=f"/metrics/{group}") if group != "health" else health_view()

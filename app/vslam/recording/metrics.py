@@ -11,6 +11,7 @@ import numpy as np
 from vslam.recording.styles import ESTIMATE_COLOUR, NEW_CORNER_COLOUR, ROAD_COLOUR
 from vslam_core.geometry import angle_between, invert_pose, rotation_angle
 from vslam_core.results import BundleAdjusted, FrameResult, HealthStatus, MapFrame, TrackingMode
+from vslam_core.trajectory.gt_check import PairCheck
 
 HEALTH_LEVELS = {HealthStatus.OK: 0, HealthStatus.WARN: 1, HealthStatus.FAIL: 2}
 STAGES = ("decode", "track", "essential", "chirality", "detect", "record")
@@ -39,6 +40,12 @@ METRICS: dict[str, dict[str, tuple[str, tuple[int, int, int]]]] = {
     "angle_error": {
         "heading_deg": ("heading error (°)", (255, 80, 200)),
         "translation_direction_deg": ("translation direction error (°)", (0, 200, 255)),
+    },
+    "gt_check": {  # with ground truth: its relative motion on this frame's inliers (vslam_core/trajectory/gt_check)
+        "gt_sampson_px": ("Sampson error of the ground truth's motion (px, median)", (255, 80, 200)),
+        "fit_sampson_px": ("Sampson error of the best fit (px, median)", (40, 220, 60)),
+        "sampson_ratio": ("ground truth / best fit", (255, 140, 0)),
+        "gt_rotation_deg": ("ground truth's relative rotation vs the images' (°)", (0, 200, 255)),
     },
     "drift": {  # with ground truth: this frame's own relative pose error (vslam/recording/drift.py)
         "rotation_deg": ("rotation error of this frame's step (°)", (255, 80, 200)),
@@ -91,6 +98,12 @@ def frame_metrics(result: FrameResult, ground_truth: np.ndarray | None) -> dict[
             values["translation_direction_deg"] = float(
                 np.degrees(angle_between(gt_step[:3, 3], result.T_key_cur[:3, 3])))
     return values
+
+
+def gt_check_metrics(pair: PairCheck) -> dict[str, float]:
+    """The `/metrics/gt_check/*` series of one frame's ground-truth check."""
+    return {"gt_sampson_px": pair.gt_sampson_px, "fit_sampson_px": pair.fit_sampson_px, "sampson_ratio": pair.ratio,
+            "gt_rotation_deg": pair.rotation_deg}
 
 
 # Map backend (--backend map): tracking mode and bundle adjustment. The mode as a number, so it plots as a

@@ -19,6 +19,7 @@ import rerun as rr
 
 from vslam.recording.drift import drift_colours
 from vslam.recording.styles import GROUND_TRUTH_COLOUR, HEALTH_LEVEL_LINES, LOOP_MARK_COLOUR, WORST_MARK_COLOUR
+from vslam_core.trajectory.drift import FrameErrors
 
 OVERVIEW_PATH = "/overview/path"
 OVERVIEW_GT = "/overview/ground_truth"
@@ -103,15 +104,18 @@ class DriveOverview:
         self.loops.append((int(query_frame), int(candidate_frame)))
 
     def finish(self, rec: rr.RecordingStream, headline: list[str], *, estimate: np.ndarray | None = None,
-               ground_truth: np.ndarray | None = None, translation_m: np.ndarray | None = None,
-               translation_pct: np.ndarray | None = None, rotation_deg: np.ndarray | None = None) -> list[Stretch]:
+               ground_truth: np.ndarray | None = None, errors: FrameErrors | None = None) -> list[Stretch]:
         """Log the overview entities (static). `estimate` (N, 3): the positions to draw (the Sim(3)-aligned ones
-        with ``--scale none``), else those added; `ground_truth` (N, 3) positions; the per-frame errors (N,)
-        of each frame's own step (drift attribution) rank the stretches, else the health does. `headline`: the
-        summary's first lines. Returns the worst stretches."""
+        with ``--scale none``), else those added; `ground_truth` (N, 3) positions; `errors`: each frame's own
+        error (drift attribution), which ranks the stretches, else the health does. `headline`: the summary's
+        first lines. Returns the worst stretches."""
         frames = np.array(self.frames, dtype=np.int64)
         if len(frames) < 2:
             return []
+        usable = errors is not None and len(errors.translation_m) == len(frames)
+        translation_m = errors.translation_m if usable and errors is not None else None
+        translation_pct = errors.translation_pct if usable and errors is not None else None
+        rotation_deg = errors.rotation_deg if usable and errors is not None else None
         positions = np.array(self.positions) if estimate is None else np.asarray(estimate)[: len(frames)]
         health = np.array(self.health)
         with_errors = translation_m is not None and translation_pct is not None

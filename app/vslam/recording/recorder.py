@@ -28,7 +28,7 @@ from vslam.recording.drift import DriftRecording
 from vslam.recording.layout import UNDISTORTED, blueprint
 from vslam.recording.levels import Detail, ImageCodec
 from vslam.recording.map import MapRecording
-from vslam.recording.metrics import HEALTH_LEVELS, METRICS, STAGES, frame_metrics
+from vslam.recording.metrics import HEALTH_LEVELS, METRICS, STAGES, frame_metrics, gt_check_metrics
 from vslam.recording.overview import DriveOverview
 from vslam.recording.schema import SCHEMA_VERSION
 from vslam.recording.stream import StreamStopped, close_stream, flush_or_stop, log_world, open_stream, pinhole
@@ -51,6 +51,7 @@ from vslam_core.pipeline import RunResult
 from vslam_core.results import FrameResult, FrameStatus, HealthStatus, Reason, TrackFate
 from vslam_core.sources.base import Frame, FrameSource, describe_indices, shown_path, source_properties
 from vslam_core.sources.calibration import describe_calibration
+from vslam_core.trajectory.gt_check import GroundTruthCheck
 
 if TYPE_CHECKING:
     from vslam.recording.video import VideoEntity
@@ -77,6 +78,7 @@ class Recorder:
         image_codec: ImageCodec = ImageCodec.JPEG,
         external: bool = False,
         live_url: str | None = None,
+        gt_check: GroundTruthCheck | None = None,
     ) -> None:
         """`external`: the frames come from another pipeline through the logging API (`vslam.log`), not from
         vslam's engine: no engine config is stated, and its own series (``/metrics/custom/*``) get a plot."""
@@ -88,6 +90,7 @@ class Recorder:
         # with a second core, frames are JPEG-encoded beside the engine (cv2.imencode releases the GIL)
         self._encoder = ThreadPoolExecutor(1, thread_name_prefix="vslam-jpeg") if config.threads > 1 else None
         self._gt = source.ground_truth
+        self._gt_check = gt_check  # a frame sink run before this one: each frame's figures, then the run's
         self._gt_buffer: np.ndarray | None = None  # `extend_ground_truth`: room for more
         self._name = properties.get("name", source.name)
         self._source_name = source.name
@@ -175,6 +178,7 @@ class Recorder:
                 self._map.log_loops_at_end(Frame(run.indices[-1], run.timestamps[-1], NO_IMAGE), run.frames - 1,
                                            run.loops_at_end)
             aligned: np.ndarray | None = None
+            row: dict[str, Any] | None = None
             lines = [f"# {self._name}", "", f"{run.frames} frames, {run.held_summary}"
                      + (f" — {stopped}" if stopped else "")]
             if (placed := run.placed_summary(self._scale)) is not None:
@@ -189,33 +193,27 @@ class Recorder:
                               + ("the map's own scale)." if self._map is not None else "unit steps).")]
                 if self._drift is not None:
                     lines += ["", *self._drift.finish(self._rec, self._columns, aligned)]
+            if self._gt_check is not None and (check := self._gt_check.summary()) is not None:
+                lines += ["", f"Ground truth against the images: {check.line()}.", *(f"Warning: {w}." for w in
+                                                                                     check.warnings())]
             self._rec.log("/report", rr.TextDocument("\n".join(lines), media_type=rr.MediaType.MARKDOWN),
                           static=True)
-            self._log_overview(run, aligned, stopped)
+            self._log_overview(run, aligned, stopped, row)
             self._log_health_levels(run)
         finally:
             self.close()
 
-    def _log_overview(self, run: RunResult, aligned: np.ndarray | None, stopped: str | None) -> None:
-        """The drive at a glance (`vslam.recording.overview`): the path coloured by each frame's own error (by
-        its health without ground truth), the worst stretches and loops marked, a short summary."""
-        headline = [self._name, f"{run.frames} frames, {run.held_summary}" + (f" — {stopped}" if stopped
-                                                                                         else "")]
-        errors = self._drift.errors if self._drift is not None else None
-        if self._gt is not None and run.frames > 2:
-            row = metrics_row(self._source_name, self._gt[: run.frames], run.pose_array(), self._scale)
-            headline.append(f"t_err {row['t_err']:.2f} %, ATE {row['ate_sim3']:.3f} m after Sim(3) (scale "
-                            f"{self._scale})")
-        if self._map is not None:
-            for query, candidate in self._map.closed_loops:
-                self._overview.add_loop(query, candidate)
-        usable = errors is not None and len(errors.translation_m) == len(self._overview.frames)
-        self._overview.finish(
-            self._rec, headline, estimate=aligned[:, :3, 3] if aligned is not None else None,
-            ground_truth=self._gt[: run.frames, :3, 3] if self._gt is not None else None,
-            translation_m=errors.translation_m if usable and errors is not None else None,
-            translation_pct=errors.translation_pct if usable and errors is not None else None,
-            rotation_deg=errors.rotation_deg if usable and errors is not None else None)
+    def _log_overview(self, run: RunResult, aligned: np.ndarray | None, stopped: str | None,
+                      row: dict[str, Any] | None) -> None:
+        """The drive at a glance (`vslam.recording.overview`); `row`: the run's metrics, with ground truth."""
+        headline = [self._name, f"{run.frames} frames, {run.held_summary}" + (f" — {stopped}" if stopped else "")]
+        if row is not None:
+            headline.append(f"t_err {row['t_err']:.2f} %, ATE {row['ate_sim3']:.3f} m after Sim(3) ({self._scale})")
+        for query, candidate in self._map.closed_loops if self._map is not None else ():
+            self._overview.add_loop(query, candidate)
+        self._overview.finish(self._rec, headline, estimate=None if aligned is None else aligned[:, :3, 3],
+                              ground_truth=None if self._gt is None else self._gt[: run.frames, :3, 3],
+                              errors=self._drift.errors if self._drift is not None else None)
 
     def _log_health_levels(self, run: RunResult) -> None:
         """The health plot's levels by name: a constant line at 0 (ok), 1 (warn) and 2 (fail) from the first
@@ -447,6 +445,8 @@ class Recorder:
 
     def _log_metrics(self, frame: Frame, result: FrameResult, unreported: frozenset[str]) -> None:
         values = {name: value for name, value in frame_metrics(result, self._gt).items() if name not in unreported}
+        if self._gt_check is not None and (pair := self._gt_check.pairs.get(result.position)) is not None:
+            values.update(gt_check_metrics(pair))
         if self._scale == "none":  # unit steps against metres: logged after Sim(3) alignment at the end
             values.pop("position_m", None)
         for group, series in METRICS.items():

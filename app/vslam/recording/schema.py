@@ -92,6 +92,8 @@ ENTITIES: tuple[EntitySpec, ...] = (
     *_series("error", ("position_m",), (INSPECT, COMPARE, *VIEWER), "position error against the ground truth (m)"),
     *_series("angle_error", ("heading_deg", "translation_direction_deg"), (INSPECT, COMPARE, *VIEWER),
              "angle errors against the ground truth (°)"),
+    *_series("gt_check", ("gt_sampson_px", "fit_sampson_px", "sampson_ratio", "gt_rotation_deg"),
+             (INSPECT, COMPARE, *VIEWER), "the ground truth's relative motion against the frame's inliers"),
     *_series("drift", ("rotation_deg", "translation_m", "translation_pct", "scale_ratio"),
              (INSPECT, COMPARE, *VIEWER), "drift attribution: each frame's own step error"),
     *_series("timing_ms", ("decode", "track", "essential", "chirality", "detect", "record"),

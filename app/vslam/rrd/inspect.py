@@ -25,6 +25,7 @@ from vslam.rrd.provenance import (
 )
 from vslam.rrd.read import RecordingError, read_entity, readable
 from vslam_core.trajectory.drift import worst_frames
+from vslam_core.trajectory.gt_check import PairCheck, summary_of
 
 SCHEMA_VERSION = 1
 
@@ -123,6 +124,29 @@ def _accuracy(path: Path, prefix: str = "") -> dict[str, float] | None:
         "final_heading_error_deg": float(heading[-1]),
         "mean_translation_direction_error_deg": float(direction.mean()) if len(direction) else math.nan,
     }
+
+
+def _gt_check(path: Path, prefix: str = "") -> dict[str, Any] | None:
+    """The ground truth against the images (`/metrics/gt_check/*`, windows of 50 frames by frame index) and the
+    verdict's lines about it (its warnings: far off, a time offset); None without ground truth."""
+    series = {name: _series_by_frame(path, f"{prefix}/metrics/gt_check/{name}")
+              for name in ("gt_sampson_px", "fit_sampson_px", "gt_rotation_deg")}
+    frames = sorted(set(series["gt_sampson_px"]) & set(series["fit_sampson_px"]) & set(series["gt_rotation_deg"]))
+    summary = summary_of([PairCheck(f, f, 0, series["gt_sampson_px"][f], series["fit_sampson_px"][f],
+                                    series["gt_rotation_deg"][f]) for f in frames])
+    if summary is None:
+        return None
+    table = read_entity(path, f"{prefix}/report", static=True)
+    text = "" if table.is_empty() or "TextDocument:text" not in table.columns else \
+        table["TextDocument:text"].to_list()[-1]
+    text = text[0] if isinstance(text, list) else text or ""
+    return {"frames": summary.pairs, "gt_sampson_px": summary.gt_sampson_px, "fit_sampson_px": summary.fit_sampson_px,
+            "ratio": summary.ratio, "rotation_deg": summary.rotation_deg, "far_off": summary.far_off,
+            "line": summary.line(),
+            "windows": [{"first": w.start, "last": w.end, "frames": w.pairs, "ratio": w.ratio,
+                         "rotation_deg": w.rotation_deg} for w in summary.windows],
+            "warnings": [line.removeprefix("Warning: ").rstrip(".") for line in text.splitlines()
+                         if line.startswith("Warning: the ground truth")]}
 
 
 def report_metrics(path: Path, prefix: str = "") -> dict[str, float | None] | None:
@@ -227,6 +251,7 @@ def _run_report(path: Path, prefix: str = "") -> dict[str, Any]:
         "accuracy_alignment": _accuracy_alignment(path, prefix),
         "flagged": flagged,
         "drift": _drift(path, frame_reasons, prefix),
+        "gt_check": _gt_check(path, prefix),
         "loops": _loops(path, prefix),
     }
 
@@ -308,6 +333,9 @@ def _format_run(report: dict[str, Any]) -> list[str]:
         if report.get("accuracy_alignment") == "sim3":
             lines.append("            (position errors and paper RMS after Sim(3) alignment: --scale none has unit "
                          "steps; heading and direction errors need none)")
+    if (check := report.get("gt_check")) is not None:
+        lines.append(f"gt check    {check['line']}")
+        lines += [f"            warning: {warning}" for warning in check["warnings"]]
     flagged = report["flagged"]
     lines.append(f"flagged     {len(flagged)} range(s)" + (":" if flagged else ""))
     for item in flagged:

@@ -22,7 +22,8 @@ from vslam_core.config import EngineConfig
 from vslam_core.errors import VslamError
 from vslam_core.pipeline import Engine, FrameSink, RunResult, run_odometry
 from vslam_core.results import FrameResult
-from vslam_core.sources.base import Frame, FrameSource
+from vslam_core.sources.base import Frame, FrameSource, ground_truth_matching
+from vslam_core.trajectory.gt_check import GroundTruthCheck
 
 if TYPE_CHECKING:
     from vslam.recording import Recorder
@@ -42,6 +43,7 @@ class RecordedRun:
     result: RunResult  # the frames processed (all of them unless stopped early)
     interrupted: Interrupted | None  # stopped by a signal
     failure: VslamError | None = None  # stopped by bad input (e.g. an unreadable image with on_bad_frame=fail)
+    gt_check: GroundTruthCheck | None = None  # the ground truth against the images (a source with ground truth)
 
 
 class _StopRequest:
@@ -111,10 +113,15 @@ def record_run(
     interrupted: Interrupted | None = None
     failure: VslamError | None = None
     recorder: Recorder | None = None
+    # the ground truth against the images; not in a prior map's frame (the run's own tracks are still its)
+    gt = source.ground_truth
+    by_time = (ground_truth_matching(source) or "").startswith("matched by time")
+    gt_check = GroundTruthCheck(gt, source.intrinsics, by_time) if gt is not None else None
     if rrd is not None:  # `--detail off` never loads the recorder (nor rerun: ~0.7 s of CPU)
         from vslam.recording import Recorder
 
-        recorder = Recorder(rrd, source, config, properties, detail, jpeg_quality, image_codec, live_url=live_url)
+        recorder = Recorder(rrd, source, config, properties, detail, jpeg_quality, image_codec, live_url=live_url,
+                            gt_check=gt_check)
     if recorder is not None and prior_map is not None:
         log_prior_map(recorder, prior_map)
     with progress(console, source.name, len(source)) as step, _signals_stop_between_frames() as stop:
@@ -125,6 +132,7 @@ def record_run(
 
         # the trajectory first: a frame the recorder fails on still has its pose on disk
         sinks: list[FrameSink] = [trajectory] if trajectory is not None else []
+        sinks += [gt_check] if gt_check is not None else []  # before the recorder, which logs its figures
         sinks += [recorder.log_frame] if recorder is not None else []
         try:
             run_odometry(source, config, (*sinks, advance), result, prior_map, finish)
@@ -137,7 +145,7 @@ def record_run(
             closing = _close_outputs(recorder, trajectory, result, stopped)
         failure = _with_progress(failure or closing, result)  # the first error is the one to report
         interrupted = interrupted or stop.interruption()  # a signal during the last frame or finalising
-    return RecordedRun(result, interrupted, failure)
+    return RecordedRun(result, interrupted, failure, gt_check)
 
 
 def _with_progress(failure: VslamError | None, result: RunResult) -> VslamError | None:
