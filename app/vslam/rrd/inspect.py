@@ -24,6 +24,7 @@ from vslam.rrd.provenance import (
     read_properties,
 )
 from vslam.rrd.read import RecordingError, read_entity, readable
+from vslam.rrd.suspects import find_suspects, format_suspects
 from vslam_core.trajectory.drift import worst_frames
 
 SCHEMA_VERSION = 1
@@ -227,6 +228,7 @@ def _run_report(path: Path, prefix: str = "") -> dict[str, Any]:
         "accuracy_alignment": _accuracy_alignment(path, prefix),
         "flagged": flagged,
         "drift": _drift(path, frame_reasons, prefix),
+        "suspects": find_suspects(path, prefix),
         "loops": _loops(path, prefix),
     }
 
@@ -320,6 +322,7 @@ def _format_run(report: dict[str, Any]) -> list[str]:
         lines.append(f"  frame {loop['frame']} revisits frame {loop['matched_frame']}: {loop['inliers']} inliers, "
                      f"corrected {loop['correction_m']:.2f} m, {loop['correction_deg']:.2f}°")
     lines += _drift_lines(report.get("drift"))
+    lines += format_suspects(report.get("suspects"), report.get("drift") is not None)
     return lines
 
 
