@@ -101,7 +101,8 @@ def corner_arrays(corners: Any, index: int, full: bool) -> tuple[np.ndarray, np.
         ids, pixels = corners
     else:
         ids, pixels = None, corners
-    pixels = _array(pixels, np.float32, (None, 2), f"{what}.px" if ids is not None else what, "(K, 2) pixels")
+    named = isinstance(corners, Corners) or ids is not None
+    pixels = _array(pixels, np.float32, (None, 2), f"{what}.px" if named else what, "(K, 2) pixels")
     if ids is None:
         if full:
             raise ValueError(f"{what}: detail full shows corner ids: give Corners(px=(K, 2), ids=(K,))")

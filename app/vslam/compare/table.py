@@ -144,6 +144,10 @@ def metric_differences(report_a: dict[str, Any], report_b: dict[str, Any]) -> di
     for section, names in (("stages_ms", STAGES), ("series", ())):
         for name in dict.fromkeys([*names, *report_a[section], *report_b[section]]):
             rows[f"{section}.{name}.mean"] = [((r[section] or {}).get(name) or {}).get("mean") for r in reports]
+    for plot in dict.fromkeys([*(report_a.get("own_series") or {}), *(report_b.get("own_series") or {})]):
+        own = [(r.get("own_series") or {}).get(plot) or {} for r in reports]
+        for name in dict.fromkeys([*own[0], *own[1]]):  # a pipeline's own series (`vslam.log` scalars=)
+            rows[f"own_series.{plot}.{name}.mean"] = [(series.get(name) or {}).get("mean") for series in own]
     for section in ("accuracy", "report_metrics"):
         for name in dict.fromkeys([*(report_a.get(section) or {}), *(report_b.get(section) or {})]):
             rows[f"{section}.{name}"] = [(r.get(section) or {}).get(name) for r in reports]
