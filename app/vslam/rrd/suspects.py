@@ -5,8 +5,9 @@ bug in one frame's step (a translation whose sign flipped, a rotation kinked by 
 wrong length) leaves the steps around it as they were, so each frame is judged against its two neighbours, and
 the result against how much neighbours differ elsewhere in the same run (robust and scale-free):
 
-- ``direction``: the angle (°) between this step's motion in the world and the nearer of its neighbours'
-  (the constant-velocity motion model); a flipped step reads ~180°. Left out where a step is shorter than
+- ``direction``: the angle (°) between this step's translation and the nearer of its neighbours', each in the
+  axes of the camera it starts from (the constant-velocity motion model: a steady turn keeps it); a flipped step
+  reads ~180°. Left out where a step is shorter than
   `STILL` × the run's median step (a car standing still has no direction).
 - ``rotation``: the angle (°) between this step's rotation and the nearer of its neighbours' rotations.
 - ``length``: |log(step length / the nearer neighbour's)|, scale-free.
@@ -136,7 +137,9 @@ def step_features(poses: np.ndarray) -> dict[str, np.ndarray]:
     feats = {name: np.full(n, np.nan) for name in ("direction", "rotation", "length")}
     if n < 3:
         return feats
-    motion = poses[1:, :3, 3] - poses[:-1, :3, 3]  # (N−1, 3) world motion of step k + 1
+    # (N−1, 3) step k + 1's motion in the axes of the camera it starts from: a car turning steadily keeps moving
+    # forward in its own axes (the constant-velocity model), while its direction in the world turns with it
+    motion = np.einsum("kji,kj->ki", poses[:-1, :3, :3], poses[1:, :3, 3] - poses[:-1, :3, 3])
     rotation = np.einsum("kji,kjl->kil", poses[:-1, :3, :3], poses[1:, :3, :3])  # (N−1, 3, 3) R_step
     length = np.linalg.norm(motion, axis=1)
     moving = length > STILL * max(float(np.median(length)), 1e-12)
