@@ -87,6 +87,8 @@ def test_candidates_points_own_stages_and_plots_are_recorded_and_shown(tmp_path:
     assert views is not None and {"pipeline series", "counts", "ratios"} <= set(views)
     compared = vslam("compare", path, path, "-o", tmp_path / "c.rrd", "--json")
     assert compared.returncode == 0, compared.stderr
+    compared_views = blueprint_view_names(tmp_path / "c.rrd")  # the runs' own plots overlaid, as the others
+    assert compared_views is not None and {"pipeline series", "counts", "ratios"} <= set(compared_views)
     differences = json.loads(compared.stdout)["differences"]["B"]
     assert differences["own_series.counts.matches.mean"]["value"] == pytest.approx(402.5)
     assert differences["stages_ms.orb.mean"]["difference"] == 0.0

@@ -208,9 +208,10 @@ def compare_recordings(*paths: Path, labels: Sequence[str] | None = None, rotati
         layout = work / "blueprint.rrd"
         with rr.RecordingStream(application_id, recording_id=recording_id, send_properties=False) as rec:
             groups = [g for g in METRICS if any(path.startswith(f"/metrics/{g}/") for path in logged)]
+            own = sorted({"/".join(path.split("/")[3:-1]) for path in logged if path.startswith("/metrics/custom/")})
             first = min((d.frame for d in divergences if d is not None), default=None)
             rec.save(layout, default_blueprint=blueprint(names, trajectory_bounds(list(inputs)), groups,
-                                                         divergence_frame=first))
+                                                         divergence_frame=first, own_plots=tuple(own)))
         combined = work / "combined.rrd"
         run_rerun_cli(output, "rrd", "filter", "-o", str(combined), str(layout), *map(str, parts), str(extra))
         check = RrdReader(combined)
