@@ -250,9 +250,9 @@ def format_suspects(suspects: list[dict[str, Any]] | None, with_gt: bool, rows: 
     if suspects is None:
         return []
     basis = "the run's own steps" + (" and its errors against the ground truth" if with_gt else
-                                     " (no ground truth)")
+                                     ", no ground truth")
     if not suspects:
-        return ["", f"suspects    none: no frame's step is out of line with its neighbours' ({basis})"]
+        return ["", f"suspects    none: no frame's step is out of line with its neighbours' (judged by {basis})"]
     lines = ["", f"suspects (frames whose step is implausible, judged by {basis}; --json: top {TOP})",
              "  rank  frame   score  reasons"]
     for rank, item in enumerate(suspects[:rows], 1):
