@@ -8,6 +8,10 @@ poses/SS.txt).
 
     python examples/orb_vo.py /data/kitti --sequence 05 --frames 0:40 -o orb.rrd
     vslam check orb.rrd && vslam inspect orb.rrd
+
+``--bug flip`` (the step's translation negated) or ``--bug kink`` (its rotation turned 3° further) at
+``--bug-frame`` plants a bug to find: `vslam inspect` lists that frame first among its suspects, and `vslam compare`
+against a clean run among its top divergences.
 """
 
 from __future__ import annotations
@@ -19,11 +23,24 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from vslam.log import CameraIntrinsics, FrameLog, HealthText
+from vslam.log import CameraIntrinsics, FrameLog, HealthText, Tracks
 
 MIN_MATCHES = 60  # fewer: the frame fails, its pose is held
 MIN_INLIERS = 30
 WARN_INLIER_RATIO = 0.5
+KINK_DEG = 3.0
+
+
+def planted(T_cur_prev: np.ndarray, bug: str) -> np.ndarray:  # noqa: N803
+    """The step with a bug: its translation negated (flip) or its rotation turned `KINK_DEG` about y (kink)."""
+    out = T_cur_prev.copy()
+    if bug == "flip":
+        out[:3, 3] = -out[:3, 3]
+    elif bug == "kink":
+        a = np.radians(KINK_DEG)
+        turn = np.array([[np.cos(a), 0.0, np.sin(a)], [0.0, 1.0, 0.0], [-np.sin(a), 0.0, np.cos(a)]])
+        out[:3, :3] = turn @ out[:3, :3]
+    return out
 
 
 def read_kitti(root: Path, sequence: str) -> tuple[CameraIntrinsics, np.ndarray, np.ndarray, list[Path]]:
@@ -49,6 +66,9 @@ def main() -> None:
     parser.add_argument("--scale", choices=("gt", "unit"), default="gt")
     parser.add_argument("-o", "--output", type=Path, required=True)
     parser.add_argument("--trajectory-out", type=Path, help="also write the poses here (KITTI format)")
+    parser.add_argument("--bug", choices=("none", "flip", "kink"), default="none", help="plant a bug in one step")
+    parser.add_argument("--bug-frame", type=int, default=57, help="the frame whose step gets the bug")
+    parser.add_argument("--force", action="store_true", help="replace an existing output")
     args = parser.parse_args()
     start, end = (int(v) for v in args.frames.split(":"))
     camera, times, gt, images = read_kitti(args.kitti_root, args.sequence)
@@ -59,7 +79,8 @@ def main() -> None:
     previous: tuple[list[cv2.KeyPoint], np.ndarray] | None = None
     with FrameLog(args.output, camera=camera, source=f"kitti-{args.sequence}", pipeline="orb-vo",
                   ground_truth=gt, scale="metric" if args.scale == "gt" else "none",
-                  properties={"source_path": str(args.kitti_root)}, trajectory=args.trajectory_out) as log:
+                  properties={"source_path": str(args.kitti_root), "bug": args.bug}, trajectory=args.trajectory_out,
+                  force=args.force) as log:
         for i in range(start, min(end, len(images))):
             image = cv2.imread(str(images[i]), cv2.IMREAD_GRAYSCALE)
             t0 = time.perf_counter()
@@ -95,12 +116,13 @@ def main() -> None:
                         step = float(np.linalg.norm(gt[i, :3, 3] - gt[i - 1, :3, 3])) if args.scale == "gt" else 1.0
                         T_cur_prev = np.eye(4)  # noqa: N806
                         T_cur_prev[:3, :3], T_cur_prev[:3, 3] = R, step * t.reshape(3)
-                        pose = pose @ np.linalg.inv(T_cur_prev)
+                        pose = pose @ np.linalg.inv(planted(T_cur_prev, args.bug) if i == args.bug_frame
+                                                    else T_cur_prev)
                         if count / len(matches) < WARN_INLIER_RATIO:
                             health, reasons = "warn", ["low_inlier_ratio"]
             t3 = time.perf_counter()
             log.frame(i, pose=pose, time=float(times[i]), image=image, corners=corners,
-                      tracks=(ids, prev_px, cur_px), inliers=inliers, health=health, reasons=reasons,
+                      tracks=Tracks(ids=ids, prev=prev_px, cur=cur_px), inliers=inliers, health=health, reasons=reasons,
                       scalars={"matches": len(matches), "keypoints": len(keypoints)},
                       timings_ms={"detect": 1e3 * (t1 - t0), "track": 1e3 * (t2 - t1), "essential": 1e3 * (t3 - t2)})
             previous = (keypoints, descriptors)

@@ -113,7 +113,8 @@ def pytest_configure(config: pytest.Config) -> None:
 #: number of tests): the longest jobs first, so the two workers finish together.
 SLOWEST_FILES = (
     "test_mapping.py", "test_logs_cli.py", "test_batch.py", "test_batch_ray.py", "test_scale.py", "test_outputs.py",
-    "test_engine.py", "test_viewer.py", "test_types.py", "test_compare.py", "test_faults.py", "test_batch_workflow.py",
+    "test_engine.py", "test_viewer.py", "test_types.py", "test_compare.py", "test_planted_bugs.py",
+    "test_faults.py", "test_batch_workflow.py",
     "test_map_scale.py", "test_cli.py", "test_provenance.py", "test_local_map.py", "test_loop_recording.py",
     "test_rosbag_source.py", "test_eval_external.py", "test_codec.py", "test_eval.py", "test_coasting.py",
     "test_live.py", "test_recording_map.py", "test_synthetic.py", "test_example_orb_vo.py", "test_recording.py",

@@ -123,7 +123,7 @@ def test_crop_compare_and_snapshot_work_on_it(external: dict[str, Path]) -> None
     both = folder / "compare.rrd"
     result = vslam("compare", external["run"], rrd, "-o", both, "--labels", "vslam,other")
     assert result.returncode == 0, result.stderr
-    assert "B not run by the engine" in result.stdout and "accuracy.paper_rms_m" in result.stdout
+    assert "other not run by the engine" in result.stdout and "accuracy.paper_rms_m" in result.stdout  # --labels
     assert "nan" not in result.stdout  # a metric only one run has is "–"
     runs = json.loads(vslam("inspect", both, "--json").stdout)["runs"]
     assert runs["b"]["drift"]["rotation"][0]["frame"] == KINK_FRAME

@@ -6,8 +6,9 @@
     with FrameLog("run.rrd", camera=camera, source="kitti-05", pipeline="my-vo") as log:
         for i, image in enumerate(images):
             ...
-            log.frame(i, pose=T_world_cam, time=t, image=image, corners=keypoints, tracks=(ids, prev_px, cur_px),
-                      inliers=inlier_mask, health="ok", reasons=[], scalars={"matches": n}, gt=T_world_cam_gt)
+            log.frame(i, pose=T_world_cam, time=t, image=image, corners=Corners(px=keypoints),
+                      tracks=Tracks(ids=ids, prev=prev_px, cur=cur_px), inliers=inlier_mask, health="ok",
+                      reasons=[], scalars={"matches": n}, gt=T_world_cam_gt)
 
 Only the frame index and the pose are required. Each frame becomes an engine-style `FrameResult` that vslam's
 own `Recorder` writes: the same entities, series, drift attribution, events and verdict as a `vslam run`
@@ -30,11 +31,12 @@ from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
-from typing import Literal, cast
+from typing import TYPE_CHECKING, Literal, cast
 
 import numpy as np
 
 from vslam.common import ClaimedFile, claim
+from vslam.log_arrays import Candidates, Corners, Tracks, candidate_poses, corner_arrays, points_array, track_arrays
 from vslam.recording import STAGES, Detail, Recorder, version_properties
 from vslam.runs import TrajectoryWriter
 from vslam_core.config import EngineConfig
@@ -43,20 +45,23 @@ from vslam_core.pipeline import RunResult
 from vslam_core.results import FrameResult, FrameStatus, Health, HealthStatus, Reason, TrackFate
 from vslam_core.sources.base import CameraIntrinsics, Frame
 
-__all__ = ["TIMED_STAGES", "CameraIntrinsics", "FrameLog", "HealthText", "Tracks"]
+if TYPE_CHECKING:
+    import rerun as rr
+
+__all__ = ["TIMED_STAGES", "CameraIntrinsics", "Candidates", "Corners", "FrameLog", "HealthText", "Tracks"]
 
 #: A frame's health: ``ok``, ``warn`` (used, but suspicious) or ``fail`` (not trusted).
 HealthText = Literal["ok", "warn", "fail"]
-#: Tracks into this frame: (ids (M,) int, previous-frame pixels (M, 2), this frame's pixels (M, 2)).
-Tracks = tuple[np.ndarray, np.ndarray, np.ndarray]
 #: Series the API never has (vslam's forward-backward check; the recorder's own time, which would read as the
 #: pipeline's): left out of the recording.
 _NEVER_REPORTED = frozenset({"fb_rejected", "record"})
-#: Stages a pipeline may time (``timings_ms=``): vslam's, so `inspect` and `compare` read them.
+#: vslam's own stage names (``timings_ms=``); a pipeline's own names are recorded beside them.
 TIMED_STAGES = tuple(stage for stage in STAGES if stage != "record")
 _NO_IMAGE = np.zeros((0, 0), np.uint8)
 _REASON = re.compile(r"[^,\s]+")
 _SERIES_NAME = re.compile(r"[A-Za-z0-9_.-]+")
+#: A series name with the plot it asks for: ``plot/name``.
+_PLOTTED_NAME = re.compile(r"(?:[A-Za-z0-9_.-]+/)?[A-Za-z0-9_.-]+")
 
 
 @dataclass
@@ -89,7 +94,8 @@ class FrameLog:
     or ``full`` (also track and corner ids on hover: give corners as ``(ids, pixels)``) or ``summary`` (no
     images or pixels). properties: extra run properties (strings). trajectory: also write the (re-based) poses to
     this file, one line per frame as it goes (``kitti`` or ``tum``: `vslam run --trajectory-out`'s writer), for
-    ``vslam eval --trajectory``."""
+    ``vslam eval --trajectory``. force: replace an existing file at `path` (else FileExistsError).
+    `stream`: the underlying `rr.RecordingStream` (from the first frame on), for what the schema does not cover."""
 
     def __init__(
         self,
@@ -106,12 +112,15 @@ class FrameLog:
         jpeg_quality: int = 75,
         trajectory: str | Path | None = None,
         trajectory_format: Literal["kitti", "tum"] = "kitti",
+        force: bool = False,
     ) -> None:
         self.path = Path(path)
         if self.path.suffix != ".rrd":
             raise ValueError(f"{self.path}: a recording must end in .rrd")
         if not self.path.parent.is_dir():
             raise ValueError(f"{self.path}: its folder does not exist")
+        if self.path.exists() and not force:
+            raise FileExistsError(f"{self.path}: exists already (FrameLog(..., force=True) replaces it)")
         if not isinstance(camera, CameraIntrinsics):
             raise TypeError("camera must be a vslam.log.CameraIntrinsics")
         if scale not in ("metric", "none"):
@@ -125,7 +134,9 @@ class FrameLog:
         self._ground_truth = None if ground_truth is None else _poses(ground_truth, "ground_truth")
         self._properties = {
             "name": name or f"{pipeline} {source} frames -",
-            "recording_id": str(uuid.uuid5(uuid.NAMESPACE_URL, f"vslam-log:{pipeline}:{source}:{self.path.name}")),
+            # one per file (the viewer merges recordings that share one): from the file's absolute path
+            "recording_id": str(uuid.uuid5(uuid.NAMESPACE_URL,
+                                           f"vslam-log:{pipeline}:{source}:{self.path.resolve()}")),
             "source": source, "pipeline": pipeline, "scale": scale,
             **version_properties(), **dict(properties or {}),
         }
@@ -136,9 +147,16 @@ class FrameLog:
         self._first_pose: np.ndarray | None = None
         self._first_gt: np.ndarray | None = None
         self._ages: dict[int, int] = {}  # track id → frames lived, as of the previous frame
+        self._plots: tuple[str, ...] | None = None  # the plots of own series, fixed by the first frame
         self._trajectory: tuple[ClaimedFile, TrajectoryWriter] | None = None
-        if trajectory is not None:  # last: nothing above can fail and leave the file claimed
-            claimed = claim(Path(trajectory), True, "trajectory")
+        # last: nothing above can fail and leave a file claimed
+        self._claimed = claim(self.path, True, "recording")
+        if trajectory is not None:
+            try:
+                claimed = claim(Path(trajectory), True, "trajectory")
+            except BaseException:
+                self._claimed.release(keep=False)
+                raise
             self._trajectory = (claimed, TrajectoryWriter(claimed, trajectory_format))
         self._closed = False
 
@@ -159,6 +177,15 @@ class FrameLog:
         """Frames logged so far."""
         return self._run.frames
 
+    @property
+    def stream(self) -> rr.RecordingStream:
+        """The underlying Rerun stream, for entities the schema does not cover (set its time yourself:
+        ``log.stream.set_time("frame", sequence=i)``). It opens with the first frame (which says whether there is
+        ground truth): ValueError before."""
+        if self._recorder is None:
+            raise ValueError("FrameLog.stream opens with the first frame: log a frame first")
+        return self._recorder.stream
+
     def frame(
         self,
         index: int,
@@ -166,9 +193,11 @@ class FrameLog:
         pose: np.ndarray,
         time: float | None = None,
         image: np.ndarray | None = None,
-        corners: np.ndarray | tuple[np.ndarray, np.ndarray] | None = None,
-        tracks: Tracks | None = None,
+        corners: Corners | np.ndarray | tuple[np.ndarray, np.ndarray] | None = None,
+        tracks: Tracks | tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
         inliers: np.ndarray | None = None,
+        candidates: Candidates | None = None,
+        points: np.ndarray | None = None,
         health: HealthText | None = None,
         reasons: Sequence[str] = (),
         scalars: Mapping[str, float] | None = None,
@@ -178,13 +207,18 @@ class FrameLog:
         """Log frame `index` (the ``frame`` timeline: source frame numbers, strictly increasing).
 
         pose: (4, 4) T_world_cam. time: seconds (the ``time`` timeline). image: (H, W) grey or (H, W, 3) BGR
-        uint8. corners: (K, 2) pixels detected in this frame, or ``(ids, pixels)``. tracks: ``(ids, prev_px,
-        cur_px)``, one row per track (or match) from the previous frame into this one. inliers: (M,) bool per
-        track, e.g. the essential matrix's RANSAC mask. health and reasons: the pipeline's verdict on this frame
-        (reason codes without commas, e.g. ``few_matches``). scalars: the pipeline's own series
-        (``/metrics/custom/<name>``). timings_ms: milliseconds per stage, of `TIMED_STAGES` (decode, track,
-        essential, chirality, detect: ``/metrics/timing_ms/<stage>``). gt: (4, 4) ground-truth T_world_cam of this
-        frame (or ``ground_truth=``)."""
+        uint8. corners: `Corners` (px (K, 2), ids (K,)) detected in this frame, or bare (K, 2) pixels. tracks:
+        `Tracks` (ids (M,), prev (M, 2), cur (M, 2)), one row per track (or match) from the previous frame into
+        this one (the tuple ``(ids, prev, cur)`` works too). inliers: (M,) bool per track, e.g. the essential
+        matrix's RANSAC mask. candidates: the four `Candidates` poses of the essential matrix with their
+        chirality counts (``/world/candidates``, ``/metrics/ransac/chirality_margin``). points: (P, 3)
+        triangulated points in the pipeline's world (``/world/points``, re-based like the poses). health and
+        reasons: the pipeline's verdict on this frame (reason codes without commas, e.g. ``few_matches``).
+        scalars: the pipeline's own series, ``name`` or ``plot/name`` (``/metrics/custom/[plot/]name``: one plot
+        per ``plot``, fixed by the first frame's names; the others share "pipeline series"). timings_ms:
+        milliseconds per stage, vslam's (`TIMED_STAGES`) or the pipeline's own names
+        (``/metrics/timing_ms/<stage>``). gt: (4, 4) ground-truth T_world_cam of this frame (or
+        ``ground_truth=``)."""
         if self._closed:
             raise ValueError("this FrameLog is closed")
         position = self._run.frames
@@ -197,11 +231,25 @@ class FrameLog:
         truth, first_gt = self._truth(index, gt)
         result, unreported, ages = self._result(position, index, time, T_world_cam, image, corners, tracks, inliers,
                                                 health, reasons)
+        if candidates is not None:
+            poses, chosen = candidate_poses(candidates, index)
+            result = dataclasses.replace(result, candidate_poses=poses, chosen_candidate=chosen)
+        if points is not None:
+            world = first_pose[:3, :3] @ points_array(points, index).T + first_pose[:3, 3:4]
+            result = dataclasses.replace(result, points_world=world.T)
         frame = Frame(index, time, _NO_IMAGE if image is None else _image(image, index))
+        own_timings: dict[str, float] = {}
         if timings_ms:
-            result = dataclasses.replace(result, timings_ms=_timings(timings_ms, index))
+            timings = _timings(timings_ms, index)
+            result = dataclasses.replace(result, timings_ms={k: v for k, v in timings.items() if k in STAGES})
+            own_timings = {k: v for k, v in timings.items() if k not in STAGES}
         series = _scalars(scalars, index) if scalars else {}
-        recorder = self._open(index, truth is not None)
+        plots = self._plots if self._plots is not None else tuple(sorted({n.split("/")[0] for n in series if "/" in n}))
+        for name in series:
+            if "/" in name and name.split("/")[0] not in plots:
+                raise ValueError(f"frame {index}: scalars: plot {name.split('/')[0]!r} is new (the plots are those "
+                                 f"of the first frame's scalars: {', '.join(plots) or 'none'})")
+        recorder = self._open(index, truth is not None, plots)
         self._first_pose, self._first_gt, self._ages = first_pose, first_gt, ages
         if truth is not None:
             recorder.extend_ground_truth(truth)
@@ -210,6 +258,8 @@ class FrameLog:
             self._trajectory[1](frame, result)
         if series:
             recorder.log_series(frame, series)
+        if own_timings:
+            recorder.log_series(frame, own_timings, "/metrics/timing_ms")
         self._run.indices.append(index)
         self._run.timestamps.append(time)
         self._run.poses.append(T_world_cam)
@@ -227,6 +277,7 @@ class FrameLog:
                 raise ValueError(f"{self.path}: no frame was logged, nothing was written")
             self._recorder.finish(self._run, stopped)
         finally:
+            self._claimed.release(keep=self._recorder is not None)
             if self._trajectory is not None:
                 claimed, writer = self._trajectory
                 try:
@@ -236,18 +287,19 @@ class FrameLog:
 
     # ------------------------------------------------------------------------------------------ helpers
 
-    def _open(self, index: int, with_gt: bool) -> Recorder:
-        """The recorder, opened at the first frame (which says whether there is ground truth)."""
+    def _open(self, index: int, with_gt: bool, plots: tuple[str, ...]) -> Recorder:
+        """The recorder, opened at the first frame (which says whether there is ground truth, and which plots
+        the pipeline's own series ask for)."""
         if self._recorder is not None:
             if with_gt != self._with_gt:
                 raise ValueError(f"frame {index}: give ground truth for every frame or for none (the first frame "
                                  f"had {'some' if self._with_gt else 'none'})")
             return self._recorder
-        self._with_gt = with_gt
+        self._with_gt, self._plots = with_gt, plots
         config = EngineConfig().with_scale("gt" if self._scale == "metric" else "none")
         source = _Source(self._source, self._camera, np.zeros((0, 4, 4)) if with_gt else None, {})
         self._recorder = Recorder(self.path, source, config, self._properties, self._detail, self._jpeg_quality,
-                                  external=True)
+                                  external=True, own_plots=plots)
         return self._recorder
 
     def _truth(self, index: int, gt: np.ndarray | None) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -266,16 +318,19 @@ class FrameLog:
         return first @ pose, first
 
     def _result(self, position: int, index: int, time: float | None, T_world_cam: np.ndarray,  # noqa: N803
-                image: np.ndarray | None, corners: np.ndarray | tuple[np.ndarray, np.ndarray] | None,
-                tracks: Tracks | None, inliers: np.ndarray | None, health: HealthText | None,
-                reasons: Sequence[str]) -> tuple[FrameResult, frozenset[str], dict[int, int]]:
+                image: np.ndarray | None, corners: object, tracks: object, inliers: np.ndarray | None,
+                health: HealthText | None, reasons: Sequence[str]
+                ) -> tuple[FrameResult, frozenset[str], dict[int, int]]:
         """The engine-style result of one logged frame, the series it does not report, and the track ages after
         it (track id → frames lived)."""
         unreported = set(_NEVER_REPORTED)
-        corner_ids, corner_px = _corners(corners, index, self._detail == Detail.FULL)
+        corner_ids, corner_px = (corner_arrays(corners, index, self._detail == Detail.FULL) if corners is not None
+                                 else (np.zeros(0, np.int64), np.zeros((0, 2), np.float32)))
         if corners is None:
             unreported.add("new_corners")
-        ids, prev_px, cur_px = _tracks(tracks, index)
+        no_pixels = np.zeros((0, 2), np.float32)
+        ids, prev_px, cur_px = (track_arrays(tracks, index) if tracks is not None
+                                else (np.zeros(0, np.int64), no_pixels, no_pixels))
         if tracks is None:
             unreported |= {"alive", "inliers"}
         elif inliers is None:
@@ -348,49 +403,24 @@ def _image(image: np.ndarray, index: int) -> np.ndarray:
     return image
 
 
-def _pixels(value: np.ndarray, what: str) -> np.ndarray:
-    pixels = np.asarray(value, dtype=np.float32)
-    if pixels.ndim != 2 or pixels.shape[1] != 2:
-        raise ValueError(f"{what}: expected (N, 2) pixels, got shape {pixels.shape}")
-    return pixels
-
-
-def _corners(corners: np.ndarray | tuple[np.ndarray, np.ndarray] | None, index: int,
-             full: bool) -> tuple[np.ndarray, np.ndarray]:
-    """(ids, pixels) of the corners; ids are needed at detail full (they are shown on hover)."""
-    if corners is None:
-        return np.zeros(0, np.int64), np.zeros((0, 2), np.float32)
-    if isinstance(corners, tuple):
-        ids, pixels = np.asarray(corners[0], np.int64).reshape(-1), _pixels(corners[1], f"frame {index}: corners")
-        if len(ids) != len(pixels):
-            raise ValueError(f"frame {index}: corners: {len(ids)} ids for {len(pixels)} pixels")
-        return ids, pixels
-    if full:
-        raise ValueError(f"frame {index}: detail full shows corner ids: give corners as (ids, pixels)")
-    pixels = _pixels(corners, f"frame {index}: corners")
-    return np.zeros(len(pixels), np.int64), pixels
-
-
-def _tracks(tracks: Tracks | None, index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    if tracks is None:
-        return np.zeros(0, np.int64), np.zeros((0, 2), np.float32), np.zeros((0, 2), np.float32)
-    ids = np.asarray(tracks[0], np.int64).reshape(-1)
-    prev_px, cur_px = _pixels(tracks[1], f"frame {index}: tracks"), _pixels(tracks[2], f"frame {index}: tracks")
-    if not len(ids) == len(prev_px) == len(cur_px):
-        raise ValueError(f"frame {index}: tracks: {len(ids)} ids, {len(prev_px)} and {len(cur_px)} pixels")
-    return ids, prev_px, cur_px
-
-
 def _timings(values: Mapping[str, float], index: int) -> dict[str, float]:
+    """Milliseconds per stage: vslam's names or the pipeline's own (``record`` is vslam's recorder's)."""
     for stage in values:
-        if stage not in TIMED_STAGES:
-            raise ValueError(f"frame {index}: timings_ms: unknown stage {stage!r} (stages: {', '.join(TIMED_STAGES)}; "
-                             "time anything else with scalars=)")
-    return {stage: float(ms) for stage, ms in values.items()}
+        if stage == "record" or not _SERIES_NAME.fullmatch(stage):
+            raise ValueError(f"frame {index}: timings_ms: stage {stage!r}: a name of letters, digits, _ . - "
+                             "(not 'record', the recorder's own)")
+    return {stage: _number(ms, f"frame {index}: timings_ms[{stage!r}]") for stage, ms in values.items()}
 
 
 def _scalars(values: Mapping[str, float], index: int) -> dict[str, float]:
     for name in values:
-        if not _SERIES_NAME.fullmatch(name):
-            raise ValueError(f"frame {index}: series name {name!r}: letters, digits, _ . - only")
-    return {name: float(value) for name, value in values.items()}
+        if not _PLOTTED_NAME.fullmatch(name):
+            raise ValueError(f"frame {index}: series name {name!r}: name or plot/name, of letters, digits, _ . -")
+    return {name: _number(value, f"frame {index}: scalars[{name!r}]") for name, value in values.items()}
+
+
+def _number(value: object, what: str) -> float:
+    try:
+        return float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise ValueError(f"{what}: expected a number, got {type(value).__name__}") from None

@@ -389,7 +389,8 @@ def compare(
     labels: Annotated[str | None, typer.Option(help="names of the runs in legends and tables, one per "
                                                "recording, comma-separated, e.g. before,after [default: A,B,C…]")]
     = None,
-    force: Annotated[bool, typer.Option("--force", help="replace an existing output")] = False,
+    force: Annotated[bool, typer.Option("--force", help="replace an existing output, and compare runs of different "
+                                        "sources or without a common frame (refused otherwise)")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="machine-readable output (keys in docs/recordings.md)")]
     = False,
     diverge_deg: Annotated[float, typer.Option(min=0.0, help="first divergence: a frame whose step rotation "
@@ -423,7 +424,7 @@ def compare(
         _existing_recording(recording)
     with claimed(_recording_path(output), force, "recording"):
         result = compare_recordings(*recordings, output, labels=names, rotation_deg=diverge_deg,
-                                    translation_pct=diverge_pct)
+                                    translation_pct=diverge_pct, force=force)
     if as_json:
         print(json.dumps(json_ready(comparison_json(result)), indent=2, allow_nan=False))
     else:

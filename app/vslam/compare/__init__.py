@@ -9,6 +9,7 @@ from vslam_core.lazy import lazy_names
 
 #: Where each public name lives.
 _HOMES = {
+    "Divergence": "divergences",
     "FirstDivergence": "frames",
     "PREFIXES": "comparison",
     "ROTATION_DEG": "limits",
@@ -20,11 +21,13 @@ _HOMES = {
     "first_divergence": "frames",
     "format_differences": "comparison",
     "frame_differences": "frames",
+    "ranked_divergences": "divergences",
     "read_run_frames": "frames",
 }
 
 if TYPE_CHECKING:
     from vslam.compare.comparison import PREFIXES, check_labels, compare_recordings, default_labels, format_differences
+    from vslam.compare.divergences import Divergence, ranked_divergences
     from vslam.compare.frames import FirstDivergence, first_divergence, frame_differences, read_run_frames
     from vslam.compare.limits import ROTATION_DEG, TRANSLATION_PCT
     from vslam.compare.table import comparison_json
@@ -34,6 +37,7 @@ __getattr__ = lazy_names(__name__, _HOMES)
 
 
 __all__ = [
+    "Divergence",
     "FirstDivergence",
     "PREFIXES",
     "ROTATION_DEG",
@@ -45,5 +49,6 @@ __all__ = [
     "first_divergence",
     "format_differences",
     "frame_differences",
+    "ranked_divergences",
     "read_run_frames",
 ]

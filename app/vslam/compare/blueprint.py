@@ -85,6 +85,16 @@ def trajectories_title(labels: tuple[str, ...]) -> str:
     return f"trajectories: {runs}, truth blue"
 
 
+def own_series_plot(prefixes: tuple[str, ...], plot: str, named: list[str]) -> rrb.TimeSeriesView:
+    """Every run's own series of one plot (``/<prefix>/metrics/custom/<plot>/**``); `plot` ``""``: those logged
+    without a plot (the others, `named`, left out)."""
+    if plot:
+        return rrb.TimeSeriesView(name=plot, origin="/", contents=[f"/{p}/metrics/custom/{plot}/**" for p in prefixes])
+    return rrb.TimeSeriesView(name="pipeline series", origin="/", contents=[
+        *(f"/{p}/metrics/custom/**" for p in prefixes),
+        *(f"- /{p}/metrics/custom/{name}/**" for p in prefixes for name in named)])
+
+
 def plot_title(group: str) -> str:
     """Name of the time-series view of one `METRICS` group."""
     return GROUP_TITLES.get(group, group)
@@ -92,7 +102,8 @@ def plot_title(group: str) -> str:
 
 def blueprint(labels: tuple[str, ...] = ("A", "B"),
               bounds: tuple[np.ndarray, np.ndarray] | None = None,
-              groups: list[str] | None = None, divergence_frame: int | None = None) -> rrb.Blueprint:
+              groups: list[str] | None = None, divergence_frame: int | None = None,
+              own_plots: tuple[str, ...] = ()) -> rrb.Blueprint:
     """The comparison layout of ``len(labels)`` runs (see the module docstring). `bounds` (lowest and highest
     corner of the trajectories, `trajectory_bounds`) aims the shared 3-D view down on them. `groups`: the
     `METRICS` groups to plot (default all; `compare_recordings` leaves out groups no run logged, e.g. the
@@ -100,7 +111,8 @@ def blueprint(labels: tuple[str, ...] = ("A", "B"),
     run from the first (`vslam.compare.frames`); `divergence_frame` (the earliest first divergence) selects
     the frames around it in the time panel and loops the playback over them (Rerun 0.41's blueprint cannot
     place the time cursor itself; the 0.41 viewer was seen to play into the selection within ~4 s of opening,
-    then loop over it)."""
+    then loop over it). `own_plots`: a logging-API pipeline's own series (``/metrics/custom``), one plot each:
+    ``""`` for those logged without a plot ("pipeline series"), else the plot's name."""
     prefixes = run_prefixes(len(labels))
     whole_past = rrb.VisibleTimeRanges([rr.VisibleTimeRange(
         "frame", start=rr.TimeRangeBoundary.infinite(), end=rr.TimeRangeBoundary.cursor_relative())])
@@ -127,6 +139,7 @@ def blueprint(labels: tuple[str, ...] = ("A", "B"),
     plots = [rrb.TimeSeriesView(name=plot_title(group), origin="/",
                                 contents=[f"/{prefix}/metrics/{group}/**" for prefix in prefixes])
              for group in (groups if groups is not None else METRICS)]
+    plots += [own_series_plot(prefixes, plot, [p for p in own_plots if p]) for plot in own_plots]
     if len(prefixes) > 1:
         plots[:0] = difference_plots(prefixes[1:])
 

@@ -29,6 +29,7 @@ their missing numbers are blank cells in the tables.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import os
 import shutil
@@ -55,6 +56,7 @@ from vslam.compare.blueprint import (
     run_style,
     trajectory_bounds,
 )
+from vslam.compare.divergences import Divergence, comparability, ranked_divergences
 from vslam.compare.frames import (
     ROTATION_DEG,
     TRANSLATION_PCT,
@@ -99,6 +101,11 @@ class ComparisonResult:
     #: Per further run (B, C, …): its per-frame differences from the baseline and its first divergence.
     frame_differences: tuple[FrameDifferences, ...] = ()
     divergences: tuple[FirstDivergence | None, ...] = ()
+    #: Per further run: its frames ranked by how much its step differs from the baseline's, against the pair's
+    #: usual difference (`vslam.compare.divergences`).
+    ranked: tuple[list[Divergence], ...] = ()
+    #: What makes the frame-by-frame comparison partial (different frame ranges; different sources, forced).
+    warnings: tuple[str, ...] = ()
     #: The thresholds of a divergence: step rotation (°) and translation (% of the step).
     thresholds: tuple[float, float] = (ROTATION_DEG, TRANSLATION_PCT)
 
@@ -138,12 +145,13 @@ def check_labels(labels: Sequence[str], count: int) -> str | None:
 
 
 def compare_recordings(*paths: Path, labels: Sequence[str] | None = None, rotation_deg: float = ROTATION_DEG,
-                       translation_pct: float = TRANSLATION_PCT) -> ComparisonResult:
+                       translation_pct: float = TRANSLATION_PCT, force: bool = False) -> ComparisonResult:
     """``compare_recordings(a, b[, c…], output)``: write `output` holding run i under ``/<PREFIXES[i]>`` and one
     blueprint showing them all (`labels`: one per run, default A, B, C…); return the runs' reports and, per
     further run, its per-frame differences from the first and its first divergence (a step rotation above
-    `rotation_deg` degrees or translation above `translation_pct` % of the step: `vslam.compare.frames`).
-    Raises `RecordingError` (one line naming the file)."""
+    `rotation_deg` degrees or translation above `translation_pct` % of the step: `vslam.compare.frames`) and its
+    ranked divergences (`vslam.compare.divergences`). Runs of different sources, or without a common frame, are
+    refused unless `force` (then named in `warnings`). Raises `RecordingError` (one line naming the file)."""
     if len(paths) < 3:
         raise RecordingError("compare: give two or more recordings and the output")
     *given, output = (Path(p) for p in paths)
@@ -159,7 +167,12 @@ def compare_recordings(*paths: Path, labels: Sequence[str] | None = None, rotati
             raise RecordingError(f"{output}: the output must not be one of the compared recordings")
     reports = tuple(inspect_recording(path) for path in inputs)
     runs = [read_run_frames(path) for path in inputs]
+    refusals, warnings = comparability(names, reports, runs)
+    if refusals and not force:
+        raise RecordingError(f"{output}: {refusals[0]} (--force compares them anyway)")
     differences = tuple(frame_differences(runs[0], run) for run in runs[1:])
+    ranked = tuple(_with_suspects(ranked_divergences(runs[0], run, diff), reports[0], report)
+                   for run, diff, report in zip(runs[1:], differences, reports[1:], strict=True))
     divergences = tuple(first_divergence(runs[0], run, diff, rotation_deg, translation_pct)
                         for run, diff in zip(runs[1:], differences, strict=True))
 
@@ -195,9 +208,10 @@ def compare_recordings(*paths: Path, labels: Sequence[str] | None = None, rotati
         layout = work / "blueprint.rrd"
         with rr.RecordingStream(application_id, recording_id=recording_id, send_properties=False) as rec:
             groups = [g for g in METRICS if any(path.startswith(f"/metrics/{g}/") for path in logged)]
+            own = sorted({"/".join(path.split("/")[3:-1]) for path in logged if path.startswith("/metrics/custom/")})
             first = min((d.frame for d in divergences if d is not None), default=None)
             rec.save(layout, default_blueprint=blueprint(names, trajectory_bounds(list(inputs)), groups,
-                                                         divergence_frame=first))
+                                                         divergence_frame=first, own_plots=tuple(own)))
         combined = work / "combined.rrd"
         run_rerun_cli(output, "rrd", "filter", "-o", str(combined), str(layout), *map(str, parts), str(extra))
         check = RrdReader(combined)
@@ -213,7 +227,17 @@ def compare_recordings(*paths: Path, labels: Sequence[str] | None = None, rotati
 
     return ComparisonResult(output=output, inputs=inputs, labels=names, recording_name=name, reports=reports,
                             output_bytes=output.stat().st_size, frame_differences=differences,
-                            divergences=divergences, thresholds=(rotation_deg, translation_pct))
+                            divergences=divergences, thresholds=(rotation_deg, translation_pct), ranked=ranked,
+                            warnings=tuple([*refusals, *warnings]))
+
+
+def _with_suspects(ranked: list[Divergence], report_a: dict[str, Any], report_b: dict[str, Any]
+                   ) -> list[Divergence]:
+    """`ranked` with each run's own suspect reasons at the frame (`inspect`'s ``suspects``) after its health's."""
+    suspects = [{s["frame"]: [r for r in s["reasons"] if not r.startswith("health ")]
+                 for s in report.get("suspects") or []} for report in (report_a, report_b)]
+    return [dataclasses.replace(d, reasons_a=d.reasons_a + suspects[0].get(d.frame, []),
+                                reasons_b=d.reasons_b + suspects[1].get(d.frame, [])) for d in ranked]
 
 
 def comparison_name(labels: Sequence[str], names: Sequence[str]) -> str:

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from vslam.compare.blueprint import run_prefixes
+from vslam.compare.divergences import Divergence, describe_divergences
 from vslam.compare.frames import FirstDivergence, describe_divergence
 from vslam.recording import STAGES
 from vslam.rrd import run_differences
@@ -68,6 +69,10 @@ class Compared(Protocol):
     def divergences(self) -> tuple[FirstDivergence | None, ...]: ...
     @property
     def thresholds(self) -> tuple[float, float]: ...
+    @property
+    def ranked(self) -> tuple[list[Divergence], ...]: ...
+    @property
+    def warnings(self) -> tuple[str, ...]: ...
 
 
 # ------------------------------------------------------------------------------------------ summary
@@ -139,6 +144,10 @@ def metric_differences(report_a: dict[str, Any], report_b: dict[str, Any]) -> di
     for section, names in (("stages_ms", STAGES), ("series", ())):
         for name in dict.fromkeys([*names, *report_a[section], *report_b[section]]):
             rows[f"{section}.{name}.mean"] = [((r[section] or {}).get(name) or {}).get("mean") for r in reports]
+    for plot in dict.fromkeys([*(report_a.get("own_series") or {}), *(report_b.get("own_series") or {})]):
+        own = [(r.get("own_series") or {}).get(plot) or {} for r in reports]
+        for name in dict.fromkeys([*own[0], *own[1]]):  # a pipeline's own series (`vslam.log` scalars=)
+            rows[f"own_series.{plot}.{name}.mean"] = [(series.get(name) or {}).get("mean") for series in own]
     for section in ("accuracy", "report_metrics"):
         for name in dict.fromkeys([*(report_a.get(section) or {}), *(report_b.get(section) or {})]):
             rows[f"{section}.{name}"] = [(r.get(section) or {}).get(name) for r in reports]
@@ -162,12 +171,14 @@ def format_differences(result: Compared) -> str:
     for label, path, report in zip(labels, result.inputs, reports, strict=True):
         lines.append(f"{label:<11} {path}: {report['recording_name']}")
     lines += ["", *format_summary(result), ""]
-    for label, divergence in zip(labels[1:], result.divergences, strict=True):
+    lines += [f"warning     {warning}" for warning in result.warnings]
+    for label, divergence, ranked in zip(labels[1:], result.divergences, result.ranked, strict=True):
         lines += describe_divergence(base, label, divergence, *result.thresholds)
+        lines += describe_divergences(base, label, ranked)
     lines.append("")
     for label, report in zip(labels[1:], reports[1:], strict=True):
         # how the runs were made: properties and config, baseline → run (two runs: as before, unlabelled)
-        made = run_differences(reports[0], report)
+        made = run_differences(reports[0], report, (base, label))
         lines += made if len(labels) == 2 else [f"{label} vs {base}:", *(f"  {line}" for line in made)]
     versus = [metric_differences(reports[0], report) for report in reports[1:]]
     header = ["metric", *labels]
@@ -224,9 +235,15 @@ def comparison_json(result: Compared) -> dict[str, Any]:
               for label, report in zip(result.labels[1:], result.reports[1:], strict=True)}
     divergence = {label: d.as_json() if d is not None else None
                   for label, d in zip(result.labels[1:], result.divergences, strict=True)}
+    ranked = {label: [d.as_json() for d in items] for label, items in zip(result.labels[1:], result.ranked,
+                                                                           strict=True)}
     rotation_deg, translation_pct = result.thresholds
     return {"output": str(result.output), "bytes": result.output_bytes, "recording_name": result.recording_name,
             "baseline": result.labels[0], "runs": runs, "differences": versus,
             # the second run against the first; `first_divergences` has every further run's
             "first_divergence": divergence[result.labels[1]], "first_divergences": divergence,
+            # ranked {frame, rotation_deg, translation_pct, score, reasons_a, reasons_b}: the second run's, and
+            # every further run's
+            "divergences": ranked.get(result.labels[1], []), "divergences_by_run": ranked,
+            "warnings": list(result.warnings),
             "divergence_thresholds": {"rotation_deg": rotation_deg, "translation_pct": translation_pct}}

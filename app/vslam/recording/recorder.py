@@ -79,13 +79,17 @@ class Recorder:
         external: bool = False,
         live_url: str | None = None,
         gt_check: GroundTruthCheck | None = None,
+        own_plots: tuple[str, ...] = (),
     ) -> None:
         """`external`: the frames come from another pipeline through the logging API (`vslam.log`), not from
-        vslam's engine: no engine config is stated, and its own series (``/metrics/custom/*``) get a plot."""
+        vslam's engine: no engine config is stated, its own series (``/metrics/custom/*``) get a plot (and one
+        per name of `own_plots`: ``/metrics/custom/<plot>/*``), its triangulated points are recorded at detail
+        standard too."""
         if detail == Detail.OFF:
             raise ValueError("detail 'off' writes no recording: do not build a Recorder")
         self.path = path
         self.detail = detail
+        self._external = external
         self._jpeg_quality = jpeg_quality
         # with a second core, frames are JPEG-encoded beside the engine (cv2.imencode releases the GIL)
         self._encoder = ThreadPoolExecutor(1, thread_name_prefix="vslam-jpeg") if config.threads > 1 else None
@@ -107,7 +111,7 @@ class Recorder:
         undistorted = source.intrinsics.distorted and detail == Detail.FULL
         layout = blueprint(map_backend=config.backend == "map", image=detail in (Detail.FULL, Detail.STANDARD),
                            road_scale=config.scale == "height", ground_truth=source.ground_truth is not None,
-                           undistorted=undistorted, own_series=external)
+                           undistorted=undistorted, own_series=external, own_plots=own_plots)
         self._rec = open_stream(path, properties.get("recording_id"), layout, properties.get("name", source.name),
                                 live_url)
         self._columns = ColumnBuffer(self._rec)
@@ -300,7 +304,8 @@ class Recorder:
         if self.detail in (Detail.FULL, Detail.STANDARD):
             self._log_image_and_tracks(frame, result)
             self._log_candidates(frame, result)
-        if self.detail == Detail.FULL:
+        if self.detail == Detail.FULL or (self._external and self.detail == Detail.STANDARD
+                                          and len(result.points_world)):
             points = result.points_world.astype(np.float32)
             columns.add("/world/points", frame, (rr.Points3D.columns, {"positions": points}), batch=True)
         if self._scale == "height":
@@ -330,11 +335,17 @@ class Recorder:
         elif time.monotonic() - self._checked_at > WRITE_CHECK_S:  # images are sent every ~1 MiB
             self._check_written()
 
-    def log_series(self, frame: Frame, values: dict[str, float]) -> None:
+    @property
+    def stream(self) -> rr.RecordingStream:
+        """The Rerun stream this recorder writes (the logging API hands it to a pipeline, `vslam.log`)."""
+        return self._rec
+
+    def log_series(self, frame: Frame, values: dict[str, float], root: str = "/metrics/custom") -> None:
         """Series of the frame's producer beyond `METRICS` (another pipeline's own, `vslam.log`):
-        ``/metrics/custom/<name>``, plotted together."""
+        ``<root>/<name>`` (a name may hold its plot: ``plot/name``); its own stages with root
+        ``/metrics/timing_ms``."""
         for name, value in values.items():
-            self._columns.add_scalar(f"/metrics/custom/{name}", frame, float(value))
+            self._columns.add_scalar(f"{root}/{name}", frame, float(value))
 
     def extend_ground_truth(self, T_world_cam: np.ndarray) -> None:  # noqa: N803
         """Append the next frame's (4, 4) ground-truth pose, for producers that learn it frame by frame

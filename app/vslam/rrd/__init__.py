@@ -1,6 +1,6 @@
 """Reading recordings back: the `.rrd` reader and the `rerun` CLI (`read`), a recording's run properties
 (`provenance`), `vslam inspect` (`inspect`), `vslam crop` (`crop`, `crop_video`), `vslam repair` (`repair`) and
-`vslam check` (`check`: any recording against the schema).
+`vslam check` (`check`: any recording against the schema), suspect frames judged by the run itself (`suspects`).
 
 The names other packages use are importable from here, loaded on first use (PEP 562).
 """
@@ -22,6 +22,9 @@ _HOMES = {
     "format_crop": "crop",
     "format_repair": "repair",
     "format_report": "inspect",
+    "find_suspects": "suspects",
+    "read_poses": "suspects",
+    "robust_z": "suspects",
     "has_footer": "read",
     "inspect_recording": "inspect",
     "open_store": "read",
@@ -58,6 +61,7 @@ if TYPE_CHECKING:
         work_dir_beside,
     )
     from vslam.rrd.repair import format_repair, repair_recording, repaired_path
+    from vslam.rrd.suspects import find_suspects, read_poses, robust_z
 
 
 __getattr__ = lazy_names(__name__, _HOMES)
@@ -75,16 +79,19 @@ __all__ = [
     "format_crop",
     "format_repair",
     "format_report",
+    "find_suspects",
     "has_footer",
     "inspect_recording",
     "open_store",
     "parse_crop_frames",
     "read_entity",
+    "read_poses",
     "readable",
     "repair_recording",
     "repaired_path",
     "rerun_binary",
     "run_differences",
+    "robust_z",
     "run_rerun_cli",
     "same_file",
     "video_codecs",

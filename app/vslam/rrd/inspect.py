@@ -24,6 +24,8 @@ from vslam.rrd.provenance import (
     read_properties,
 )
 from vslam.rrd.read import RecordingError, read_entity, readable
+from vslam.rrd.series import entity_paths, format_own_series, own_series, own_stages
+from vslam.rrd.suspects import find_suspects, format_suspects
 from vslam_core.trajectory.drift import worst_frames
 from vslam_core.trajectory.gt_check import PairCheck, summary_of
 
@@ -229,6 +231,7 @@ def _run_report(path: Path, prefix: str = "") -> dict[str, Any]:
     ratio = _scalars(path, "ratio", prefix)
     config = read_properties(path, f"{PROPERTIES}{prefix}/config")
     properties = read_properties(path, f"{PROPERTIES}{prefix}/run")
+    entities = entity_paths(path)  # a pipeline's own series and stages are found by name (`vslam.log`)
     return {
         "properties": properties,
         "calibration": {key.removeprefix("calibration_"): value for key, value in properties.items()
@@ -237,7 +240,8 @@ def _run_report(path: Path, prefix: str = "") -> dict[str, Any]:
         "config_non_default": {key: value for key, _, value in non_default(config)} if config else {},
         "frames": {"count": len(frames), "first": int(min(frames)), "last": int(max(frames))},
         "cut_short": cut_short,
-        "stages_ms": {stage: _stats(timing[stage]) for stage in STAGES},
+        "stages_ms": {**{stage: _stats(timing[stage]) for stage in STAGES},
+                      **own_stages(path, STAGES, prefix, entities)},
         "series": {
             "tracks_alive": _stats(tracks["alive"]),
             "corners_detected": _stats(tracks["new_corners"]),
@@ -246,12 +250,14 @@ def _run_report(path: Path, prefix: str = "") -> dict[str, Any]:
             "inlier_ratio": _stats(ratio["inlier_ratio"]),
             "chirality_margin": _stats(ransac["chirality_margin"]),
         },
+        "own_series": own_series(path, prefix, entities),
         "accuracy": _accuracy(path, prefix),
         "report_metrics": report_metrics(path, prefix),
         "accuracy_alignment": _accuracy_alignment(path, prefix),
         "flagged": flagged,
         "drift": _drift(path, frame_reasons, prefix),
         "gt_check": _gt_check(path, prefix),
+        "suspects": find_suspects(path, prefix),
         "loops": _loops(path, prefix),
     }
 
@@ -317,6 +323,7 @@ def _format_run(report: dict[str, Any]) -> list[str]:
         lines += ["", "series               mean      min      max"]
     for name, stats in series.items():
         lines.append(f"{name:<16} {stats['mean']:9.2f} {stats['min']:8.2f} {stats['max']:8.2f}")
+    lines += format_own_series(report.get("own_series"))
     accuracy = report["accuracy"]
     lines.append("")
     if accuracy is None:
@@ -348,6 +355,7 @@ def _format_run(report: dict[str, Any]) -> list[str]:
         lines.append(f"  frame {loop['frame']} revisits frame {loop['matched_frame']}: {loop['inliers']} inliers, "
                      f"corrected {loop['correction_m']:.2f} m, {loop['correction_deg']:.2f}°")
     lines += _drift_lines(report.get("drift"))
+    lines += format_suspects(report.get("suspects"), report.get("drift") is not None)
     return lines
 
 

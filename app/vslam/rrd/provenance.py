@@ -22,8 +22,11 @@ from vslam_core.sources.base import describe_indices
 
 PROPERTIES = "/__properties"
 ROW_ID = "rerun.controls.RowId"
-#: Run properties worth comparing between two runs (besides the config), in this order.
+#: Run properties worth comparing between two runs (besides the config), in this order; then every other
+#: property (a pipeline's own, e.g. ``bug``) but `UNCOMPARED`.
 RUN_KEYS = ("source", "source_path", "frames", "frame_count", "scale", "backend", "detail", "inject", "stopped")
+#: Properties that differ between any two files and say nothing about how the run was made.
+UNCOMPARED = frozenset({"name", "recording_id"})
 
 
 def default_config() -> dict[str, Any]:
@@ -141,12 +144,16 @@ def cut_short_note(frames: list[int], planned: str) -> str:
     return f"the run of frames {planned} was cut short {held} (no footer: it was killed, crashed or ran out of disk)"
 
 
-def run_differences(report_a: dict[str, Any], report_b: dict[str, Any]) -> list[str]:
-    """What differs in how two runs were made (two `inspect_recording` reports): run properties (source,
-    frames, scale, backend, detail, inject, …) and every engine config key, as ``key: a → b`` lines."""
-    run = differences(report_a["properties"], report_b["properties"], list(RUN_KEYS))
+def run_differences(report_a: dict[str, Any], report_b: dict[str, Any], labels: tuple[str, str] = ("A", "B")
+                    ) -> list[str]:
+    """What differs in how two runs were made (two `inspect_recording` reports, named by `labels`): run
+    properties (source, frames, scale, backend, detail, inject, …, then any other, e.g. a pipeline's ``bug``)
+    and every engine config key, as ``key: a → b`` lines."""
+    props_a, props_b = report_a["properties"], report_b["properties"]
+    others = sorted({*props_a, *props_b} - set(RUN_KEYS) - UNCOMPARED)
+    run = differences(props_a, props_b, [*RUN_KEYS, *others])
     lines = [f"run         {line}" for line in config_lines(run)]
-    without = [side for side, report in zip("AB", (report_a, report_b), strict=True) if not report["config"]]
+    without = [side for side, report in zip(labels, (report_a, report_b), strict=True) if not report["config"]]
     if without:  # another system's trajectory (`vslam eval --trajectory`): no engine config to compare
         return lines + [f"config      {' and '.join(without)} not run by the engine (no config to compare)"]
     config = differences(report_a["config"], report_b["config"])
