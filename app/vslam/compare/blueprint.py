@@ -151,7 +151,8 @@ def blueprint(labels: tuple[str, ...] = ("A", "B"),
     overrides: dict[str, list[_Override]] = {}
     for index, prefix in enumerate(prefixes):
         overrides[f"/{prefix}/world/trajectory/estimate"] = line(max(3.0 - index, 1.5), estimate_colour(index)[1])
-        overrides[f"/{prefix}/world/trajectory/ground_truth"] = line(1.0)
+        # wider than every estimate and under them (the recording draws it 0.2 m lower): a band where they agree
+        overrides[f"/{prefix}/world/trajectory/ground_truth"] = line(4.5)
     trajectories = rrb.Spatial3DView(
         name=trajectories_title(labels),
         origin=f"/{prefixes[0]}/world",  # for its view coordinates (RDF); every /<prefix>/world is the same space

@@ -54,7 +54,7 @@ _HOMES = {
     "MapRecording": "map",
     "HEALTH_LEVELS": "metrics", "MAP_METRICS": "metrics", "MAP_STAGES": "metrics", "METRICS": "metrics",
     "MODE_LEVELS": "metrics", "STAGES": "metrics", "frame_metrics": "metrics", "map_frame_metrics": "metrics",
-    "Recorder": "recorder", "road_outline": "recorder", "version_properties": "recorder",
+    "Recorder": "recorder", "road_outline": "stream", "version_properties": "stream",
     "APPLICATION_ID": "styles", "FATE_STYLE": "styles", "Detail": "levels", "ImageCodec": "levels",
     "CAR_ENTITY": "layout", "EYE_OFFSET": "layout",
     "DRIFT_ENTITY": "drift", "LINKS_ENTITY": "drift", "WORST": "drift",
@@ -81,7 +81,7 @@ if TYPE_CHECKING:
         frame_metrics,
         map_frame_metrics,
     )
-    from vslam.recording.recorder import Recorder, road_outline, version_properties
+    from vslam.recording.recorder import Recorder
     from vslam.recording.schema import (
         ENTITIES,
         EVERY_COMMAND,
@@ -92,6 +92,7 @@ if TYPE_CHECKING:
         TIMELINES,
         EntitySpec,
     )
+    from vslam.recording.stream import road_outline, version_properties
     from vslam.recording.styles import APPLICATION_ID, FATE_STYLE
     from vslam.recording.video import RERUN_CODEC, VIDEO_SETTINGS, open_encoder
 

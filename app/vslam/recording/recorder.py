@@ -12,7 +12,6 @@ import cv2
 import numpy as np
 import rerun as rr
 
-import vslam_core
 from vslam.common import (
     OutputError,
     RecordingError,
@@ -31,7 +30,15 @@ from vslam.recording.map import MapRecording
 from vslam.recording.metrics import HEALTH_LEVELS, METRICS, STAGES, frame_metrics, gt_check_metrics
 from vslam.recording.overview import DriveOverview
 from vslam.recording.schema import SCHEMA_VERSION
-from vslam.recording.stream import StreamStopped, close_stream, flush_or_stop, log_world, open_stream, pinhole
+from vslam.recording.stream import (
+    StreamStopped,
+    close_stream,
+    flush_or_stop,
+    log_world,
+    open_stream,
+    pinhole,
+    road_outline,
+)
 from vslam.recording.styles import (
     AXIS_COLOURS,
     CANDIDATE_COLOURS,
@@ -487,18 +494,3 @@ class Recorder:
             event(f"{health.status} ({what}): " + ", ".join(health.reasons),
                   "ERROR" if health.status == HealthStatus.FAIL else "WARN")
 
-
-def road_outline(normal: np.ndarray, height: float, half_width: float = 2.0, near: float = 4.0,
-                 far: float = 20.0) -> np.ndarray:
-    """(5, 3) closed outline of the plane nᵀ·X = height (camera frame) over x ∈ ±half_width, z ∈ [near, far]
-    metres: the patch of road ahead that the plane describes."""
-    corners = []
-    for x, z in ((-half_width, near), (half_width, near), (half_width, far), (-half_width, far), (-half_width, near)):
-        y = (height - normal[0] * x - normal[2] * z) / normal[1]
-        corners.append((x, y, z))
-    return np.array(corners)
-
-
-def version_properties() -> dict[str, str]:
-    return {"vslam_version": vslam_core.__version__, "opencv_version": cv2.__version__,
-            "rerun_version": rr.__version__}
