@@ -126,7 +126,8 @@ class FrameLog:
         self._properties = {
             "name": name or f"{pipeline} {source} frames -",
             "recording_id": str(uuid.uuid5(uuid.NAMESPACE_URL, f"vslam-log:{pipeline}:{source}:{self.path.name}")),
-            "source": source, "pipeline": pipeline, "scale": scale,
+            # backend "external": not vslam's engine (`inspect` names the pipeline; properties= may say more)
+            "source": source, "pipeline": pipeline, "backend": "external", "scale": scale,
             **version_properties(), **dict(properties or {}),
         }
         self._source = source

@@ -34,12 +34,13 @@ _HOMES = {
     "run_differences": "provenance",
     "run_rerun_cli": "read",
     "same_file": "read",
+    "schema_contract": "check",
     "video_codecs": "crop_video",
     "work_dir_beside": "read",
 }
 
 if TYPE_CHECKING:
-    from vslam.rrd.check import check_recording, format_check
+    from vslam.rrd.check import check_recording, format_check, schema_contract
     from vslam.rrd.crop import crop_recording, format_crop, parse_crop_frames
     from vslam.rrd.crop_video import video_codecs
     from vslam.rrd.inspect import format_report, inspect_recording
@@ -87,6 +88,7 @@ __all__ = [
     "run_differences",
     "run_rerun_cli",
     "same_file",
+    "schema_contract",
     "video_codecs",
     "work_dir_beside",
 ]
