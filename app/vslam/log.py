@@ -140,7 +140,7 @@ class FrameLog:
         self._trajectory: tuple[ClaimedFile, TrajectoryWriter] | None = None
         if trajectory is not None:  # last: nothing above can fail and leave the file claimed
             claimed = claim(Path(trajectory), True, "trajectory")
-            self._trajectory = (claimed, TrajectoryWriter(claimed, trajectory_format))
+            self._trajectory = (claimed, TrajectoryWriter(claimed, trajectory_format, header=True))
         self._closed = False
 
     def __enter__(self) -> FrameLog:

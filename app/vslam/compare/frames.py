@@ -24,7 +24,7 @@ import rerun as rr
 from rerun.chunk import Chunk
 
 from vslam.compare.limits import ROTATION_DEG, TRANSLATION_PCT
-from vslam.rrd import read_entity
+from vslam.rrd import camera_poses, read_entity
 from vslam_core.geometry import invert_pose
 
 #: A baseline step shorter than this (metres, or units with ``--scale none``) is a car standing still: no %.
@@ -80,27 +80,15 @@ class FirstDivergence:
 
 def read_run_frames(path: Path, prefix: str = "") -> RunFrames:
     """Poses (``{prefix}/world/camera``) and health (``{prefix}/health``) of a recording by frame."""
-    camera = read_entity(path, f"{prefix}/world/camera")
-    if camera.is_empty() or "Transform3D:translation" not in camera.columns:
-        return RunFrames(np.zeros(0, np.int64), np.zeros((0, 4, 4)))
-    # a pose logged without a rotation (e.g. a bare trajectory from the plain SDK) has the world's orientation
-    matrices = (camera["Transform3D:mat3x3"].to_list() if "Transform3D:mat3x3" in camera.columns
-                else [None] * len(camera))
-    rows = [(int(f), t, m) for f, t, m in zip(camera["frame"].to_list(), camera["Transform3D:translation"].to_list(),
-                                              matrices, strict=True) if t is not None]
-    poses = np.tile(np.eye(4), (len(rows), 1, 1))
-    for k, (_, translation, matrix) in enumerate(rows):
-        poses[k, :3, 3] = np.asarray(translation, np.float64).reshape(3)
-        if matrix is not None:
-            poses[k, :3, :3] = np.asarray(matrix, np.float64).reshape(3, 3).T  # Rerun's Mat3x3 is column-major
+    camera = camera_poses(path, prefix)  # rotations as mat3x3, quaternion or axis-angle (the schema's three)
     health: dict[int, tuple[str, list[str]]] = {}
     table = read_entity(path, f"{prefix}/health")
     if not table.is_empty() and "status" in table.columns:
         reasons = table["reasons"].to_list() if "reasons" in table.columns else [None] * len(table)
         for frame, status, codes in zip(table["frame"].to_list(), table["status"].to_list(), reasons, strict=True):
-            text = codes[0] if codes else ""
-            health[int(frame)] = (status[0] if status else "", [r for r in text.split(",") if r])
-    return RunFrames(np.array([r[0] for r in rows], np.int64), poses, health)
+            text = _text(codes)
+            health[int(frame)] = (_text(status), [r for r in text.split(",") if r])
+    return RunFrames(camera.frames, camera.poses, health)
 
 
 def frame_differences(a: RunFrames, b: RunFrames) -> FrameDifferences:
@@ -228,3 +216,10 @@ def difference_chunks(prefix: str, label_a: str, label_b: str, colour: tuple[int
 def _event(frame: int, text: str, level: str) -> Chunk:
     return Chunk.from_columns(DIFFERENCE_EVENTS, indexes=[rr.TimeColumn("frame", sequence=[frame])],
                               columns=rr.TextLog.columns(text=[text], level=[level]))
+
+
+def _text(value: object) -> str:
+    """One `AnyValues` cell as text (a one-element list as the reader gives it, or the bare value); "" for none."""
+    if isinstance(value, list):
+        value = value[0] if value else None
+    return "" if value is None else str(value)

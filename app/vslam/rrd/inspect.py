@@ -16,6 +16,7 @@ from vslam.common import METRICS as REPORT_METRICS
 from vslam.recording import METRICS, STAGES
 from vslam.recording import WORST as DRIFT_TOP
 from vslam.rrd.check import schema_contract
+from vslam.rrd.poses import camera_poses
 from vslam.rrd.provenance import (
     PROPERTIES,
     comparison_prefixes,
@@ -138,12 +139,8 @@ def _paper_rms(path: Path, prefix: str = "") -> float:
 
 def camera_positions(path: Path, prefix: str = "") -> dict[int, np.ndarray]:
     """{frame: (3,) camera position} of `/world/camera` (frames whose translation is missing left out)."""
-    camera = read_entity(path, f"{prefix}/world/camera")
-    if camera.is_empty() or "Transform3D:translation" not in camera.columns:
-        return {}
-    return {int(f): np.asarray(t[0] if isinstance(t[0], list) else t, np.float64).reshape(3)
-            for f, t in zip(camera["frame"].to_list(), camera["Transform3D:translation"].to_list(), strict=True)
-            if f is not None and t}
+    poses = camera_poses(path, prefix)
+    return {int(f): pose[:3, 3] for f, pose in zip(poses.frames, poses.poses, strict=True)}
 
 
 def ground_truth_by_frame(path: Path, prefix: str = "") -> dict[int, np.ndarray]:
@@ -243,8 +240,8 @@ def _run_report(path: Path, prefix: str = "") -> dict[str, Any]:
     frame_reasons: dict[int, list[str]] = {}
     if not health.is_empty():
         reasons = health["reasons"].to_list() if "reasons" in health.columns else [None] * len(health)
-        codes = [str(v[0]) if v else "" for v in reasons]
-        statuses = [str(v[0]) if v else "" for v in health["status"].to_list()] if "status" in health.columns \
+        codes = [_text(v) for v in reasons]
+        statuses = [_text(v) for v in health["status"].to_list()] if "status" in health.columns \
             else [""] * len(health)
         if unknown := sorted(set(statuses) - {"ok", "warn", "fail"}):
             raise RecordingError(f"{path}: {prefix}/health:status: {unknown[0]!r} is not a health level (ok, warn, "
@@ -431,3 +428,10 @@ def _camera_lines(props: dict[str, Any]) -> list[str]:
         lines.append(f"16-bit      {props['sixteen_bit']}")
     return lines
 
+
+
+def _text(value: object) -> str:
+    """One `AnyValues` cell as text (a one-element list as the reader gives it, or the bare value); "" for none."""
+    if isinstance(value, list):
+        value = value[0] if value else None
+    return "" if value is None else str(value)
