@@ -75,11 +75,13 @@ def test_gates_fail_naming_sequence_and_metric(kitti_root: Path, tmp_path: Path,
     t_err_05 = data["sequences"][1]["t_err"]
     estimate = folder / "kitti-05.txt"
     gt = kitti_root / "poses" / "05.txt"
-    result = vslam("eval", "--trajectory", estimate, "--gt", gt, "--match", "rows", "--frames", "0:150", "--max-t-err", t_err_05 / 2,
+    result = vslam("eval", "--trajectory", estimate, "--gt", gt, "--match", "rows", "--frames", "0:150",
+                   "--max-t-err", t_err_05 / 2,
                    "--max-ate", 100)
     assert result.returncode == 1
     assert "gate failed: kitti-05: t_err" in result.stderr and "ate_sim3" not in result.stderr
-    passing = vslam("eval", "--trajectory", estimate, "--gt", gt, "--match", "rows", "--frames", "0:150", "--max-t-err", t_err_05 * 2,
+    passing = vslam("eval", "--trajectory", estimate, "--gt", gt, "--match", "rows", "--frames", "0:150",
+                    "--max-t-err", t_err_05 * 2,
                     "--max-r-err", 50)
     assert passing.returncode == 0, passing.stderr
 
