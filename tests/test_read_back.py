@@ -129,3 +129,32 @@ def test_a_perfect_window_scores_zero_or_is_refused(case: tuple[str, ...], perfe
     print(f"{' '.join(case)}: ATE SE3 {row['ate_se3']:.2e} m, Sim3 {row['ate_sim3']:.2e} m; {data['matching']['text']}")
     assert data["matching"]["method"] == expected and data["matching"]["ground_truth_rows"] == "50..149"
     assert row["frames"] == 100 and row["ate_se3"] < 1e-4 and row["ate_sim3"] < 1e-4  # never the 10 m of rows 0..99
+
+
+def test_window_misuse_is_refused_in_one_line(tmp_path: Path) -> None:
+    """Synthetic files: a window past the ground truth, --frames with a TUM ground truth (rows are stamps),
+    --time-offset without times, a TUM file whose times start on neither clock."""
+    from vslam_core.trajectory.io import write_kitti_poses, write_tum_poses
+
+    poses = np.tile(np.eye(4), (40, 1, 1))
+    poses[:, 2, 3] = np.arange(40.0)
+    write_kitti_poses(tmp_path / "gt.txt", poses)
+    write_kitti_poses(tmp_path / "est.txt", poses[10:20])
+    write_tum_poses(tmp_path / "gt.tum", np.arange(40) * 0.1, poses)
+    write_tum_poses(tmp_path / "est.tum", 7.0 + np.arange(10) * 0.1, poses[10:20])
+    (tmp_path / "times.txt").write_text("".join(f"{0.1 * i:.6f}\n" for i in range(40)))
+    cases = {
+        ("est.txt", "gt.txt", "--frames", "35:45"): "is 5 frames",  # clamped like a slice: 35..39
+        ("est.txt", "gt.tum", "--frames", "10:20"): "TUM ground truth",
+        ("est.txt", "gt.txt", "--time-offset", "1"): "has none",
+        ("est.tum", "gt.txt", f"--gt-times={tmp_path / 'times.txt'}", "--frames", "10:20"): "--time-offset",
+    }
+    for (estimate, gt, *args), message in cases.items():
+        result = vslam("eval", "--trajectory", tmp_path / estimate, "--gt", tmp_path / gt, *args)
+        assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1, result.stderr
+        assert message in result.stderr, result.stderr
+    shifted = vslam("eval", "--trajectory", tmp_path / "est.tum", "--gt", tmp_path / "gt.txt", "--gt-times",
+                    tmp_path / "times.txt", "--time-offset", "-6", "--json")  # 7.0 s - 6 s = frame 10's 1.0 s
+    assert shifted.returncode == 0, shifted.stderr
+    data = json.loads(shifted.stdout)
+    assert data["matching"]["ground_truth_rows"] == "10..19" and data["sequences"][0]["ate_se3"] < 1e-6
