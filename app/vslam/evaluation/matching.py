@@ -165,6 +165,8 @@ def match_window(
     since the window's first frame, or shifted by ``--time-offset``. Raises `TrajectoryFormatError`."""
     estimate, truth = names
     frames = window.frames
+    if frames is not None and gt_own_times and window.exact:
+        frames = None  # a recording's (or header's) frames are not rows of a TUM ground truth: by time only
     if frames is not None:
         if gt_own_times:
             raise TrajectoryFormatError(
@@ -229,7 +231,7 @@ def _by_timestamp(
     if matched < MIN_MATCHES:
         raise TrajectoryFormatError(
             f"{names[0]}: only {matched} of {len(est)} timestamps match {names[1]} within {tolerance_ms:g} ms "
-            f"(need {MIN_MATCHES}; is it the right sequence?)")
+            f"(need {MIN_MATCHES}; is it the right sequence, or its times on another clock: --time-offset?)")
     return est[close], gt[pick[close]], Matching("timestamp", matched, len(est), len(gt), tolerance_ms,
                                                  tuple(int(i) for i in np.flatnonzero(close)),
                                                  tuple(int(i) for i in pick[close]))

@@ -287,8 +287,9 @@ def _loops(path: Path, prefix: str = "") -> list[dict[str, Any]]:
     """The loops closed (`/loops/closed`, map backend): frame, matched frame, inliers, and the correction
     applied to the frame's keyframe in metres and degrees."""
     table = read_entity(path, f"{prefix}/loops/closed")
-    if table.is_empty():
-        return []
+    names = ("query_frame", "candidate_frame", "inliers", "correction_m", "correction_deg")
+    if table.is_empty() or not all(name in table.columns for name in names):
+        return []  # outside the schema (vslam's map backend writes it): another writer's entity of that name
 
     def column(name: str) -> list[Any]:
         return [v[0] for v in table[name].to_list()]
