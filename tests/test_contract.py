@@ -41,7 +41,7 @@ ENTITIES = ("time", "world", "image", "corners", "flow", "estimate", "ground_tru
             "estimate_sim3", "drift", "gt_links", "health", "health_quiet", "events", "report")
 #: One schema violation each: `check` must reject the recording, the other commands end in one line at most.
 BREAKS = ("numeric_health", "unknown_health", "no_schema_version", "no_frame_count", "frame_component",
-          "camera_without_rotation", "misnamed_camera")
+          "camera_without_rotation", "misnamed_camera", "frame_duration")
 REPORT = ("# my-vo\n\n| sequence | frames | t_err (%) | r_err (°/100m) | ATE SE3 (m) | ATE Sim3 (m) |\n"
           "|---|---|---|---|---|---|\n| kitti-05 | 9 | n/a | n/a | 0.123 | 0.100 |\n")
 CAMERA = CameraIntrinsics(fx=70.0, fy=70.0, cx=32.0, cy=24.0, width=64, height=48)
@@ -107,7 +107,10 @@ def write_sdk(path: Path, frames: list[int], options: set[str], series: set[str]
     if "image" in options:
         rec.log("/world/camera/image", rr.Pinhole(focal_length=70.0, width=64, height=48), static=True)
     for k, (frame, pose) in enumerate(zip(frames, poses, strict=True)):
-        rec.set_time("frame", sequence=frame)
+        if broken == "frame_duration":
+            rec.set_time("frame", duration=float(frame))
+        else:
+            rec.set_time("frame", sequence=frame)
         if "time" in options:
             rec.set_time("time", duration=0.1 * frame)
         rotation_args = {} if broken == "camera_without_rotation" else _rotation(pose, rotation)
@@ -349,3 +352,19 @@ def test_snapshot_of_an_accepted_recording(writer: str, tmp_path: Path) -> None:
                    "all")
     assert result.returncode == 0, result.stderr
     assert (tmp_path / "shots" / "all.png").stat().st_size > 1000
+
+
+def test_a_frame_timeline_of_durations_is_one_line_everywhere(tmp_path: Path, ground_truth: Path,
+                                                              baseline: Path) -> None:
+    """`set_time("frame", duration=…)` (not a sequence): `check` names it (it raised a TypeError itself), and every
+    command, `snapshot` included (before any viewer starts), says so in one line."""
+    path = write_sdk(tmp_path / "durations.rrd", list(range(8)), {"health"}, set(), "mat3x3", 3, "frame_duration")
+    checked = vslam("check", path)
+    assert checked.returncode == 1 and "timeline frame: a duration timeline, not a sequence" in checked.stdout
+    for args in (("inspect", path), ("compare", baseline, path, "-o", tmp_path / "c.rrd"),
+                 ("crop", path, "--frames", "2:5", "-o", tmp_path / "k.rrd"),
+                 ("eval", "--trajectory", path, "--gt", ground_truth),
+                 ("snapshot", path, "--frame", "3", "--out", tmp_path / "shots")):
+        result = vslam(*args)
+        _one_line(result, str(args[0]))
+        assert "a duration timeline, not a sequence" in result.stderr

@@ -33,6 +33,7 @@ from vslam.recording import (
 )
 from vslam.rrd.provenance import PROPERTIES, comparison_prefixes, read_properties
 from vslam.rrd.read import RecordingError, first_line, open_store, read_entity, readable
+from vslam_core.errors import VslamError
 
 #: Rotation components of `/world/camera`: any one of them.
 ROTATIONS = ("Transform3D:mat3x3", "Transform3D:quaternion", "Transform3D:rotation_axis_angle")
@@ -201,6 +202,10 @@ def _check_camera(path: Path, prefix: str, layout: _Layout, result: CheckResult)
     if entity not in layout.components or FRAME_TIMELINE not in layout.timelines.get(entity, set()):
         return []
     table = read_entity(path, entity)
+    if not table["frame"].dtype.is_integer():  # set_time("frame", duration=… / timestamp=…)
+        return [Problem(f"timeline {FRAME_TIMELINE}", f"a {str(table['frame'].dtype).split('(')[0].lower()} "
+                        "timeline, not a sequence: log the source's frame index with set_time(\"frame\", "
+                        "sequence=i)", EVERY_COMMAND)]
     frames = [int(f) for f in table["frame"].to_list() if f is not None]
     result.frames = frames
     problems = []
@@ -256,7 +261,7 @@ def schema_contract(*paths: Path) -> Iterator[None]:
     conform; when every path conforms it is vslam's bug and is raised as it is (the property test finds it)."""
     try:
         yield
-    except RecordingError:
+    except VslamError:  # already one line
         raise
     except Exception as exc:  # noqa: BLE001 - see above: re-raised unless a recording breaks the schema
         for path in paths:
