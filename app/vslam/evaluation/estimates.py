@@ -63,13 +63,16 @@ def is_recording(path: Path) -> bool:
 
 
 def _from_recording(path: Path) -> Estimate:
-    from vslam.rrd import RecordingError, camera_poses, check_recording
+    from vslam.rrd import RecordingError, camera_poses, check_recording, comparison_prefixes
 
     result = check_recording(path)
     if not result.conforms:
         raise RecordingError(f"{path}: does not conform to the recording schema: {result.problems[0].line()} "
                              f"(vslam check {path})")
     camera = camera_poses(path)
+    if not len(camera.frames) and (runs := comparison_prefixes(path)):
+        raise RecordingError(f"{path}: a vslam compare output of {len(runs)} runs ({', '.join(runs)}): give one "
+                             "run's own recording")
     if len(camera.frames) < 2:
         raise RecordingError(f"{path}: {len(camera.frames)} camera pose(s): nothing to score")
     frames = [int(f) for f in camera.frames]
