@@ -41,7 +41,8 @@ def recordings(kitti_root: Path, tmp_path_factory: pytest.TempPathFactory) -> di
     write_kitti_poses(folder / "kink.txt", with_kink(gt, KINK_FRAME, KINK_DEG))
     report = folder / "report"
     done = vslam("eval", "--trajectory", folder / "same.txt", "--trajectory", folder / "kink.txt", "--gt",
-                 kitti_root / "poses" / "05.txt", "--match", "rows", "--images", kitti_root / "sequences" / "05",
+                 kitti_root / "poses" / "05.txt", "--match", "rows", "--frames", f"0:{FRAMES}",
+                 "--images", kitti_root / "sequences" / "05",
                  "--report", report, "--detail", "summary")
     assert done.returncode == 0, done.stderr
     return {"same": report / "same.rrd", "kink": report / "kink.rrd", "folder": folder}

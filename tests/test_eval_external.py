@@ -58,7 +58,8 @@ def external(kitti_root: Path, tmp_path_factory: pytest.TempPathFactory) -> dict
     write_kitti_poses(estimate, kinked(read_kitti_poses(kitti_root / "poses" / "00.txt", max_rows=FRAMES)))
     report = folder / "report"
     result = vslam("eval", "--trajectory", estimate, "--gt", kitti_root / "poses" / "00.txt", "--match", "rows",
-                   "--images", kitti_root / "sequences" / "00", "--report", report, "--detail", "standard", "--json")
+                   "--frames", f"0:{FRAMES}", "--images", kitti_root / "sequences" / "00", "--report", report,
+                   "--detail", "standard", "--json")
     assert result.returncode == 0, result.stderr
     run = folder / "run.rrd"
     done = vslam("run", kitti_root, "--sequence", "00", "--frames", f"0:{FRAMES}", "--detail", "summary", "-o", run)
@@ -143,7 +144,8 @@ def test_crop_compare_and_snapshot_work_on_it(external: dict[str, Path]) -> None
 def test_same_inputs_give_the_same_recording(external: dict[str, Path], kitti_root: Path) -> None:
     again = external["folder"] / "again"
     result = vslam("eval", "--trajectory", external["estimate"], "--gt", kitti_root / "poses" / "00.txt", "--match",
-                   "rows", "--images", kitti_root / "sequences" / "00", "--report", again, "--detail", "standard")
+                   "rows", "--frames", f"0:{FRAMES}", "--images", kitti_root / "sequences" / "00", "--report", again,
+                   "--detail", "standard")
     assert result.returncode == 0, result.stderr
     compare = rerun_cli("rrd", "compare", "--unordered", external["rrd"], again / "other.rrd")
     assert compare.returncode == 0, compare.stderr[-2000:]

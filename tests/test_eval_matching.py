@@ -39,13 +39,17 @@ def test_dropped_frames_are_matched_by_timestamp_with_gt_times(dropped: tuple[Pa
     assert "matched by timestamp: 290 of 290 rows, tolerance 10 ms" in result.stdout
     row = pl.read_csv(report / "metrics.csv").row(0, named=True)
     assert row["frames"] == 290 and row["t_err"] < 0.01  # the estimate is the ground truth: no error at all
-    assert row["matching"] == "matched by timestamp: 290 of 290 rows, tolerance 10 ms"
+    # times from 0 on both sides: said to be taken on the ground truth's clock (a window's own would be paired
+    # with rows 0.. too: issue 54)
+    assert row["matching"] == ("matched by timestamp: 290 of 290 rows, tolerance 10 ms; ground-truth rows 0..299, "
+                               "290 rows: its times are taken on the ground truth's clock; if they count from a "
+                               "later first frame, give --frames A:B")
     assert "matched by timestamp: 290 of 290 rows" in (report / "report.md").read_text()
     as_json = vslam("eval", "--trajectory", estimate, "--gt", gt, "--gt-times", times, "--json",
                     "--time-tolerance", 5)
     data = json.loads(as_json.stdout)
     assert data["matching"]["method"] == "timestamp" and data["matching"]["tolerance_ms"] == 5
-    assert data["sequences"][0]["matching"] == "matched by timestamp: 290 of 290 rows, tolerance 5 ms"
+    assert data["sequences"][0]["matching"].startswith("matched by timestamp: 290 of 290 rows, tolerance 5 ms; ")
 
 
 @pytest.mark.kitti
@@ -54,11 +58,15 @@ def test_different_lengths_without_times_are_refused_unless_rows_asked(dropped: 
     refused = vslam_here("eval", "--trajectory", estimate, "--gt", gt)
     assert refused.returncode == 2 and "Traceback" not in refused.stderr
     assert len(refused.stderr.strip().splitlines()) == 1
-    assert "290 poses" in refused.stderr and "--gt-times" in refused.stderr and "--match rows" in refused.stderr
-    rows = vslam("eval", "--trajectory", estimate, "--gt", gt, "--match", "rows", "--json")
+    assert "290 poses" in refused.stderr and "--gt-times" in refused.stderr and "--frames A:B" in refused.stderr
+    # --match rows alone no longer pairs from row 0 whatever the counts: the frames must be stated
+    unstated = vslam_here("eval", "--trajectory", estimate, "--gt", gt, "--match", "rows")
+    assert unstated.returncode == 2 and len(unstated.stderr.strip().splitlines()) == 1
+    assert "with --match rows" in unstated.stderr and "--frames A:B" in unstated.stderr
+    rows = vslam("eval", "--trajectory", estimate, "--gt", gt, "--match", "rows", "--frames", "0:290", "--json")
     assert rows.returncode == 0, rows.stderr
     data = json.loads(rows.stdout)
-    assert data["matching"]["method"] == "rows" and data["sequences"][0]["t_err"] > 1.0  # the gap misaligns them
+    assert data["matching"]["method"] == "frame" and data["sequences"][0]["t_err"] > 1.0  # the gap misaligns them
 
 
 def test_same_length_kitti_files_match_row_by_row_and_say_so(tmp_path: Path) -> None:

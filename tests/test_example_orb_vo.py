@@ -59,7 +59,7 @@ def test_eval_scores_its_trajectory_as_its_recording_reports(orb_rrd: Path, kitt
     """FrameLog(trajectory=…) writes the poses with vslam's trajectory writer: `vslam eval --trajectory` scores
     them exactly as the recording's own verdict (/report) did."""
     result = vslam("eval", "--trajectory", orb_rrd.with_suffix(".txt"), "--gt", kitti_root / "poses" / "05.txt",
-                   "--match", "rows", "--json")
+                   "--match", "rows", "--frames", FRAMES, "--json")
     assert result.returncode == 0, result.stderr
     scored = json.loads(result.stdout)["sequences"][0]
     assert scored["frames"] == 40

@@ -137,7 +137,8 @@ class FrameLog:
             # one per file (the viewer merges recordings that share one): from the file's absolute path
             "recording_id": str(uuid.uuid5(uuid.NAMESPACE_URL,
                                            f"vslam-log:{pipeline}:{source}:{self.path.resolve()}")),
-            "source": source, "pipeline": pipeline, "scale": scale,
+            # backend "external": not vslam's engine (`inspect` names the pipeline; properties= may say more)
+            "source": source, "pipeline": pipeline, "backend": "external", "scale": scale,
             **version_properties(), **dict(properties or {}),
         }
         self._source = source
@@ -157,7 +158,7 @@ class FrameLog:
             except BaseException:
                 self._claimed.release(keep=False)
                 raise
-            self._trajectory = (claimed, TrajectoryWriter(claimed, trajectory_format))
+            self._trajectory = (claimed, TrajectoryWriter(claimed, trajectory_format, header=True))
         self._closed = False
 
     def __enter__(self) -> FrameLog:

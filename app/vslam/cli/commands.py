@@ -325,12 +325,14 @@ def snapshot_command(
                               "for more")] = None,
 ) -> None:
     """Render every view of the recording's blueprint at one frame to PNG, with the real viewer, headless."""
+    from vslam.rrd import schema_contract
     from vslam.viewer import parse_frame, parse_size, snapshot
 
     window = parse_size(size)
     try:
-        paths = snapshot(_existing_recording(recording), parse_frame(frame), out_dir, window_size=window,
-                         only=view or ())
+        with schema_contract(recording):  # a recording `vslam check` rejects: one line, never a traceback
+            paths = snapshot(_existing_recording(recording), parse_frame(frame), out_dir, window_size=window,
+                             only=view or ())
     except KeyboardInterrupt:
         fail(f"snapshot interrupted: no picture written to {out_dir}", 130)
     for path in paths:
@@ -349,11 +351,13 @@ def open_command(
     = None,
 ) -> None:
     """Open a recording: the native viewer where a display exists, else the web viewer on 127.0.0.1."""
+    from vslam.rrd import schema_contract
     from vslam.viewer import open_recording, port_problem
 
     refuse(port_problem(web_port, "--web-port"))
     refuse(port_problem(grpc_port, "--grpc-port"))
-    open_recording(_existing_recording(recording), web=web, web_port=web_port, grpc_port=grpc_port)
+    with schema_contract(recording):  # a recording `vslam check` rejects: one line, never a traceback
+        open_recording(_existing_recording(recording), web=web, web_port=web_port, grpc_port=grpc_port)
 
 
 @app.command()

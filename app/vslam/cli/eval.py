@@ -55,7 +55,11 @@ def eval_command(
                                                  "with --gt, or 'synthetic'")] = None,
     sequences: Annotated[str | None, typer.Option(help="KITTI sequences, e.g. 00,05")] = None,
     frames: Annotated[str | None, typer.Option(help="START:END[:STEP] of every sequence (END excluded; an END past "
-                                               "the last frame is clamped to it, like a Python slice)")] = None,
+                                               "the last frame is clamped to it, like a Python slice); with "
+                                               "--trajectory: the frames (ground-truth rows) the file holds")]
+    = None,
+    time_offset: Annotated[float | None, typer.Option(help="--trajectory: seconds added to the file's timestamps "
+                                                      "to put them on the ground truth's clock")] = None,
     scale: Annotated[Scale, typer.Option(help="gt: ground-truth step length; height: from the known camera "
                                          "height (no ground truth used); none: unit steps, scored after Sim(3) "
                                          "alignment")] = Scale.gt,
@@ -132,8 +136,8 @@ def eval_command(
             fail("--trajectory needs --gt (the ground-truth poses to compare with)")
         if backend is not None:
             fail("--backend chooses how the engine runs: it does not apply to --trajectory files")
-        engine_options = {"--frames": frames, "--inject": inject, "--config": config_file,
-                          "--camera-height": camera_height, "--gt-time-offset": gt_time_offset, "--gt-rows": gt_rows}
+        engine_options = {"--inject": inject, "--config": config_file, "--camera-height": camera_height,
+                          "--gt-time-offset": gt_time_offset, "--gt-rows": gt_rows}
         for option in (name for name, value in engine_options.items() if value is not None):
             fail(f"{option} applies to runs of the engine: it does not apply to --trajectory files")
         if calib_scale is not None:
@@ -147,11 +151,12 @@ def eval_command(
         assert gt is not None
         evaluation = evaluate_external(trajectory, gt, fmt, report, detail,  # type: ignore[arg-type]
                                        images, intrinsics, calib, gt_times, match,
-                                       DEFAULT_TOLERANCE_MS if time_tolerance is None else time_tolerance)
+                                       DEFAULT_TOLERANCE_MS if time_tolerance is None else time_tolerance,
+                                       frames, time_offset)
         scale_source = backend_name = "external"
     else:
-        if gt_times is not None or match is not MatchMode.auto:
-            fail("--gt-times and --match apply to --trajectory files only")
+        if gt_times is not None or match is not MatchMode.auto or time_offset is not None:
+            fail("--gt-times, --match and --time-offset apply to --trajectory files only")
         from vslam.runs import input_warnings, with_camera_height
         from vslam_core.config import EngineConfig, load_config
         from vslam_core.sources.base import FrameRange
@@ -216,7 +221,7 @@ def _eval_batch(options: dict[str, Any]) -> None:
                "--topic": o["topic"], "--gt-topic": o["gt_topic"], "--gt-times": o["gt_times"], "--inject": o["inject"],
                "--format": o["trajectory_format"], "--json": o["as_json"] or None,
                "--gt-tolerance": o["time_tolerance"], "--gt-time-offset": o["gt_time_offset"],
-               "--gt-rows": o["gt_rows"]}
+               "--gt-rows": o["gt_rows"], "--time-offset": o["time_offset"]}
     for option in (name for name, value in per_log.items() if value is not None):
         fail(f"{option} does not apply to --manifest or --merge (give it per log, as a manifest column)")
     gates = Gates(o["max_t_err"], o["max_r_err"], o["max_ate"])

@@ -37,13 +37,17 @@ def evaluate_external(
     gt_times: Path | None,
     match: MatchMode,
     tolerance_ms: float,
+    window: str | None = None,
+    time_offset: float | None = None,
 ) -> Evaluation:
-    """Score every trajectory file against `gt`; with `report`, write the tables, the top view and (unless
+    """Score every trajectory file against `gt` (`window`: ``--frames``, the ground-truth rows they hold;
+    `time_offset`: seconds added to their times); with `report`, write the tables, the top view and (unless
     `detail` is off) one recording per file. Bad input fails before anything is written."""
     if images is not None and (report is None or detail == Detail.OFF):
         fail("--images goes into the recordings of --report DIR (and --detail off writes none)")
     frames = open_images(images, intrinsics, calib) if images is not None else None
-    evaluation, scored = evaluate_trajectory_files(trajectories, gt, fmt, gt_times, match, tolerance_ms)
+    evaluation, scored = evaluate_trajectory_files(trajectories, gt, fmt, gt_times, match, tolerance_ms, window,
+                                                   time_offset)
     if report is None:
         return evaluation
     pairs = [_pair(s, frames, match, tolerance_ms) if frames is not None else None for s in scored]
@@ -60,6 +64,12 @@ def evaluate_external(
 def _pair(trajectory: ScoredTrajectory, frames: TrajectoryImages, match: MatchMode, tolerance_ms: float
           ) -> tuple[RunFrames, str]:
     """Each matched row's image (`vslam.evaluation.matching.match_images`) and how they were paired."""
+    if trajectory.matching.method == "frame":  # each row's source frame is known: its image is that frame's
+        picks = np.asarray(trajectory.matching.truth_rows, np.int64)
+        if len(frames.files) <= int(picks.max()):
+            fail(f"--images {frames.path}: {len(frames.files)} images, but {trajectory.path} reaches frame "
+                 f"{int(picks.max())} (image i is frame i)")
+        return RunFrames(frames, picks), f"images by frame: image i is frame i ({trajectory.matching.how})"
     picks, how = match_images(trajectory.matching.rows, trajectory.total_rows, trajectory.times, frames.times,
                               len(frames.files), (trajectory.path, frames.path), match, tolerance_ms)
     return RunFrames(frames, picks), how
@@ -69,7 +79,9 @@ def _external_run(trajectory: ScoredTrajectory, gt: Path, paired: tuple[RunFrame
                   tolerance_ms: float, fmt: TrajectoryFormat | None) -> tuple[ExternalRun, dict[str, str]]:
     """The recording's data and run properties (``vslam inspect`` shows them; the producer is "external")."""
     rows = list(trajectory.matching.rows)
-    selected = describe_indices(rows)
+    # the recording's frame timeline is the source's frame index: the paired ground-truth row when it is known
+    frames = list(trajectory.matching.truth_rows) if trajectory.matching.method == "frame" else rows
+    selected = describe_indices(frames)
     name = f"vslam eval external {trajectory.name} frames {selected}"
     key = [trajectory.name, _digest(trajectory.path), _digest(gt), str(fmt), str(match), tolerance_ms,
            [] if paired is None else [paired[0].images.path.name, len(paired[0].images.files), paired[1]]]
@@ -93,7 +105,7 @@ def _external_run(trajectory: ScoredTrajectory, gt: Path, paired: tuple[RunFrame
              markdown_table([{k: v for k, v in trajectory.row.items() if k != "alignment"}])]
     times = trajectory.times[rows] if trajectory.times is not None else None
     run = ExternalRun(trajectory.name, trajectory.estimate, trajectory.ground_truth,
-                      np.asarray(rows, np.int64), times, "\n".join(lines))
+                      np.asarray(frames, np.int64), times, "\n".join(lines))
     return run, properties
 
 

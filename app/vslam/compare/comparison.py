@@ -70,7 +70,7 @@ from vslam.compare.frames import (
 )
 from vslam.compare.table import MetricDifference, format_differences, metric_differences, summary_markdown
 from vslam.recording import APPLICATION_ID, METRICS
-from vslam.rrd import inspect_recording, open_store, run_rerun_cli, same_file, work_dir_beside
+from vslam.rrd import inspect_recording, open_store, run_rerun_cli, same_file, schema_contract, work_dir_beside
 
 __all__ = ["PREFIXES", "LIGHTEN_B", "SERIES_WIDTHS", "ComparisonResult", "MetricDifference", "blueprint",
            "compare_recordings", "format_differences", "metric_differences", "plot_title"]
@@ -165,16 +165,18 @@ def compare_recordings(*paths: Path, labels: Sequence[str] | None = None, rotati
     for path in inputs:
         if same_file(path, output):
             raise RecordingError(f"{output}: the output must not be one of the compared recordings")
-    reports = tuple(inspect_recording(path) for path in inputs)
-    runs = [read_run_frames(path) for path in inputs]
-    refusals, warnings = comparability(names, reports, runs)
-    if refusals and not force:
-        raise RecordingError(f"{output}: {refusals[0]} (--force compares them anyway)")
-    differences = tuple(frame_differences(runs[0], run) for run in runs[1:])
-    ranked = tuple(_with_suspects(ranked_divergences(runs[0], run, diff), reports[0], report)
-                   for run, diff, report in zip(runs[1:], differences, reports[1:], strict=True))
-    divergences = tuple(first_divergence(runs[0], run, diff, rotation_deg, translation_pct)
-                        for run, diff in zip(runs[1:], differences, strict=True))
+    with schema_contract(*inputs):  # a recording `vslam check` rejects: one line, never a traceback
+        reports = tuple(inspect_recording(path) for path in inputs)
+        runs = [read_run_frames(path) for path in inputs]
+        refusals, warnings = comparability(names, reports, runs)
+        if refusals and not force:
+            raise RecordingError(f"{output}: {refusals[0]} (--force compares them anyway)")
+        differences = tuple(frame_differences(runs[0], run) for run in runs[1:])
+        ranked = tuple(_with_suspects(ranked_divergences(runs[0], run, diff), reports[0], report)
+                       for run, diff, report in zip(runs[1:], differences, reports[1:], strict=True))
+        divergences = tuple(first_divergence(runs[0], run, diff, rotation_deg, translation_pct)
+                            for run, diff in zip(runs[1:], differences, strict=True))
+        bounds = trajectory_bounds(list(inputs))
 
     stores = [store for _, store in opened]
     application_id = comparison_application_id([store.application_id for store in stores])
@@ -210,7 +212,7 @@ def compare_recordings(*paths: Path, labels: Sequence[str] | None = None, rotati
             groups = [g for g in METRICS if any(path.startswith(f"/metrics/{g}/") for path in logged)]
             own = sorted({"/".join(path.split("/")[3:-1]) for path in logged if path.startswith("/metrics/custom/")})
             first = min((d.frame for d in divergences if d is not None), default=None)
-            rec.save(layout, default_blueprint=blueprint(names, trajectory_bounds(list(inputs)), groups,
+            rec.save(layout, default_blueprint=blueprint(names, bounds, groups,
                                                          divergence_frame=first, own_plots=tuple(own)))
         combined = work / "combined.rrd"
         run_rerun_cli(output, "rrd", "filter", "-o", str(combined), str(layout), *map(str, parts), str(extra))

@@ -210,3 +210,10 @@ def difference_chunks(prefix: str, label_a: str, label_b: str, colour: tuple[int
 def _event(frame: int, text: str, level: str) -> Chunk:
     return Chunk.from_columns(DIFFERENCE_EVENTS, indexes=[rr.TimeColumn("frame", sequence=[frame])],
                               columns=rr.TextLog.columns(text=[text], level=[level]))
+
+
+def _text(value: object) -> str:
+    """One `AnyValues` cell as text (a one-element list as the reader gives it, or the bare value); "" for none."""
+    if isinstance(value, list):
+        value = value[0] if value else None
+    return "" if value is None else str(value)

@@ -83,7 +83,8 @@ def summary_row(report: dict[str, Any]) -> dict[str, float | None]:
     (°/100 m), ATE after Sim(3) alignment and paper RMS (m) from the recording's verdict (``report_metrics``),
     the recorded stage times summed (ms/frame: the engine's time per frame, without start-up) and the frame
     rate that makes; None where the recording has no such value."""
-    metrics = report.get("report_metrics") or {}
+    # a cropped file's verdict is of the whole run before crop (`report_metrics_cropped`): not this row's frames
+    metrics = {} if report.get("report_metrics_cropped") else report.get("report_metrics") or {}
     stages = [stats["mean"] for stats in (report.get("stages_ms") or {}).values() if stats]
     ms = float(sum(stages)) if stages else None
     return {

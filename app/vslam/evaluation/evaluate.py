@@ -7,7 +7,7 @@ each estimated trajectory (KITTI format), each recording and a top-view plot per
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import datetime
 from pathlib import Path
 from typing import Any
@@ -19,14 +19,22 @@ from rich.text import Text
 
 import vslam_core
 from vslam.common import COLUMNS, json_ready, markdown_table, mean_row, metrics_row, scored_estimate
-from vslam.evaluation.matching import DEFAULT_TOLERANCE_MS, Matching, MatchMode, gt_times_for, match_poses
+from vslam.evaluation.estimates import load_estimate
+from vslam.evaluation.matching import (
+    DEFAULT_TOLERANCE_MS,
+    Matching,
+    MatchMode,
+    Window,
+    gt_times_for,
+    match_poses,
+)
 from vslam.evaluation.plots import write_top_view
 from vslam.recording import Detail, ImageCodec, version_properties
 from vslam.runs import Interrupted, record_run
 from vslam_core.config import EngineConfig
 from vslam_core.errors import SourceError, TrajectoryFormatError
 from vslam_core.geometry import invert_pose
-from vslam_core.sources.base import FrameSource, describe_indices, rebase_poses
+from vslam_core.sources.base import FrameRange, FrameSource, describe_indices, rebase_poses
 from vslam_core.trajectory.io import (
     TrajectoryFormat,
     check_ground_truth_steps,
@@ -254,11 +262,16 @@ def evaluate_trajectory_files(
     gt_times: Path | None = None,
     match: MatchMode = MatchMode.auto,
     tolerance_ms: float = DEFAULT_TOLERANCE_MS,
+    frames: str | None = None,
+    time_offset: float | None = None,
 ) -> tuple[Evaluation, list[ScoredTrajectory]]:
     """Score any systems' trajectory files against one ground truth, each re-based to its first pose; rows are
     matched by timestamp when both sides have times (`gt_times`: a KITTI ``times.txt`` for a KITTI ground
     truth), else row by row (see `vslam.evaluation.matching`). One metrics row per file, named after it (names must
-    differ: `TrajectoryFormatError`). Nothing is written: see `write_trajectory_report`."""
+    differ: `TrajectoryFormatError`). `frames` (``--frames A:B[:S]``: the ground-truth rows the estimates hold)
+    and `time_offset` (seconds added to their times) say which ground-truth rows they are of; a recording or a
+    `vslam.log` TUM file says it itself (`vslam.evaluation.estimates`). Nothing is written: see
+    `write_trajectory_report`."""
     names: dict[str, Path] = {}
     for path in estimates:
         if path.stem in names:
@@ -269,10 +282,16 @@ def evaluate_trajectory_files(
     times = gt_times_for(gt_times, own_gt_times, len(gt_all), ground_truth)
     # a broken row would skew every figure (KITTI times.txt may cover the first rows only: then 1 s a row)
     check_ground_truth_steps(ground_truth, gt_all, times if times is not None and len(times) == len(gt_all) else None)
+    stated = _stated_window(frames, time_offset, len(gt_all))
     scored = []
     for path in estimates:
-        est_times, est = load_trajectory(path, fmt)
-        matched, gt, matching = match_poses(est_times, est, times, gt_all, (path, ground_truth), match, tolerance_ms)
+        estimate = load_estimate(path, fmt)
+        est_times, est = estimate.times, estimate.poses
+        window = stated if stated is not None and stated.frames is not None else estimate.window
+        if stated is not None and stated.time_offset is not None:
+            window = replace(window or Window(), time_offset=stated.time_offset)
+        matched, gt, matching = match_poses(est_times, est, times, gt_all, (path, ground_truth), match, tolerance_ms,
+                                            window, own_gt_times is not None)
         row = metrics_row(path.stem, rebase_poses(gt), rebase_poses(matched), "external", "external")
         row["matching"] = matching.describe()
         scored.append(ScoredTrajectory(path, rebase_poses(matched), rebase_poses(gt), gt[0].copy(), est_times,
@@ -283,6 +302,19 @@ def evaluate_trajectory_files(
                             matching=scored[0].matching if len(scored) == 1 else None,
                             matchings={s.name: s.matching for s in scored})
     return evaluation, scored
+
+
+def _stated_window(frames: str | None, time_offset: float | None, gt_rows: int) -> Window | None:
+    """``--frames`` (clamped to the ground truth's rows like a Python slice) and ``--time-offset`` as a `Window`."""
+    if frames is None and time_offset is None:
+        return None
+    if frames is None:
+        return Window(time_offset=time_offset)
+    try:
+        indices = FrameRange.parse(frames).indices(gt_rows)
+    except SourceError as exc:
+        raise TrajectoryFormatError(f"{exc} (the ground truth has {gt_rows} rows)") from None
+    return Window(tuple(indices), exact=False, how=f"--frames {frames}", time_offset=time_offset)
 
 
 def write_trajectory_report(report_dir: Path, evaluation: Evaluation, scored: list[ScoredTrajectory]) -> None:

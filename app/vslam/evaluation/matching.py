@@ -9,7 +9,7 @@ gap with the wrong frame.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import StrEnum
 from pathlib import Path
 from typing import Any
@@ -31,7 +31,8 @@ class MatchMode(StrEnum):
 
 @dataclass(frozen=True)
 class Matching:
-    """How the rows were paired: `method` ``"timestamp"`` or ``"rows"``, `matched` pairs out of
+    """How the rows were paired: `method` ``"timestamp"``, ``"rows"`` or ``"frame"`` (each row's source frame
+    known: `--frames`, a recording's frame timeline, a `vslam.log` TUM header), `matched` pairs out of
     `estimate_rows` estimated and `gt_rows` ground-truth poses; `tolerance_ms` for timestamps."""
 
     method: str
@@ -41,20 +42,52 @@ class Matching:
     tolerance_ms: float | None = None
     #: the estimate's row numbers that were kept, in order (the recording's `frame` timeline)
     rows: tuple[int, ...] = field(default=(), compare=False, repr=False)
+    #: the ground-truth row paired with each kept row (row i of a KITTI poses file is frame i)
+    truth_rows: tuple[int, ...] = field(default=(), compare=False, repr=False)
+    #: how the source frames were known (``--frames 50:150``, ``its recording's frame timeline``), or the clock
+    #: of the timestamps when it was not the ground truth's own (``times since frame 50``, ``--time-offset 5``)
+    how: str = ""
+    note: str = ""  # a doubt worth saying (times that may be on another clock)
 
     def describe(self) -> str:
-        """``matched by timestamp: 290 of 300 rows, tolerance 10 ms`` / ``matched row by row: 300 rows``."""
+        """``matched by timestamp: 290 of 300 rows, tolerance 10 ms`` / ``matched row by row: 300 rows`` /
+        ``matched by frame (--frames 50:150): 100 rows, ground-truth rows 50..149``."""
         if self.method == "timestamp":
-            return (f"matched by timestamp: {self.matched} of {self.estimate_rows} rows, "
+            text = (f"matched by timestamp: {self.matched} of {self.estimate_rows} rows, "
                     f"tolerance {self.tolerance_ms:g} ms")
-        text = f"matched row by row: {self.matched} rows"
-        if self.matched != self.estimate_rows or self.matched != self.gt_rows:
-            text += f" (the estimate has {self.estimate_rows}, the ground truth {self.gt_rows}; --match rows)"
-        return text
+            if self.how:
+                text += f" ({self.how}), ground-truth rows {_span(self.truth_rows)}"
+        elif self.method == "frame":
+            text = f"matched by frame ({self.how}): {self.matched} rows, ground-truth rows {_span(self.truth_rows)}"
+        else:
+            text = f"matched row by row: {self.matched} rows"
+        return text + (f"; {self.note}" if self.note else "")
 
     def as_json(self) -> dict[str, Any]:
         return {"method": self.method, "matched": self.matched, "estimate_rows": self.estimate_rows,
-                "gt_rows": self.gt_rows, "tolerance_ms": self.tolerance_ms, "text": self.describe()}
+                "gt_rows": self.gt_rows, "tolerance_ms": self.tolerance_ms,
+                "ground_truth_rows": _span(self.truth_rows) if self.truth_rows else None, "text": self.describe()}
+
+
+def _span(rows: tuple[int, ...]) -> str:
+    """``50..149`` (or ``50..149, 98 rows`` when some are missing)."""
+    if not rows:
+        return "none"
+    text = f"{min(rows)}..{max(rows)}"
+    return text if len(rows) == max(rows) - min(rows) + 1 else f"{text}, {len(rows)} rows"
+
+
+@dataclass(frozen=True)
+class Window:
+    """Which source frames an estimate holds, as the user or the file says: `frames` (the rows of a row-indexed
+    ground truth, KITTI poses: row i = frame i), `exact` when row i of the estimate IS frames[i] (a recording's
+    frame timeline, a `vslam.log` header) rather than a window it lies in (``--frames A:B``), `how` for the
+    messages; `time_offset` seconds to add to the estimate's times (``--time-offset``)."""
+
+    frames: tuple[int, ...] | None = None
+    exact: bool = False
+    how: str = ""
+    time_offset: float | None = None
 
 
 def gt_times_for(path: Path | None, gt_times: np.ndarray | None, gt_rows: int, gt_name: Path) -> np.ndarray | None:
@@ -84,26 +117,106 @@ def match_poses(
     names: tuple[Path, Path],
     mode: MatchMode = MatchMode.auto,
     tolerance_ms: float = DEFAULT_TOLERANCE_MS,
+    window: Window | None = None,
+    gt_own_times: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, Matching]:
     """Frame-aligned (estimate, ground truth) and how they were matched. `gt_times` may cover only the
-    first rows of `gt` (a ``times.txt`` of the frames that exist). Raises `TrajectoryFormatError`."""
+    first rows of `gt` (a ``times.txt`` of the frames that exist); `gt_own_times`: the ground truth is TUM (its
+    rows are stamps, not frames). `window`: the frames the estimate holds, or a shift of its clock (see
+    `match_window`). Raises `TrajectoryFormatError`."""
     have_times = est_times is not None and gt_times is not None
     if mode is MatchMode.timestamps and not have_times:
         missing = names[0] if est_times is None else names[1]
         raise TrajectoryFormatError(
             f"--match timestamps: {missing} has no timestamps (TUM files have them; give a KITTI ground truth "
             "its times.txt with --gt-times)")
+    if window is not None and (window.frames is not None or window.time_offset is not None) \
+            and not (gt_own_times and window.exact and window.time_offset is None):
+        return match_window(est_times, est, gt_times, gt, names, mode, tolerance_ms, window, gt_own_times)
     if have_times and mode is not MatchMode.rows:
         assert est_times is not None and gt_times is not None
-        return _by_timestamp(est_times, est, gt_times, gt[: len(gt_times)], names, tolerance_ms)
-    if len(est) != len(gt) and mode is not MatchMode.rows:
+        est_m, gt_m, matching = _by_timestamp(est_times, est, gt_times, gt[: len(gt_times)], names, tolerance_ms)
+        if len(est) < len(gt_times) and abs(est_times[0] - gt_times[0]) * 1000.0 <= tolerance_ms \
+                and abs(gt_times[0]) * 1000.0 <= tolerance_ms:  # times from 0: since the sequence's start, or
+            # since the estimate's own first frame? (a window of frames 50..149 would be paired with rows 0..99)
+            matching = replace(matching, note=f"ground-truth rows {_span(matching.truth_rows)}: its times are taken "
+                               "on the ground truth's clock; if they count from a later first frame, give --frames "
+                               "A:B")
+        return est_m, gt_m, matching
+    if len(est) != len(gt):
         how = ("give the ground truth's timestamps with --gt-times (the sequence's times.txt)" if est_times is not None
                else "give the estimate as TUM (with timestamps) and --gt-times")
+        asked = " with --match rows" if mode is MatchMode.rows else ""
         raise TrajectoryFormatError(
-            f"{names[0]} has {len(est)} poses and {names[1]} {len(gt)}, and no timestamps on both sides to match "
-            f"them by: {how}, or --match rows if row i of both files is the same frame")
-    n = min(len(est), len(gt))
-    return est[:n], gt[:n], Matching("rows", n, len(est), len(gt), rows=tuple(range(n)))
+            f"{names[0]} has {len(est)} poses and {names[1]} {len(gt)}{asked}, and no way to tell which ground-truth "
+            f"rows they are: --frames A:B (row i of the estimate is frame A+i, e.g. --frames 0:{len(est)}), or "
+            f"{how}")
+    n = len(est)
+    return est, gt, Matching("rows", n, len(est), len(gt), rows=tuple(range(n)), truth_rows=tuple(range(n)))
+
+
+def match_window(
+    est_times: np.ndarray | None, est: np.ndarray, gt_times: np.ndarray | None, gt: np.ndarray,
+    names: tuple[Path, Path], mode: MatchMode, tolerance_ms: float, window: Window, gt_own_times: bool,
+) -> tuple[np.ndarray, np.ndarray, Matching]:
+    """An estimate of known source frames (`window.frames`) or on a stated clock (`window.time_offset`):
+    by frame when row i is known to be frames[i] (or asked, ``--match rows``: the counts must agree), else by
+    timestamp among the window's ground-truth rows, the estimate's clock being the ground truth's, the times
+    since the window's first frame, or shifted by ``--time-offset``. Raises `TrajectoryFormatError`."""
+    estimate, truth = names
+    frames = window.frames
+    if frames is not None and gt_own_times and window.exact:
+        frames = None  # a recording's (or header's) frames are not rows of a TUM ground truth: by time only
+    if frames is not None:
+        if gt_own_times:
+            raise TrajectoryFormatError(
+                f"{window.how}: {truth} is a TUM ground truth (rows are stamps, not frames): pair by timestamp, "
+                "with --time-offset SECONDS when the estimate's clock differs")
+        if max(frames) >= len(gt):
+            raise TrajectoryFormatError(f"{window.how} reaches frame {max(frames)}: {truth} has rows 0..{len(gt) - 1}")
+    have_times = est_times is not None and gt_times is not None
+    by_frame = frames is not None and window.time_offset is None and (
+        mode is MatchMode.rows or (mode is MatchMode.auto and (window.exact or not have_times)))
+    if by_frame:
+        assert frames is not None
+        if len(frames) != len(est):
+            raise TrajectoryFormatError(
+                f"{estimate} has {len(est)} poses but {window.how} is {len(frames)} frames: row i must be the i-th "
+                "frame" + ("; a trajectory with dropped frames needs timestamps (TUM, and --gt-times)"
+                           if not have_times else "; without --match rows its timestamps pair the rows"))
+        picked = np.asarray(frames, np.int64)
+        return est, gt[picked], Matching("frame", len(est), len(est), len(gt), rows=tuple(range(len(est))),
+                                         truth_rows=tuple(int(f) for f in picked), how=window.how)
+    if est_times is None or gt_times is None:
+        missing = estimate if est_times is None else truth
+        raise TrajectoryFormatError(f"--time-offset shifts timestamps: {missing} has none (TUM files have them; a "
+                                    "KITTI ground truth its times.txt, --gt-times)")
+    if mode is MatchMode.rows:
+        raise TrajectoryFormatError("--time-offset pairs rows by timestamp: not with --match rows")
+    low, high = (min(frames), max(frames) + 1) if frames is not None else (0, len(gt_times))
+    if low >= len(gt_times):
+        raise TrajectoryFormatError(f"{window.how}: the ground truth's times cover rows 0..{len(gt_times) - 1} only")
+    offset, clock = _clock(est_times, gt_times, low, window, estimate, tolerance_ms)
+    est_m, gt_m, matching = _by_timestamp(est_times + offset, est, gt_times[low:high], gt[low:high], names,
+                                          tolerance_ms)
+    return est_m, gt_m, replace(matching, truth_rows=tuple(low + r for r in matching.truth_rows), how=clock)
+
+
+def _clock(est_times: np.ndarray, gt_times: np.ndarray, low: int, window: Window, estimate: Path,
+           tolerance_ms: float) -> tuple[float, str]:
+    """Seconds to add to the estimate's times and the clock they were on: ``--time-offset``, else the ground
+    truth's own when its first time is frame `low`'s, else times since frame `low` when it is 0; refused when
+    neither (a guess would pair every row with the wrong frame)."""
+    if window.time_offset is not None:
+        return window.time_offset, f"--time-offset {window.time_offset:g} s"
+    first, start = float(est_times[0]), float(gt_times[low])
+    if abs(first - start) * 1000.0 <= tolerance_ms:
+        return 0.0, f"{window.how}, times on the ground truth's clock"
+    if abs(first) * 1000.0 <= tolerance_ms:
+        return start, f"{window.how}, times since frame {low}"
+    raise TrajectoryFormatError(
+        f"{estimate}: its times start at {first:.6f} s, neither frame {low}'s time on the ground truth's clock "
+        f"({start:.6f} s) nor 0 (times since frame {low}): give --time-offset SECONDS (added to its times)")
 
 
 def _by_timestamp(
@@ -118,9 +231,10 @@ def _by_timestamp(
     if matched < MIN_MATCHES:
         raise TrajectoryFormatError(
             f"{names[0]}: only {matched} of {len(est)} timestamps match {names[1]} within {tolerance_ms:g} ms "
-            f"(need {MIN_MATCHES}; is it the right sequence?)")
+            f"(need {MIN_MATCHES}; is it the right sequence, or its times on another clock: --time-offset?)")
     return est[close], gt[pick[close]], Matching("timestamp", matched, len(est), len(gt), tolerance_ms,
-                                                 tuple(int(i) for i in np.flatnonzero(close)))
+                                                 tuple(int(i) for i in np.flatnonzero(close)),
+                                                 tuple(int(i) for i in pick[close]))
 
 
 def match_images(

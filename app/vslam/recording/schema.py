@@ -70,7 +70,9 @@ ENTITIES: tuple[EntitySpec, ...] = (
                "corners detected in this frame (raw image pixels)"),
     EntitySpec("/world/camera/image/flow", ("Arrows2D:origins", "Arrows2D:vectors", "Arrows2D:class_ids"), False,
                False, VIEWER, "one arrow per track, previous → current pixel, class = fate (5 inlier)"),
-    EntitySpec("/health", ("status", "reasons"), False, False, (INSPECT, COMPARE),
+    # `reasons` may be absent: the Rerun SDK's `AnyValues` drops an empty string, so a run whose every frame has
+    # no reason (reasons="") is written without the component; readers take it as "" everywhere
+    EntitySpec("/health", ("status",), False, False, (INSPECT, COMPARE),
                "per frame: status ok|warn|fail and comma-separated reason codes"),
     EntitySpec("/events", ("TextLog:text", "TextLog:level"), False, False, VIEWER, "text log"),
     EntitySpec("/report", ("TextDocument:text",), True, False, (INSPECT, COMPARE),

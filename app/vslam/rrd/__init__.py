@@ -13,6 +13,8 @@ from vslam_core.lazy import lazy_names
 _HOMES = {
     "RecordingError": "read",
     "blueprint_view_names": "read",
+    "CameraPoses": "poses",
+    "camera_poses": "poses",
     "check_recording": "check",
     "comparison_prefixes": "provenance",
     "crop_recording": "crop",
@@ -37,15 +39,17 @@ _HOMES = {
     "run_differences": "provenance",
     "run_rerun_cli": "read",
     "same_file": "read",
+    "schema_contract": "check",
     "video_codecs": "crop_video",
     "work_dir_beside": "read",
 }
 
 if TYPE_CHECKING:
-    from vslam.rrd.check import check_recording, format_check
+    from vslam.rrd.check import check_recording, format_check, schema_contract
     from vslam.rrd.crop import crop_recording, format_crop, parse_crop_frames
     from vslam.rrd.crop_video import video_codecs
     from vslam.rrd.inspect import format_report, inspect_recording
+    from vslam.rrd.poses import CameraPoses, camera_poses
     from vslam.rrd.provenance import comparison_prefixes, flatten, run_differences
     from vslam.rrd.read import (
         RecordingError,
@@ -68,7 +72,9 @@ __getattr__ = lazy_names(__name__, _HOMES)
 
 
 __all__ = [
+    "CameraPoses",
     "RecordingError",
+    "camera_poses",
     "blueprint_view_names",
     "check_recording",
     "comparison_prefixes",
@@ -94,6 +100,7 @@ __all__ = [
     "robust_z",
     "run_rerun_cli",
     "same_file",
+    "schema_contract",
     "video_codecs",
     "work_dir_beside",
 ]

@@ -12,7 +12,8 @@ A `vslam compare` file is checked run by run (``/a``, ``/b``, …).
 from __future__ import annotations
 
 import difflib
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -32,6 +33,7 @@ from vslam.recording import (
 )
 from vslam.rrd.provenance import PROPERTIES, comparison_prefixes, read_properties
 from vslam.rrd.read import RecordingError, first_line, open_store, read_entity, readable
+from vslam_core.errors import VslamError
 
 #: Rotation components of `/world/camera`: any one of them.
 ROTATIONS = ("Transform3D:mat3x3", "Transform3D:quaternion", "Transform3D:rotation_axis_angle")
@@ -200,6 +202,10 @@ def _check_camera(path: Path, prefix: str, layout: _Layout, result: CheckResult)
     if entity not in layout.components or FRAME_TIMELINE not in layout.timelines.get(entity, set()):
         return []
     table = read_entity(path, entity)
+    if not table["frame"].dtype.is_integer():  # set_time("frame", duration=… / timestamp=…)
+        return [Problem(f"timeline {FRAME_TIMELINE}", f"a {str(table['frame'].dtype).split('(')[0].lower()} "
+                        "timeline, not a sequence: log the source's frame index with set_time(\"frame\", "
+                        "sequence=i)", EVERY_COMMAND)]
     frames = [int(f) for f in table["frame"].to_list() if f is not None]
     result.frames = frames
     problems = []
@@ -247,6 +253,33 @@ def _text(value: object) -> object:
     return value[0] if isinstance(value, list) and len(value) == 1 else value
 
 
+@contextmanager
+def schema_contract(*paths: Path) -> Iterator[None]:
+    """The contract of `vslam check` for every command that reads recordings: a recording it accepts works with
+    every command; one it rejects ends the command in one line (`RecordingError`) naming its first problem,
+    never a traceback. An unexpected error reading `paths` is turned into that line when a path does not
+    conform; when every path conforms it is vslam's bug and is raised as it is (the property test finds it)."""
+    try:
+        yield
+    except VslamError:  # already one line
+        raise
+    except Exception as exc:  # noqa: BLE001 - see above: re-raised unless a recording breaks the schema
+        for path in paths:
+            try:
+                result = check_recording(path)
+            except RecordingError:
+                raise
+            except Exception:  # noqa: BLE001 - the checker failing too: the first error is the one to see
+                raise exc from None
+            if not result.conforms:
+                count = len(result.problems)
+                raise RecordingError(f"{path}: does not conform to recording schema {SCHEMA_VERSION}: "
+                                     f"{result.problems[0].line()}"
+                                     + (f" (and {count - 1} more: vslam check {path})" if count > 1 else
+                                        f" (vslam check {path})")) from None
+        raise
+
+
 def format_check(result: CheckResult) -> Iterable[str]:
     """One line per problem and note, then the verdict."""
     for problem in result.problems:
@@ -261,4 +294,4 @@ def format_check(result: CheckResult) -> Iterable[str]:
                f"problem{'s' if len(result.problems) != 1 else ''}")
 
 
-__all__ = ["CheckResult", "Problem", "check_recording", "format_check"]
+__all__ = ["CheckResult", "Problem", "check_recording", "format_check", "schema_contract"]

@@ -38,6 +38,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 from rerun.chunk import Chunk, RrdReader, StoreEntry
 
+from vslam.rrd.check import schema_contract
 from vslam.rrd.crop_video import reencoded_first_gops, swap_samples
 from vslam.rrd.provenance import PROPERTIES, cropped_properties, read_properties
 from vslam.rrd.read import RecordingError, first_line, open_store, readable, run_rerun_cli, same_file, work_dir_beside
@@ -149,9 +150,15 @@ def crop_recording(source: Path, frames: tuple[int, int | None], output: Path, m
         raise RecordingError(f"{source}: empty frame range {start}:{end} (START must be below END; END is excluded)")
     if start < 0:
         raise RecordingError(f"{source}: frame range {start}:{end} starts below 0")
-    reader, recording, blueprints = open_store(source)
     if same_file(source, output):
         raise RecordingError(f"{output}: the output must not be the source recording")
+    with schema_contract(source):  # a recording `vslam check` rejects: one line, never a traceback
+        return _crop(source, start, end, frames, output, mark_cropped)
+
+
+def _crop(source: Path, start: int, end: int, frames: tuple[int, int | None], output: Path, mark_cropped: bool
+          ) -> CropSummary:
+    reader, recording, blueprints = open_store(source)
 
     work = work_dir_beside(output)
     try:

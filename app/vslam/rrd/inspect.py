@@ -15,6 +15,8 @@ from vslam.common import COLUMNS
 from vslam.common import METRICS as REPORT_METRICS
 from vslam.recording import METRICS, STAGES
 from vslam.recording import WORST as DRIFT_TOP
+from vslam.rrd.check import schema_contract
+from vslam.rrd.poses import camera_poses
 from vslam.rrd.provenance import (
     PROPERTIES,
     comparison_prefixes,
@@ -101,30 +103,23 @@ def flagged_ranges(frames: list[int], statuses: list[str], reasons: list[str]) -
 
 
 def _accuracy(path: Path, prefix: str = "") -> dict[str, float] | None:
-    position = _scalars(path, "error", prefix)["position_m"]
-    if not len(position):
+    """Position and angle errors (`/metrics/error`, `/metrics/angle_error`: each series by its own frames, any
+    of them may be absent) and the paper RMS of the estimate against the ground truth, paired by FRAME (never
+    by row: see `ground_truth_by_frame`); None without position errors."""
+    position = _series_by_frame(path, f"{prefix}/metrics/error/position_m")
+    if not position:
         return None
-    angles = _scalars(path, "angle_error", prefix)
-    camera = read_entity(path, f"{prefix}/world/camera")
-    ground_truth = read_entity(path, f"{prefix}/world/trajectory/ground_truth")
-    aligned = read_entity(path, f"{prefix}/world/trajectory/estimate_sim3", static=True)  # --scale none
-    if not aligned.is_empty():
-        estimate_xyz = np.array(aligned["LineStrips3D:strips"][0][0], np.float64).reshape(-1, 3)
-    else:
-        translations = camera["Transform3D:translation"].to_list()
-        estimate_xyz = np.array([t[0] if isinstance(t[0], list) else t for t in translations],
-                                np.float64).reshape(-1, 3)
-    gt_xyz = np.array([strips[0][1] for strips in ground_truth["LineStrips3D:strips"].to_list()]).reshape(-1, 3)
-    n = min(len(estimate_xyz), len(gt_xyz))
-    xz = (estimate_xyz[:n] - gt_xyz[:n])[:, [0, 2]]
-    heading, direction = angles["heading_deg"], angles["translation_direction_deg"]
+    heading = _series_by_frame(path, f"{prefix}/metrics/angle_error/heading_deg")
+    direction = _series_by_frame(path, f"{prefix}/metrics/angle_error/translation_direction_deg")
+    errors = np.array(list(position.values()), np.float64)
+    directions = np.array(list(direction.values()), np.float64)
     return {
-        "final_position_error_m": float(position[-1]),
-        "mean_position_error_m": float(position.mean()),
-        "max_position_error_m": float(position.max()),
-        "paper_rms_m": float(np.sqrt(np.mean(np.sum(xz**2, axis=1)))),
-        "final_heading_error_deg": float(heading[-1]),
-        "mean_translation_direction_error_deg": float(direction.mean()) if len(direction) else math.nan,
+        "final_position_error_m": position[max(position)],
+        "mean_position_error_m": float(errors.mean()),
+        "max_position_error_m": float(errors.max()),
+        "paper_rms_m": _paper_rms(path, prefix),
+        "final_heading_error_deg": heading[max(heading)] if heading else math.nan,
+        "mean_translation_direction_error_deg": float(directions.mean()) if len(directions) else math.nan,
     }
 
 
@@ -149,6 +144,50 @@ def _gt_check(path: Path, prefix: str = "") -> dict[str, Any] | None:
                          "rotation_deg": w.rotation_deg} for w in summary.windows],
             "warnings": [line.removeprefix("Warning: ").rstrip(".") for line in text.splitlines()
                          if line.startswith("Warning: the ground truth")]}
+
+
+def _paper_rms(path: Path, prefix: str = "") -> float:
+    """RMS of the x–z distance between the estimate (its Sim(3)-aligned form with --scale none) and the ground
+    truth over the frames that have both; NaN when none has."""
+    estimate = camera_positions(path, prefix)
+    aligned = read_entity(path, f"{prefix}/world/trajectory/estimate_sim3", static=True)  # --scale none
+    if not aligned.is_empty():  # one point per camera frame, in frame order
+        points = np.array(aligned["LineStrips3D:strips"][0][0], np.float64).reshape(-1, 3)
+        if len(points) == len(estimate):
+            estimate = dict(zip(sorted(estimate), points, strict=True))
+    truth = ground_truth_by_frame(path, prefix)
+    common = sorted(set(estimate) & set(truth))
+    if not common:
+        return math.nan
+    xz = np.array([estimate[f] - truth[f] for f in common])[:, [0, 2]]
+    return float(np.sqrt(np.mean(np.sum(xz**2, axis=1))))
+
+
+def camera_positions(path: Path, prefix: str = "") -> dict[int, np.ndarray]:
+    """{frame: (3,) camera position} of `/world/camera` (frames whose translation is missing left out)."""
+    poses = camera_poses(path, prefix)
+    return {int(f): pose[:3, 3] for f, pose in zip(poses.frames, poses.poses, strict=True)}
+
+
+def ground_truth_by_frame(path: Path, prefix: str = "") -> dict[int, np.ndarray]:
+    """{frame: (3,) ground-truth position} from `/world/trajectory/ground_truth` (docs/recording-schema.md): the
+    segment logged at frame f runs from the previous camera frame's ground truth to frame f's, so its END is
+    frame f's; a frame without a segment of its own (a first frame logged without vslam's zero-length one)
+    takes the START of the next camera frame's segment. Paired by frame, never by row."""
+    table = read_entity(path, f"{prefix}/world/trajectory/ground_truth")
+    if table.is_empty() or "LineStrips3D:strips" not in table.columns or "frame" not in table.columns:
+        return {}
+    segments: dict[int, np.ndarray] = {}
+    for frame, strips in zip(table["frame"].to_list(), table["LineStrips3D:strips"].to_list(), strict=True):
+        if frame is None or not strips or strips[0] is None or len(strips[0]) < 1:
+            continue
+        segments[int(frame)] = np.asarray(strips[0], np.float64).reshape(-1, 3)
+    truth = {frame: points[-1] for frame, points in segments.items()}
+    frames = sorted(camera_positions(path, prefix))
+    for before, after in zip(frames, frames[1:], strict=False):
+        if before not in truth and after in segments and len(segments[after]) >= 2:
+            truth[before] = segments[after][0]
+    return truth
 
 
 def report_metrics(path: Path, prefix: str = "") -> dict[str, float | None] | None:
@@ -193,6 +232,11 @@ def inspect_recording(path: Path) -> dict[str, Any]:
         raise RecordingError(f"{path}: no such recording")
     if not path.is_file():
         raise RecordingError(f"{path}: not a file (a .rrd recording is a regular file)")
+    with schema_contract(path):
+        return _inspect(path)
+
+
+def _inspect(path: Path) -> dict[str, Any]:
     comparison = read_properties(path, f"{PROPERTIES}/compare")
     if comparison and read_entity(path, "/world/camera").is_empty():
         return {
@@ -222,8 +266,13 @@ def _run_report(path: Path, prefix: str = "") -> dict[str, Any]:
     frame_reasons: dict[int, list[str]] = {}
     if not health.is_empty():
         reasons = health["reasons"].to_list() if "reasons" in health.columns else [None] * len(health)
-        codes = [v[0] if v else "" for v in reasons]
-        flagged = flagged_ranges(health["frame"].to_list(), [v[0] for v in health["status"].to_list()], codes)
+        codes = [_text(v) for v in reasons]
+        statuses = [_text(v) for v in health["status"].to_list()] if "status" in health.columns \
+            else [""] * len(health)
+        if unknown := sorted(set(statuses) - {"ok", "warn", "fail"}):
+            raise RecordingError(f"{path}: {prefix}/health:status: {unknown[0]!r} is not a health level (ok, warn, "
+                                 f"fail): the recording does not conform to the schema (vslam check {path})")
+        flagged = flagged_ranges(health["frame"].to_list(), statuses, codes)
         frame_reasons = {int(f): [r for r in c.split(",") if r] for f, c in zip(health["frame"].to_list(), codes,
                                                                                   strict=True)}
     timing = _scalars(path, "timing_ms", prefix)
@@ -253,6 +302,9 @@ def _run_report(path: Path, prefix: str = "") -> dict[str, Any]:
         "own_series": own_series(path, prefix, entities),
         "accuracy": _accuracy(path, prefix),
         "report_metrics": report_metrics(path, prefix),
+        # `vslam crop` keeps the whole run's verdict: say which frames it is of, never pass it off as the crop's
+        "report_metrics_frames": properties.get("cropped_from", properties.get("frames")),
+        "report_metrics_cropped": "cropped_from" in properties,
         "accuracy_alignment": _accuracy_alignment(path, prefix),
         "flagged": flagged,
         "drift": _drift(path, frame_reasons, prefix),
@@ -266,8 +318,9 @@ def _loops(path: Path, prefix: str = "") -> list[dict[str, Any]]:
     """The loops closed (`/loops/closed`, map backend): frame, matched frame, inliers, and the correction
     applied to the frame's keyframe in metres and degrees."""
     table = read_entity(path, f"{prefix}/loops/closed")
-    if table.is_empty():
-        return []
+    names = ("query_frame", "candidate_frame", "inliers", "correction_m", "correction_deg")
+    if table.is_empty() or not all(name in table.columns for name in names):
+        return []  # outside the schema (vslam's map backend writes it): another writer's entity of that name
 
     def column(name: str) -> list[Any]:
         return [v[0] for v in table[name].to_list()]
@@ -297,6 +350,8 @@ def _format_run(report: dict[str, Any]) -> list[str]:
     lines = [
         f"source      {props.get('source', '?')} ({props.get('source_path', '?')}), frames {props.get('frames', '?')}, "
         f"scale {props.get('scale', '?')}, backend {props.get('backend', '?')}, detail {props.get('detail', '?')}",
+        *([f"pipeline    {props['pipeline']} (logged with vslam.log: its own front end and backend, not vslam's "
+           "engine)"] if "pipeline" in props else []),
         *_camera_lines(props),
         f"versions    vslam {props.get('vslam_version', '?')}, OpenCV {props.get('opencv_version', '?')}, "
         f"Rerun {props.get('rerun_version', '?')}",
@@ -329,13 +384,15 @@ def _format_run(report: dict[str, Any]) -> list[str]:
     if accuracy is None:
         lines.append("accuracy    no ground truth in this recording")
     else:
-        direction = accuracy["mean_translation_direction_error_deg"]  # NaN without keyframes (external)
+        direction = _finite(accuracy["mean_translation_direction_error_deg"])  # none without keyframes (external)
+        heading, rms = _finite(accuracy["final_heading_error_deg"]), _finite(accuracy["paper_rms_m"])
         lines.append(
             f"accuracy    position error final {accuracy['final_position_error_m']:.2f} m, mean "
-            f"{accuracy['mean_position_error_m']:.2f} m, max {accuracy['max_position_error_m']:.2f} m; "
-            f"paper RMS (x–z) {accuracy['paper_rms_m']:.2f} m; heading error final "
-            f"{accuracy['final_heading_error_deg']:.2f}°"
-            + (f"; mean direction error {direction:.2f}°" if math.isfinite(direction) else "")
+            f"{accuracy['mean_position_error_m']:.2f} m, max {accuracy['max_position_error_m']:.2f} m"
+            + (f"; paper RMS (x–z) {rms:.2f} m" if rms is not None else "; no ground-truth trajectory for the paper "
+               "RMS")
+            + (f"; heading error final {heading:.2f}°" if heading is not None else "")
+            + (f"; mean direction error {direction:.2f}°" if direction is not None else "")
         )
         if report.get("accuracy_alignment") == "sim3":
             lines.append("            (position errors and paper RMS after Sim(3) alignment: --scale none has unit "
@@ -343,6 +400,9 @@ def _format_run(report: dict[str, Any]) -> list[str]:
     if (check := report.get("gt_check")) is not None:
         lines.append(f"gt check    {check['line']}")
         lines += [f"            warning: {warning}" for warning in check["warnings"]]
+    if report.get("report_metrics") and report.get("report_metrics_cropped"):
+        lines.append(f"verdict     /report (t_err, ATE …) is of frames {report['report_metrics_frames']}, the run "
+                     "before crop: not recomputed for the frames this file holds")
     flagged = report["flagged"]
     lines.append(f"flagged     {len(flagged)} range(s)" + (":" if flagged else ""))
     for item in flagged:
@@ -381,6 +441,11 @@ def _drift_lines(drift: dict[str, list[dict[str, Any]]] | None, rows: int = 5) -
     return lines
 
 
+def _finite(value: float | None) -> float | None:
+    """`value` when it is a finite number (JSON gives None for NaN), else None."""
+    return value if value is not None and math.isfinite(value) else None
+
+
 def _camera_lines(props: dict[str, Any]) -> list[str]:
     """The calibration the run used and, for a log, its topic and stamps (recordings of older versions have
     neither)."""
@@ -400,3 +465,10 @@ def _camera_lines(props: dict[str, Any]) -> list[str]:
         lines.append(f"16-bit      {props['sixteen_bit']}")
     return lines
 
+
+
+def _text(value: object) -> str:
+    """One `AnyValues` cell as text (a one-element list as the reader gives it, or the bare value); "" for none."""
+    if isinstance(value, list):
+        value = value[0] if value else None
+    return "" if value is None else str(value)

@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from vslam.rrd.poses import camera_poses
 from vslam.rrd.read import read_entity
 
 #: Frames either side whose spread a frame's features are judged against (~20 s of driving at 10 Hz: a whole
@@ -59,28 +60,9 @@ class RunPoses:
 
 
 def read_poses(path: Path, prefix: str = "") -> RunPoses:
-    """Poses (``{prefix}/world/camera``: a rotation as ``mat3x3``, ``quaternion``, ``rotation_axis_angle`` or
-    none, the world's orientation) and health (``{prefix}/health``) of a recording, by frame."""
-    camera = read_entity(path, f"{prefix}/world/camera")
-    if camera.is_empty() or "Transform3D:translation" not in camera.columns or "frame" not in camera.columns:
-        return RunPoses(np.zeros(0, np.int64), np.zeros((0, 4, 4)))
-
-    def column(name: str) -> list[Any]:
-        return camera[f"Transform3D:{name}"].to_list() if f"Transform3D:{name}" in camera.columns \
-            else [None] * len(camera)
-
-    rows = [(int(f), t, m, q, a) for f, t, m, q, a in zip(
-        camera["frame"].to_list(), column("translation"), column("mat3x3"), column("quaternion"),
-        column("rotation_axis_angle"), strict=True) if t is not None]
-    poses = np.tile(np.eye(4), (len(rows), 1, 1))
-    for k, (_, translation, matrix, quaternion, axis_angle) in enumerate(rows):
-        poses[k, :3, 3] = np.asarray(translation, np.float64).reshape(3)
-        if matrix is not None:
-            poses[k, :3, :3] = np.asarray(matrix, np.float64).reshape(3, 3).T  # Rerun's Mat3x3 is column-major
-        elif quaternion is not None:
-            poses[k, :3, :3] = _quaternion_matrix(np.asarray(quaternion, np.float64).reshape(4))
-        elif axis_angle:
-            poses[k, :3, :3] = _axis_angle_matrix(axis_angle[0])
+    """Poses (``{prefix}/world/camera``, any rotation the schema allows: `vslam.rrd.poses`) and health
+    (``{prefix}/health``) of a recording, by frame."""
+    camera = camera_poses(path, prefix)
     health: dict[int, tuple[str, list[str]]] = {}
     table = read_entity(path, f"{prefix}/health")
     if not table.is_empty() and "status" in table.columns:
@@ -88,25 +70,7 @@ def read_poses(path: Path, prefix: str = "") -> RunPoses:
         for frame, status, codes in zip(table["frame"].to_list(), table["status"].to_list(), reasons, strict=True):
             text = codes[0] if codes else ""
             health[int(frame)] = (str(status[0]) if status else "", [r for r in str(text).split(",") if r])
-    frames = np.array([r[0] for r in rows], np.int64)
-    order = np.argsort(frames, kind="stable")
-    return RunPoses(frames[order], poses[order], health)
-
-
-def _quaternion_matrix(q: np.ndarray) -> np.ndarray:
-    """(3, 3) rotation of a unit quaternion (x, y, z, w), Rerun's order."""
-    x, y, z, w = q / (np.linalg.norm(q) or 1.0)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
-
-
-def _axis_angle_matrix(value: dict[str, Any]) -> np.ndarray:
-    """(3, 3) rotation of Rerun's ``RotationAxisAngle`` (``{"axis": [x, y, z], "angle": radians}``)."""
-    axis = np.asarray(value.get("axis") or (0.0, 0.0, 1.0), np.float64)
-    axis = axis / (np.linalg.norm(axis) or 1.0)
-    half = 0.5 * float(value.get("angle") or 0.0)
-    return _quaternion_matrix(np.array([*(math.sin(half) * axis), math.cos(half)]))
+    return RunPoses(camera.frames, camera.poses, health)
 
 
 def rotation_angle_deg(rotation: np.ndarray) -> float:

@@ -15,6 +15,7 @@ _HOMES = {
     "Interrupted": "runner",
     "RecordedRun": "runner",
     "RunOutputs": "run_outputs",
+    "FRAMES_HEADER": "trajectory_out",
     "TrajectoryWriter": "trajectory_out",
     "camera_height_problem": "checks",
     "claim_run_outputs": "run_outputs",
@@ -46,7 +47,7 @@ if TYPE_CHECKING:
     from vslam.runs.progress import eta
     from vslam.runs.run_outputs import RunOutputs, claim_run_outputs, describe_outputs
     from vslam.runs.runner import Interrupted, RecordedRun, record_run
-    from vslam.runs.trajectory_out import TrajectoryWriter
+    from vslam.runs.trajectory_out import FRAMES_HEADER, TrajectoryWriter
 
 
 __getattr__ = lazy_names(__name__, _HOMES)
@@ -57,6 +58,7 @@ __all__ = [
     "Interrupted",
     "RecordedRun",
     "RunOutputs",
+    "FRAMES_HEADER",
     "TrajectoryWriter",
     "camera_height_problem",
     "claim_run_outputs",

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 
 from vslam.common import ClaimedFile, OutputError, write_failure
+from vslam_core.sources.base import describe_indices
 from vslam_core.trajectory.io import kitti_line, tum_line
 
 if TYPE_CHECKING:
@@ -20,15 +21,28 @@ if TYPE_CHECKING:
     from vslam_core.sources.base import Frame
 
 Format = Literal["kitti", "tum"]
+#: The first line of a TUM trajectory written with ``header=True`` (the logging API): the source frames of its
+#: rows, in order (``START:END[:STEP]``, or every index comma-separated when they are not evenly spaced), so that
+#: `vslam eval --trajectory` pairs them with those ground-truth rows whatever clock the times are on. TUM readers
+#: skip ``#`` lines; a KITTI file gets none (the KITTI devkit reads numbers only).
+FRAMES_HEADER = "# vslam frames: "
+
+
+def frames_header(indices: list[int]) -> str:
+    """The `FRAMES_HEADER` line (with its newline) for rows of these source frames."""
+    text = describe_indices(indices)
+    spec = text if ".." not in text else ",".join(str(i) for i in indices)
+    return f"{FRAMES_HEADER}{spec}\n"
 
 
 class TrajectoryWriter:
     """A `FrameSink` appending each frame's pose to a claimed file. A write error (full disk) raises
     `OutputError`, which stops the run; the lines written before it stay."""
 
-    def __init__(self, claimed: ClaimedFile, fmt: Format) -> None:
+    def __init__(self, claimed: ClaimedFile, fmt: Format, header: bool = False) -> None:
         self.path = claimed.path
         self.format = fmt
+        self.header = header and fmt == "tum"  # `FRAMES_HEADER`, written when the frames are known (`finish`)
         self.lines = 0
         os.ftruncate(claimed.fd, 0)  # --force over an older file
         self._fd = os.dup(claimed.fd)
@@ -67,11 +81,12 @@ class TrajectoryWriter:
             os.close(self._fd)
             self._fd = -1
         final = run.poses
-        if len(final) == len(self._written) and all(np.array_equal(a, b) for a, b in zip(final, self._written,
-                                                                                         strict=True)):
+        header = frames_header(list(run.indices)) if self.header and run.indices else ""
+        if not header and len(final) == len(self._written) and all(
+                np.array_equal(a, b) for a, b in zip(final, self._written, strict=True)):
             return
         stamps = [t if t is not None else float(i) for t, i in zip(run.timestamps, run.indices, strict=True)]
-        text = "".join(self._line(s, p) for s, p in zip(stamps, final, strict=True))
+        text = header + "".join(self._line(s, p) for s, p in zip(stamps, final, strict=True))
         self._replace(text)
         self.lines = len(final)
 
