@@ -30,7 +30,7 @@ landmarks and reprojection lines: see `vslam.recording.map`. The odometry backen
 Detail levels: full = all of it; standard = no triangulated points and no per-track hover data;
 summary = no image and no per-point data (camera pose, trajectories, series, events); off = no file.
 
-Every per-frame row is buffered and sent as columns every `FLUSH_FRAMES` frames and on close: one
+Every per-frame row is buffered and sent as columns every `FLUSH_SECONDS` (or `FLUSH_FRAMES`) and on close: one
 `send_columns` per entity instead of one `log` per entity per frame, which cost ~80–200 µs of Python
 each (~25 a frame). Styles that never change are logged once, static.
 

@@ -14,7 +14,8 @@ import rerun as rr
 
 from vslam_core.sources.base import Frame
 
-FLUSH_FRAMES = 100  # buffered columns are sent this often (and on close)
+FLUSH_FRAMES = 100  # buffered columns are sent at least this often (and on close)…
+FLUSH_SECONDS = 1.0  # … and this often, whatever the frame rate: a killed run loses at most ~this much
 FLUSH_BYTES = 2**20  # ... or as soon as one entity holds this much (images, flow): memory stays flat
 PENDING_JPEG_BYTES = 64 * 1024  # what a JPEG still being encoded counts as (a KITTI frame at q75: ~61 KB)
 
@@ -40,10 +41,14 @@ class ColumnBuffer:
     """Per-frame rows, sent with one `send_columns` per entity on `flush` (or sooner, once an entity holds
     `FLUSH_BYTES`). A row holds either one value per component (poses, scalars, text) or, with
     `batch=True`, an array of instances per component (points, arrows), which are concatenated and
-    partitioned back into rows when sent."""
+    partitioned back into rows when sent.
 
-    def __init__(self, rec: rr.RecordingStream) -> None:
+    `last`: the entity `flush` sends after every other, so that in a file cut anywhere (killed run, full disk)
+    a frame that has its row of `last` (the camera pose) has its rows of every entity."""
+
+    def __init__(self, rec: rr.RecordingStream, last: str | None = None) -> None:
         self._rec = rec
+        self._last = last
         self._rows: dict[str, _Rows] = {}
 
     def add(self, entity: str, frame: Frame, *parts: Part, batch: bool = False) -> None:
@@ -75,8 +80,11 @@ class ColumnBuffer:
     def flush(self) -> None:
         # most entities have a row on every frame: their index columns are built once per flush
         indexes: dict[tuple[tuple[int, ...], tuple[float | None, ...]], list[rr.TimeColumn]] = {}
+        last = self._rows.pop(self._last) if self._last is not None and self._last in self._rows else None
         for entity, rows in self._rows.items():
             self._send(entity, rows, indexes)
+        if last is not None:
+            self._send(str(self._last), last, indexes)
         self._rows.clear()
 
     def _send(self, entity: str, rows: _Rows,

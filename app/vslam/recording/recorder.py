@@ -23,7 +23,7 @@ from vslam.common import (
     scored_estimate,
     write_failure,
 )
-from vslam.recording.columns import FLUSH_FRAMES, NO_IMAGE, ColumnBuffer, Part, add_event
+from vslam.recording.columns import FLUSH_FRAMES, FLUSH_SECONDS, NO_IMAGE, ColumnBuffer, Part, add_event
 from vslam.recording.drift import DriftRecording
 from vslam.recording.layout import UNDISTORTED, blueprint
 from vslam.recording.levels import Detail, ImageCodec
@@ -58,8 +58,8 @@ if TYPE_CHECKING:
 ALIGNED_ERROR = "/metrics/error/position_m"
 ALIGNED_ESTIMATE = "/world/trajectory/estimate_sim3"
 
-#: How often (seconds) to check that Rerun's writer thread is still writing: a full disk stops the run this soon.
-WRITE_CHECK_S = 1.0
+#: The entity whose row marks a frame as complete in the file (sent last: `ColumnBuffer`); `inspect` counts it.
+CAMERA = "/world/camera"
 
 
 class Recorder:
@@ -98,14 +98,14 @@ class Recorder:
         self._frames = 0
         self._failed = False  # Rerun's writer stopped (full disk): reported once
         self._stuck = False  # …and a flush of it never returned: the stream must not be touched again
-        self._checked_at = time.monotonic()
+        self._flushed_at = time.monotonic()
         undistorted = source.intrinsics.distorted and detail == Detail.FULL
         layout = blueprint(map_backend=config.backend == "map", image=detail in (Detail.FULL, Detail.STANDARD),
                            road_scale=config.scale == "height", ground_truth=source.ground_truth is not None,
                            undistorted=undistorted, own_series=external)
         self._rec = open_stream(path, properties.get("recording_id"), layout, properties.get("name", source.name),
                                 live_url)
-        self._columns = ColumnBuffer(self._rec)
+        self._columns = ColumnBuffer(self._rec, last=CAMERA)
         self._properties = {**properties, **describe_calibration(source.intrinsics), **source_properties(source),
                             "detail": str(detail), "schema_version": str(SCHEMA_VERSION)}
         # a path that is not UTF-8 (lone surrogates) cannot be stored: keep its bytes as \xff escapes
@@ -127,6 +127,7 @@ class Recorder:
         # the map backend's entities (statics logged here; nothing at all is logged with the odometry backend)
         self._map = (MapRecording(self._rec, self._columns, source.intrinsics, detail, self._gt)
                      if config.backend == "map" else None)
+        self._check_written()  # the properties on disk before the first frame: a run killed in it says what it was
 
     def __enter__(self) -> Recorder:
         return self
@@ -139,9 +140,9 @@ class Recorder:
         `OutputError` if the file could not be written (full disk): it keeps what was written."""
         try:
             if not self._failed:  # after a write error nothing more reaches the file
-                self._columns.flush()
                 for video in self._videos.values():
                     video.flush(final=True)
+                self._columns.flush()
                 self._check_written()
         finally:
             if self._encoder is not None:
@@ -154,7 +155,6 @@ class Recorder:
         """Wait until Rerun's writer thread has written what was sent (`flush_or_stop`); stop the run if not."""
         if self._failed:
             return
-        self._checked_at = time.monotonic()
         try:
             flush_or_stop(self._rec, self.path)
         except StreamStopped as exc:
@@ -273,7 +273,7 @@ class Recorder:
         start = time.perf_counter()
         columns = self._columns
         pose = result.T_world_cam
-        columns.add("/world/camera", frame, (rr.Transform3D.columns, {"translation": pose[:3, 3],
+        columns.add(CAMERA, frame, (rr.Transform3D.columns, {"translation": pose[:3, 3],
                                                                       "mat3x3": pose[:3, :3]}))
         if self.detail in (Detail.FULL, Detail.STANDARD):
             self._log_image_and_tracks(frame, result)
@@ -298,13 +298,19 @@ class Recorder:
             if stage in timings and stage not in unreported:
                 columns.add_scalar(f"/metrics/timing_ms/{stage}", frame, timings[stage])
         self._frames += 1
-        if self._frames % FLUSH_FRAMES == 0:
-            columns.flush()
-            for video in self._videos.values():
-                video.flush()
-            self._check_written()
-        elif time.monotonic() - self._checked_at > WRITE_CHECK_S:  # images are sent every ~1 MiB
-            self._check_written()
+        if self._frames % FLUSH_FRAMES == 0 or time.monotonic() - self._flushed_at >= FLUSH_SECONDS:
+            self.flush()
+
+    def flush(self) -> None:
+        """Send every buffered row and wait until Rerun's writer thread has written it to the file (in the
+        kernel: a SIGKILL keeps it; not an fsync). Every `FLUSH_SECONDS` (or `FLUSH_FRAMES`) during a run, so a
+        killed run loses at most about that much, and a full disk stops the run that soon. The video samples
+        go first and the camera poses last: a frame with a pose in the file is whole."""
+        self._flushed_at = time.monotonic()
+        for video in self._videos.values():
+            video.flush()
+        self._columns.flush()
+        self._check_written()
 
     def log_series(self, frame: Frame, values: dict[str, float]) -> None:
         """Series of the frame's producer beyond `METRICS` (another pipeline's own, `vslam.log`):
