@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from concurrent.futures import Future
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -46,10 +46,14 @@ class ColumnBuffer:
     `last`: the entity `flush` sends after every other, so that in a file cut anywhere (killed run, full disk)
     a frame that has its row of `last` (the camera pose) has its rows of every entity."""
 
-    def __init__(self, rec: rr.RecordingStream, last: str | None = None) -> None:
+    def __init__(self, rec: rr.RecordingStream, last: str | None = None, background: bool = False) -> None:
+        """`background`: the rows are turned into Arrow columns and sent by a thread of their own (in order),
+        off the caller's (tracking) thread; `wait` for them, and `close`."""
         self._rec = rec
         self._last = last
         self._rows: dict[str, _Rows] = {}
+        self._sender = ThreadPoolExecutor(1, thread_name_prefix="vslam-send") if background else None
+        self._sending: list[Future[None]] = []
 
     def add(self, entity: str, frame: Frame, *parts: Part, batch: bool = False) -> None:
         rows = self._rows.get(entity)
@@ -66,7 +70,7 @@ class ColumnBuffer:
             if batch:
                 lengths.append(len(next(iter(values.values()))))
         if rows.nbytes >= FLUSH_BYTES:
-            self._send(entity, self._rows.pop(entity))
+            self._submit(self._send, entity, self._rows.pop(entity))
 
     def add_scalar(self, entity: str, frame: Frame, value: float) -> None:
         """`add` of one `Scalars` value, without the generic bookkeeping (~20 series per frame)."""
@@ -77,15 +81,43 @@ class ColumnBuffer:
         rows.times.append(frame.timestamp)
         rows.values[0]["scalars"].append(value)
 
-    def flush(self) -> None:
+    def flush(self, then: Callable[[], None] | None = None) -> None:
+        """Send every buffered row, then call `then` (on the sending thread, when in the background)."""
+        rows, self._rows = self._rows, {}
+        self._submit(self._send_all, rows, then)
+
+    def wait(self) -> None:
+        """Wait until everything flushed is sent; raise the first error of a send (or of its `then`)."""
+        sending, self._sending = self._sending, []
+        for job in sending:
+            job.result()
+
+    def close(self) -> None:
+        """Stop the sending thread (after what it has been given)."""
+        if self._sender is not None:
+            self._sender.shutdown(wait=True)
+
+    def _submit(self, send: Callable[..., None], *args: Any) -> None:
+        """`send(*args)` now, or on the sending thread; an error of an earlier send is raised here."""
+        if self._sender is None:
+            send(*args)
+            return
+        done = [job for job in self._sending if job.done()]
+        self._sending = [job for job in self._sending if not job.done()]
+        for job in done:
+            job.result()
+        self._sending.append(self._sender.submit(send, *args))
+
+    def _send_all(self, rows: dict[str, _Rows], then: Callable[[], None] | None) -> None:
         # most entities have a row on every frame: their index columns are built once per flush
         indexes: dict[tuple[tuple[int, ...], tuple[float | None, ...]], list[rr.TimeColumn]] = {}
-        last = self._rows.pop(self._last) if self._last is not None and self._last in self._rows else None
-        for entity, rows in self._rows.items():
-            self._send(entity, rows, indexes)
+        last = rows.pop(self._last) if self._last is not None and self._last in rows else None
+        for entity, entity_rows in rows.items():
+            self._send(entity, entity_rows, indexes)
         if last is not None:
             self._send(str(self._last), last, indexes)
-        self._rows.clear()
+        if then is not None:
+            then()
 
     def _send(self, entity: str, rows: _Rows,
               built: dict[tuple[tuple[int, ...], tuple[float | None, ...]], list[rr.TimeColumn]] | None = None) -> None:

@@ -105,7 +105,7 @@ class Recorder:
                            undistorted=undistorted, own_series=external)
         self._rec = open_stream(path, properties.get("recording_id"), layout, properties.get("name", source.name),
                                 live_url)
-        self._columns = ColumnBuffer(self._rec, last=CAMERA)
+        self._columns = ColumnBuffer(self._rec, last=CAMERA, background=config.threads > 1)
         self._properties = {**properties, **describe_calibration(source.intrinsics), **source_properties(source),
                             "detail": str(detail), "schema_version": str(SCHEMA_VERSION)}
         # a path that is not UTF-8 (lone surrogates) cannot be stored: keep its bytes as \xff escapes
@@ -139,12 +139,15 @@ class Recorder:
         """Send the buffered columns, flush and write the footer; the file is valid afterwards. Raises
         `OutputError` if the file could not be written (full disk): it keeps what was written."""
         try:
+            self._columns.wait()  # a write error of a flush in the background is raised here
             if not self._failed:  # after a write error nothing more reaches the file
                 for video in self._videos.values():
                     video.flush(final=True)
                 self._columns.flush()
+                self._columns.wait()
                 self._check_written()
         finally:
+            self._columns.close()
             if self._encoder is not None:
                 self._encoder.shutdown(cancel_futures=True)
             close_stream(self._rec, self._stuck)
@@ -305,12 +308,13 @@ class Recorder:
         """Send every buffered row and wait until Rerun's writer thread has written it to the file (in the
         kernel: a SIGKILL keeps it; not an fsync). Every `FLUSH_SECONDS` (or `FLUSH_FRAMES`) during a run, so a
         killed run loses at most about that much, and a full disk stops the run that soon. The video samples
-        go first and the camera poses last: a frame with a pose in the file is whole."""
+        go first and the camera poses last: a frame with a pose in the file is whole. With a second core the
+        columns are built, sent and waited for on the sending thread (`ColumnBuffer`), beside the engine; its
+        write error stops the run at the next flush."""
         self._flushed_at = time.monotonic()
         for video in self._videos.values():
             video.flush()
-        self._columns.flush()
-        self._check_written()
+        self._columns.flush(then=self._check_written)
 
     def log_series(self, frame: Frame, values: dict[str, float]) -> None:
         """Series of the frame's producer beyond `METRICS` (another pipeline's own, `vslam.log`):
