@@ -17,7 +17,7 @@ from vslam_core.sources.base import Frame
 FLUSH_FRAMES = 100  # buffered columns are sent at least this often (and on close)…
 FLUSH_SECONDS = 1.0  # … and this often, whatever the frame rate: a killed run loses at most ~this much
 FLUSH_BYTES = 2**20  # ... or as soon as one entity holds this much (images, flow): memory stays flat
-PENDING_JPEG_BYTES = 64 * 1024  # what a JPEG still being encoded counts as (a KITTI frame at q75: ~61 KB)
+PENDING_JPEG_BYTES = 48 * 1024  # what a JPEG still being encoded counts as (a KITTI frame at q50: ~37 KB)
 
 
 Part = tuple[Callable[..., Any], dict[str, Any]]  # an archetype's `columns` method and one row's values

@@ -26,7 +26,7 @@ from vslam.common import (
 from vslam.recording.columns import FLUSH_FRAMES, FLUSH_SECONDS, NO_IMAGE, ColumnBuffer, Part, add_event
 from vslam.recording.drift import DriftRecording
 from vslam.recording.layout import UNDISTORTED, blueprint
-from vslam.recording.levels import Detail, ImageCodec
+from vslam.recording.levels import JPEG_QUALITY, Detail, ImageCodec
 from vslam.recording.map import MapRecording
 from vslam.recording.metrics import METRICS, STAGES, frame_metrics
 from vslam.recording.schema import SCHEMA_VERSION
@@ -58,6 +58,9 @@ if TYPE_CHECKING:
 ALIGNED_ERROR = "/metrics/error/position_m"
 ALIGNED_ESTIMATE = "/world/trajectory/estimate_sim3"
 
+#: Flow arrows are recorded to 1/FLOW_STEPS of a pixel.
+FLOW_STEPS = 8
+
 #: The entity whose row marks a frame as complete in the file (sent last: `ColumnBuffer`); `inspect` counts it.
 CAMERA = "/world/camera"
 
@@ -72,7 +75,7 @@ class Recorder:
         config: EngineConfig,
         properties: dict[str, str],
         detail: Detail = Detail.FULL,
-        jpeg_quality: int = 75,
+        jpeg_quality: int = JPEG_QUALITY,
         image_codec: ImageCodec = ImageCodec.JPEG,
         external: bool = False,
         live_url: str | None = None,
@@ -355,9 +358,12 @@ class Recorder:
             corners.append((rr.AnyValues.columns, {"track_id": result.new_corner_ids.astype(np.uint32)}))
         columns.add("/world/camera/image/corners", frame, *corners, batch=True)
         reached = result.track_fate != TrackFate.LOST
+        # both ends to 1/8 px (finer than the tracker's accuracy): the file's LZ4 then halves the short vectors
+        prev = np.round(result.track_prev[reached] * FLOW_STEPS) / FLOW_STEPS
+        cur = np.round(result.track_cur[reached] * FLOW_STEPS) / FLOW_STEPS
         flow: list[Part] = [(rr.Arrows2D.columns, {
-            "origins": result.track_prev[reached],
-            "vectors": result.track_cur[reached] - result.track_prev[reached],
+            "origins": prev.astype(np.float32),
+            "vectors": (cur - prev).astype(np.float32),
             "class_ids": result.track_fate[reached].astype(np.uint16),
         })]
         if full:
