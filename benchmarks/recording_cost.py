@@ -6,10 +6,12 @@
 
 Each (backend, level) runs in its own process, one after the other so they do not compete for the 2 cores,
 `--repeats` times (the levels interleaved, so a burst of other work on the machine hits every level alike):
-wall time per frame with decoding and the recording's closing flush, the recorder's own time per frame on
-the calling thread, the file's KB per frame, peak RSS, and RSS after the first third and at the end of the
-run (flat memory = the recording does not accumulate in memory). Timings on a shared machine are noisy: the
-table keeps the fastest repeat of each (`added vs off` compares fastest with fastest).
+wall time per frame with decoding and the recording's closing flush; CPU time per frame of the process (all
+its threads: less sensitive to other work on the machine than wall time, but blind to work moved beside the
+engine); the recorder's own time per frame on the calling thread; the file's KB per frame; peak RSS, and RSS
+after the first third and at the end of the run (flat memory = the recording does not accumulate in memory).
+Timings on a shared machine are noisy: the table keeps the fastest repeat of each (`added` compares fastest
+with fastest).
 """
 
 from __future__ import annotations
@@ -58,17 +60,18 @@ def _measure(args: tuple[str, str, str, str, str, str, int]) -> dict[str, object
             if result.position in (len(source) // 3, len(source) - 1):
                 rss.append(status_mb("VmRSS"))
 
-        start = time.perf_counter()
+        start, cpu = time.perf_counter(), time.process_time()
         run: RunResult = run_odometry(source, config, sinks=(sink,))
         if recorder is not None:
             recorder.close()
-        seconds = time.perf_counter() - start
+        seconds, cpu = time.perf_counter() - start, time.process_time() - cpu
         size = path.stat().st_size if path.exists() else 0
     return {
         "backend": backend,
         "detail": level,
         "frames": run.frames,
         "ms_per_frame": 1000 * seconds / run.frames,
+        "cpu_ms_per_frame": 1000 * cpu / run.frames,
         "record_ms_per_frame": sum(record_ms) / run.frames if record_ms else 0.0,
         "kb_per_frame": size / 1024 / run.frames,
         "rss_third_mb": rss[0],
@@ -103,23 +106,26 @@ def main() -> None:
                                                        args.image_codec, args.jpeg_quality)).result())
     every = pl.DataFrame(rows)
     table = every.group_by("backend", "detail", maintain_order=True).agg(
-        pl.col("ms_per_frame").min(), pl.col("ms_per_frame").max().alias("ms_max"),
+        pl.col("ms_per_frame").min(), pl.col("ms_per_frame").max().alias("ms_max"), pl.col("cpu_ms_per_frame").min(),
         pl.col("record_ms_per_frame").min(), pl.col("kb_per_frame").mean(),
         pl.col("rss_third_mb").max(), pl.col("rss_end_mb").max(), pl.col("peak_rss_mb").max())
-    base = table.filter(pl.col("detail") == "off").select("backend", pl.col("ms_per_frame").alias("off_ms"))
+    base = table.filter(pl.col("detail") == "off").select("backend", pl.col("ms_per_frame").alias("off_ms"),
+                                                          pl.col("cpu_ms_per_frame").alias("off_cpu"))
     table = table.join(base, on="backend").with_columns(
-        (100 * (pl.col("ms_per_frame") / pl.col("off_ms") - 1)).alias("added_pct"))
+        (100 * (pl.col("ms_per_frame") / pl.col("off_ms") - 1)).alias("added_pct"),
+        (100 * (pl.col("cpu_ms_per_frame") / pl.col("off_cpu") - 1)).alias("added_cpu_pct"))
     if args.csv:
         table.write_csv(args.csv)
     name = "synthetic street" if args.root == "synthetic" else "KITTI " + args.sequence
     print(f"{name}, frames {args.frames}, images {args.image_codec}"
           + (f" q{args.jpeg_quality}" if args.image_codec == "jpeg" else "") + f", fastest of {args.repeats}")
-    print("| backend | detail | ms/frame (slowest) | added vs off | recorder ms/frame (caller thread) | KB/frame "
-          "| RSS at 1/3 → end MB | peak RSS MB |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("| backend | detail | ms/frame (slowest) | added vs off | CPU ms/frame | CPU added | recorder ms/frame "
+          "(caller thread) | KB/frame | RSS at 1/3 → end MB | peak RSS MB |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for r in table.iter_rows(named=True):
         print(f"| {r['backend']} | {r['detail']} | {r['ms_per_frame']:.1f} ({r['ms_max']:.1f}) "
-              f"| {r['added_pct']:+.1f} % | {r['record_ms_per_frame']:.2f} | {r['kb_per_frame']:.1f} "
+              f"| {r['added_pct']:+.1f} % | {r['cpu_ms_per_frame']:.1f} | {r['added_cpu_pct']:+.1f} % "
+              f"| {r['record_ms_per_frame']:.2f} | {r['kb_per_frame']:.1f} "
               f"| {r['rss_third_mb']:.0f} → "
               f"{r['rss_end_mb']:.0f} | {r['peak_rss_mb']:.0f} |")
 
