@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import subprocess
+import time
 from pathlib import Path
 
 import cli_helpers
@@ -14,12 +15,13 @@ import rerun as rr
 
 from vslam.recording import STAGES, Detail, Recorder
 from vslam.recording import recorder as recorder_module
+from vslam.recording.columns import NO_IMAGE, ColumnBuffer
 from vslam.rrd.inspect import flagged_ranges, inspect_recording
 from vslam.rrd.read import RecordingError, read_entity
 from vslam_core.config import EngineConfig
 from vslam_core.pipeline import run_odometry
 from vslam_core.results import FrameResult, FrameStatus, TrackFate
-from vslam_core.sources.base import FrameRange
+from vslam_core.sources.base import Frame, FrameRange
 from vslam_core.sources.kitti import KittiSource
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -247,3 +249,46 @@ def test_reading_aids_overlay_legend_event_filter_health_levels(full: tuple[Path
                                        read_entity(path, "/events")["TextLog:level"].to_list(), strict=True)
              if level[0] == "DEBUG"]
     assert debug and all(": re-detected " in t for t in debug)  # still recorded, one click away
+
+
+class _Sent:
+    """A stand-in for a recording stream: the entities `send_columns` was called with, in order."""
+
+    def __init__(self, fail_after: int | None = None) -> None:
+        self.entities: list[str] = []
+        self._fail_after = fail_after
+
+    def send_columns(self, entity: str, indexes: object, columns: object) -> None:
+        if self._fail_after is not None and len(self.entities) >= self._fail_after:
+            raise RuntimeError("disk full")
+        self.entities.append(entity)
+
+
+@pytest.mark.parametrize("background", [False, True])
+def test_the_camera_pose_is_sent_after_the_rest_of_its_frame(background: bool) -> None:
+    """Issue 56: in a file cut anywhere, a frame with a camera pose has every other row of it (sent before)."""
+    sent = _Sent()
+    columns = ColumnBuffer(sent, last="/world/camera", background=background)  # type: ignore[arg-type]
+    for index in range(3):
+        frame = Frame(index, None, NO_IMAGE)
+        columns.add("/world/camera", frame, (rr.Transform3D.columns, {"translation": np.zeros(3)}))
+        columns.add("/world/camera/image/corners", frame, (rr.Points2D.columns, {"positions": np.zeros((2, 2))}),
+                    batch=True)
+        columns.add_scalar("/metrics/tracks/alive", frame, 1.0)
+    written: list[str] = []
+    columns.flush(then=lambda: written.append("checked"))
+    columns.wait()
+    columns.close()
+    assert sent.entities == ["/world/camera/image/corners", "/metrics/tracks/alive", "/world/camera"]
+    assert written == ["checked"]  # the write check runs after the rows were sent
+
+
+def test_a_send_that_fails_in_the_background_stops_the_next_flush() -> None:
+    """The write error of a flush on the sending thread is raised on the caller's thread at its next flush."""
+    columns = ColumnBuffer(_Sent(fail_after=0), background=True)  # type: ignore[arg-type]
+    columns.add_scalar("/metrics/tracks/alive", Frame(0, None, NO_IMAGE), 1.0)
+    columns.flush()
+    time.sleep(0.2)
+    with pytest.raises(RuntimeError, match="disk full"):
+        columns.flush()
+    columns.close()
