@@ -31,8 +31,7 @@ import polars as pl
 from rerun.experimental import ViewerClient
 
 from vslam.common import first_line
-from vslam.rrd import comparison_prefixes, read_entity, readable, rerun_binary
-from vslam.rrd.read import no_frames
+from vslam.rrd import comparison_prefixes, no_frames, read_entity, readable, rerun_binary
 from vslam_core.errors import VslamError
 
 log = logging.getLogger(__name__)
