@@ -26,7 +26,7 @@ from pathlib import Path
 import polars as pl
 
 from benchmarks.memory import status_mb
-from vslam.recording import Detail, ImageCodec, Recorder
+from vslam.recording import JPEG_QUALITY, Detail, ImageCodec, Recorder
 from vslam_core.config import EngineConfig
 from vslam_core.pipeline import RunResult, run_odometry
 from vslam_core.results import FrameResult
@@ -90,7 +90,7 @@ def main() -> None:
     parser.add_argument("--backends", default="vo", help="comma-separated: vo, map")
     parser.add_argument("--repeats", type=int, default=1, help="runs of each; the fastest is kept")
     parser.add_argument("--image-codec", default="jpeg", choices=[c.value for c in ImageCodec])
-    parser.add_argument("--jpeg-quality", type=int, default=75)
+    parser.add_argument("--jpeg-quality", type=int, default=JPEG_QUALITY)
     args = parser.parse_args()
     levels = args.levels.split(",")
     if "off" not in levels:
