@@ -39,7 +39,8 @@ def vslam(*args: str | Path, cwd: Path | None = None, env: dict[str, str] | None
     if not process and not popen:
         return _in_process(args, cwd, {"RAY_ADDRESS": None, **(env or {})})
     environment = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
-    environment["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), environment.get("PYTHONPATH")]))
+    environment["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT / "app"), str(ROOT),
+                                                              environment.get("PYTHONPATH")]))
     command = [sys.executable, "-m", "vslam.cli", *map(str, args)]
     with subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=cwd or ROOT,
                           env={**environment, **(env or {})}, start_new_session=True, **popen) as process:

@@ -74,7 +74,8 @@ def start_cluster(num_cpus: int = 2) -> tuple[subprocess.Popen[bytes], str, Path
     address = f"127.0.0.1:{port}"
     env = dict(os.environ, RAY_USAGE_STATS_ENABLED="0")
     # The workers unpickle the tests' task functions by module name: the repo and tests/ on their path.
-    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), str(TESTS), os.environ.get("PYTHONPATH")]))
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT / "app"), str(ROOT), str(TESTS),
+                                                      os.environ.get("PYTHONPATH")]))
     started = time.perf_counter()
     process = subprocess.Popen(
         [sys.executable, "-I", "-S", str(DIE_WITH_PARENT), "--signal", "TERM", str(os.getpid()),

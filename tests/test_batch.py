@@ -155,7 +155,7 @@ def test_sigterm_keeps_the_finished_logs_and_exits_143(manifest: Path, workers: 
     """A cancelled CI job: SIGTERM after the first log stops the batch (serially: the run notes the signal
     between frames; with workers: the parent stops them); the finished rows are written."""
     report = manifest.parent / f"terminated{workers}"
-    environment = {**os.environ, "PYTHONPATH": str(ROOT)}
+    environment = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT / "app"), str(ROOT)])}
     environment.pop("RAY_ADDRESS", None)
     process = subprocess.Popen([sys.executable, "-m", "vslam.cli", "eval", "--manifest", str(manifest), "--report",
                                 str(report), "--workers", workers, "--detail", "off"], cwd=ROOT, env=environment,
@@ -221,7 +221,8 @@ def test_bad_shard_and_missing_ray_are_one_line_errors(tmp_path: Path) -> None:
     no_ray.mkdir(parents=True)
     (no_ray / "__init__.py").write_text("raise ImportError('ray is not installed')\n")
     result = vslam("eval", "--manifest", manifest, "--report", tmp_path / "r",
-                   env={"PYTHONPATH": f"{no_ray.parent}{os.pathsep}{ROOT}", "RAY_ADDRESS": "10.0.0.1:6379"},
+                   env={"PYTHONPATH": os.pathsep.join([str(no_ray.parent), str(ROOT / "app"), str(ROOT)]),
+                        "RAY_ADDRESS": "10.0.0.1:6379"},
                    process=True)  # its own interpreter, where `import ray` finds the broken package first
     assert_clean_error(result, "--ray-address needs the cluster extra: pip install 'vslam[cluster]'")
 

@@ -105,7 +105,7 @@ def test_a_malformed_address_is_refused() -> None:
 def test_importing_the_module_does_not_import_ray() -> None:
     code = "import sys, vslam.batch.on_ray; assert 'ray' not in sys.modules"
     subprocess.run([sys.executable, "-c", code], check=True, cwd=cluster.ROOT,
-                   env=dict(os.environ, PYTHONPATH=str(cluster.ROOT)))
+                   env=dict(os.environ, PYTHONPATH=os.pathsep.join([str(cluster.ROOT / "app"), str(cluster.ROOT)])))
 
 
 class FakeTaskError(Exception):

@@ -64,7 +64,7 @@ def test_the_example_workflow_shards_and_merges(kitti_root: Path, tmp_path: Path
     summary = tmp_path / "summary.md"
     env = {**{k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}, **shard_job["env"],
            "KITTI_ROOT": str(kitti_root), "PATH": f"{bin_folder}{os.pathsep}{os.environ['PATH']}",
-           "PYTHONPATH": str(ROOT), "GITHUB_STEP_SUMMARY": str(summary)}
+           "PYTHONPATH": os.pathsep.join([str(ROOT / "app"), str(ROOT)]), "GITHUB_STEP_SUMMARY": str(summary)}
     folder = tmp_path / "checkout"
     folder.mkdir()
     # Windows of KITTI 05 over 100 m (t_err exists; every second frame: 70 frames, 106-112 m) that pass the

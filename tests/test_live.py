@@ -50,7 +50,7 @@ def live_run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
     folder = tmp_path_factory.mktemp("live")
     web_port, grpc_port = free_port(), free_port()
     output = folder / "live.rrd"
-    environment = {**os.environ, "PYTHONPATH": str(ROOT)}
+    environment = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT / "app"), str(ROOT)])}
     environment.pop("DISPLAY", None)
     environment.pop("WAYLAND_DISPLAY", None)
     log = folder / "stdout.txt"

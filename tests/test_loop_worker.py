@@ -129,7 +129,7 @@ def test_worker_processes_start_without_the_callers_main_module(kitti_root: Path
         "poses = run_odometry(source, EngineConfig(backend='map', threads=2)).pose_array()\n"
         "print('poses', len(poses))\n")
     done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120,
-                          env={**os.environ, "PYTHONPATH": str(ROOT)})
+                          env={**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT / "app"), str(ROOT)])})
     assert done.returncode == 0, done.stderr
     assert done.stdout.splitlines() == ["script body ran", "poses 12"]  # the body ran once, in the script alone
     assert "Traceback" not in done.stderr

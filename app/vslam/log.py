@@ -37,7 +37,7 @@ import numpy as np
 
 from vslam.common import ClaimedFile, claim
 from vslam.log_arrays import Candidates, Corners, Tracks, candidate_poses, corner_arrays, points_array, track_arrays
-from vslam.recording import STAGES, Detail, Recorder, version_properties
+from vslam.recording import JPEG_QUALITY, STAGES, Detail, Recorder, version_properties
 from vslam.runs import TrajectoryWriter
 from vslam_core.config import EngineConfig
 from vslam_core.geometry import invert_pose
@@ -109,7 +109,7 @@ class FrameLog:
         detail: Literal["full", "standard", "summary"] = "standard",
         name: str | None = None,
         properties: Mapping[str, str] | None = None,
-        jpeg_quality: int = 75,
+        jpeg_quality: int = JPEG_QUALITY,
         trajectory: str | Path | None = None,
         trajectory_format: Literal["kitti", "tum"] = "kitti",
         force: bool = False,

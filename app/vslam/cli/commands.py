@@ -41,7 +41,7 @@ from vslam.cli.entry import run as run_app
 from vslam.cli.eval import eval_command
 from vslam.compare import ROTATION_DEG as DIVERGE_DEG
 from vslam.compare import TRANSLATION_PCT as DIVERGE_PCT
-from vslam.recording import Detail, ImageCodec
+from vslam.recording import JPEG_QUALITY, Detail, ImageCodec
 
 if TYPE_CHECKING:
     from vslam.runs import RecordedRun, RunOutputs
@@ -115,7 +115,8 @@ def run(
     detail: Annotated[Detail, typer.Option(help="full = every intermediate; standard = no 3-D points or per-track "
                                             "hover data; summary = no image or per-point data; off = no file")]
     = Detail.FULL,
-    jpeg_quality: Annotated[int, typer.Option(min=1, max=100, help="JPEG quality of the recorded frames")] = 75,
+    jpeg_quality: Annotated[int, typer.Option(min=1, max=100,
+                                              help="JPEG quality of the recorded frames")] = JPEG_QUALITY,
     image_codec: Annotated[ImageCodec, typer.Option(help=IMAGE_CODEC_HELP)] = ImageCodec.JPEG,
     trajectory_out: Annotated[Path | None, typer.Option(help="write one pose per input frame here")] = None,
     trajectory_format: Annotated[TrajectoryFormat, typer.Option(help="kitti or tum")] = TrajectoryFormat.kitti,

@@ -30,7 +30,7 @@ landmarks and reprojection lines: see `vslam.recording.map`. The odometry backen
 Detail levels: full = all of it; standard = no triangulated points and no per-track hover data;
 summary = no image and no per-point data (camera pose, trajectories, series, events); off = no file.
 
-Every per-frame row is buffered and sent as columns every `FLUSH_FRAMES` frames and on close: one
+Every per-frame row is buffered and sent as columns every `FLUSH_SECONDS` (or `FLUSH_FRAMES`) and on close: one
 `send_columns` per entity instead of one `log` per entity per frame, which cost ~80–200 µs of Python
 each (~25 a frame). Styles that never change are logged once, static.
 
@@ -56,6 +56,7 @@ _HOMES = {
     "MODE_LEVELS": "metrics", "STAGES": "metrics", "frame_metrics": "metrics", "map_frame_metrics": "metrics",
     "Recorder": "recorder", "road_outline": "stream", "version_properties": "stream",
     "APPLICATION_ID": "styles", "FATE_STYLE": "styles", "Detail": "levels", "ImageCodec": "levels",
+    "JPEG_QUALITY": "levels",
     "CAR_ENTITY": "layout", "EYE_OFFSET": "layout",
     "DRIFT_ENTITY": "drift", "LINKS_ENTITY": "drift", "WORST": "drift",
     "ExternalRun": "external", "RunFrames": "external", "record_external": "external",
@@ -69,7 +70,7 @@ if TYPE_CHECKING:
     from vslam.recording.drift import DRIFT_ENTITY, LINKS_ENTITY, WORST
     from vslam.recording.external import ExternalRun, RunFrames, record_external
     from vslam.recording.layout import CAR_ENTITY, EYE_OFFSET, blueprint
-    from vslam.recording.levels import Detail, ImageCodec
+    from vslam.recording.levels import JPEG_QUALITY, Detail, ImageCodec
     from vslam.recording.map import MapRecording
     from vslam.recording.metrics import (
         HEALTH_LEVELS,
@@ -117,6 +118,7 @@ __all__ = [
     "HEALTH_LEVELS",
     "HEALTH_STATUSES",
     "ImageCodec",
+    "JPEG_QUALITY",
     "LINKS_ENTITY",
     "MAP_METRICS",
     "MAP_STAGES",

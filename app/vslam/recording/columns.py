@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from concurrent.futures import Future
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -14,9 +14,10 @@ import rerun as rr
 
 from vslam_core.sources.base import Frame
 
-FLUSH_FRAMES = 100  # buffered columns are sent this often (and on close)
+FLUSH_FRAMES = 100  # buffered columns are sent at least this often (and on close)…
+FLUSH_SECONDS = 1.0  # … and this often, whatever the frame rate: a killed run loses at most ~this much
 FLUSH_BYTES = 2**20  # ... or as soon as one entity holds this much (images, flow): memory stays flat
-PENDING_JPEG_BYTES = 64 * 1024  # what a JPEG still being encoded counts as (a KITTI frame at q75: ~61 KB)
+PENDING_JPEG_BYTES = 48 * 1024  # what a JPEG still being encoded counts as (a KITTI frame at q50: ~37 KB)
 
 
 Part = tuple[Callable[..., Any], dict[str, Any]]  # an archetype's `columns` method and one row's values
@@ -40,11 +41,19 @@ class ColumnBuffer:
     """Per-frame rows, sent with one `send_columns` per entity on `flush` (or sooner, once an entity holds
     `FLUSH_BYTES`). A row holds either one value per component (poses, scalars, text) or, with
     `batch=True`, an array of instances per component (points, arrows), which are concatenated and
-    partitioned back into rows when sent."""
+    partitioned back into rows when sent.
 
-    def __init__(self, rec: rr.RecordingStream) -> None:
+    `last`: the entity `flush` sends after every other, so that in a file cut anywhere (killed run, full disk)
+    a frame that has its row of `last` (the camera pose) has its rows of every entity."""
+
+    def __init__(self, rec: rr.RecordingStream, last: str | None = None, background: bool = False) -> None:
+        """`background`: the rows are turned into Arrow columns and sent by a thread of their own (in order),
+        off the caller's (tracking) thread; `wait` for them, and `close`."""
         self._rec = rec
+        self._last = last
         self._rows: dict[str, _Rows] = {}
+        self._sender = ThreadPoolExecutor(1, thread_name_prefix="vslam-send") if background else None
+        self._sending: list[Future[None]] = []
 
     def add(self, entity: str, frame: Frame, *parts: Part, batch: bool = False) -> None:
         rows = self._rows.get(entity)
@@ -61,7 +70,7 @@ class ColumnBuffer:
             if batch:
                 lengths.append(len(next(iter(values.values()))))
         if rows.nbytes >= FLUSH_BYTES:
-            self._send(entity, self._rows.pop(entity))
+            self._submit(self._send, entity, self._rows.pop(entity))
 
     def add_scalar(self, entity: str, frame: Frame, value: float) -> None:
         """`add` of one `Scalars` value, without the generic bookkeeping (~20 series per frame)."""
@@ -72,12 +81,43 @@ class ColumnBuffer:
         rows.times.append(frame.timestamp)
         rows.values[0]["scalars"].append(value)
 
-    def flush(self) -> None:
+    def flush(self, then: Callable[[], None] | None = None) -> None:
+        """Send every buffered row, then call `then` (on the sending thread, when in the background)."""
+        rows, self._rows = self._rows, {}
+        self._submit(self._send_all, rows, then)
+
+    def wait(self) -> None:
+        """Wait until everything flushed is sent; raise the first error of a send (or of its `then`)."""
+        sending, self._sending = self._sending, []
+        for job in sending:
+            job.result()
+
+    def close(self) -> None:
+        """Stop the sending thread (after what it has been given)."""
+        if self._sender is not None:
+            self._sender.shutdown(wait=True)
+
+    def _submit(self, send: Callable[..., None], *args: Any) -> None:
+        """`send(*args)` now, or on the sending thread; an error of an earlier send is raised here."""
+        if self._sender is None:
+            send(*args)
+            return
+        done = [job for job in self._sending if job.done()]
+        self._sending = [job for job in self._sending if not job.done()]
+        for job in done:
+            job.result()
+        self._sending.append(self._sender.submit(send, *args))
+
+    def _send_all(self, rows: dict[str, _Rows], then: Callable[[], None] | None) -> None:
         # most entities have a row on every frame: their index columns are built once per flush
         indexes: dict[tuple[tuple[int, ...], tuple[float | None, ...]], list[rr.TimeColumn]] = {}
-        for entity, rows in self._rows.items():
-            self._send(entity, rows, indexes)
-        self._rows.clear()
+        last = rows.pop(self._last) if self._last is not None and self._last in rows else None
+        for entity, entity_rows in rows.items():
+            self._send(entity, entity_rows, indexes)
+        if last is not None:
+            self._send(str(self._last), last, indexes)
+        if then is not None:
+            then()
 
     def _send(self, entity: str, rows: _Rows,
               built: dict[tuple[tuple[int, ...], tuple[float | None, ...]], list[rr.TimeColumn]] | None = None) -> None:

@@ -25,7 +25,7 @@ from vslam.common import OutputError, RecordingError, TrajectoryImages, has_foot
 from vslam.recording.columns import FLUSH_FRAMES, NO_IMAGE, ColumnBuffer
 from vslam.recording.drift import DriftRecording
 from vslam.recording.layout import blueprint
-from vslam.recording.levels import Detail
+from vslam.recording.levels import JPEG_QUALITY, Detail
 from vslam.recording.metrics import METRICS
 from vslam.recording.schema import SCHEMA_VERSION
 from vslam.recording.stream import StreamStopped, close_stream, flush_or_stop, log_world, open_stream
@@ -36,7 +36,6 @@ from vslam_core.sources.base import Frame
 NO_HEALTH = "not reported (external trajectory)"
 #: The series groups such a recording holds (the engine's tracks, inliers and timings it has not).
 GROUPS = ("error", "angle_error", "drift")
-JPEG_QUALITY = 75
 
 
 @dataclass(frozen=True)

@@ -22,10 +22,11 @@ from vslam.common import (
     scored_estimate,
     write_failure,
 )
-from vslam.recording.columns import FLUSH_FRAMES, NO_IMAGE, ColumnBuffer, Part, add_event
+from vslam.recording.columns import FLUSH_FRAMES, FLUSH_SECONDS, NO_IMAGE, ColumnBuffer, Part
 from vslam.recording.drift import DriftRecording
+from vslam.recording.front_end import log_candidates, log_events, log_road
 from vslam.recording.layout import UNDISTORTED, blueprint
-from vslam.recording.levels import Detail, ImageCodec
+from vslam.recording.levels import JPEG_QUALITY, Detail, ImageCodec
 from vslam.recording.map import MapRecording
 from vslam.recording.metrics import HEALTH_LEVELS, METRICS, STAGES, frame_metrics, gt_check_metrics
 from vslam.recording.overview import DriveOverview
@@ -37,7 +38,6 @@ from vslam.recording.stream import (
     log_world,
     open_stream,
     pinhole,
-    road_outline,
 )
 from vslam.recording.styles import (
     AXIS_COLOURS,
@@ -52,10 +52,9 @@ from vslam.recording.styles import (
     overlay_legend,
 )
 from vslam_core.config import EngineConfig
-from vslam_core.geometry import invert_pose
-from vslam_core.lens import distort_pixels, undistortion_maps
+from vslam_core.lens import undistortion_maps
 from vslam_core.pipeline import RunResult
-from vslam_core.results import FrameResult, FrameStatus, HealthStatus, Reason, TrackFate
+from vslam_core.results import FrameResult, TrackFate
 from vslam_core.sources.base import Frame, FrameSource, describe_indices, shown_path, source_properties
 from vslam_core.sources.calibration import describe_calibration
 from vslam_core.trajectory.gt_check import GroundTruthCheck
@@ -67,8 +66,11 @@ if TYPE_CHECKING:
 ALIGNED_ERROR = "/metrics/error/position_m"
 ALIGNED_ESTIMATE = "/world/trajectory/estimate_sim3"
 
-#: How often (seconds) to check that Rerun's writer thread is still writing: a full disk stops the run this soon.
-WRITE_CHECK_S = 1.0
+#: Flow arrows are recorded to 1/FLOW_STEPS of a pixel.
+FLOW_STEPS = 8
+
+#: The entity whose row marks a frame as complete in the file (sent last: `ColumnBuffer`); `inspect` counts it.
+CAMERA = "/world/camera"
 
 
 class Recorder:
@@ -81,7 +83,7 @@ class Recorder:
         config: EngineConfig,
         properties: dict[str, str],
         detail: Detail = Detail.FULL,
-        jpeg_quality: int = 75,
+        jpeg_quality: int = JPEG_QUALITY,
         image_codec: ImageCodec = ImageCodec.JPEG,
         external: bool = False,
         live_url: str | None = None,
@@ -114,14 +116,14 @@ class Recorder:
         self._frames = 0
         self._failed = False  # Rerun's writer stopped (full disk): reported once
         self._stuck = False  # …and a flush of it never returned: the stream must not be touched again
-        self._checked_at = time.monotonic()
+        self._flushed_at = time.monotonic()
         undistorted = source.intrinsics.distorted and detail == Detail.FULL
         layout = blueprint(map_backend=config.backend == "map", image=detail in (Detail.FULL, Detail.STANDARD),
                            road_scale=config.scale == "height", ground_truth=source.ground_truth is not None,
                            undistorted=undistorted, own_series=external, own_plots=own_plots)
         self._rec = open_stream(path, properties.get("recording_id"), layout, properties.get("name", source.name),
                                 live_url)
-        self._columns = ColumnBuffer(self._rec)
+        self._columns = ColumnBuffer(self._rec, last=CAMERA, background=config.threads > 1)
         self._properties = {**properties, **describe_calibration(source.intrinsics), **source_properties(source),
                             "detail": str(detail), "schema_version": str(SCHEMA_VERSION)}
         # a path that is not UTF-8 (lone surrogates) cannot be stored: keep its bytes as \xff escapes
@@ -143,6 +145,7 @@ class Recorder:
         # the map backend's entities (statics logged here; nothing at all is logged with the odometry backend)
         self._map = (MapRecording(self._rec, self._columns, source.intrinsics, detail, self._gt)
                      if config.backend == "map" else None)
+        self._check_written()  # the properties on disk before the first frame: a run killed in it says what it was
 
     def __enter__(self) -> Recorder:
         return self
@@ -154,12 +157,15 @@ class Recorder:
         """Send the buffered columns, flush and write the footer; the file is valid afterwards. Raises
         `OutputError` if the file could not be written (full disk): it keeps what was written."""
         try:
+            self._columns.wait()  # a write error of a flush in the background is raised here
             if not self._failed:  # after a write error nothing more reaches the file
-                self._columns.flush()
                 for video in self._videos.values():
                     video.flush(final=True)
+                self._columns.flush()
+                self._columns.wait()
                 self._check_written()
         finally:
+            self._columns.close()
             if self._encoder is not None:
                 self._encoder.shutdown(cancel_futures=True)
             close_stream(self._rec, self._stuck)
@@ -170,7 +176,6 @@ class Recorder:
         """Wait until Rerun's writer thread has written what was sent (`flush_or_stop`); stop the run if not."""
         if self._failed:
             return
-        self._checked_at = time.monotonic()
         try:
             flush_or_stop(self._rec, self.path)
         except StreamStopped as exc:
@@ -306,20 +311,21 @@ class Recorder:
         start = time.perf_counter()
         columns = self._columns
         pose = result.T_world_cam
-        columns.add("/world/camera", frame, (rr.Transform3D.columns, {"translation": pose[:3, 3],
+        columns.add(CAMERA, frame, (rr.Transform3D.columns, {"translation": pose[:3, 3],
                                                                       "mat3x3": pose[:3, :3]}))
         if self.detail in (Detail.FULL, Detail.STANDARD):
             self._log_image_and_tracks(frame, result)
-            self._log_candidates(frame, result)
+            log_candidates(self._columns, frame, result)
         if self.detail == Detail.FULL or (self._external and self.detail == Detail.STANDARD
                                           and len(result.points_world)):
             points = result.points_world.astype(np.float32)
             columns.add("/world/points", frame, (rr.Points3D.columns, {"positions": points}), batch=True)
         if self._scale == "height":
-            self._log_road(frame, result)
+            log_road(self._columns, frame, result, self._intrinsics,
+                     image=self.detail in (Detail.FULL, Detail.STANDARD))
         self._log_trajectories(frame, result)
         self._log_metrics(frame, result, unreported)
-        self._log_events(frame, result)
+        log_events(self._columns, frame, result)
         if result.mapping is not None:
             if self._map is None:
                 self._map = MapRecording(self._rec, columns, self._intrinsics, self.detail, self._gt)
@@ -334,13 +340,20 @@ class Recorder:
             if stage in timings and stage not in unreported:
                 columns.add_scalar(f"/metrics/timing_ms/{stage}", frame, timings[stage])
         self._frames += 1
-        if self._frames % FLUSH_FRAMES == 0:
-            columns.flush()
-            for video in self._videos.values():
-                video.flush()
-            self._check_written()
-        elif time.monotonic() - self._checked_at > WRITE_CHECK_S:  # images are sent every ~1 MiB
-            self._check_written()
+        if self._frames % FLUSH_FRAMES == 0 or time.monotonic() - self._flushed_at >= FLUSH_SECONDS:
+            self.flush()
+
+    def flush(self) -> None:
+        """Send every buffered row and wait until Rerun's writer thread has written it to the file (in the
+        kernel: a SIGKILL keeps it; not an fsync). Every `FLUSH_SECONDS` (or `FLUSH_FRAMES`) during a run, so a
+        killed run loses at most about that much, and a full disk stops the run that soon. The video samples
+        go first and the camera poses last: a frame with a pose in the file is whole. With a second core the
+        columns are built, sent and waited for on the sending thread (`ColumnBuffer`), beside the engine; its
+        write error stops the run at the next flush."""
+        self._flushed_at = time.monotonic()
+        for video in self._videos.values():
+            video.flush()
+        self._columns.flush(then=self._check_written)
 
     @property
     def stream(self) -> rr.RecordingStream:
@@ -387,9 +400,12 @@ class Recorder:
             corners.append((rr.AnyValues.columns, {"track_id": result.new_corner_ids.astype(np.uint32)}))
         columns.add("/world/camera/image/corners", frame, *corners, batch=True)
         reached = result.track_fate != TrackFate.LOST
+        # both ends to 1/8 px (finer than the tracker's accuracy): the file's LZ4 then halves the short vectors
+        prev = np.round(result.track_prev[reached] * FLOW_STEPS) / FLOW_STEPS
+        cur = np.round(result.track_cur[reached] * FLOW_STEPS) / FLOW_STEPS
         flow: list[Part] = [(rr.Arrows2D.columns, {
-            "origins": result.track_prev[reached],
-            "vectors": result.track_cur[reached] - result.track_prev[reached],
+            "origins": prev.astype(np.float32),
+            "vectors": (cur - prev).astype(np.float32),
             "class_ids": result.track_fate[reached].astype(np.uint16),
         })]
         if full:
@@ -402,51 +418,6 @@ class Recorder:
         if not ok:
             raise RecordingError("JPEG encoding of a frame failed")
         return bytes(jpeg.tobytes())
-
-    def _log_candidates(self, frame: Frame, result: FrameResult) -> None:
-        """The four candidate poses, each at the keyframe pose moved by its (R, t): a point (the chosen one
-        larger, its label listing every chirality count) and the candidate camera's axes. A frame without
-        candidates logs an empty row, so the previous frame's do not linger."""
-        candidates = result.candidate_poses if result.T_key_cur is not None else ()
-        centres, axes = np.zeros((len(candidates), 3)), np.zeros((3 * len(candidates), 3))
-        chosen = np.arange(len(candidates)) == result.chosen_candidate
-        labels = [""] * len(candidates)
-        if candidates:
-            assert result.T_key_cur is not None
-            T_w_key = result.T_world_cam @ invert_pose(result.T_key_cur)  # noqa: N806
-            length = max(float(np.linalg.norm(result.T_key_cur[:3, 3])), 0.5)
-            counts = ", ".join(f"#{i}: {c.in_front}" for i, c in enumerate(candidates))
-            centres = np.array([T_w_key[:3, :3] @ (length * c.translation) + T_w_key[:3, 3] for c in candidates])
-            axes = np.concatenate([(T_w_key[:3, :3] @ c.rotation).T * (0.8 if chosen[i] else 0.4)
-                                   for i, c in enumerate(candidates)])
-            # (R1, t) and (R2, t) share a centre: one label, on the chosen candidate, lists every count
-            labels = [f"chosen #{i} — in front {counts}" if chosen[i] else "" for i in range(len(candidates))]
-        self._columns.add(
-            "/world/candidates", frame,
-            (rr.Points3D.columns, {"positions": centres, "radii": np.where(chosen, 0.15, 0.08), "labels": labels}),
-            (rr.Arrows3D.columns, {"origins": np.repeat(centres, 3, axis=0), "vectors": axes}),
-            (rr.AnyValues.columns, {"in_front": np.array([c.in_front for c in candidates], np.int64),
-                                    "chosen": chosen}),
-            batch=True,
-        )
-
-    def _log_road(self, frame: Frame, result: FrameResult) -> None:
-        """--scale height: the road points and plane behind this frame's step length (empty rows when the
-        frame had none, so earlier ones do not linger)."""
-        estimate = result.scale_estimate
-        pose = result.T_world_cam
-        points, pixels, outline = np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 5, 3))
-        if estimate is not None:
-            points = estimate.road_points @ pose[:3, :3].T + pose[:3, 3]
-            pixels = distort_pixels(estimate.road_pixels, self._intrinsics)  # ideal → raw image pixels
-            if estimate.plane_normal is not None and estimate.camera_height is not None:
-                outline = (road_outline(estimate.plane_normal, estimate.camera_height) @ pose[:3, :3].T
-                           + pose[:3, 3])[None]
-        columns = self._columns
-        columns.add("/world/road/points", frame, (rr.Points3D.columns, {"positions": points}), batch=True)
-        columns.add("/world/road/plane", frame, (rr.LineStrips3D.columns, {"strips": list(outline)}), batch=True)
-        if self.detail in (Detail.FULL, Detail.STANDARD):
-            columns.add("/world/camera/image/road", frame, (rr.Points2D.columns, {"positions": pixels}), batch=True)
 
     def _log_trajectories(self, frame: Frame, result: FrameResult) -> None:
         """One segment per frame for the estimate and the ground truth (never the whole path again)."""
@@ -477,20 +448,3 @@ class Recorder:
                                              ",".join(health.reasons))
             for name, value in drift.items():
                 self._columns.add_scalar(f"/metrics/drift/{name}", frame, value)
-
-    def _log_events(self, frame: Frame, result: FrameResult) -> None:
-        def event(text: str, level: str) -> None:
-            add_event(self._columns, frame, text, level)
-
-        if result.status == FrameStatus.INIT:
-            event(f"initialised with {len(result.new_corners)} corners", "INFO")
-        elif len(result.new_corners):
-            event(f"re-detected {len(result.new_corners)} corners", "DEBUG")
-        health = result.health
-        if health.status != HealthStatus.OK:
-            what = "used"
-            if result.status == FrameStatus.HELD:
-                what = "dead-reckoned" if Reason.COASTED in health.reasons else "pose held"
-            event(f"{health.status} ({what}): " + ", ".join(health.reasons),
-                  "ERROR" if health.status == HealthStatus.FAIL else "WARN")
-

@@ -25,7 +25,7 @@ from vslam.rrd.provenance import (
     non_default,
     read_properties,
 )
-from vslam.rrd.read import RecordingError, read_entity, readable
+from vslam.rrd.read import RecordingError, no_frames, read_entity, readable
 from vslam.rrd.series import entity_paths, format_own_series, own_series, own_stages
 from vslam.rrd.suspects import find_suspects, format_suspects
 from vslam_core.trajectory.drift import worst_frames
@@ -258,8 +258,7 @@ def _run_report(path: Path, prefix: str = "") -> dict[str, Any]:
     cut_short = readable(path).cut_short
     camera = read_entity(path, f"{prefix}/world/camera")
     if camera.is_empty() or "frame" not in camera.columns:
-        raise RecordingError(f"{path}: no camera frames in this recording (not written by `vslam run`?)"
-                             + (" (cut short before the first frame was written)" if cut_short else ""))
+        raise RecordingError(no_frames(path, cut_short))
     frames = camera["frame"].to_list()
     health = read_entity(path, f"{prefix}/health")
     flagged = []

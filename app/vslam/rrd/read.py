@@ -33,6 +33,18 @@ class Readable:
     cut_short: bool  # no footer: the run was killed (SIGKILL, OOM, CI timeout), crashed or ran out of disk
 
 
+#: why a recording has no footer, as every command says it
+CUT_SHORT = "no footer: the run was killed, crashed or ran out of disk"
+
+
+def no_frames(path: Path, cut_short: bool) -> str:
+    """The one line for a recording without a camera frame: cut short before its first frame was whole, or
+    not a run's recording."""
+    if cut_short:
+        return f"{path}: cut short before its first frame was completely written ({CUT_SHORT}): no frame to read"
+    return f"{path}: no camera frames in this recording (not written by `vslam run`?)"
+
+
 _READABLE: dict[tuple[str, int, int], Readable] = {}  # (file, size, mtime) → what to read, found once per process
 
 
@@ -102,6 +114,8 @@ def finalise(source: Path, output: Path) -> None:
     except Exception as exc:  # noqa: BLE001 - any failure means the copy is unusable
         raise RecordingError(f"{source}: not a readable Rerun recording ({first_line(exc)})") from None
     if not recordings:
+        if written_by(source) is not None:  # a Rerun file whose data never reached the disk
+            raise RecordingError(f"{source}: cut short before any of its recording data was written ({CUT_SHORT})")
         raise RecordingError(f"{source}: not a readable Rerun recording (no recording data in it)")
 
 

@@ -31,7 +31,7 @@ import polars as pl
 from rerun.experimental import ViewerClient
 
 from vslam.common import first_line
-from vslam.rrd import comparison_prefixes, read_entity, readable, rerun_binary
+from vslam.rrd import comparison_prefixes, no_frames, read_entity, readable, rerun_binary
 from vslam_core.errors import VslamError
 
 log = logging.getLogger(__name__)
@@ -70,7 +70,7 @@ def recording_frames(rrd: Path) -> tuple[int, int]:
         raise ViewerError(first_line(exc)) from None
     tables = [t for t in tables if "frame" in t.columns and t.height]
     if not tables:
-        raise ViewerError(f"{rrd}: no camera frames in this recording (not written by `vslam run`?)")
+        raise ViewerError(no_frames(rrd, readable(rrd).cut_short))
     camera = pl.concat([t.select("frame") for t in tables])
     frames = camera["frame"]
     return int(frames.min()), int(frames.max())  # type: ignore[arg-type]

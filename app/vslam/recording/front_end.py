@@ -1,0 +1,79 @@
+"""The front end's per-frame entities that are pure functions of one frame's result: the four candidate poses,
+the road under the camera (``--scale height``) and the frame's events (`Recorder.log_frame` calls them)."""
+
+from __future__ import annotations
+
+import numpy as np
+import rerun as rr
+
+from vslam.recording.columns import ColumnBuffer, add_event
+from vslam.recording.stream import road_outline
+from vslam_core.geometry import invert_pose
+from vslam_core.lens import distort_pixels
+from vslam_core.results import FrameResult, FrameStatus, HealthStatus, Reason
+from vslam_core.sources.base import CameraIntrinsics, Frame
+
+
+def log_candidates(columns: ColumnBuffer, frame: Frame, result: FrameResult) -> None:
+    """The four candidate poses, each at the keyframe pose moved by its (R, t): a point (the chosen one
+    larger, its label listing every chirality count) and the candidate camera's axes. A frame without
+    candidates logs an empty row, so the previous frame's do not linger."""
+    candidates = result.candidate_poses if result.T_key_cur is not None else ()
+    centres, axes = np.zeros((len(candidates), 3)), np.zeros((3 * len(candidates), 3))
+    chosen = np.arange(len(candidates)) == result.chosen_candidate
+    labels = [""] * len(candidates)
+    if candidates:
+        assert result.T_key_cur is not None
+        T_w_key = result.T_world_cam @ invert_pose(result.T_key_cur)  # noqa: N806
+        length = max(float(np.linalg.norm(result.T_key_cur[:3, 3])), 0.5)
+        counts = ", ".join(f"#{i}: {c.in_front}" for i, c in enumerate(candidates))
+        centres = np.array([T_w_key[:3, :3] @ (length * c.translation) + T_w_key[:3, 3] for c in candidates])
+        axes = np.concatenate([(T_w_key[:3, :3] @ c.rotation).T * (0.8 if chosen[i] else 0.4)
+                               for i, c in enumerate(candidates)])
+        # (R1, t) and (R2, t) share a centre: one label, on the chosen candidate, lists every count
+        labels = [f"chosen #{i} — in front {counts}" if chosen[i] else "" for i in range(len(candidates))]
+    columns.add(
+        "/world/candidates", frame,
+        (rr.Points3D.columns, {"positions": centres, "radii": np.where(chosen, 0.15, 0.08), "labels": labels}),
+        (rr.Arrows3D.columns, {"origins": np.repeat(centres, 3, axis=0), "vectors": axes}),
+        (rr.AnyValues.columns, {"in_front": np.array([c.in_front for c in candidates], np.int64),
+                                "chosen": chosen}),
+        batch=True,
+    )
+
+
+def log_road(columns: ColumnBuffer, frame: Frame, result: FrameResult, intrinsics: CameraIntrinsics,
+             image: bool) -> None:
+    """--scale height: the road points and plane behind this frame's step length (empty rows when the
+    frame had none, so earlier ones do not linger); `image`: also the road pixels on the frame."""
+    estimate = result.scale_estimate
+    pose = result.T_world_cam
+    points, pixels, outline = np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 5, 3))
+    if estimate is not None:
+        points = estimate.road_points @ pose[:3, :3].T + pose[:3, 3]
+        pixels = distort_pixels(estimate.road_pixels, intrinsics)  # ideal → raw image pixels
+        if estimate.plane_normal is not None and estimate.camera_height is not None:
+            outline = (road_outline(estimate.plane_normal, estimate.camera_height) @ pose[:3, :3].T
+                       + pose[:3, 3])[None]
+    columns.add("/world/road/points", frame, (rr.Points3D.columns, {"positions": points}), batch=True)
+    columns.add("/world/road/plane", frame, (rr.LineStrips3D.columns, {"strips": list(outline)}), batch=True)
+    if image:
+        columns.add("/world/camera/image/road", frame, (rr.Points2D.columns, {"positions": pixels}), batch=True)
+
+
+def log_events(columns: ColumnBuffer, frame: Frame, result: FrameResult) -> None:
+    """The frame's events: initialisation, re-detections (DEBUG), a health warning or failure."""
+    def event(text: str, level: str) -> None:
+        add_event(columns, frame, text, level)
+
+    if result.status == FrameStatus.INIT:
+        event(f"initialised with {len(result.new_corners)} corners", "INFO")
+    elif len(result.new_corners):
+        event(f"re-detected {len(result.new_corners)} corners", "DEBUG")
+    health = result.health
+    if health.status != HealthStatus.OK:
+        what = "used"
+        if result.status == FrameStatus.HELD:
+            what = "dead-reckoned" if Reason.COASTED in health.reasons else "pose held"
+        event(f"{health.status} ({what}): " + ", ".join(health.reasons),
+              "ERROR" if health.status == HealthStatus.FAIL else "WARN")
