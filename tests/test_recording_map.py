@@ -1,4 +1,4 @@
-"""The map backend's recording (`vslam.recording.map`), read back from the `.rrd` in strict mode: tracking mode,
+"""The map backend's recording (`vslam.recording.map_backend`), read back from the `.rrd` in strict mode: tracking mode,
 keyframe frusta, landmarks, keyframe path, bundle adjustment, PnP overlays, events, blueprint; detail levels;
 and none of it with the odometry backend."""
 
@@ -16,7 +16,7 @@ import rerun as rr
 from rerun.chunk import RrdReader
 
 from vslam.recording import MAP_METRICS, MAP_STAGES, MODE_LEVELS, Detail, Recorder
-from vslam.recording.map import FRUSTUM_DEPTH, PNP_INLIER, PNP_OUTLIER, observation_colours
+from vslam.recording.map_backend.map import FRUSTUM_DEPTH, PNP_INLIER, PNP_OUTLIER, observation_colours
 from vslam.rrd.read import read_entity
 from vslam_core.config import EngineConfig
 from vslam_core.pipeline import RunResult, run_odometry

@@ -176,7 +176,7 @@ def test_frame_view_shows_the_recorded_image_at_the_requested_frame(shots: dict[
 @pytest.mark.parametrize(
     ("content", "fragment"),
     [(None, "no such recording"), (b"not a recording\n", "not a readable Rerun recording"),
-     ("truncated", "not a readable Rerun recording (no recording data in it)")],  # cut short in its header
+     ("truncated", "cut short before any of its recording data was written")],  # cut short in its header
 )
 def test_bad_files_are_one_line_errors_naming_the_file(
     content: bytes | str | None, fragment: str, recording: Path, tmp_path: Path

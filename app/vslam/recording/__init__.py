@@ -25,7 +25,7 @@ Entity layout (world = camera frame of the first frame, RDF: x right, y down, z 
     /report                             static Markdown written at the end: the run's metrics table
 
 With --backend map also /tracking, /metrics/tracking/*, /metrics/ba/*, /world/map/** and the image's
-landmarks and reprojection lines: see `vslam.recording.map`. The odometry backend writes none of them.
+landmarks and reprojection lines: see `vslam.recording.map_backend`. The odometry backend writes none of them.
 
 Detail levels: full = all of it; standard = no triangulated points and no per-track hover data;
 summary = no image and no per-point data (camera pose, trajectories, series, events); off = no file.
@@ -51,7 +51,7 @@ from vslam_core.lazy import lazy_names
 _HOMES = {
     "blueprint": "layout",
     "FLUSH_BYTES": "columns", "FLUSH_FRAMES": "columns", "ColumnBuffer": "columns",
-    "MapRecording": "map",
+    "MapRecording": "map_backend",
     "HEALTH_LEVELS": "metrics", "MAP_METRICS": "metrics", "MAP_STAGES": "metrics", "METRICS": "metrics",
     "MODE_LEVELS": "metrics", "STAGES": "metrics", "frame_metrics": "metrics", "map_frame_metrics": "metrics",
     "Recorder": "recorder", "road_outline": "stream", "version_properties": "stream",
@@ -71,7 +71,7 @@ if TYPE_CHECKING:
     from vslam.recording.external import ExternalRun, RunFrames, record_external
     from vslam.recording.layout import CAR_ENTITY, EYE_OFFSET, blueprint
     from vslam.recording.levels import JPEG_QUALITY, Detail, ImageCodec
-    from vslam.recording.map import MapRecording
+    from vslam.recording.map_backend import MapRecording
     from vslam.recording.metrics import (
         HEALTH_LEVELS,
         MAP_METRICS,

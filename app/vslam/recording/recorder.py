@@ -27,7 +27,7 @@ from vslam.recording.drift import DriftRecording
 from vslam.recording.front_end import log_candidates, log_events, log_road
 from vslam.recording.layout import UNDISTORTED, blueprint
 from vslam.recording.levels import JPEG_QUALITY, Detail, ImageCodec
-from vslam.recording.map import MapRecording
+from vslam.recording.map_backend import MapRecording
 from vslam.recording.metrics import HEALTH_LEVELS, METRICS, STAGES, frame_metrics, gt_check_metrics
 from vslam.recording.overview import DriveOverview
 from vslam.recording.schema import SCHEMA_VERSION

@@ -31,7 +31,7 @@
     /world/camera/image/reprojection    LineStrips2D: each landmark's projection with the pose used → its
                                         tracked pixel (the residual as a short line), same classes
     /events                             keyframes, bundle adjustments, relocalisation, new map segments
-    local-map search and landmark lifetimes: see vslam/recording/local_map.py
+    local-map search and landmark lifetimes: see app/vslam/recording/map_backend/local_map.py
 
 Landmarks are coloured by the number of keyframes observing them, on a fixed ramp: 2 or fewer dark blue,
 3 cyan, 4 green, 5 yellow, 6 orange, 7 or more red (`OBSERVATION_RAMP`). Hover: landmark_id, observations.
@@ -52,10 +52,10 @@ from __future__ import annotations
 import numpy as np
 import rerun as rr
 
-from vslam.recording import local_map
 from vslam.recording.columns import ColumnBuffer, Part, add_event
 from vslam.recording.levels import Detail
-from vslam.recording.loops import LoopRecording
+from vslam.recording.map_backend import local_map
+from vslam.recording.map_backend.loops import LoopRecording
 from vslam.recording.metrics import MAP_METRICS, MAP_STAGES, MAP_TIMING, map_frame_metrics
 from vslam_core.results import (
     BundleAdjusted,
