@@ -199,6 +199,13 @@ class MapConfig:
     local_map_scale: float = 1.2  # scale factor between pyramid levels
     reloc_radius_px: float = 24.0  # first search window half-size around the motion model's prediction
     reloc_widenings: int = 4  # the window doubles this many times before the unguided search
+    # PnP on the tracked landmarks failed: the local map searched by projection from the predicted pose before
+    # the two-view pose is used (vslam_core/mapping/map_search.py), in a window of half-size
+    # max(search_min_radius_px, search_motion_fraction x the predicted pixel motion), doubled search_widenings times
+    map_search: bool = True
+    search_min_radius_px: float = 16.0
+    search_motion_fraction: float = 0.3
+    search_widenings: int = 2
     # a landmark re-found, or followed by a track PnP rejected, this close to its projection (px) is observed by
     # a keyframe made then (for BA only); within pnp_threshold_px it is linked again
     keyframe_observation_px: float = 4.0

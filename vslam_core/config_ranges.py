@@ -177,6 +177,9 @@ RANGES: dict[str, Range] = {
     "map.local_map_scale": Range(1.0, 2.0, low_open=True),
     "map.reloc_radius_px": positive(10_000.0),
     "map.reloc_widenings": closed(0, 10),
+    "map.search_min_radius_px": positive(10_000.0),
+    "map.search_motion_fraction": closed(0.0, 10.0),
+    "map.search_widenings": closed(0, 10),
     "map.keyframe_observation_px": PIXEL_SIZE,
     # loop closing
     "loop.features": closed(10, 100_000),

@@ -116,6 +116,15 @@ class TrackingMode(StrEnum):
     LOST = "lost"  # no pose: the previous one is held
 
 
+class PnPFailure(StrEnum):
+    """Why tracking against the map gave no pose (map backend), the first check that failed."""
+
+    TOO_FEW_IN_VIEW = "too_few_in_view"  # fewer of the local map's landmarks project into the image than PnP needs
+    TOO_FEW_MATCHED = "too_few_matched"  # enough in view, too few of them tracked or found by the search
+    RANSAC = "ransac"  # matched, but RANSAC found no pose with enough inliers (count or ratio)
+    DISAGREES = "disagrees"  # a pose, refused: its rotation is off the two-view motion's and the motion model's
+
+
 @dataclass(frozen=True)
 class PnPEstimate:
     """Tracking against the map: L landmarks seen by this frame's tracks (or matched by relocalisation)."""
@@ -128,6 +137,10 @@ class PnPEstimate:
     T_world_cam: np.ndarray | None  # (4, 4) the refined PnP pose; None when PnP failed  # noqa: N815
     rejected: str | None = None  # why it was not used, if it was not
     outvoted_two_view: bool = False  # used though the two-view rotation disagreed: it agreed with the motion model
+    failure: PnPFailure | None = None  # why no pose came of it (None: a pose, or not a tracking attempt)
+    in_view: int = -1  # landmarks of the local map projected into the image by the prediction (-1: not counted)
+    found: int = 0  # of the landmark_ids, those the search by projection found (the others were tracked)
+    search_radius_px: float = 0.0  # the widest search window tried (half-size; 0: no search)
 
 
 @dataclass(frozen=True)

@@ -17,6 +17,7 @@ from vslam_core.config import MapConfig, TrackerConfig
 from vslam_core.mapping.local_map import FrameCorners, LocalMapSearcher, local_keyframes, refind_by_flow
 from vslam_core.mapping.local_mapping import LocalMapping
 from vslam_core.mapping.map import Map
+from vslam_core.mapping.map_search import Check, search_map
 from vslam_core.mapping.pnp import project
 from vslam_core.mapping.relocalisation import MotionModel, bridged_prediction, relocalise_guided
 from vslam_core.results import LocalMapSearch, PnPEstimate, Relocalisation
@@ -126,6 +127,17 @@ class MapRefinding:
         found = search.found_mask
         return PnPEstimate(search.landmark_ids[found], search.found_pixels[found], search.projected[found],
                            agrees[found], T_world_cam)
+
+    def search_map(self, world: Map, reference: int, segment: int, predicted: np.ndarray, previous: np.ndarray,
+                   tracked: tuple[np.ndarray, np.ndarray], seed: tuple[int, ...], check: Check) -> PnPEstimate:
+        """PnP on the `tracked` landmarks ((T,) ids, (T, 2) ideal pixels) failed: the local map around keyframe
+        `reference` searched by projection from `predicted` (the last pose `previous`) in widening windows and
+        PnP solved again (map_search.py). The estimate has a pose when its `failure` is None."""
+        keyframe_ids = local_keyframes(world, reference, segment, self._config.local_map_keyframes)
+        estimate, search = search_map(self._searcher, world, self._frame_corners(), keyframe_ids, predicted, previous,
+                                      tracked, self._camera.K, self._config, seed, check)
+        self.search = search
+        return estimate
 
     def relocalise(self, world: Map, reference: int, segment: int,
                    seed: tuple[int, ...]) -> tuple[Relocalisation, PnPEstimate | None]:
