@@ -239,7 +239,7 @@ class MapTracking:
         if not rows and not self._links:
             return None
         landmark_ids = np.array([landmark for _, landmark in rows], np.int64)
-        observed = self._ideal(pixels[np.array([n for n, _ in rows], np.int64)])
+        observed = undistort_pixels(pixels[np.array([n for n, _ in rows], np.int64)], self._lens)
         if len(rows) < cfg.pnp_min_landmarks:
             return PnPEstimate(landmark_ids, observed, np.full_like(observed, np.nan), np.zeros(len(rows), bool),
                                None, f"only {len(rows)} landmarks tracked", failure=PnPFailure.TOO_FEW_MATCHED)
@@ -261,8 +261,7 @@ class MapTracking:
 
     def _search_map(self, vo: FrameResult, two_view: np.ndarray | None,
                     tracked: PnPEstimate | None) -> PnPEstimate | None:
-        """PnP on the `tracked` landmarks failed: the local map searched from the two-view pose, else the motion
-        model's (map_search.py); landmarks it found and PnP kept start tracks linked to them."""
+        """PnP on the `tracked` landmarks failed: the local map searched by projection (map_search.py)."""
         predicted = two_view if two_view is not None else self.refinding.predicted_pose()
         if predicted is None:
             return tracked
@@ -270,7 +269,7 @@ class MapTracking:
         estimate = self.refinding.search_map(self.mapping.map, self._reference, self._segment, predicted,
                                              self._last_pose, (ids, pixels), (self.config.pose.seed, vo.position, 2),
                                              lambda solution: self._check_pnp(solution, two_view, vo))
-        if estimate.failure is None:
+        if estimate.failure is None:  # outliers unlinked; landmarks found and kept start tracks linked to them
             self._unlink_outliers(ids, estimate.inlier_mask)
             found = np.arange(len(estimate.landmark_ids)) >= len(ids)
             self._link_found(replace(estimate, inlier_mask=estimate.inlier_mask & found))
@@ -353,7 +352,8 @@ class MapTracking:
                                                    return_indices=True)
         if self._speed is not None and not self._initialised:
             started = initialisation(replace(self.config, map=cfg), self._K, reference.T_world_cam, pose,
-                                     self._ideal(vo.track_cur[alive][in_frame]), reference.pixels[in_reference],
+                                     undistort_pixels(vo.track_cur[alive][in_frame], self._lens),
+                                     reference.pixels[in_reference],
                                      Reason.CLOSE_CHIRALITY in vo.health.reasons, vo.position - reference.position,
                                      not any(p in self._held for p in range(reference.position, vo.position)))
             if started is None:
@@ -365,7 +365,7 @@ class MapTracking:
         if pnp is not None and pnp.failure in (PnPFailure.TOO_FEW_IN_VIEW, PnPFailure.TOO_FEW_MATCHED):
             return f"map: {pnp.failure}", pose  # new landmarks while tracks overlap the last keyframe's
         if len(in_frame):
-            pixels = self._ideal(vo.track_cur[alive][in_frame])
+            pixels = undistort_pixels(vo.track_cur[alive][in_frame], self._lens)
             parallax = translation_parallax(reference.T_world_cam, pose, pixels, reference.pixels[in_reference],
                                             self._K)
             if parallax >= cfg.keyframe_parallax_px:
@@ -415,7 +415,7 @@ class MapTracking:
                     pose = orthonormalise(loop_correction @ pose)  # a similarity with --scale none
                     self._follow_loop(loop, loop_correction)
             track_ids, raw = self._odometry.live_tracks()
-            pixels = self._ideal(raw)
+            pixels = undistort_pixels(raw, self._lens)
             tied, relinked = suspended_at_keyframe(self.mapping.map, self._suspended, track_ids, pixels, pose, self._K,
                                                    self._cfg)
             self._links.update(relinked)
@@ -447,7 +447,8 @@ class MapTracking:
             self._speed.observe(vo.position, pose, mode in (TrackingMode.MAP, TrackingMode.RELOCALISED))
             if not self._initialised and keyframe is None:
                 alive = vo.track_fate >= TrackFate.NOT_USED
-                self._before_map.add(vo.position, vo.track_ids[alive], self._ideal(vo.track_cur[alive]))
+                pixels = undistort_pixels(vo.track_cur[alive], self._lens)
+                self._before_map.add(vo.position, vo.track_ids[alive], pixels)
         self._previous_image = frame.image
         self.refinding.end_frame(None if held else pose)
         if mode in (TrackingMode.COASTED, TrackingMode.RELOCALISED) and vo.reason not in UNUSABLE_IMAGE:
@@ -469,10 +470,6 @@ class MapTracking:
         for position, T_world_cam in placed.items():  # noqa: N806
             key = self.mapping.map.keyframes[self._relative[position][0]]
             self._relative[position] = (key.id, invert_pose(key.T_world_cam) @ T_world_cam)
-
-    def _ideal(self, raw: np.ndarray) -> np.ndarray:
-        """(N, 2) raw image pixels → (N, 2) float64 ideal pinhole pixels of K (a copy when the lens has none)."""
-        return undistort_pixels(raw, self._lens)
 
 
     def _result(self, vo: FrameResult, pose: np.ndarray, held: bool, mode: TrackingMode, warnings: list[Reason],
