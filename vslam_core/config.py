@@ -99,6 +99,8 @@ class HeightScaleConfig:
     min_road_points: int = 8  # fewer road points or plane inliers: no estimate this frame
     window: int = 15  # per-frame speeds in the robust trend fit (frames with an estimate)
     max_jump: float = 0.3  # an estimate further than this fraction from the trend is an outlier
+    doubtful_jump: float = 0.15  # ... further than this (not an outlier): used, flagged road_plane_doubtful
+    doubtful_tilt_deg: float = 3.0  # a plane's normal this far from the median of the recent planes': flagged too
 
 
 @dataclass(frozen=True)

@@ -129,6 +129,8 @@ RANGES: dict[str, Range] = {
     "height.min_road_points": closed(3, 100_000),
     "height.window": closed(1, 1000),
     "height.max_jump": positive(100.0),
+    "height.doubtful_jump": positive(100.0),
+    "height.doubtful_tilt_deg": positive(90.0),
     # map backend
     "map.keyframe_parallax_px": positive(10_000.0),
     "map.keyframe_overlap": FRACTION,

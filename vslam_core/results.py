@@ -56,6 +56,8 @@ class Reason(StrEnum):
     SCALE_JUMP = "scale_jump"
     RECOVERED = "recovered_by_matching"  # tracks were lost; the motion was measured by descriptor matching
     SCALE_HELD = "scale_held"  # --scale height: no road plane (or an outlier) this frame; the last scale held
+    ROAD_PLANE_DOUBTFUL = "road_plane_doubtful"  # --scale height: the plane was used, but it tilts off the recent
+    # planes or its step is off the trend (HeightScale: doubtful_tilt_deg, doubtful_jump)
     # map backend
     TRACKING_LOST = "tracking_lost"  # fail: neither the map nor two-view geometry gave a pose, relocalisation failed
     PNP_REJECTED = "pnp_rejected"  # warn: tracking against the map failed its checks; the two-view pose was used
@@ -101,6 +103,9 @@ class ScaleEstimate:
     measured_step: float | None  # known height / height in baselines: this frame's own step length
     step: float  # the step length used, after temporal filtering (or held)
     held: bool  # no plane or an outlier: the filtered trend's step was used instead
+    # used, but doubtful: the plane tilts away from the recent planes (a ramp, a crest: the road ahead is not the
+    # plane the car stands on) or its step is off the trend by more than half the outlier bound
+    doubtful: bool = False
 
 
 class TrackingMode(StrEnum):
