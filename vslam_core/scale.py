@@ -117,7 +117,8 @@ class HeightScale:
         speed = self.trend(view.cur_position)
         step = speed * frames if speed is not None else 1.0  # nothing measured yet: a unit step, flagged
         held = measured is None or abs(measured / step - 1) > cfg.max_jump
-        doubtful = not held and (abs(measured / step - 1) > cfg.doubtful_jump or self._tilted(plane))
+        doubtful = measured is not None and not held and (abs(measured / step - 1) > cfg.doubtful_jump
+                                                          or self._tilted(plane))
         if plane is not None:
             self._normals.append(plane.normal)
         return step, ScaleEstimate(
