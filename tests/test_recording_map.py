@@ -409,3 +409,5 @@ def test_why_pnp_failed_is_read_back_frame_by_frame(kitti_root: Path, tmp_path: 
             assert row["search_radius_px"] == [pytest.approx(pnp.search_radius_px)] and pnp.search_radius_px >= 16
             assert Reason.PNP_REJECTED in r.health.reasons
         assert all(tracking[r.index]["pnp_failure"] == [""] for r in results if mapping(r).pnp is None)
+        checked = vslam("check", path)  # /tracking with pnp_failure conforms to the schema
+        assert checked.returncode == 0, checked.stdout
