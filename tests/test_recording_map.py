@@ -391,10 +391,12 @@ def test_why_pnp_failed_is_read_back_frame_by_frame(kitti_root: Path, tmp_path: 
     """A map that cannot place any frame (PnP asked for more inliers than there are landmarks): every frame with
     a map says why in `/tracking` (pnp_failure "ransac": landmarks matched, too few inliers), with the landmarks
     in view and the search's window, as the engine's `PnPEstimate` has them, and takes its two-view pose. With
-    more landmarks asked for than the local map has, the reason is too_few_in_view."""
-    for settings, expected in (({"pnp_min_inliers": 10**6}, PnPFailure.RANSAC),
-                               ({"pnp_min_landmarks": 10**6}, PnPFailure.TOO_FEW_IN_VIEW)):
-        path = tmp_path / f"{expected}.rrd"
+    more landmarks asked for than the local map has, the reason is too_few_in_view, with the search by
+    projection (`map_search`) or without it (the landmarks in view are counted all the same)."""
+    for settings, expected in (({"pnp_min_inliers": 10**6, "map_search": True}, PnPFailure.RANSAC),
+                               ({"pnp_min_landmarks": 10**6, "map_search": True}, PnPFailure.TOO_FEW_IN_VIEW),
+                               ({"pnp_min_landmarks": 10**6, "map_search": False}, PnPFailure.TOO_FEW_IN_VIEW)):
+        path = tmp_path / f"{expected}-{settings['map_search']}.rrd"
         results = record(kitti_root, path, "map", 10, **settings)
         tracking = by_frame(path, "/tracking")
         failed = [r for r in results if mapping(r).pnp is not None]
@@ -406,7 +408,8 @@ def test_why_pnp_failed_is_read_back_frame_by_frame(kitti_root: Path, tmp_path: 
             assert row["pnp_failure"] == [str(expected)]
             assert row["landmarks_in_view"] == [pnp.in_view] and pnp.in_view > 0
             assert row["landmarks_found"] == [pnp.found]
-            assert row["search_radius_px"] == [pytest.approx(pnp.search_radius_px)] and pnp.search_radius_px >= 16
+            assert row["search_radius_px"] == [pytest.approx(pnp.search_radius_px)]
+            assert pnp.search_radius_px >= 16 if settings["map_search"] else pnp.search_radius_px == pnp.found == 0
             assert Reason.PNP_REJECTED in r.health.reasons
         assert all(tracking[r.index]["pnp_failure"] == [""] for r in results if mapping(r).pnp is None)
         checked = vslam("check", path)  # /tracking with pnp_failure conforms to the schema

@@ -203,8 +203,10 @@ class MapConfig:
     reloc_widenings: int = 4  # the window doubles this many times before the unguided search
     # PnP on the tracked landmarks failed: the local map searched by projection from the predicted pose before
     # the two-view pose is used (vslam_core/mapping/map_search.py), in a window of half-size
-    # max(search_min_radius_px, search_motion_fraction x the predicted pixel motion), doubled search_widenings times
-    map_search: bool = True
+    # max(search_min_radius_px, search_motion_fraction x the predicted pixel motion), doubled search_widenings times.
+    # Off by default: on KITTI --scale none at steps 2-3 it took the 150-frame windows' mean from 2.98 to 2.47 %
+    # but made 0:300:3 worse (00 15.1 -> 23.8 %; docs/map-backend.md). Off, PnP's failures are still diagnosed.
+    map_search: bool = False
     search_min_radius_px: float = 16.0
     search_motion_fraction: float = 0.3
     search_widenings: int = 2

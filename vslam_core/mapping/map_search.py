@@ -61,6 +61,16 @@ def initial_radius(world: Map, landmark_ids: list[int], previous: np.ndarray, pr
     return min(max(config.search_min_radius_px, config.search_motion_fraction * motion), MAX_RADIUS_PX)
 
 
+def count_in_view(world: Map, keyframe_ids: list[int], predicted: np.ndarray, K: np.ndarray,  # noqa: N803
+                  size: tuple[int, int]) -> int:
+    """How many landmarks of `keyframe_ids` the `predicted` pose projects into a (width, height) image."""
+    ids = np.array(sorted({i for k in keyframe_ids for i in world.keyframes[k].landmark_ids}), np.int64)
+    pixels = project(world.positions(ids), predicted, K).reshape(-1, 2)
+    with np.errstate(invalid="ignore"):
+        return int(((pixels[:, 0] >= 0) & (pixels[:, 0] < size[0]) & (pixels[:, 1] >= 0)
+                    & (pixels[:, 1] < size[1])).sum())
+
+
 def search_map(searcher: LocalMapSearcher, world: Map, corners: FrameCorners, keyframe_ids: list[int],
                predicted: np.ndarray, previous: np.ndarray, tracked: tuple[np.ndarray, np.ndarray],
                K: np.ndarray, config: MapConfig, seed: tuple[int, ...],  # noqa: N803

@@ -155,8 +155,7 @@ class MapTracking:
         pnp = self._track_map(vo.position, vo.track_ids[alive], vo.track_cur[alive], two_view, vo)
         missing = self.refinding.frames_missing()  # the clock says frames are absent from the log
         lost_tracks = vo.reason == Reason.TOO_FEW_TRACKS or Reason.RECOVERED in vo.health.reasons or missing
-        if (self._cfg.map_search and (pnp is None or pnp.failure is not None) and not (lost_tracks or self._gap)
-                and self._has_map()):
+        if (pnp is None or pnp.failure is not None) and not (lost_tracks or self._gap) and self._has_map():
             pnp = self._search_map(vo, two_view, pnp)
         timings["pnp"] = _lap(clock)
         warnings: list[Reason] = []
@@ -263,8 +262,8 @@ class MapTracking:
                     tracked: PnPEstimate | None) -> PnPEstimate | None:
         """PnP on the `tracked` landmarks failed: the local map searched by projection (map_search.py)."""
         predicted = two_view if two_view is not None else self.refinding.predicted_pose()
-        if predicted is None:
-            return tracked
+        if predicted is None or not self._cfg.map_search:  # off: only the landmarks in view counted, if any tracked
+            return self.refinding.in_view(self.mapping.map, self._reference, self._segment, predicted, tracked)
         ids, pixels = (tracked.landmark_ids, tracked.observed) if tracked else (np.zeros(0, np.int64), np.zeros((0, 2)))
         estimate = self.refinding.search_map(self.mapping.map, self._reference, self._segment, predicted,
                                              self._last_pose, (ids, pixels), (self.config.pose.seed, vo.position, 2),
@@ -362,7 +361,7 @@ class MapTracking:
             return why, pose
         if self._since_keyframe >= cfg.keyframe_max_frames:
             return f"{self._since_keyframe} frames", pose
-        if pnp is not None and pnp.failure in (PnPFailure.TOO_FEW_IN_VIEW, PnPFailure.TOO_FEW_MATCHED):
+        if cfg.map_search and pnp and pnp.failure in (PnPFailure.TOO_FEW_IN_VIEW, PnPFailure.TOO_FEW_MATCHED):
             return f"map: {pnp.failure}", pose  # new landmarks while tracks overlap the last keyframe's
         if len(in_frame):
             pixels = undistort_pixels(vo.track_cur[alive][in_frame], self._lens)
