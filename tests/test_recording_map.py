@@ -20,7 +20,7 @@ from vslam.recording.map_backend.map import FRUSTUM_DEPTH, PNP_INLIER, PNP_OUTLI
 from vslam.rrd.read import read_entity
 from vslam_core.config import EngineConfig
 from vslam_core.pipeline import RunResult, run_odometry
-from vslam_core.results import FrameResult, MapFrame, TrackingMode
+from vslam_core.results import FrameResult, MapFrame, PnPFailure, Reason, TrackingMode
 from vslam_core.sources.base import FrameRange
 from vslam_core.sources.kitti import KittiSource
 
@@ -38,11 +38,13 @@ def strict_rerun() -> None:
     rr.set_strict_mode(True)  # a malformed archetype raises instead of warning
 
 
-def record(kitti_root: Path, path: Path, backend: str, frames: int, local_map: bool = False) -> list[FrameResult]:
+def record(kitti_root: Path, path: Path, backend: str, frames: int, local_map: bool = False,
+           **map_settings: Any) -> list[FrameResult]:
     """A run as `record_run` does it (the recorder's sink, then `finish`), keeping the engine's results."""
     source = KittiSource(kitti_root, sequence="00", frames=FrameRange(0, frames))
     config = EngineConfig(backend=backend)  # type: ignore[arg-type]
-    config = dataclasses.replace(config, map=dataclasses.replace(config.map, local_map_tracking=local_map))
+    config = dataclasses.replace(config, map=dataclasses.replace(config.map, local_map_tracking=local_map,
+                                                                 **map_settings))
     results: list[FrameResult] = []
     run = RunResult([], [], [])
     recorder = Recorder(path, source, config, {"name": "map test", "source": source.name}, detail=Detail.FULL)
@@ -382,3 +384,33 @@ def test_local_map_search_and_landmark_lifetimes_read_back(local: tuple[Path, li
     last = adjusted[-1]
     assert mean[last.index]["Scalars:scalars"][0] == pytest.approx(
         float(mapping(last).bundle_adjustment.landmark_keyframes.mean()))  # type: ignore[union-attr]
+
+
+@pytest.mark.kitti
+def test_why_pnp_failed_is_read_back_frame_by_frame(kitti_root: Path, tmp_path: Path) -> None:
+    """A map that cannot place any frame (PnP asked for more inliers than there are landmarks): every frame with
+    a map says why in `/tracking` (pnp_failure "ransac": landmarks matched, too few inliers), with the landmarks
+    in view and the search's window, as the engine's `PnPEstimate` has them, and takes its two-view pose. With
+    more landmarks asked for than the local map has, the reason is too_few_in_view, with the search by
+    projection (`map_search`) or without it (the landmarks in view are counted all the same)."""
+    for settings, expected in (({"pnp_min_inliers": 10**6, "map_search": True}, PnPFailure.RANSAC),
+                               ({"pnp_min_landmarks": 10**6, "map_search": True}, PnPFailure.TOO_FEW_IN_VIEW),
+                               ({"pnp_min_landmarks": 10**6, "map_search": False}, PnPFailure.TOO_FEW_IN_VIEW)):
+        path = tmp_path / f"{expected}-{settings['map_search']}.rrd"
+        results = record(kitti_root, path, "map", 10, **settings)
+        tracking = by_frame(path, "/tracking")
+        failed = [r for r in results if mapping(r).pnp is not None]
+        assert len(failed) >= 5
+        for r in failed:
+            pnp = mapping(r).pnp
+            assert pnp is not None and pnp.failure == expected and mapping(r).mode == TrackingMode.TWO_VIEW
+            row = tracking[r.index]
+            assert row["pnp_failure"] == [str(expected)]
+            assert row["landmarks_in_view"] == [pnp.in_view] and pnp.in_view > 0
+            assert row["landmarks_found"] == [pnp.found]
+            assert row["search_radius_px"] == [pytest.approx(pnp.search_radius_px)]
+            assert pnp.search_radius_px >= 16 if settings["map_search"] else pnp.search_radius_px == pnp.found == 0
+            assert Reason.PNP_REJECTED in r.health.reasons
+        assert all(tracking[r.index]["pnp_failure"] == [""] for r in results if mapping(r).pnp is None)
+        checked = vslam("check", path)  # /tracking with pnp_failure conforms to the schema
+        assert checked.returncode == 0, checked.stdout

@@ -98,6 +98,21 @@ def test_height_scale_holds_the_trend_without_a_plane() -> None:
     assert step == pytest.approx(2 * 1.2, rel=1e-6)
 
 
+def test_a_doubtful_road_plane_is_used_and_flagged() -> None:
+    """A steady road, then a ramp ahead (its plane tilted 6°, the height above it 5 % off: used, flagged
+    doubtful), then a plane whose step is 20 % off the trend (inside the 30 % outlier bound: used, flagged)."""
+    provider = HeightScale(1.65, K, CONFIG, seed=0)
+    rng = np.random.default_rng(6)
+    flags = {}
+    for position in range(1, 30):
+        tilt, off = {20: (6.0, 1.05), 25: (0.0, 1.2)}.get(position, (0.0, 1.0))
+        points, pixels, _ = road_scene(1.65 / off, rng, tilt_deg=tilt)
+        _, estimate = provider.step_length(TwoView(position - 1, position, points, pixels))
+        assert estimate is not None and not estimate.held
+        flags[position] = estimate.doubtful
+    assert [p for p, doubtful in flags.items() if doubtful] == [20, 25]
+
+
 def test_height_scale_needs_a_camera_height() -> None:
     with pytest.raises(ConfigError, match="--camera-height"):
         make_scale_provider(EngineConfig(scale="height"), None, K, None)
@@ -145,6 +160,12 @@ def test_kitti_metric_without_ground_truth_within_three_percent(
     assert abs(path) < 3.0 and abs(median) < 2.0 and mean_abs < 10.0
     held = sum(Reason.SCALE_HELD in r.health.reasons for r in results)
     assert held < 0.2 * len(results)  # a road plane most of the time
+    # a doubtful plane (used) is flagged in the frame's health, a held one is not also doubtful
+    estimates = [(r, r.scale_estimate) for r in results if r.scale_estimate is not None]
+    doubtful = [r for r, e in estimates if e.doubtful]
+    assert 0 < len(doubtful) < 0.5 * len(results)
+    assert all((Reason.ROAD_PLANE_DOUBTFUL in r.health.reasons) == e.doubtful for r, e in estimates)
+    assert not any(e.doubtful and e.held for _, e in estimates)
 
 
 def test_kitti_trajectory_is_the_same_without_a_poses_file(

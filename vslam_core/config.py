@@ -100,6 +100,8 @@ class HeightScaleConfig:
     min_road_points: int = 8  # fewer road points or plane inliers: no estimate this frame
     window: int = 15  # per-frame speeds in the robust trend fit (frames with an estimate)
     max_jump: float = 0.3  # an estimate further than this fraction from the trend is an outlier
+    doubtful_jump: float = 0.15  # ... further than this (not an outlier): used, flagged road_plane_doubtful
+    doubtful_tilt_deg: float = 3.0  # a plane's normal this far from the median of the recent planes': flagged too
 
 
 @dataclass(frozen=True)
@@ -200,6 +202,15 @@ class MapConfig:
     local_map_scale: float = 1.2  # scale factor between pyramid levels
     reloc_radius_px: float = 24.0  # first search window half-size around the motion model's prediction
     reloc_widenings: int = 4  # the window doubles this many times before the unguided search
+    # PnP on the tracked landmarks failed: the local map searched by projection from the predicted pose before
+    # the two-view pose is used (vslam_core/mapping/map_search.py), in a window of half-size
+    # max(search_min_radius_px, search_motion_fraction x the predicted pixel motion), doubled search_widenings times.
+    # Off by default: on KITTI --scale none at steps 2-3 it took the 150-frame windows' mean from 2.98 to 2.47 %
+    # but made 0:300:3 worse (00 15.1 -> 23.8 %; docs/map-backend.md). Off, PnP's failures are still diagnosed.
+    map_search: bool = False
+    search_min_radius_px: float = 16.0
+    search_motion_fraction: float = 0.3
+    search_widenings: int = 2
     # a landmark re-found, or followed by a track PnP rejected, this close to its projection (px) is observed by
     # a keyframe made then (for BA only); within pnp_threshold_px it is linked again
     keyframe_observation_px: float = 4.0

@@ -129,6 +129,8 @@ RANGES: dict[str, Range] = {
     "height.min_road_points": closed(3, 100_000),
     "height.window": closed(1, 1000),
     "height.max_jump": positive(100.0),
+    "height.doubtful_jump": positive(100.0),
+    "height.doubtful_tilt_deg": positive(90.0),
     # map backend
     "map.keyframe_parallax_px": positive(10_000.0),
     "map.keyframe_overlap": FRACTION,
@@ -177,6 +179,9 @@ RANGES: dict[str, Range] = {
     "map.local_map_scale": Range(1.0, 2.0, low_open=True),
     "map.reloc_radius_px": positive(10_000.0),
     "map.reloc_widenings": closed(0, 10),
+    "map.search_min_radius_px": positive(10_000.0),
+    "map.search_motion_fraction": closed(0.0, 10.0),
+    "map.search_widenings": closed(0, 10),
     "map.keyframe_observation_px": PIXEL_SIZE,
     # loop closing
     "loop.features": closed(10, 100_000),

@@ -151,6 +151,8 @@ class Odometry:
                 scale, scale_estimate = self._scale.step_length(view)
                 if scale_estimate is not None and scale_estimate.held:
                     warnings.append(Reason.SCALE_HELD)
+                elif scale_estimate is not None and scale_estimate.doubtful:
+                    warnings.append(Reason.ROAD_PLANE_DOUBTFUL)
                 warnings += self._motion_warnings(motion, int(used.sum()), scale)
                 T_key_cur = pose_matrix(motion.rotation, scale * motion.translation)  # noqa: N806
                 self._last_motion = (self._position, motion.rotation, motion.translation) \

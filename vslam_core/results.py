@@ -56,6 +56,8 @@ class Reason(StrEnum):
     SCALE_JUMP = "scale_jump"
     RECOVERED = "recovered_by_matching"  # tracks were lost; the motion was measured by descriptor matching
     SCALE_HELD = "scale_held"  # --scale height: no road plane (or an outlier) this frame; the last scale held
+    ROAD_PLANE_DOUBTFUL = "road_plane_doubtful"  # --scale height: the plane was used, but it tilts off the recent
+    # planes or its step is off the trend (HeightScale: doubtful_tilt_deg, doubtful_jump)
     # map backend
     TRACKING_LOST = "tracking_lost"  # fail: neither the map nor two-view geometry gave a pose, relocalisation failed
     PNP_REJECTED = "pnp_rejected"  # warn: tracking against the map failed its checks; the two-view pose was used
@@ -101,6 +103,9 @@ class ScaleEstimate:
     measured_step: float | None  # known height / height in baselines: this frame's own step length
     step: float  # the step length used, after temporal filtering (or held)
     held: bool  # no plane or an outlier: the filtered trend's step was used instead
+    # used, but doubtful: the plane tilts away from the recent planes (a ramp, a crest: the road ahead is not the
+    # plane the car stands on) or its step is off the trend by more than half the outlier bound
+    doubtful: bool = False
 
 
 class TrackingMode(StrEnum):
@@ -116,6 +121,15 @@ class TrackingMode(StrEnum):
     LOST = "lost"  # no pose: the previous one is held
 
 
+class PnPFailure(StrEnum):
+    """Why tracking against the map gave no pose (map backend), the first check that failed."""
+
+    TOO_FEW_IN_VIEW = "too_few_in_view"  # fewer of the local map's landmarks project into the image than PnP needs
+    TOO_FEW_MATCHED = "too_few_matched"  # enough in view, too few of them tracked or found by the search
+    RANSAC = "ransac"  # matched, but RANSAC found no pose with enough inliers (count or ratio)
+    DISAGREES = "disagrees"  # a pose, refused: its rotation is off the two-view motion's and the motion model's
+
+
 @dataclass(frozen=True)
 class PnPEstimate:
     """Tracking against the map: L landmarks seen by this frame's tracks (or matched by relocalisation)."""
@@ -128,6 +142,10 @@ class PnPEstimate:
     T_world_cam: np.ndarray | None  # (4, 4) the refined PnP pose; None when PnP failed  # noqa: N815
     rejected: str | None = None  # why it was not used, if it was not
     outvoted_two_view: bool = False  # used though the two-view rotation disagreed: it agreed with the motion model
+    failure: PnPFailure | None = None  # why no pose came of it (None: a pose, or not a tracking attempt)
+    in_view: int = -1  # landmarks of the local map projected into the image by the prediction (-1: not counted)
+    found: int = 0  # of the landmark_ids, those the search by projection found (the others were tracked)
+    search_radius_px: float = 0.0  # the widest search window tried (half-size; 0: no search)
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,7 @@ import numpy as np
 from vslam_core.config import EngineConfig, HeightScaleConfig, ScaleSource
 from vslam_core.errors import ConfigError
 from vslam_core.results import ScaleEstimate
-from vslam_core.road import fit_road_plane, road_region
+from vslam_core.road import RoadPlane, fit_road_plane, road_region
 
 
 @dataclass(frozen=True)
@@ -70,6 +70,8 @@ class HeightScale:
     squares with Cauchy weights: speed changes smoothly, a trend does not lag while the car accelerates,
     and a wrong plane barely moves it); the step used is the trend at this frame. A frame without a plane,
     or whose measurement lies more than `max_jump` from the trend, is flagged `held`: the trend carries it.
+    One whose plane is used but doubtful (more than `doubtful_jump` from the trend, or its normal over
+    `doubtful_tilt_deg` from the recent planes': a ramp or a crest) is flagged `doubtful`.
     RANSAC is seeded per frame, so the result is deterministic.
     """
 
@@ -81,6 +83,7 @@ class HeightScale:
         self._config = config
         self._seed = seed
         self._speeds: deque[tuple[int, float]] = deque(maxlen=config.window)  # (position, metres per frame)
+        self._normals: deque[np.ndarray] = deque(maxlen=config.window)  # the recent planes' (3,) normals
 
     def trend(self, position: int) -> float | None:
         """Speed (metres per frame) the recent measurements give at `position`; None before the first."""
@@ -114,6 +117,10 @@ class HeightScale:
         speed = self.trend(view.cur_position)
         step = speed * frames if speed is not None else 1.0  # nothing measured yet: a unit step, flagged
         held = measured is None or abs(measured / step - 1) > cfg.max_jump
+        doubtful = measured is not None and not held and (abs(measured / step - 1) > cfg.doubtful_jump
+                                                          or self._tilted(plane))
+        if plane is not None:
+            self._normals.append(plane.normal)
         return step, ScaleEstimate(
             road_points=road_points[plane.inliers] * step if plane is not None else np.zeros((0, 3)),
             road_pixels=road_pixels[plane.inliers] if plane is not None else np.zeros((0, 2)),
@@ -122,7 +129,17 @@ class HeightScale:
             measured_step=measured,
             step=step,
             held=held,
+            doubtful=bool(doubtful),
         )
+
+    def _tilted(self, plane: RoadPlane | None) -> bool:
+        """The plane's normal is over `doubtful_tilt_deg` from the median of the recent planes' (at least 3 of
+        them): the road ahead bends away from the road under the car, and the height above it is not the car's."""
+        if plane is None or len(self._normals) < 3:
+            return False
+        median = np.median(np.array(self._normals), axis=0)
+        median /= np.linalg.norm(median)
+        return bool(np.degrees(np.arccos(np.clip(plane.normal @ median, -1.0, 1.0))) > self._config.doubtful_tilt_deg)
 
 
 def default_camera_height(source_height: float | None, config: EngineConfig) -> float:

@@ -24,10 +24,10 @@ import numpy as np
 from vslam_core.config import EngineConfig, MapConfig, ScaleSource
 from vslam_core.geometry import invert_pose, normalise_points, pose_matrix, rotation_angle, triangulate
 from vslam_core.mapping.local_mapping import well_triangulated
-from vslam_core.mapping.map import Map
+from vslam_core.mapping.map import Keyframe, Map
 from vslam_core.mapping.pnp import solve_pnp
 from vslam_core.results import KeyframeInserted, ScaleEstimate
-from vslam_core.scale import TwoView
+from vslam_core.scale import ScaleProvider, TwoView
 from vslam_core.two_view import two_view_motion
 
 #: Why a keyframe was made when it starts a map (segment): it is the map's start only with enough landmarks.
@@ -221,3 +221,15 @@ class FramesBeforeMap:
                 placed[position] = solution.T_world_cam
         self.clear()
         return placed
+
+
+def metric_step(scale: ScaleSource, provider: ScaleProvider, previous: Keyframe | None, position: int,
+                pose: np.ndarray) -> float | None:
+    """Distance of the frame at run `position` (pose (4, 4)) from the `previous` keyframe by the scale source (the
+    BA's range prior): gt's own, height's as tracked; None for --scale none or without a keyframe."""
+    if scale == "none" or previous is None:
+        return None
+    if scale == "gt":
+        empty = np.zeros((0, 3))
+        return provider.step_length(TwoView(previous.position, position, empty, empty[:, :2]))[0]
+    return float(np.linalg.norm(pose[:3, 3] - previous.T_world_cam[:3, 3]))

@@ -13,7 +13,7 @@ import numpy as np
 
 from vslam_core.geometry import invert_pose, pose_matrix, rotation_angle
 from vslam_core.lens import distort_pixels
-from vslam_core.results import PnPEstimate
+from vslam_core.results import LocalMapSearch, PnPEstimate
 from vslam_core.sources.base import CameraIntrinsics
 
 
@@ -88,3 +88,11 @@ def at_raw_pixels(estimate: PnPEstimate | None, lens: CameraIntrinsics) -> PnPEs
         return estimate
     return replace(estimate, observed=distort_pixels(estimate.observed, lens),
                    projected=distort_pixels(estimate.projected, lens))
+
+
+def search_at_raw_pixels(search: LocalMapSearch | None, lens: CameraIntrinsics) -> LocalMapSearch | None:
+    """The frame's local-map search with its pixels on the raw image of `lens`, where overlays are drawn."""
+    if search is None or not lens.distorted:
+        return search
+    return replace(search, projected=distort_pixels(search.projected, lens),
+                   found_pixels=distort_pixels(search.found_pixels, lens))

@@ -10,6 +10,8 @@ result (`MapFrame.local_map`).
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from vslam_core.coasting import steady, unit_step
@@ -17,9 +19,10 @@ from vslam_core.config import MapConfig, TrackerConfig
 from vslam_core.mapping.local_map import FrameCorners, LocalMapSearcher, local_keyframes, refind_by_flow
 from vslam_core.mapping.local_mapping import LocalMapping
 from vslam_core.mapping.map import Map
+from vslam_core.mapping.map_search import Check, count_in_view, search_map
 from vslam_core.mapping.pnp import project
 from vslam_core.mapping.relocalisation import MotionModel, bridged_prediction, relocalise_guided
-from vslam_core.results import LocalMapSearch, PnPEstimate, Relocalisation
+from vslam_core.results import LocalMapSearch, PnPEstimate, PnPFailure, Relocalisation
 from vslam_core.sources.base import CameraIntrinsics, Frame
 
 INTERVALS = 10  # frame intervals remembered
@@ -126,6 +129,32 @@ class MapRefinding:
         found = search.found_mask
         return PnPEstimate(search.landmark_ids[found], search.found_pixels[found], search.projected[found],
                            agrees[found], T_world_cam)
+
+    def search_map(self, world: Map, reference: int, segment: int, predicted: np.ndarray, previous: np.ndarray,
+                   tracked: tuple[np.ndarray, np.ndarray], seed: tuple[int, ...], check: Check) -> PnPEstimate:
+        """PnP on the `tracked` landmarks ((T,) ids, (T, 2) ideal pixels) failed: the local map around keyframe
+        `reference` searched by projection from `predicted` (the last pose `previous`) in widening windows and
+        PnP solved again (map_search.py). The estimate has a pose when its `failure` is None."""
+        keyframe_ids = local_keyframes(world, reference, segment, self._config.local_map_keyframes)
+        estimate, search = search_map(self._searcher, world, self._frame_corners(), keyframe_ids, predicted, previous,
+                                      tracked, self._camera.K, self._config, seed, check)
+        self.search = search
+        return estimate
+
+    def in_view(self, world: Map, reference: int, segment: int, predicted: np.ndarray | None,
+                tracked: PnPEstimate | None) -> PnPEstimate | None:
+        """The `tracked` estimate (PnP failed) with the local map's landmarks the `predicted` pose puts in the
+        image counted (`in_view`), and `too_few_in_view` when they are fewer than PnP needs (no search)."""
+        if tracked is None or predicted is None:
+            return tracked
+        keyframe_ids = local_keyframes(world, reference, segment, self._config.local_map_keyframes)
+        count = count_in_view(world, keyframe_ids, predicted, self._camera.K, self._image_size())
+        failure = PnPFailure.TOO_FEW_IN_VIEW if count < self._config.pnp_min_landmarks else tracked.failure
+        return replace(tracked, in_view=count, failure=failure)
+
+    def _image_size(self) -> tuple[int, int]:
+        assert self._image is not None, "start_frame first"
+        return self._image.shape[1], self._image.shape[0]
 
     def relocalise(self, world: Map, reference: int, segment: int,
                    seed: tuple[int, ...]) -> tuple[Relocalisation, PnPEstimate | None]:

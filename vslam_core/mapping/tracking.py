@@ -3,12 +3,12 @@
 Per frame: KLT tracks and the 5-point motion from the keyframe (vslam_core/engine.py) → the landmarks linked
 to surviving tracks (and, with `map.local_map_tracking`, landmarks re-found by projection: refinding.py) →
 PnP in RANSAC refined on the inliers (`MAP`: with none its pose, in the map's own scale, map_scale.py; with
-gt or height the front end's motion it confirmed, pnp.metric_pose) → else the two-view pose (`TWO_VIEW`) →
-tracks lost: relocalisation against
-recent keyframes (`RELOCALISED`), failing that a new map segment. Tracks live on raw pixels; PnP, landmarks
-and BA on ideal pinhole pixels (vslam_core/lens.py). A frame the health checks refuse is dead-reckoned
-(`COASTED`, vslam_core/coasting.py); one nothing can place keeps the last pose (`LOST`). Keyframes go to
-local mapping; the pending bundle adjustment and loop search are applied then (a fixed point: deterministic).
+gt or height the front end's motion it confirmed, pnp.metric_pose); failing that, the local map searched by
+projection (map_search.py; why it failed: `PnPEstimate.failure`) → else the two-view pose (`TWO_VIEW`) → tracks
+lost: relocalisation against recent keyframes (`RELOCALISED`), failing that a new map segment. Tracks live on
+raw pixels; PnP, landmarks and BA on ideal pinhole pixels (vslam_core/lens.py). A frame the health checks
+refuse is dead-reckoned (`COASTED`, vslam_core/coasting.py); one nothing can place keeps the last pose (`LOST`).
+Keyframes go to local mapping; the pending bundle adjustment and loop search are applied then (deterministic).
 """
 
 from __future__ import annotations
@@ -33,10 +33,11 @@ from vslam_core.mapping.map_scale import (
     initialisation,
     initialised,
     landmark_settings,
+    metric_step,
     slow_camera,
     translation_parallax,
 )
-from vslam_core.mapping.pnp import PnPSolution, at_raw_pixels, metric_pose, solve_pnp
+from vslam_core.mapping.pnp import PnPSolution, at_raw_pixels, metric_pose, search_at_raw_pixels, solve_pnp
 from vslam_core.mapping.refinding import MapRefinding, suspended_at_keyframe
 from vslam_core.mapping.relocalisation import relocalise_by_descriptors
 from vslam_core.mapping.worker_process import BackendWorker
@@ -47,10 +48,10 @@ from vslam_core.results import (
     FrameStatus,
     Health,
     KeyframeInserted,
-    LocalMapSearch,
     LoopStep,
     MapFrame,
     PnPEstimate,
+    PnPFailure,
     Reason,
     Relocalisation,
     TrackFate,
@@ -152,9 +153,11 @@ class MapTracking:
         two_view = self.pose_of(vo.keyframe_position) @ vo.T_key_cur if vo.T_key_cur is not None else None
         alive = vo.track_fate >= TrackFate.NOT_USED
         pnp = self._track_map(vo.position, vo.track_ids[alive], vo.track_cur[alive], two_view, vo)
-        timings["pnp"] = _lap(clock)
         missing = self.refinding.frames_missing()  # the clock says frames are absent from the log
         lost_tracks = vo.reason == Reason.TOO_FEW_TRACKS or Reason.RECOVERED in vo.health.reasons or missing
+        if (pnp is None or pnp.failure is not None) and not (lost_tracks or self._gap) and self._has_map():
+            pnp = self._search_map(vo, two_view, pnp)
+        timings["pnp"] = _lap(clock)
         warnings: list[Reason] = []
         relocalisation = None
         pose, mode, why = None, TrackingMode.LOST, None
@@ -235,22 +238,41 @@ class MapTracking:
         if not rows and not self._links:
             return None
         landmark_ids = np.array([landmark for _, landmark in rows], np.int64)
-        observed = self._ideal(pixels[np.array([n for n, _ in rows], np.int64)])
+        observed = undistort_pixels(pixels[np.array([n for n, _ in rows], np.int64)], self._lens)
         if len(rows) < cfg.pnp_min_landmarks:
             return PnPEstimate(landmark_ids, observed, np.full_like(observed, np.nan), np.zeros(len(rows), bool),
-                               None, f"only {len(rows)} landmarks tracked")
+                               None, f"only {len(rows)} landmarks tracked", failure=PnPFailure.TOO_FEW_MATCHED)
         solution = solve_pnp(self.mapping.map.positions(landmark_ids), observed, self._K, cfg.pnp_threshold_px,
                              cfg.pnp_iterations, (self.config.pose.seed, position))
-        rejected, outvoted = self._check_pnp(solution, two_view, vo)
+        rejected, outvoted, failure = self._check_pnp(solution, two_view, vo)
         if rejected is None:
-            outliers = {int(t) for t, inlier in zip(track_ids[[n for n, _ in rows]], solution.inlier_mask, strict=True)
-                        if not inlier}
-            for track_id in outliers:
-                landmark_id = self._links.pop(track_id)
-                if self._cfg.local_map_tracking:
-                    self._suspended[track_id] = landmark_id
+            self._unlink_outliers(landmark_ids, solution.inlier_mask)
         return PnPEstimate(landmark_ids, observed, solution.projected, solution.inlier_mask, solution.T_world_cam,
-                           rejected, outvoted)
+                           rejected, outvoted, failure)
+
+    def _unlink_outliers(self, landmark_ids: np.ndarray, inlier_mask: np.ndarray) -> None:
+        """Tracks linked to the (L,) landmarks PnP did not keep lose their link (suspended: local_map_tracking)."""
+        outliers = set(landmark_ids[~inlier_mask[:len(landmark_ids)]].tolist())
+        for track_id, landmark_id in [(t, m) for t, m in self._links.items() if m in outliers]:
+            del self._links[track_id]
+            if self._cfg.local_map_tracking:
+                self._suspended[track_id] = landmark_id
+
+    def _search_map(self, vo: FrameResult, two_view: np.ndarray | None,
+                    tracked: PnPEstimate | None) -> PnPEstimate | None:
+        """PnP on the `tracked` landmarks failed: the local map searched by projection (map_search.py)."""
+        predicted = two_view if two_view is not None else self.refinding.predicted_pose()
+        if predicted is None or not self._cfg.map_search:  # off: only the landmarks in view counted, if any tracked
+            return self.refinding.in_view(self.mapping.map, self._reference, self._segment, predicted, tracked)
+        ids, pixels = (tracked.landmark_ids, tracked.observed) if tracked else (np.zeros(0, np.int64), np.zeros((0, 2)))
+        estimate = self.refinding.search_map(self.mapping.map, self._reference, self._segment, predicted,
+                                             self._last_pose, (ids, pixels), (self.config.pose.seed, vo.position, 2),
+                                             lambda solution: self._check_pnp(solution, two_view, vo))
+        if estimate.failure is None:  # outliers unlinked; landmarks found and kept start tracks linked to them
+            self._unlink_outliers(ids, estimate.inlier_mask)
+            found = np.arange(len(estimate.landmark_ids)) >= len(ids)
+            self._link_found(replace(estimate, inlier_mask=estimate.inlier_mask & found))
+        return estimate
 
     def _link_found(self, found: PnPEstimate) -> None:
         """Start a track at each landmark re-found in this frame (PnP inliers when it has a pose) and link it,
@@ -261,14 +283,15 @@ class MapTracking:
         self._links.update(zip(new_tracks.tolist(), found.landmark_ids[keep].tolist(), strict=True))
 
     def _check_pnp(self, solution: PnPSolution, two_view: np.ndarray | None,
-                   vo: FrameResult) -> tuple[str | None, bool]:
-        """Why a PnP pose is not trusted, if it is not; and whether it outvoted the two-view rotation."""
+                   vo: FrameResult) -> tuple[str | None, bool, PnPFailure | None]:
+        """Why a PnP pose is not trusted, if it is not; whether it outvoted the two-view rotation; the failure."""
         cfg = self._cfg
         inliers = int(solution.inlier_mask.sum())
         if solution.T_world_cam is None or inliers < cfg.pnp_min_inliers:
-            return ("no PnP solution" if solution.T_world_cam is None else f"{inliers} inliers"), False
+            return ("no PnP solution" if solution.T_world_cam is None else f"{inliers} inliers"), False, \
+                PnPFailure.RANSAC
         if inliers < cfg.pnp_min_inlier_ratio * len(solution.inlier_mask):
-            return f"inlier ratio {inliers / len(solution.inlier_mask):.2f}", False
+            return f"inlier ratio {inliers / len(solution.inlier_mask):.2f}", False, PnPFailure.RANSAC
         if two_view is not None and vo.T_key_cur is not None:
             pnp_motion = invert_pose(self.pose_of(vo.keyframe_position)) @ solution.T_world_cam
             disagreement = np.degrees(rotation_angle(pnp_motion[:3, :3].T @ vo.T_key_cur[:3, :3]))
@@ -278,9 +301,9 @@ class MapTracking:
                 predicted = self.refinding.predicted_pose()
                 if predicted is None or np.degrees(rotation_angle(predicted[:3, :3].T @ solution.T_world_cam[:3, :3])) \
                         > cfg.max_rotation_disagreement_deg:
-                    return f"rotation {disagreement:.1f}° from the two-view motion", False
-                return None, True
-        return None, False
+                    return f"rotation {disagreement:.1f}° from the two-view motion", False, PnPFailure.DISAGREES
+                return None, True, None
+        return None, False, None
 
     def relocalise(self, image: np.ndarray, position: int) -> tuple[Relocalisation, PnPEstimate | None]:
         """Unguided relocalisation against the segment's recent keyframes (`relocalise_by_descriptors`). Returns
@@ -328,7 +351,8 @@ class MapTracking:
                                                    return_indices=True)
         if self._speed is not None and not self._initialised:
             started = initialisation(replace(self.config, map=cfg), self._K, reference.T_world_cam, pose,
-                                     self._ideal(vo.track_cur[alive][in_frame]), reference.pixels[in_reference],
+                                     undistort_pixels(vo.track_cur[alive][in_frame], self._lens),
+                                     reference.pixels[in_reference],
                                      Reason.CLOSE_CHIRALITY in vo.health.reasons, vo.position - reference.position,
                                      not any(p in self._held for p in range(reference.position, vo.position)))
             if started is None:
@@ -337,8 +361,10 @@ class MapTracking:
             return why, pose
         if self._since_keyframe >= cfg.keyframe_max_frames:
             return f"{self._since_keyframe} frames", pose
+        if cfg.map_search and pnp and pnp.failure in (PnPFailure.TOO_FEW_IN_VIEW, PnPFailure.TOO_FEW_MATCHED):
+            return f"map: {pnp.failure}", pose  # new landmarks while tracks overlap the last keyframe's
         if len(in_frame):
-            pixels = self._ideal(vo.track_cur[alive][in_frame])
+            pixels = undistort_pixels(vo.track_cur[alive][in_frame], self._lens)
             parallax = translation_parallax(reference.T_world_cam, pose, pixels, reference.pixels[in_reference],
                                             self._K)
             if parallax >= cfg.keyframe_parallax_px:
@@ -351,16 +377,6 @@ class MapTracking:
             if overlap < cfg.keyframe_overlap:
                 return f"overlap {overlap:.2f}", pose
         return None, pose
-
-    def _metric_step(self, position: int, pose: np.ndarray) -> float | None:
-        """Distance from the previous keyframe by the scale source (the BA's range prior); None for unit scale."""
-        if self.config.scale == "none" or self._reference < 0:
-            return None
-        previous = self.mapping.map.keyframes[self._reference]
-        if self.config.scale == "gt":
-            empty = np.zeros((0, 3))
-            return self._scale.step_length(TwoView(previous.position, position, empty, empty[:, :2]))[0]
-        return float(np.linalg.norm(pose[:3, 3] - previous.T_world_cam[:3, 3]))
 
     def _finish(self, frame: Frame, vo: FrameResult, pose: np.ndarray | None, mode: TrackingMode,
                 pnp: PnPEstimate | None, relocalisation: Relocalisation | None, warnings: list[Reason],
@@ -398,13 +414,14 @@ class MapTracking:
                     pose = orthonormalise(loop_correction @ pose)  # a similarity with --scale none
                     self._follow_loop(loop, loop_correction)
             track_ids, raw = self._odometry.live_tracks()
-            pixels = self._ideal(raw)
+            pixels = undistort_pixels(raw, self._lens)
             tied, relinked = suspended_at_keyframe(self.mapping.map, self._suspended, track_ids, pixels, pose, self._K,
                                                    self._cfg)
             self._links.update(relinked)
             keyframe, links, view = self.mapping.insert_keyframe(
                 vo.position, self._segment, pose, track_ids, pixels, frame.image,
-                self._metric_step(vo.position, pose),
+                metric_step(self.config.scale, self._scale, self.mapping.map.keyframes.get(self._reference),
+                            vo.position, pose),
                 why, {**self._links, **tied}, self._refound, landmark_settings(self._cfg, self._slow),
                 self._chain.between(self.mapping.map.keyframes[self._reference].position, vo.position)
                 if self._reference >= 0 else None)
@@ -429,15 +446,17 @@ class MapTracking:
             self._speed.observe(vo.position, pose, mode in (TrackingMode.MAP, TrackingMode.RELOCALISED))
             if not self._initialised and keyframe is None:
                 alive = vo.track_fate >= TrackFate.NOT_USED
-                self._before_map.add(vo.position, vo.track_ids[alive], self._ideal(vo.track_cur[alive]))
+                pixels = undistort_pixels(vo.track_cur[alive], self._lens)
+                self._before_map.add(vo.position, vo.track_ids[alive], pixels)
         self._previous_image = frame.image
         self.refinding.end_frame(None if held else pose)
         if mode in (TrackingMode.COASTED, TrackingMode.RELOCALISED) and vo.reason not in UNUSABLE_IMAGE:
             self._odometry.rebase_keyframe()  # the front end measures the next frame from this one
         self._odometry.set_keyframe_pose(self.pose_of(self._odometry.key_position))
+        search = search_at_raw_pixels(self.refinding.search, self._lens)
         return self._result(vo, pose, held, mode, warnings, two_view,
                             MapFrame(mode, self._segment, two_view, at_raw_pixels(pnp, self._lens), keyframe, bundle,
-                                     relocalisation, view, loop, self._search_at_raw_pixels()))
+                                     relocalisation, view, loop, search))
 
     def _start_map(self, keyframe: KeyframeInserted, links: dict[int, int]) -> None:
         """--scale none: did this keyframe start the segment's map? Then the frames tracked since the last
@@ -451,17 +470,6 @@ class MapTracking:
             key = self.mapping.map.keyframes[self._relative[position][0]]
             self._relative[position] = (key.id, invert_pose(key.T_world_cam) @ T_world_cam)
 
-    def _ideal(self, raw: np.ndarray) -> np.ndarray:
-        """(N, 2) raw image pixels → (N, 2) float64 ideal pinhole pixels of K (a copy when the lens has none)."""
-        return undistort_pixels(raw, self._lens)
-
-    def _search_at_raw_pixels(self) -> LocalMapSearch | None:
-        """The frame's local-map search with its pixels on the raw image, where overlays are drawn."""
-        search = self.refinding.search
-        if search is None or not self._lens.distorted:
-            return search
-        return replace(search, projected=distort_pixels(search.projected, self._lens),
-                       found_pixels=distort_pixels(search.found_pixels, self._lens))
 
     def _result(self, vo: FrameResult, pose: np.ndarray, held: bool, mode: TrackingMode, warnings: list[Reason],
                 two_view: np.ndarray | None, mapping: MapFrame) -> FrameResult:

@@ -85,6 +85,10 @@ ENTITIES: tuple[EntitySpec, ...] = (
                "the estimate coloured by each frame's own error (ground truth), one segment per frame"),
     EntitySpec("/world/trajectory/gt_links", ("LineStrips3D:strips", "frame_index"), True, False, VIEWER,
                "estimate → ground-truth lines every 10 frames"),
+    # only `mode` expected: map recordings written before `pnp_failure` existed stay valid
+    EntitySpec("/tracking", ("mode",), False, False, VIEWER,
+               "map backend, per frame: where the pose came from (mode) and why tracking against the map gave none "
+               "(pnp_failure: too_few_in_view, too_few_matched, ransac, disagrees; \"\" when it gave one)"),
     *_series("health", ("status",), (INSPECT, COMPARE, *VIEWER), "health as 0 ok, 1 warn, 2 fail"),
     *_series("tracks", ("alive", "new_corners", "fb_rejected", "road_points"), (INSPECT, COMPARE, *VIEWER),
              "track counts"),

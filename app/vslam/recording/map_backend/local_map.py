@@ -10,7 +10,7 @@
                                         (same classes)
     /world/camera/image/local_map/refound     LineStrips2D: projection → where the landmark was re-found
                                         (same classes)
-    /local_map                          AnyValues per frame: search ("track", "relocalise" or ""),
+    /local_map                          AnyValues per frame: search ("track", "relocalise", "map_search" or ""),
                                         keyframes (of the local map), projected, refound, linked, radius_px
     /map/landmark_lifetimes             AnyValues per bundle adjustment, one instance per bin: keyframes (how
                                         many keyframes observe a landmark) and landmarks (how many of the

@@ -2,7 +2,12 @@
 
     /tracking                           AnyValues per frame: mode (init, two_view, map, relocalised, lost),
                                         segment, pnp_inliers, landmarks_tracked, pnp_rejected (why PnP was
-                                        not used: "" if it was, "no PnP" if it was not tried)
+                                        not used: "" if it was, "no PnP" if it was not tried), pnp_failure
+                                        (why tracking against the map gave no pose: too_few_in_view,
+                                        too_few_matched, ransac, disagrees; "" when it gave one or was not
+                                        tried), landmarks_in_view (local-map landmarks the prediction puts
+                                        in the image, -1 not counted), landmarks_found (by the search by
+                                        projection), search_radius_px (its widest window, 0 none)
     /metrics/tracking/{mode,pnp_inliers,landmarks_tracked}   per-frame series (mode numbered as in
                                         `MODE_LEVELS`: 0 lost, 1 two-view or init, 2 map, 3 relocalised)
     /metrics/map_scale/step             per frame with a pose: the distance from the previous frame's pose as
@@ -134,6 +139,10 @@ class MapRecording:
             "pnp_inliers": int(np.count_nonzero(pnp.inlier_mask)) if pnp is not None else 0,
             "landmarks_tracked": len(pnp.landmark_ids) if pnp is not None else 0,
             "pnp_rejected": (pnp.rejected or "") if pnp is not None else "no PnP",
+            "pnp_failure": str(pnp.failure) if pnp is not None and pnp.failure is not None else "",
+            "landmarks_in_view": pnp.in_view if pnp is not None else -1,
+            "landmarks_found": pnp.found if pnp is not None else 0,
+            "search_radius_px": pnp.search_radius_px if pnp is not None else 0.0,
         }))
         values = map_frame_metrics(mapping)
         for group, series in MAP_METRICS.items():

@@ -1,0 +1,141 @@
+"""Tracking against the map when the frame's tracks see too few landmarks: the local map searched by projection.
+
+With more motion per frame (a 5 Hz camera, a faster car: KITTI at every 2nd or 3rd frame) the KLT tracks linked
+to landmarks die faster than keyframes make new ones, and PnP on the tracked landmarks alone fails (KITTI 00
+frames 0:300:2, `--scale none`: 61 of 150 frames placed by two-view motion, nearly all "only N landmarks
+tracked"). Before such a frame falls back to its two-view motion (`map_search`, ORB-SLAM's "track local map",
+Mur-Artal et al. 2015 §V-D, done when it is needed):
+
+1. the pose is predicted: the front end's two-view pose (rotation and direction measured from the images, the
+   length from the scale source or the map's speed), else the motion model's;
+2. the local map's landmarks no live track follows are projected with it and searched for among the frame's
+   FAST corners by upright ORB descriptors described at several pyramid levels (`LocalMapSearcher.search`), in a
+   square window whose half-size scales with the predicted motion: `search_motion_fraction` × the median pixel
+   displacement of the landmarks by the predicted translation (the step's length is the uncertain part: the
+   prediction errs in proportion to it), at least `search_min_radius_px`, at most `MAX_RADIUS_PX`;
+3. coarse to fine: PnP in RANSAC on the tracked and the found landmarks (wide window, loose threshold); its pose
+   searches again in the narrow tracking window (`local_map_radius_px`) and PnP is solved on what that finds;
+   the pose must pass the same checks as a tracked one (`check`);
+4. otherwise the window doubles (`search_widenings` times) before the frame takes its two-view pose. A frame
+   that sees too few of the map's landmarks (in view or matched) is made a keyframe (tracking.py), so that
+   landmarks are triangulated while its tracks still overlap the last keyframe's.
+
+Why it failed is kept in the estimate (`PnPFailure`): too few landmarks in view, too few matched, RANSAC, or
+a pose that disagrees with the two-view and predicted rotations. Pixels are (N, 2) ideal pinhole pixels of K;
+poses camera-to-world (4, 4).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from vslam_core.config import MapConfig
+from vslam_core.mapping.local_map import FrameCorners, LocalMapSearcher
+from vslam_core.mapping.map import Map
+from vslam_core.mapping.pnp import PnPSolution, project, solve_pnp
+from vslam_core.results import LocalMapSearch, PnPEstimate, PnPFailure
+
+MAX_RADIUS_PX = 128.0  # a window no wider (half-size): beyond it a descriptor search is not local any more
+COARSE_MIN_INLIERS = 12  # a first pose from the wide window: enough to search again narrowly
+PURPOSE = "map_search"  # LocalMapSearch.purpose of these searches
+
+#: the tracking checks of a PnP solution: (why it is refused or None, it outvoted the two-view rotation, failure)
+Check = Callable[[PnPSolution], tuple[str | None, bool, PnPFailure | None]]
+
+
+def initial_radius(world: Map, landmark_ids: list[int], previous: np.ndarray, predicted: np.ndarray,
+                   K: np.ndarray, config: MapConfig) -> float:  # noqa: N803
+    """Half-size (px) of the first search window: `search_motion_fraction` × the median displacement of the
+    landmarks' projections by the predicted translation from the last pose `previous` (its rotation is measured
+    from the images, its step length is what is uncertain), within [`search_min_radius_px`, `MAX_RADIUS_PX`]."""
+    if not landmark_ids:
+        return config.search_min_radius_px
+    positions = world.positions(np.array(landmark_ids, np.int64))
+    unmoved = predicted.copy()
+    unmoved[:3, 3] = previous[:3, 3]
+    moved = np.linalg.norm(project(positions, predicted, K) - project(positions, unmoved, K), axis=1)
+    moved = moved[np.isfinite(moved)]
+    motion = float(np.median(moved)) if len(moved) else 0.0
+    return min(max(config.search_min_radius_px, config.search_motion_fraction * motion), MAX_RADIUS_PX)
+
+
+def count_in_view(world: Map, keyframe_ids: list[int], predicted: np.ndarray, K: np.ndarray,  # noqa: N803
+                  size: tuple[int, int]) -> int:
+    """How many landmarks of `keyframe_ids` the `predicted` pose projects into a (width, height) image."""
+    ids = np.array(sorted({i for k in keyframe_ids for i in world.keyframes[k].landmark_ids}), np.int64)
+    pixels = project(world.positions(ids), predicted, K).reshape(-1, 2)
+    with np.errstate(invalid="ignore"):
+        return int(((pixels[:, 0] >= 0) & (pixels[:, 0] < size[0]) & (pixels[:, 1] >= 0)
+                    & (pixels[:, 1] < size[1])).sum())
+
+
+def search_map(searcher: LocalMapSearcher, world: Map, corners: FrameCorners, keyframe_ids: list[int],
+               predicted: np.ndarray, previous: np.ndarray, tracked: tuple[np.ndarray, np.ndarray],
+               K: np.ndarray, config: MapConfig, seed: tuple[int, ...],  # noqa: N803
+               check: Check) -> tuple[PnPEstimate, LocalMapSearch | None]:
+    """Track the frame against the local map of `keyframe_ids` (module docstring) from the `predicted` pose, with
+    `tracked` = ((T,) landmark ids linked to live tracks, (T, 2) their pixels). Returns the estimate (a pose
+    when `failure` is None; `found` of its landmarks come from the search) and the last search made."""
+    tracked_ids, tracked_pixels = tracked
+    exclude = set(tracked_ids.tolist())
+    seen = sorted({i for k in keyframe_ids for i in world.keyframes[k].landmark_ids} - exclude)
+    radius = initial_radius(world, seen, previous, predicted, K, config)
+    failure, search, best = PnPFailure.TOO_FEW_MATCHED, None, None
+    in_view, widest = len(tracked_ids), radius
+    for attempt in range(config.search_widenings + 1):
+        widest = radius
+        search = searcher.search(world, corners, keyframe_ids, predicted, radius, exclude, PURPOSE)
+        in_view = len(tracked_ids) + len(search.landmark_ids)
+        if in_view < config.pnp_min_landmarks:  # a wider window sees no more of the map
+            failure = PnPFailure.TOO_FEW_IN_VIEW
+            break
+        ids, pixels = _matched(search, tracked_ids, tracked_pixels)
+        if len(ids) < config.pnp_min_landmarks:
+            failure = PnPFailure.TOO_FEW_MATCHED
+            radius = min(2.0 * radius, MAX_RADIUS_PX)
+            continue
+        coarse = solve_pnp(world.positions(ids), pixels, K, config.reloc_threshold_px, config.reloc_iterations,
+                           seed + (attempt,))
+        if coarse.T_world_cam is None or int(coarse.inlier_mask.sum()) < COARSE_MIN_INLIERS:
+            failure = PnPFailure.RANSAC
+            radius = min(2.0 * radius, MAX_RADIUS_PX)
+            continue
+        fine = searcher.search(world, corners, keyframe_ids, coarse.T_world_cam, config.local_map_radius_px, exclude,
+                               PURPOSE)
+        ids, pixels = _matched(fine, tracked_ids, tracked_pixels)
+        solution = solve_pnp(world.positions(ids), pixels, K, config.pnp_threshold_px, config.pnp_iterations,
+                             seed + (attempt, 0))
+        rejected, outvoted, failure_now = check(solution)
+        found = len(ids) - len(tracked_ids)
+        estimate = PnPEstimate(ids, pixels, solution.projected, solution.inlier_mask, solution.T_world_cam,
+                               rejected, outvoted, failure_now, in_view, found, widest)
+        if rejected is None:
+            fine.accepted[:] = np.isin(fine.landmark_ids, ids[solution.inlier_mask])
+            return estimate, replace_radius(fine, widest)
+        best, search, failure = estimate, fine, failure_now or PnPFailure.RANSAC
+        radius = min(2.0 * radius, MAX_RADIUS_PX)
+    if best is not None:
+        return PnPEstimate(best.landmark_ids, best.observed, best.projected, best.inlier_mask, None,
+                           best.rejected, False, failure, in_view, best.found, widest), search
+    ids, pixels = _matched(search, tracked_ids, tracked_pixels) if search is not None else tracked
+    why = {PnPFailure.TOO_FEW_IN_VIEW: f"only {in_view} landmarks in view",
+           PnPFailure.TOO_FEW_MATCHED: f"only {len(ids)} landmarks matched",
+           PnPFailure.RANSAC: "no PnP solution"}.get(failure, "no PnP solution")
+    return PnPEstimate(ids, pixels, np.full_like(pixels, np.nan), np.zeros(len(ids), bool), None, why, False,
+                       failure, in_view, len(ids) - len(tracked_ids), widest), search
+
+
+def replace_radius(search: LocalMapSearch, radius: float) -> LocalMapSearch:
+    """The search with the widest window tried recorded as its radius (its matches are the narrow window's)."""
+    search.radius_px[:] = radius
+    return search
+
+
+def _matched(search: LocalMapSearch, tracked_ids: np.ndarray,
+             tracked_pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(M,) landmark ids and (M, 2) pixels: the tracked ones, then the ones the search found."""
+    found = search.found_mask
+    return (np.concatenate([tracked_ids, search.landmark_ids[found]]).astype(np.int64),
+            np.concatenate([tracked_pixels.reshape(-1, 2), search.found_pixels[found]]))
