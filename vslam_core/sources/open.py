@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 from vslam_core.errors import SourceError
 from vslam_core.sources.base import CameraIntrinsics, FrameRange, FrameSource, ground_truth_matching
 from vslam_core.sources.image_files import IMAGE_EXTENSIONS
-from vslam_core.sources.stamps import DEFAULT_GT_TOLERANCE_S
+from vslam_core.sources.stamps import DEFAULT_GT_MAX_GAP_S, DEFAULT_GT_TOLERANCE_S
 
 if TYPE_CHECKING:
     from vslam_core.sources.kitti import BadFramePolicy, GroundTruthFormat
@@ -45,11 +45,12 @@ def open_source(
     ``image_0/``: KITTI; with ``mav0/``: EuRoC; with ``camera.txt``, ``times.txt`` and ``images/``: TUM
     monoVO; with ``rgb.txt`` and ``rgb/``: TUM RGB-D. Any other folder: `ImageFolderSource`. `inject` wraps the
     source in a `FaultInjector` (e.g. ``"dark@120,blur@200:210"``). `gt_tolerance_s` (None: 10 ms) applies
-    where ground truth is matched to the frames by time; given where it is not (no ground truth, or paired row
+    where ground truth is matched to the frames by time (TUM RGB-D interpolates between the rows around a frame:
+    there it is the largest gap between them, None: 100 ms); given where it is not (no ground truth, or paired row
     by row), it is a `SourceError`. `route` picks the synthetic street's route ("street", "loop" or "walk")."""
     tolerance = DEFAULT_GT_TOLERANCE_S if gt_tolerance_s is None else gt_tolerance_s
     request = _Request(spec, sequence, frames, intrinsics, calib, ground_truth, gt_format, on_bad_frame, topic,
-                       gt_topic, tolerance, route)
+                       gt_topic, tolerance, route, gt_tolerance_s)
     source = _open(request)
     if gt_tolerance_s is not None:
         _refuse_tolerance(source)
@@ -84,6 +85,8 @@ class _Request:
     gt_topic: str | None
     gt_tolerance_s: float
     route: str | None = None
+    #: --gt-tolerance as given (None: the default); TUM RGB-D interpolates, and takes it as the largest gap
+    given_tolerance_s: float | None = None
 
     def given(self) -> dict[str, object]:
         return {"--sequence": self.sequence, "--intrinsics": self.intrinsics, "--calib": self.calib,
@@ -144,8 +147,9 @@ def _open(r: _Request) -> FrameSource:
         return TumMonoSource(path, frames=r.frames, ground_truth=r.ground_truth, gt_tolerance_s=r.gt_tolerance_s,
                              on_bad_frame=r.on_bad_frame)
     if is_tum_rgbd(path):
+        gap = DEFAULT_GT_MAX_GAP_S if r.given_tolerance_s is None else r.given_tolerance_s
         return TumRgbdSource(path, camera=_calibration(r), frames=r.frames, ground_truth=r.ground_truth,
-                             gt_tolerance_s=r.gt_tolerance_s, on_bad_frame=r.on_bad_frame)
+                             gt_max_gap_s=gap, on_bad_frame=r.on_bad_frame)
     return ImageFolderSource(path, intrinsics=_calibration(r), ground_truth=r.ground_truth, gt_format=r.gt_format,
                              frames=r.frames, on_bad_frame=r.on_bad_frame, gt_tolerance_s=r.gt_tolerance_s)
 
