@@ -62,12 +62,14 @@ def ground_truth_at(
 
 def interpolated_ground_truth(
     frame_stamps: np.ndarray, gt_stamps: np.ndarray, gt_poses: np.ndarray, max_gap_s: float, where: object,
+    indices: list[int] | None = None,
 ) -> tuple[np.ndarray, str]:
     """(N, 4, 4) poses T_w_c at the (N,) `frame_stamps`, each interpolated between the two rows of the (M,)
     `gt_stamps` (M, 4, 4) `gt_poses` that bracket it (translation linearly, rotation by slerp,
     `interpolate_pose`; a frame on a row takes it), re-based on the first frame; and the matching as the run
     summary states it. A frame outside the rows' span or inside a gap wider than `max_gap_s` is a `SourceError`
-    naming it and the frames that do have one (choose --frames inside them)."""
+    naming it and the frames that do have one (choose --frames inside them; `indices`: the frames' source
+    indices, as --frames counts them, default 0..N-1)."""
     frame_stamps = np.asarray(frame_stamps, np.float64)
     order = np.argsort(gt_stamps, kind="stable")
     stamps, poses = np.asarray(gt_stamps, np.float64)[order], np.asarray(gt_poses, np.float64)[order]
@@ -79,12 +81,13 @@ def interpolated_ground_truth(
     gap = stamps[after] - stamps[before]
     inside = on_row | ((stamps[before] <= frame_stamps) & (frame_stamps <= stamps[after]) & (gap <= max_gap_s))
     if not inside.all():
+        number = np.arange(len(frame_stamps)) if indices is None else np.asarray(indices)
         first = int(np.argmin(inside))
-        runs = ", ".join(f"{a}:{b}" for a, b in _runs(np.flatnonzero(inside))[:4]) or "none"
+        runs = ", ".join(f"{a}:{b}" for a, b in _runs(number[inside])[:4]) or "none"
         raise SourceError(
             f"{where}: {int((~inside).sum())} of {len(inside)} frames are not between two ground-truth rows at most "
-            f"{max_gap_s * 1000:g} ms apart (first: frame {first} at {frame_stamps[first]:.6f} s; the ground truth "
-            f"spans {stamps[0]:.6f}–{stamps[-1]:.6f} s); frames {runs} are: choose --frames inside them or widen "
+            f"{max_gap_s * 1000:g} ms apart (first: frame {number[first]} at {frame_stamps[first]:.6f} s; the "
+            f"ground truth spans {stamps[0]:.6f}–{stamps[-1]:.6f} s); frames {runs} are: choose --frames inside them or widen "
             "--gt-tolerance (the largest gap interpolated over)")
     fraction = np.where(gap > 0, (frame_stamps - stamps[before]) / np.where(gap > 0, gap, 1.0), 0.0)
     matched = np.stack([interpolate_pose(poses[b], poses[a], float(f))

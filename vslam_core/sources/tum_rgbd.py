@@ -215,7 +215,7 @@ class TumRgbdSource(ImageFilesSource):
             self.properties["ground_truth"] = f"{gt_file.name} (TUM, camera poses)"
             self._ground_truth, self.gt_matching = interpolated_ground_truth(
                 self._times[np.asarray(self._indices)], gt_stamps, gt_poses, gt_max_gap_s,
-                f"{folder} ({gt_file.name})")
+                f"{folder} ({gt_file.name})", self._indices)
         accelerometer = folder / ACCELEROMETER_FILE
         self.gravity_by_frame: dict[int, np.ndarray] = {}
         if accelerometer.is_file():

@@ -27,7 +27,8 @@ DRIFT_PLOTS = (("drift per frame (°, m)", ("rotation_deg", "translation_m")),
 
 def blueprint(map_backend: bool = False, *, image: bool = True, road_scale: bool = False,
               ground_truth: bool = True, undistorted: bool = False, engine: bool = True,
-              frustum: bool = True, own_series: bool = False) -> rrb.Blueprint:
+              frustum: bool = True, own_series: bool = False,
+              accelerometer: bool = False) -> rrb.Blueprint:
     """Frame with overlays and 3-D world following the car | metric plots; below, events | report; on `frame`.
 
     Views that would stay empty are left out: the frame without `image` (detail `summary`), "scale from the
@@ -36,7 +37,8 @@ def blueprint(map_backend: bool = False, *, image: bool = True, road_scale: bool
     bundle adjustment. `undistorted` (a distorted lens): the undistorted frame beside the raw one. Without
     `engine` (another system's trajectory, `vslam.recording.external`) only the error plots: there are no tracks,
     inliers, health or timings; without `frustum` (no camera known) the frame stays out of the 3-D view.
-    `own_series`: a plot of another pipeline's own series (``/metrics/custom``, `vslam.log`)."""
+    `own_series`: a plot of another pipeline's own series (``/metrics/custom``, `vslam.log`); `accelerometer`: a
+    plot of the source's accelerometer (``/metrics/accelerometer``, gravity in the camera frame)."""
     left: list[rrb.Spatial2DView | rrb.Spatial3DView | rrb.Horizontal] = [world_view(map_backend, frustum)]
     if image:
         frame = rrb.Spatial2DView(name="frame", origin="/world/camera/image")
@@ -46,6 +48,8 @@ def blueprint(map_backend: bool = False, *, image: bool = True, road_scale: bool
     plots = _plots(road_scale, ground_truth, engine) + (_map_plots() if map_backend else [])
     if own_series:
         plots.append(rrb.TimeSeriesView(name="pipeline series", origin="/metrics/custom"))
+    if accelerometer:
+        plots.append(rrb.TimeSeriesView(name="gravity, camera frame (m/s²)", origin="/metrics/accelerometer"))
     return rrb.Blueprint(
         rrb.Vertical(
             rrb.Horizontal(rrb.Vertical(*left, row_shares=[1, 2][-len(left):]), rrb.Grid(*plots, grid_columns=2),

@@ -28,7 +28,7 @@ from vslam.recording.drift import DriftRecording
 from vslam.recording.layout import UNDISTORTED, blueprint
 from vslam.recording.levels import Detail, ImageCodec
 from vslam.recording.map import MapRecording
-from vslam.recording.metrics import METRICS, STAGES, frame_metrics
+from vslam.recording.metrics import METRICS, SENSOR_METRICS, STAGES, frame_metrics
 from vslam.recording.schema import SCHEMA_VERSION
 from vslam.recording.stream import StreamStopped, close_stream, flush_or_stop, log_world, open_stream, pinhole
 from vslam.recording.styles import (
@@ -48,7 +48,14 @@ from vslam_core.geometry import invert_pose
 from vslam_core.lens import distort_pixels, undistortion_maps
 from vslam_core.pipeline import RunResult
 from vslam_core.results import FrameResult, FrameStatus, HealthStatus, Reason, TrackFate
-from vslam_core.sources.base import Frame, FrameSource, describe_indices, shown_path, source_properties
+from vslam_core.sources.base import (
+    Frame,
+    FrameSource,
+    describe_indices,
+    frame_gravity,
+    shown_path,
+    source_properties,
+)
 from vslam_core.sources.calibration import describe_calibration
 
 if TYPE_CHECKING:
@@ -102,7 +109,8 @@ class Recorder:
         undistorted = source.intrinsics.distorted and detail == Detail.FULL
         layout = blueprint(map_backend=config.backend == "map", image=detail in (Detail.FULL, Detail.STANDARD),
                            road_scale=config.scale == "height", ground_truth=source.ground_truth is not None,
-                           undistorted=undistorted, own_series=external)
+                           undistorted=undistorted, own_series=external,
+                           accelerometer=bool(frame_gravity(source)))
         self._rec = open_stream(path, properties.get("recording_id"), layout, properties.get("name", source.name),
                                 live_url)
         self._columns = ColumnBuffer(self._rec)
@@ -114,6 +122,7 @@ class Recorder:
         if not external:
             self._rec.send_property("config", rr.AnyValues(**flatten(config.to_dict())))
         self._intrinsics = source.intrinsics
+        self._gravity = frame_gravity(source)  # source frame index -> (3,) m/s² in the camera frame
         # a distorted lens at full detail: also the frame as the pinhole sees it (the 3-D view's geometry)
         self._undistort = undistortion_maps(source.intrinsics) if undistorted else None
         self._log_static(source)
@@ -255,7 +264,8 @@ class Recorder:
         rec.log("/world/camera/image/road", rr.Points2D.from_fields(radii=3.0, colors=ROAD_COLOUR), static=True)
         rec.log("/world/candidates", rr.Points3D.from_fields(colors=CANDIDATE_COLOURS),
                 rr.Arrows3D.from_fields(colors=AXIS_COLOURS * len(CANDIDATE_COLOURS), radii=0.02), static=True)
-        for group, series in METRICS.items():
+        sensors = SENSOR_METRICS if self._gravity else {}
+        for group, series in {**METRICS, **sensors}.items():
             for name, (legend, colour) in series.items():
                 rec.log(f"/metrics/{group}/{name}", rr.SeriesLines(names=legend, colors=colour), static=True)
 
@@ -285,6 +295,9 @@ class Recorder:
             self._log_road(frame, result)
         self._log_trajectories(frame, result)
         self._log_metrics(frame, result, unreported)
+        if (gravity := self._gravity.get(frame.index)) is not None:
+            for axis, value in zip(SENSOR_METRICS["accelerometer"], gravity, strict=True):
+                columns.add_scalar(f"/metrics/accelerometer/{axis}", frame, float(value))
         self._log_events(frame, result)
         if result.mapping is not None:
             if self._map is None:
