@@ -87,8 +87,8 @@ def interpolated_ground_truth(
         raise SourceError(
             f"{where}: {int((~inside).sum())} of {len(inside)} frames are not between two ground-truth rows at most "
             f"{max_gap_s * 1000:g} ms apart (first: frame {number[first]} at {frame_stamps[first]:.6f} s; the "
-            f"ground truth spans {stamps[0]:.6f}–{stamps[-1]:.6f} s); frames {runs} are: choose --frames inside them or widen "
-            "--gt-tolerance (the largest gap interpolated over)")
+            f"ground truth spans {stamps[0]:.6f}–{stamps[-1]:.6f} s); frames {runs} are: choose --frames inside them "
+            "or widen --gt-tolerance (the largest gap interpolated over)")
     fraction = np.where(gap > 0, (frame_stamps - stamps[before]) / np.where(gap > 0, gap, 1.0), 0.0)
     matched = np.stack([interpolate_pose(poses[b], poses[a], float(f))
                         for b, a, f in zip(before, after, fraction, strict=True)])
