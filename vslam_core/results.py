@@ -55,6 +55,7 @@ class Reason(StrEnum):
     ROTATION_DOMINATED = "rotation_dominated"
     SCALE_JUMP = "scale_jump"
     RECOVERED = "recovered_by_matching"  # tracks were lost; the motion was measured by descriptor matching
+    STEP_HELD = "step_held"  # the step's direction went against the motion model's: the model's direction used
     SCALE_HELD = "scale_held"  # --scale height: no road plane (or an outlier) this frame; the last scale held
     # map backend
     TRACKING_LOST = "tracking_lost"  # fail: neither the map nor two-view geometry gave a pose, relocalisation failed
