@@ -147,6 +147,7 @@ class Odometry:
             if motion.reason is None and motion.rotation is not None and motion.translation is not None:
                 status = FrameStatus.OK
                 motion = self._hold_reversed(motion, warnings)
+                assert motion.rotation is not None and motion.translation is not None  # kept by the hold
                 view = TwoView(self._key_position, self._position,
                                motion.points_cur if motion.points_cur is not None else np.zeros((0, 3)),
                                motion.pixels_cur if motion.pixels_cur is not None else np.zeros((0, 2)))
