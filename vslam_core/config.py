@@ -82,6 +82,7 @@ class PoseConfig:
     # never happens on real data) is held to the model's direction instead: a held step costs at most its
     # length, a reversed one twice it. Never two frames in a row: a real reversal is taken on the next frame.
     hold_reversed_step: bool = True
+    hold_reversed_frames: int = 1  # ... at most this many frames in a row
     min_tracks: int = 30  # fewer tracks from the keyframe: re-initialise
     min_inliers: int = 20
     min_parallax_px: float = 1.0  # median flow from the keyframe below this: too little motion to measure

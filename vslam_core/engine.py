@@ -73,7 +73,7 @@ class Odometry:
         self._previous: np.ndarray | None = None  # last usable image
         # (position, R, unit t) of the last step measured from the frame before it
         self._last_motion: tuple[int, np.ndarray, np.ndarray] | None = None
-        self._held_step_at = -2  # the last frame whose step direction was held (`_hold_reversed`)
+        self._held_steps = (-2, 0)  # the last frame whose step direction was held, and how many in a row before it
         self._previous_position = -1  # its run position
         self._position = 0
         self._key_position = 0
@@ -316,12 +316,13 @@ class Odometry:
         does (rotation and translation confused, or a sign vote of noise). Not twice in a row: a real reversal
         (a car that stops and backs up) is taken one frame late. Its points (triangulated along the rejected
         direction) are dropped."""
-        last = self._last_motion
+        last, (held_at, in_a_row) = self._last_motion, self._held_steps
+        in_a_row = in_a_row if held_at == self._position - 1 else 0
         if (not self.config.pose.hold_reversed_step or last is None or motion.translation is None
-                or not last[0] == self._position - 1 == self._key_position or self._held_step_at == self._position - 1
-                or float(motion.translation @ last[2]) >= 0.0):
+                or not last[0] == self._position - 1 == self._key_position
+                or in_a_row >= self.config.pose.hold_reversed_frames or float(motion.translation @ last[2]) >= 0.0):
             return motion
-        self._held_step_at = self._position
+        self._held_steps = (self._position, in_a_row + 1)
         warnings.append(Reason.STEP_HELD)
         return replace(motion, translation=last[2].copy(), points_cur=np.zeros((0, 3)), pixels_cur=np.zeros((0, 2)))
 
