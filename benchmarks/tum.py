@@ -3,7 +3,8 @@
     python -m benchmarks.tum ../shared/data/tum [--sequences xyz,desk] [--backends vo,map] [--jobs 2]
 
 Each backend runs with ground-truth scale and with `--scale none`; per row: ATE after the best Sim(3) alignment,
-ATE without alignment (ground-truth scale only), the final rotation error, frames held, and the steps reversed
+ATE without alignment (ground-truth scale only), the final rotation error, frames held (status held), steps held
+to the motion model's direction (health ``step_held``, vo), and the steps reversed
 against the ground truth (the estimated step's direction at cosine < 0 with the true one, among steps whose true
 length is at least `MIN_STEP_M`; `reversed_steps`). Ground truth is interpolated at the frames' stamps
 (vslam_core/sources/tum_rgbd.py).
@@ -21,6 +22,8 @@ import numpy as np
 from vslam_core.config import EngineConfig
 from vslam_core.geometry import invert_pose, rotation_angle
 from vslam_core.pipeline import run_odometry
+from vslam_core.results import FrameResult, Reason
+from vslam_core.sources.base import Frame
 from vslam_core.sources.tum_rgbd import TumRgbdSource
 from vslam_core.trajectory.metrics import ate
 
@@ -48,14 +51,21 @@ def _run(job: tuple[str, str, str, str]) -> dict[str, object]:
     """One run, in a pool worker (threads = 1; trajectories are identical for any threads value)."""
     root, sequence, backend, scale = job
     source = TumRgbdSource(Path(root) / f"rgbd_dataset_freiburg1_{sequence}")
-    run = run_odometry(source, EngineConfig(backend=backend, scale=scale, threads=1))  # type: ignore[arg-type]
+    held_steps: list[int] = []  # frames whose step direction was held to the motion model's (health step_held)
+
+    def sink(_frame: Frame, result: FrameResult) -> None:
+        if Reason.STEP_HELD in result.health.reasons:
+            held_steps.append(result.position)
+
+    config = EngineConfig(backend=backend, scale=scale, threads=1)  # type: ignore[arg-type]
+    run = run_odometry(source, config, sinks=(sink,))
     truth, poses = source.ground_truth, run.pose_array()
     assert truth is not None
     bad, scored = reversed_steps(truth, poses)
     return {"sequence": sequence, "backend": backend, "scale": scale, "ate_sim3": ate(truth, poses, "sim3"),
             "ate": ate(truth, poses, "none") if scale == "gt" else math.nan,
             "rotation_deg": math.degrees(rotation_angle(truth[-1, :3, :3].T @ poses[-1, :3, :3])),
-            "held": run.held, "frames": len(poses), "reversed": bad, "scored": scored}
+            "held": run.held, "steps_held": len(held_steps), "frames": len(poses), "reversed": bad, "scored": scored}
 
 
 def main() -> None:
@@ -70,12 +80,12 @@ def main() -> None:
     with Pool(args.jobs) as pool:
         rows = pool.map(_run, jobs)
     print("| sequence | backend | scale | ATE Sim(3) cm | ATE cm (no alignment) | final rotation ° | held | "
-          "reversed steps |")
-    print("|---|---|---|---|---|---|---|---|")
+          "steps held | reversed steps |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         unaligned = "—" if math.isnan(float(r["ate"])) else f"{100 * float(r['ate']):.1f}"  # type: ignore[arg-type]
         print(f"| fr1_{r['sequence']} | {r['backend']} | {r['scale']} | {100 * float(r['ate_sim3']):.1f} | "  # type: ignore[arg-type]
-              f"{unaligned} | {float(r['rotation_deg']):.1f} | {r['held']}/{r['frames']} | "  # type: ignore[arg-type]
+              f"{unaligned} | {float(r['rotation_deg']):.1f} | {r['held']}/{r['frames']} | {r['steps_held']} | "  # type: ignore[arg-type]
               f"{len(r['reversed'])}/{r['scored']} {r['reversed']} |")  # type: ignore[arg-type]
 
 
