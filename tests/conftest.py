@@ -28,8 +28,12 @@ from vslam_core.sources.synthetic.frame_cache import ENVIRONMENT as FRAME_CACHE
 
 ROOT = Path(__file__).resolve().parents[1]
 #: The real KITTI sample: the ``shared`` folder beside the repository checkout (never inside the repo).
-KITTI_ROOT = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti"
+#: VSLAM_SHARED_DATA names another folder holding ``kitti/`` and ``tum/`` (a worktree beside the checkout).
+SHARED_DATA = Path(os.environ.get("VSLAM_SHARED_DATA") or Path(__file__).resolve().parents[2] / "shared" / "data")
+KITTI_ROOT = SHARED_DATA / "kitti"
 KITTI_REAL = KITTI_ROOT.resolve()
+#: The real hand-held sample: two TUM RGB-D sequences (frames 400-599 of fr1_xyz and fr1_desk).
+TUM_ROOT = SHARED_DATA / "tum"
 
 
 class _RenderedFrames:
@@ -200,6 +204,22 @@ def kitti_root() -> Path:
             pytest.fail(f"{message} (CI is set: tests that need the real data must not be skipped)")
         pytest.skip(message)
     return KITTI_ROOT
+
+
+def _real_data_missing(message: str) -> None:
+    """Skip the test, or fail it when ``CI`` is set: there the real data must be present."""
+    if "CI" in os.environ:
+        pytest.fail(f"{message} (CI is set: tests that need the real data must not be skipped)")
+    pytest.skip(message)
+
+
+@pytest.fixture(scope="session")
+def tum_root() -> Path:
+    """The folder holding ``rgbd_dataset_freiburg1_{xyz,desk}/`` (TUM RGB-D, hand-held, 200 frames each); skips
+    when missing, fails under ``CI``, as `kitti_root`."""
+    if not all((TUM_ROOT / f"rgbd_dataset_freiburg1_{name}" / "rgb.txt").is_file() for name in ("xyz", "desk")):
+        _real_data_missing(f"real TUM RGB-D data not found at {TUM_ROOT}")
+    return TUM_ROOT
 
 
 @pytest.fixture(scope="session")

@@ -79,6 +79,11 @@ class PoseConfig:
     # ... and when fewer than min_inliers of them vote, points up to this far: a hand-held camera's step is
     # 1/100-1/400 of its scene's depth (with 50 alone the synthetic walk held 63 % of its frames)
     chirality_far_depth: float = 500.0
+    # a step measured against the motion model's direction (cosine < 0 with the last step, which at 10-30 Hz
+    # never happens on real data) is held to the model's direction instead: a held step costs at most its
+    # length, a reversed one twice it. Never two frames in a row: a real reversal is taken on the next frame.
+    hold_reversed_step: bool = True
+    hold_reversed_frames: int = 1  # ... at most this many frames in a row
     min_tracks: int = 30  # fewer tracks from the keyframe: re-initialise
     min_inliers: int = 20
     min_parallax_px: float = 1.0  # median flow from the keyframe below this: too little motion to measure

@@ -103,6 +103,7 @@ RANGES: dict[str, Range] = {
     "pose.chirality_max_depth": Range(0.0, INF, low_open=True, high_open=True),
     "pose.chirality_far_depth": Range(0.0, INF, low_open=True, high_open=True),
     "pose.min_tracks": closed(5, 100_000),
+    "pose.hold_reversed_frames": closed(1, 1000),
     "pose.min_inliers": closed(5, 100_000),
     "pose.min_parallax_px": closed(0.0, 1000.0),
     "pose.stationary_px": closed(0.0, 1000.0),

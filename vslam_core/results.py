@@ -55,6 +55,7 @@ class Reason(StrEnum):
     ROTATION_DOMINATED = "rotation_dominated"
     SCALE_JUMP = "scale_jump"
     RECOVERED = "recovered_by_matching"  # tracks were lost; the motion was measured by descriptor matching
+    STEP_HELD = "step_held"  # the step's direction went against the motion model's: the model's direction used
     SCALE_HELD = "scale_held"  # --scale height: no road plane (or an outlier) this frame; the last scale held
     ROAD_PLANE_DOUBTFUL = "road_plane_doubtful"  # --scale height: the plane was used, but it tilts off the recent
     # planes or its step is off the trend (HeightScale: doubtful_tilt_deg, doubtful_jump)

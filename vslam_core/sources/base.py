@@ -226,6 +226,13 @@ def ground_truth_matching(source: FrameSource) -> str | None:
     return getattr(source, "gt_matching", None) if source.ground_truth is not None else None
 
 
+def frame_gravity(source: FrameSource) -> dict[int, np.ndarray]:
+    """A source's accelerometer per frame (an optional ``gravity_by_frame`` attribute): source frame index ->
+    (3,) the mean specific force over the frame's interval, as gravity in the camera frame (x right, y down,
+    z forward; m/s²). Empty when the source has no accelerometer."""
+    return dict(getattr(source, "gravity_by_frame", None) or {})
+
+
 def source_notes(source: FrameSource) -> list[str]:
     """What a source noticed about its input that the user should hear (out-of-order stamps, receive times
     used for missing header stamps, …): an optional ``notes`` attribute (list[str])."""

@@ -26,6 +26,7 @@ from vslam_core.sources.base import (
     CameraIntrinsics,
     Frame,
     FrameSource,
+    frame_gravity,
     ground_truth_matching,
     rebase_poses,
     source_notes,
@@ -129,6 +130,10 @@ class FaultInjector:
     @property
     def gt_matching(self) -> str | None:
         return ground_truth_matching(self._source)
+
+    @property
+    def gravity_by_frame(self) -> dict[int, np.ndarray]:
+        return {i: g for i, g in frame_gravity(self._source).items() if i not in self._dropped}
 
     @property
     def ground_truth(self) -> np.ndarray | None:

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 from vslam_core.errors import SourceError
 from vslam_core.sources.base import CameraIntrinsics, FrameRange, FrameSource, ground_truth_matching
 from vslam_core.sources.image_files import IMAGE_EXTENSIONS
-from vslam_core.sources.stamps import DEFAULT_GT_TOLERANCE_S
+from vslam_core.sources.stamps import DEFAULT_GT_MAX_GAP_S, DEFAULT_GT_TOLERANCE_S
 
 if TYPE_CHECKING:
     from vslam_core.sources.kitti import BadFramePolicy, GroundTruthFormat
@@ -49,7 +49,8 @@ def open_source(
     ``image_0/``: KITTI; with ``mav0/``: EuRoC; with ``camera.txt``, ``times.txt`` and ``images/``: TUM
     monoVO; with ``rgb.txt`` and ``rgb/``: TUM RGB-D. Any other folder: `ImageFolderSource`. `inject` wraps the
     source in a `FaultInjector` (e.g. ``"dark@120,blur@200:210"``). `gt_tolerance_s` (None: 10 ms) applies
-    where ground truth is matched to the frames by time; given where it is not (no ground truth, or paired row
+    where ground truth is matched to the frames by time (TUM RGB-D interpolates between the rows around a frame:
+    there it is the largest gap between them, None: 100 ms); given where it is not (no ground truth, or paired row
     by row), it is a `SourceError`; so is `gt_time_offset_s` (``--gt-time-offset``: the ground truth's clock reads
     this much more than the frames'). `gt_rows` (``--gt-rows A:B``): which rows of a ``--gt`` file without times are
     the frames (a file with more rows than frames and nothing to pair them by time is refused without it). `route`
@@ -66,7 +67,8 @@ def open_source(
     if gt_time_offset_s is not None and not math.isfinite(gt_time_offset_s):
         raise SourceError(f"--gt-time-offset {gt_time_offset_s}: not a number of seconds")
     request = _Request(spec, sequence, frames, intrinsics, calib, ground_truth, gt_format, on_bad_frame, topic,
-                       gt_topic, tolerance, route, calib_scale, gt_time_offset_s or 0.0, rows)
+                       gt_topic, tolerance, route, calib_scale, gt_time_offset_s or 0.0, rows,
+                       gt_tolerance_s)
     source = _open(request)
     from vslam_core.sources.calibration import principal_point_problem
 
@@ -111,6 +113,8 @@ class _Request:
     calib_scale: float | None = None
     gt_time_offset_s: float = 0.0
     gt_rows: tuple[int, int | None] | None = None
+    #: --gt-tolerance as given (None: the default); TUM RGB-D interpolates, and takes it as the largest gap
+    given_tolerance_s: float | None = None
 
     def given(self) -> dict[str, object]:
         return {"--sequence": self.sequence, "--intrinsics": self.intrinsics, "--calib": self.calib,
@@ -179,9 +183,9 @@ def _open(r: _Request) -> FrameSource:
         return TumMonoSource(path, frames=r.frames, ground_truth=r.ground_truth, gt_tolerance_s=r.gt_tolerance_s,
                              on_bad_frame=r.on_bad_frame, gt_time_offset_s=r.gt_time_offset_s)
     if is_tum_rgbd(path):
+        gap = DEFAULT_GT_MAX_GAP_S if r.given_tolerance_s is None else r.given_tolerance_s
         return TumRgbdSource(path, camera=_calibration(r), frames=r.frames, ground_truth=r.ground_truth,
-                             gt_tolerance_s=r.gt_tolerance_s, on_bad_frame=r.on_bad_frame,
-                             gt_time_offset_s=r.gt_time_offset_s)
+                             gt_max_gap_s=gap, on_bad_frame=r.on_bad_frame, gt_time_offset_s=r.gt_time_offset_s)
     return ImageFolderSource(path, intrinsics=_calibration(r), ground_truth=r.ground_truth, gt_format=r.gt_format,
                              frames=r.frames, on_bad_frame=r.on_bad_frame, gt_tolerance_s=r.gt_tolerance_s,
                              gt_time_offset_s=r.gt_time_offset_s, gt_rows=r.gt_rows)

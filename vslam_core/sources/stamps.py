@@ -8,10 +8,14 @@ from pathlib import Path
 import numpy as np
 
 from vslam_core.errors import SourceError, TrajectoryFormatError
+from vslam_core.geometry import interpolate_pose
 from vslam_core.sources.base import rebase_poses
 from vslam_core.trajectory.io import check_ground_truth_steps, detect_format, read_kitti_poses, read_tum_poses
 
 DEFAULT_GT_TOLERANCE_S = 0.010
+#: Where poses are interpolated (TUM RGB-D's 100 Hz motion capture): the largest gap between the two rows
+#: bracketing a frame. fr1_desk has a 50 ms gap; 100 ms of hand-held motion is still close to linear.
+DEFAULT_GT_MAX_GAP_S = 0.100
 #: How ground truth without a clock is paired with the frames (the run summary's ``ground truth`` line).
 ROW_BY_ROW = "row by row"
 
@@ -57,6 +61,45 @@ def ground_truth_at(
             f"{np.max(gt_stamps):.6f} s, {int((~close).sum())} of {len(close)} frames unmatched): choose "
             "--frames inside it or widen --gt-tolerance")
     return rebase_poses(np.asarray(gt_poses, np.float64)[pick])
+
+
+def interpolated_ground_truth(
+    frame_stamps: np.ndarray, gt_stamps: np.ndarray, gt_poses: np.ndarray, max_gap_s: float, where: object,
+    indices: list[int] | None = None,
+) -> tuple[np.ndarray, str]:
+    """(N, 4, 4) poses T_w_c at the (N,) `frame_stamps`, each interpolated between the two rows of the (M,)
+    `gt_stamps` (M, 4, 4) `gt_poses` that bracket it (translation linearly, rotation by slerp,
+    `interpolate_pose`; a frame on a row takes it), re-based on the first frame; and the matching as the run
+    summary states it. A frame outside the rows' span or inside a gap wider than `max_gap_s` is a `SourceError`
+    naming it and the frames that do have one (choose --frames inside them; `indices`: the frames' source
+    indices, as --frames counts them, default 0..N-1)."""
+    frame_stamps = np.asarray(frame_stamps, np.float64)
+    order = np.argsort(gt_stamps, kind="stable")
+    stamps, poses = np.asarray(gt_stamps, np.float64)[order], np.asarray(gt_poses, np.float64)[order]
+    if len(stamps) == 0:
+        raise SourceError(f"{where}: the ground truth has no poses")
+    after = np.clip(np.searchsorted(stamps, frame_stamps, side="left"), 0, len(stamps) - 1)
+    on_row = stamps[after] == frame_stamps
+    before = np.where(on_row, after, np.clip(after - 1, 0, len(stamps) - 1))
+    gap = stamps[after] - stamps[before]
+    inside = on_row | ((stamps[before] <= frame_stamps) & (frame_stamps <= stamps[after]) & (gap <= max_gap_s))
+    if not inside.all():
+        number = np.arange(len(frame_stamps)) if indices is None else np.asarray(indices)
+        first = int(np.argmin(inside))
+        runs = ", ".join(f"{a}:{b}" for a, b in _runs(number[inside])[:4]) or "none"
+        raise SourceError(
+            f"{where}: {int((~inside).sum())} of {len(inside)} frames are not between two ground-truth rows at most "
+            f"{max_gap_s * 1000:g} ms apart (first: frame {number[first]} at {frame_stamps[first]:.6f} s; the "
+            f"ground truth spans {stamps[0]:.6f}–{stamps[-1]:.6f} s); frames {runs} are: choose --frames inside them "
+            "or widen --gt-tolerance (the largest gap interpolated over)")
+    fraction = np.where(gap > 0, (frame_stamps - stamps[before]) / np.where(gap > 0, gap, 1.0), 0.0)
+    matched = np.stack([interpolate_pose(poses[b], poses[a], float(f))
+                        for b, a, f in zip(before, after, fraction, strict=True)])
+    farthest = np.minimum(frame_stamps - stamps[before], stamps[after] - frame_stamps)
+    how = (f"matched by time, interpolated (translation linear, rotation slerp) between the rows bracketing each "
+           f"frame, {len(frame_stamps)} of {len(frame_stamps)} frames, gaps up to {max_gap_s * 1000:g} ms allowed "
+           f"(widest used {gap.max() * 1000:.0f} ms, farthest frame {farthest.max() * 1000:.0f} ms from a row)")
+    return rebase_poses(matched), how
 
 
 def read_tum_ground_truth(path: Path) -> tuple[np.ndarray, np.ndarray]:

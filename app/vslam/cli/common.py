@@ -80,7 +80,8 @@ GT_HELP = ("ground-truth camera poses, KITTI (row i = frame i) or TUM; TUM rows 
 TOPIC_HELP = "the image topic of a ROS bag / MCAP log [default: its only image topic]"
 GT_TOPIC_HELP = ("ground truth from a topic of the log (PoseStamped, Odometry, TransformStamped), as camera "
                  "poses (via /tf_static when it is of another frame)")
-GT_TOLERANCE_HELP = "how far (ms) a ground-truth stamp may be from its frame's when matched by time"
+GT_TOLERANCE_HELP = ("how far (ms) a ground-truth stamp may be from its frame's when matched by time (TUM RGB-D, "
+                     "interpolated: the largest gap between the two rows around a frame, default 100)")
 GT_TIME_OFFSET_HELP = ("seconds the ground truth's clock reads ahead of the frames' (frame time t takes the pose "
                        "stamped t + offset; the run's gt check estimates it)")
 GT_ROWS_HELP = ("A:B: rows A..B-1 of a --gt file without times are the frames (needed when it has more rows than "

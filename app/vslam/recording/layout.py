@@ -28,7 +28,8 @@ DRIFT_PLOTS = (("drift per frame (°, m)", ("rotation_deg", "translation_m")),
 
 def blueprint(map_backend: bool = False, *, image: bool = True, road_scale: bool = False,
               ground_truth: bool = True, undistorted: bool = False, engine: bool = True,
-              frustum: bool = True, own_series: bool = False, own_plots: tuple[str, ...] = ()) -> rrb.Blueprint:
+              frustum: bool = True, own_series: bool = False, own_plots: tuple[str, ...] = (),
+              accelerometer: bool = False) -> rrb.Blueprint:
     """A few large views, the rest one click away in tabs, readable at 1280×720 (`vslam snapshot`'s ``all.png``):
 
     - left: the frame with its overlays (tabs: the overlays' legend, the undistorted frame) above the 3-D world
@@ -43,7 +44,8 @@ def blueprint(map_backend: bool = False, *, image: bool = True, road_scale: bool
     the undistorted frame. Without `engine` (another system's trajectory, `vslam.recording.external`) only the
     error plots: there are no tracks, inliers, health or timings; without `frustum` (no camera known) the frame
     stays out of the 3-D view. `own_series`: a plot of another pipeline's own series (``/metrics/custom``,
-    `vslam.log`), and one per name of `own_plots` (``/metrics/custom/<plot>/*``, kept out of the first)."""
+    `vslam.log`), and one per name of `own_plots` (``/metrics/custom/<plot>/*``, kept out of the first);
+    `accelerometer`: a plot of the source's accelerometer (``/metrics/accelerometer``, gravity in the camera frame)."""
     worlds = rrb.Tabs(world_view(map_backend, frustum), drive_view(), active_tab=0)
     left: list[rrb.Container] = [worlds]
     if image:
@@ -52,7 +54,7 @@ def blueprint(map_backend: bool = False, *, image: bool = True, road_scale: bool
                   rrb.TextDocumentView(name="overlays", origin=LEGEND_ENTITY)]
         left.insert(0, rrb.Tabs(*frames, active_tab=0))
     plots = plot_tabs(map_backend, road_scale=road_scale, ground_truth=ground_truth, engine=engine,
-                      own_series=own_series, own_plots=own_plots)
+                      own_series=own_series, own_plots=own_plots, accelerometer=accelerometer)
     summary = rrb.Tabs(rrb.TextDocumentView(name="summary", origin=OVERVIEW_SUMMARY),
                        rrb.TextDocumentView(name="report", origin="/report"), active_tab=0)
     return rrb.Blueprint(
@@ -68,7 +70,7 @@ def blueprint(map_backend: bool = False, *, image: bool = True, road_scale: bool
 
 
 def plot_tabs(map_backend: bool, *, road_scale: bool, ground_truth: bool, engine: bool,
-              own_series: bool, own_plots: tuple[str, ...] = ()) -> rrb.Tabs:
+              own_series: bool, own_plots: tuple[str, ...] = (), accelerometer: bool = False) -> rrb.Tabs:
     """The plots in tabs: ``overview`` (a few single-series plots, no legend), then every plot by topic."""
     tabs: list[rrb.Container | rrb.View] = []
     if overview := _overview_plots(ground_truth, engine):
@@ -77,8 +79,10 @@ def plot_tabs(map_backend: bool, *, road_scale: bool, ground_truth: bool, engine
     timing = [p for p in plots if p.name == "timing (ms)"]
     accuracy = [p for p in plots if p.name in ACCURACY_PLOTS]  # the position error is the overview's first plot
     tracking = [p for p in plots if p not in timing and p not in accuracy and p.name != "position error (m)"]
+    sensors = [rrb.TimeSeriesView(name="gravity, camera frame (m/s²)", origin="/metrics/accelerometer")] \
+        if accelerometer else []
     for name, group in (("tracking", tracking), ("accuracy", accuracy),
-                        ("map", _map_plots() if map_backend else []), ("timing", timing)):
+                        ("map", _map_plots() if map_backend else []), ("sensors", sensors), ("timing", timing)):
         if group:
             tabs.append(rrb.Grid(*group, grid_columns=1 if len(group) <= 3 else 2, name=name))
     if own_series:  # another pipeline's own series (`vslam.log`): one tab, a plot per group it asked for

@@ -106,6 +106,17 @@ def gt_check_metrics(pair: PairCheck) -> dict[str, float]:
             "gt_rotation_deg": pair.rotation_deg}
 
 
+# A source's own sensors, per frame (recorded when the source has them): the accelerometer as gravity in the
+# camera frame (x right, y down, z forward; m/s², the mean over the frame's interval; TUM RGB-D's accelerometer.txt).
+SENSOR_METRICS: dict[str, dict[str, tuple[str, tuple[int, int, int]]]] = {
+    "accelerometer": {
+        "x": ("gravity x, right (m/s²)", (230, 30, 30)),
+        "y": ("gravity y, down (m/s²)", (40, 220, 60)),
+        "z": ("gravity z, forward (m/s²)", (40, 120, 255)),
+    },
+}
+
+
 # Map backend (--backend map): tracking mode and bundle adjustment. The mode as a number, so it plots as a
 # step line (the string is in the `/tracking` entity): 0 lost, 1 two-view (the first frame of a map segment,
 # `init`, counts as two-view: nothing but two-view geometry can follow it), 2 map (PnP), 3 relocalised;

@@ -28,7 +28,14 @@ from vslam.recording.front_end import log_candidates, log_events, log_road
 from vslam.recording.layout import UNDISTORTED, blueprint
 from vslam.recording.levels import JPEG_QUALITY, Detail, ImageCodec
 from vslam.recording.map_backend import MapRecording
-from vslam.recording.metrics import HEALTH_LEVELS, METRICS, STAGES, frame_metrics, gt_check_metrics
+from vslam.recording.metrics import (
+    HEALTH_LEVELS,
+    METRICS,
+    SENSOR_METRICS,
+    STAGES,
+    frame_metrics,
+    gt_check_metrics,
+)
 from vslam.recording.overview import DriveOverview
 from vslam.recording.schema import SCHEMA_VERSION
 from vslam.recording.stream import (
@@ -55,7 +62,14 @@ from vslam_core.config import EngineConfig
 from vslam_core.lens import undistortion_maps
 from vslam_core.pipeline import RunResult
 from vslam_core.results import FrameResult, TrackFate
-from vslam_core.sources.base import Frame, FrameSource, describe_indices, shown_path, source_properties
+from vslam_core.sources.base import (
+    Frame,
+    FrameSource,
+    describe_indices,
+    frame_gravity,
+    shown_path,
+    source_properties,
+)
 from vslam_core.sources.calibration import describe_calibration
 from vslam_core.trajectory.gt_check import GroundTruthCheck
 
@@ -120,7 +134,8 @@ class Recorder:
         undistorted = source.intrinsics.distorted and detail == Detail.FULL
         layout = blueprint(map_backend=config.backend == "map", image=detail in (Detail.FULL, Detail.STANDARD),
                            road_scale=config.scale == "height", ground_truth=source.ground_truth is not None,
-                           undistorted=undistorted, own_series=external, own_plots=own_plots)
+                           undistorted=undistorted, own_series=external, own_plots=own_plots,
+                           accelerometer=bool(frame_gravity(source)))
         self._rec = open_stream(path, properties.get("recording_id"), layout, properties.get("name", source.name),
                                 live_url)
         self._columns = ColumnBuffer(self._rec, last=CAMERA, background=config.threads > 1)
@@ -132,6 +147,7 @@ class Recorder:
         if not external:
             self._rec.send_property("config", rr.AnyValues(**flatten(config.to_dict())))
         self._intrinsics = source.intrinsics
+        self._gravity = frame_gravity(source)  # source frame index -> (3,) m/s² in the camera frame
         # a distorted lens at full detail: also the frame as the pinhole sees it (the 3-D view's geometry)
         self._undistort = undistortion_maps(source.intrinsics) if undistorted else None
         self._log_static(source)
@@ -293,7 +309,8 @@ class Recorder:
         rec.log("/world/camera/image/road", rr.Points2D.from_fields(radii=3.0, colors=ROAD_COLOUR), static=True)
         rec.log("/world/candidates", rr.Points3D.from_fields(colors=CANDIDATE_COLOURS),
                 rr.Arrows3D.from_fields(colors=AXIS_COLOURS * len(CANDIDATE_COLOURS), radii=0.02), static=True)
-        for group, series in METRICS.items():
+        sensors = SENSOR_METRICS if self._gravity else {}
+        for group, series in {**METRICS, **sensors}.items():
             for name, (legend, colour) in series.items():
                 rec.log(f"/metrics/{group}/{name}", rr.SeriesLines(names=legend, colors=colour), static=True)
 
@@ -325,6 +342,9 @@ class Recorder:
                      image=self.detail in (Detail.FULL, Detail.STANDARD))
         self._log_trajectories(frame, result)
         self._log_metrics(frame, result, unreported)
+        if (gravity := self._gravity.get(frame.index)) is not None:
+            for axis, value in zip(SENSOR_METRICS["accelerometer"], gravity, strict=True):
+                columns.add_scalar(f"/metrics/accelerometer/{axis}", frame, float(value))
         log_events(self._columns, frame, result)
         if result.mapping is not None:
             if self._map is None:

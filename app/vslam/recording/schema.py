@@ -104,6 +104,8 @@ ENTITIES: tuple[EntitySpec, ...] = (
              (INSPECT, COMPARE, *VIEWER), "drift attribution: each frame's own step error"),
     *_series("timing_ms", ("decode", "track", "essential", "chirality", "detect", "record"),
              (INSPECT, COMPARE, *VIEWER), "time per stage (ms)"),
+    *_series("accelerometer", ("x", "y", "z"), VIEWER,
+             "the source's accelerometer: gravity in the camera frame (m/s², x right, y down, z forward)"),
 )
 
 #: Run properties (static, ``/__properties/run``, all strings): required keys, then optional ones.
