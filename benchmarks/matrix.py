@@ -199,12 +199,21 @@ def _split(text: str, allowed: tuple[str, ...], name: str, parser: argparse.Argu
     return items
 
 
-def run_matrix(jobs: list[Job], processes: int, csv_path: Path | None) -> list[Row]:
+def job_key(row: Row | Job) -> tuple[str, str, str, str, str]:
+    """What identifies a run (a CSV row or a job)."""
+    if isinstance(row, Job):
+        return row.family, row.case, row.backend, row.scale, str(row.seed)
+    return str(row["family"]), str(row["case"]), str(row["backend"]), str(row["scale"]), str(row["seed"])
+
+
+def run_matrix(jobs: list[Job], processes: int, csv_path: Path | None, kept: list[Row] | None = None) -> list[Row]:
     """Every job's row, in the jobs' order; with `csv_path`, each row is also written there as it finishes (the
-    CSV of an interrupted matrix keeps the rows done)."""
+    CSV of an interrupted matrix keeps the rows done). `kept`: rows of an earlier, interrupted matrix (its CSV,
+    `--resume`): their jobs are not run again."""
+    earlier = {job_key(row): row for row in kept or [] if not row.get("error")}
+    done: dict[int, Row] = {i: earlier[job_key(job)] for i, job in enumerate(jobs) if job_key(job) in earlier}
     # seed by seed (an interrupted matrix has every group of the first seed), the longest runs of each first
-    order = sorted(range(len(jobs)), key=lambda i: (jobs[i].seed, -jobs[i].cost))
-    done: dict[int, Row] = {}
+    order = sorted((i for i in range(len(jobs)) if i not in done), key=lambda i: (jobs[i].seed, -jobs[i].cost))
     # spawn: the lens and hand-held folders were written with OpenCV in this process
     with multiprocessing.get_context("spawn").Pool(processes) as pool:
         for position, row in zip(order, pool.imap(run_job, [jobs[i] for i in order], chunksize=1), strict=True):
@@ -226,6 +235,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--csv", type=Path, default=None, help="write one row per run here (as they finish)")
     parser.add_argument("--compare", type=Path, default=None, help="a saved matrix CSV: per-group deltas")
     parser.add_argument("--table", type=Path, default=None, help="print this saved CSV's table instead of running")
+    parser.add_argument("--resume", action="store_true", help="keep the rows --csv already holds (an interrupted "
+                        "matrix) and run only the others")
     parser.add_argument("--kitti", default="../shared/data/kitti")
     parser.add_argument("--tum", default="../shared/data/tum")
     args = parser.parse_args(argv)
@@ -242,13 +253,14 @@ def main(argv: list[str] | None = None) -> None:
             parser.error(f"--seeds {args.seeds!r}: comma-separated integers")
         if args.jobs < 1 or not seeds:
             parser.error("--jobs must be ≥ 1 and --seeds name at least one seed")
+        kept = read_csv(args.csv) if args.resume and args.csv is not None and args.csv.exists() else None
         start = time.perf_counter()
         with tempfile.TemporaryDirectory(prefix="vslam-matrix-") as scratch:
             # the synthetic frames are rendered once and shared by every run of a route (its backends and seeds)
             os.environ.setdefault("VSLAM_SYNTHETIC_CACHE", str(Path(scratch) / "synthetic"))
             folders = prepare_folders(families, args.kitti, args.quick, Path(scratch))
             jobs = make_jobs(families, seeds, args.kitti, args.tum, folders, args.quick)
-            rows = run_matrix(jobs, args.jobs, args.csv)
+            rows = run_matrix(jobs, args.jobs, args.csv, kept)
         minutes = (time.perf_counter() - start) / 60
         print(f"{'quick ' if args.quick else ''}matrix: {len(rows)} runs of {', '.join(families)}, seeds "
               f"{args.seeds}, {args.jobs} jobs: {minutes:.1f} min wall (speed varies with the machine's load)")

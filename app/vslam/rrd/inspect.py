@@ -105,8 +105,10 @@ def _accuracy(path: Path, prefix: str = "") -> dict[str, float] | None:
     camera = read_entity(path, f"{prefix}/world/camera")
     ground_truth = read_entity(path, f"{prefix}/world/trajectory/ground_truth")
     aligned = read_entity(path, f"{prefix}/world/trajectory/estimate_sim3", static=True)  # --scale none
-    if not aligned.is_empty():
-        estimate_xyz = np.array(aligned["LineStrips3D:strips"][0][0], np.float64).reshape(-1, 3)
+    refined = read_entity(path, f"{prefix}/world/trajectory/estimate_refined", static=True)  # the map's
+    if not aligned.is_empty() or not refined.is_empty():  # the scored estimate (aligned: of the refined poses)
+        strip = (aligned if not aligned.is_empty() else refined)["LineStrips3D:strips"][0][0]
+        estimate_xyz = np.array(strip, np.float64).reshape(-1, 3)
     else:
         translations = camera["Transform3D:translation"].to_list()
         estimate_xyz = np.array([t[0] if isinstance(t[0], list) else t for t in translations],
@@ -152,6 +154,15 @@ def _float(text: str) -> float | None:
     except ValueError:  # "n/a"
         return None
     return value if math.isfinite(value) else None
+
+
+def scored_trajectory(path: Path, prefix: str = "") -> str:
+    """Which poses the recording's accuracy is of: ``refined`` (the map's, after bundle adjustment and loop
+    closing, as `--trajectory-out`, `vslam eval` and the run summary score them) or ``as tracked`` (the odometry
+    backend, a map run localised in a saved map, another system's trajectory, or a recording written before the
+    refined path was recorded)."""
+    refined = read_entity(path, f"{prefix}/world/trajectory/estimate_refined", static=True)
+    return "as tracked" if refined.is_empty() else "refined"
 
 
 def _accuracy_alignment(path: Path, prefix: str = "") -> str:
@@ -225,6 +236,7 @@ def _run_report(path: Path, prefix: str = "") -> dict[str, Any]:
         "accuracy": _accuracy(path, prefix),
         "report_metrics": report_metrics(path, prefix),
         "accuracy_alignment": _accuracy_alignment(path, prefix),
+        "scored_trajectory": scored_trajectory(path, prefix),
         "flagged": flagged,
         "drift": _drift(path, frame_reasons, prefix),
         "loops": _loops(path, prefix),
@@ -305,6 +317,9 @@ def _format_run(report: dict[str, Any]) -> list[str]:
             f"{accuracy['final_heading_error_deg']:.2f}°"
             + (f"; mean direction error {direction:.2f}°" if math.isfinite(direction) else "")
         )
+        lines.append("            of the map's refined poses (after bundle adjustment and loop closing), as "
+                     "--trajectory-out, eval and the run summary score them; /world/camera is as tracked"
+                     if report.get("scored_trajectory") == "refined" else "            of the poses as tracked")
         if report.get("accuracy_alignment") == "sim3":
             lines.append("            (position errors and paper RMS after Sim(3) alignment: --scale none has unit "
                          "steps; heading and direction errors need none)")
