@@ -15,11 +15,15 @@ Families (`--groups`):
 
 Every (family case, backend vo|map, scale, RANSAC seed) is one run of `run_odometry` with the default config but
 the backend, scale source and `pose.seed` (and threads = 1: pool workers are daemonic, and trajectories do not
-depend on threads; benchmarks/accuracy.py). Runs go through a pool of `--jobs` processes, seed by seed and the
-longest first; each row
-is appended to the CSV as it finishes, and the table is printed in a fixed order, so the output is deterministic
-(the CSV's ``seconds`` column aside). A run that fails (a source that does not open, an engine error) is a row
-with its error, not a crash.
+depend on threads; benchmarks/accuracy.py). Runs go through a pool of `--jobs` processes, seed by seed (the first
+seed's longest runs first, the others' shortest first); each row is appended to the CSV as it finishes
+(`--resume` keeps the rows of an interrupted matrix and runs the rest), and the table is printed in a fixed
+order, so the output is deterministic (the CSV's ``seconds`` column aside). A run that fails (a source that does
+not open, an engine error) is a row with its error, not a crash.
+
+`--quick` (for iterating): KITTI 00 0:150, 05 0:150:2 and 00 0:150:3 with gt and none, TUM fr1_xyz, the synthetic
+street 0:100 and walk 0:120; the loop, lens and hand-held families only when `--groups` names them (then the lens
+family's first case).
 
 Per group (family, backend, scale): a mean row and the worst run (largest ATE after Sim(3)), with ATE after
 Sim(3) and without alignment, KITTI t_err (after Sim(3) with --scale none), the final rotation error, frames
@@ -53,6 +57,8 @@ from vslam_core.sources.base import FrameRange, FrameSource
 from vslam_core.trajectory.metrics import ate, kitti_errors, sim3_aligned
 
 FAMILIES = ("kitti", "tum", "street", "loop", "walk", "lens", "handheld")
+#: --quick without --groups: the families that run in minutes (their cases trimmed in `make_jobs`)
+QUICK_FAMILIES = ("kitti", "tum", "street", "walk")
 KITTI_WINDOWS = ("0:150", "150:300")  # two starts (0:300 would run their frames again)
 STEPS = (1, 2, 3)
 TUM_SEQUENCES = ("rgbd_dataset_freiburg1_xyz", "rgbd_dataset_freiburg1_desk")
@@ -152,11 +158,11 @@ def make_jobs(families: list[str], seeds: list[int], kitti: str, tum: str, folde
         for name in TUM_SEQUENCES[:1] if quick else TUM_SEQUENCES:
             specs.append(("TUM hand-held", name.removeprefix("rgbd_dataset_"), "tum", str(Path(tum) / name), "", "",
                           ("gt", "none"), 200))
-    synthetic = {"street": ("synthetic street", "", 300), "loop": ("synthetic loop", "", 660),
-                 "walk": ("synthetic walk", "0:120" if quick else "0:200", 0)}
+    synthetic = {"street": ("synthetic street", "0:100" if quick else "", 300), "loop": ("synthetic loop", "", 660),
+                 "walk": ("synthetic walk", "0:120" if quick else "0:200", 450)}
     for route, (family, frames, count) in synthetic.items():
         if route in families:
-            length = count or FrameRange.parse(frames).indices(450).__len__()
+            length = len(FrameRange.parse(frames or None).indices(count))
             specs.append((family, f"{route} {frames or 'all'}", "synthetic", route, frames, "", ("gt", "none"), length))
     if "lens" in families:
         for sequence, window in LENS_CASES[:1] if quick else LENS_CASES:
@@ -212,8 +218,13 @@ def run_matrix(jobs: list[Job], processes: int, csv_path: Path | None, kept: lis
     `--resume`): their jobs are not run again."""
     earlier = {job_key(row): row for row in kept or [] if not row.get("error")}
     done: dict[int, Row] = {i: earlier[job_key(job)] for i, job in enumerate(jobs) if job_key(job) in earlier}
-    # seed by seed (an interrupted matrix has every group of the first seed), the longest runs of each first
-    order = sorted((i for i in range(len(jobs)) if i not in done), key=lambda i: (jobs[i].seed, -jobs[i].cost))
+    # seed by seed: an interrupted matrix has every group of the first seed (its longest runs first, so no long
+    # run is left alone at the end), then as many groups as possible of the next (its shortest runs first)
+    first = min(job.seed for job in jobs) if jobs else 0
+    order = sorted((i for i in range(len(jobs)) if i not in done),
+                   key=lambda i: (jobs[i].seed, -jobs[i].cost if jobs[i].seed == first else jobs[i].cost))
+    if not order:
+        return [done[i] for i in range(len(jobs))]
     # spawn: the lens and hand-held folders were written with OpenCV in this process
     with multiprocessing.get_context("spawn").Pool(processes) as pool:
         for position, row in zip(order, pool.imap(run_job, [jobs[i] for i in order], chunksize=1), strict=True):
@@ -229,7 +240,8 @@ def run_matrix(jobs: list[Job], processes: int, csv_path: Path | None, kept: lis
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="a small subset for iterating (minutes on 2 cores)")
-    parser.add_argument("--groups", default=",".join(FAMILIES), help="families to run: " + ", ".join(FAMILIES))
+    parser.add_argument("--groups", default=None, help="families to run: " + ", ".join(FAMILIES) + " (default: all; "
+                        "with --quick " + ", ".join(QUICK_FAMILIES) + ")")
     parser.add_argument("--seeds", default="0,1", help="RANSAC seeds (pose.seed); two or more measure the noise")
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--csv", type=Path, default=None, help="write one row per run here (as they finish)")
@@ -246,7 +258,8 @@ def main(argv: list[str] | None = None) -> None:
     except (OSError, ValueError) as exc:
         parser.error(str(exc))
     if rows is None:
-        families = _split(args.groups, FAMILIES, "--groups", parser)
+        chosen = args.groups or ",".join(QUICK_FAMILIES if args.quick else FAMILIES)
+        families = _split(chosen, FAMILIES, "--groups", parser)
         try:
             seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
         except ValueError:

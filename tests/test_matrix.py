@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 
+from benchmarks.matrix import FAMILIES, QUICK_FAMILIES, make_jobs, run_matrix
 from benchmarks.matrix import main as matrix_main
 from benchmarks.matrix_table import compare, group_stats, read_csv, table, worst, write_csv
 
@@ -100,3 +101,23 @@ def test_cli_prints_a_saved_csv_and_its_comparison(tmp_path: Path, capsys: pytes
     with pytest.raises(SystemExit) as exit_info:
         matrix_main(["--table", str(tmp_path / "missing.csv")])
     assert exit_info.value.code == 2
+
+
+def test_jobs_cover_every_family_backend_scale_and_seed_and_resume_keeps_done_rows() -> None:
+    folders = {"lens-00": "l0", "lens-05": "l5", "handheld": "h"}
+    jobs = make_jobs(list(FAMILIES), [0, 1], "kitti", "tum", folders, quick=False)
+    kitti = [j for j in jobs if j.kind == "kitti"]
+    assert {j.family for j in kitti} == {"KITTI step 1", "KITTI step 2", "KITTI step 3"}
+    assert {j.scale for j in kitti} == {"gt", "height", "none"}
+    assert {j.frames for j in kitti} >= {"0:150", "0:150:3", "150:300:2"}
+    assert {(j.backend, j.seed) for j in jobs} == {("vo", 0), ("vo", 1), ("map", 0), ("map", 1)}
+    assert {j.scale for j in jobs if j.kind != "kitti"} == {"gt", "none"}
+    assert len({(j.family, j.case, j.backend, j.scale, j.seed) for j in jobs}) == len(jobs) == 208
+    quick = make_jobs(list(QUICK_FAMILIES), [0, 1], "kitti", "tum", {}, quick=True)
+    assert len(quick) == 48 and {j.family for j in quick} == {"KITTI step 1", "KITTI step 2", "KITTI step 3",
+                                                              "TUM hand-held", "synthetic street", "synthetic walk"}
+    # --resume: every row already in the CSV is kept (in the jobs' order), none is run again (no pool started)
+    done = [_row(j.family, j.case, j.backend, j.seed, 0.1, scale=j.scale) for j in reversed(quick)]
+    kept = run_matrix(quick, 2, None, done)
+    assert [(r["case"], r["backend"], r["scale"], r["seed"]) for r in kept] == \
+        [(j.case, j.backend, j.scale, j.seed) for j in quick]
