@@ -15,8 +15,8 @@ Families (`--groups`):
 
 Every (family case, backend vo|map, scale, RANSAC seed) is one run of `run_odometry` with the default config but
 the backend, scale source and `pose.seed` (and threads = 1: pool workers are daemonic, and trajectories do not
-depend on threads; benchmarks/accuracy.py). Runs go through a pool of `--jobs` processes, seed by seed (the first
-seed's longest runs first, the others' shortest first); each row is appended to the CSV as it finishes
+depend on threads; benchmarks/accuracy.py). Runs go through a pool of `--jobs` processes, seed by seed and the
+shortest first (an interrupted matrix has as many groups as it could); each row is appended to the CSV as it finishes
 (`--resume` keeps the rows of an interrupted matrix and runs the rest), and the table is printed in a fixed
 order, so the output is deterministic (the CSV's ``seconds`` column aside). A run that fails (a source that does
 not open, an engine error) is a row with its error, not a crash.
@@ -218,11 +218,8 @@ def run_matrix(jobs: list[Job], processes: int, csv_path: Path | None, kept: lis
     `--resume`): their jobs are not run again."""
     earlier = {job_key(row): row for row in kept or [] if not row.get("error")}
     done: dict[int, Row] = {i: earlier[job_key(job)] for i, job in enumerate(jobs) if job_key(job) in earlier}
-    # seed by seed: an interrupted matrix has every group of the first seed (its longest runs first, so no long
-    # run is left alone at the end), then as many groups as possible of the next (its shortest runs first)
-    first = min(job.seed for job in jobs) if jobs else 0
-    order = sorted((i for i in range(len(jobs)) if i not in done),
-                   key=lambda i: (jobs[i].seed, -jobs[i].cost if jobs[i].seed == first else jobs[i].cost))
+    # seed by seed, the shortest runs first: an interrupted matrix (a loaded machine) has as many groups as it can
+    order = sorted((i for i in range(len(jobs)) if i not in done), key=lambda i: (jobs[i].seed, jobs[i].cost))
     if not order:
         return [done[i] for i in range(len(jobs))]
     # spawn: the lens and hand-held folders were written with OpenCV in this process
