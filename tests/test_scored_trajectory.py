@@ -50,6 +50,8 @@ def test_inspect_scores_the_refined_trajectory_file_and_says_so(map_run: tuple[P
     paper_line = next(line for line in summary.splitlines() if line.startswith("paper RMS"))
     assert f"{paper_rms_error(gt, refined):.2f} m" in paper_line
     assert report["report_metrics"]["paper_rms"] == pytest.approx(paper_rms_error(gt, refined), abs=1e-3)
+    verdict = read_entity(rrd, "/report", static=True)["TextDocument:text"].to_list()[-1][0]
+    assert "Scored: the map's refined poses" in verdict
 
 
 def test_eval_of_the_trajectory_file_equals_inspect(map_run: tuple[Path, Path, Path, str]) -> None:

@@ -105,9 +105,9 @@ def _accuracy(path: Path, prefix: str = "") -> dict[str, float] | None:
     camera = read_entity(path, f"{prefix}/world/camera")
     ground_truth = read_entity(path, f"{prefix}/world/trajectory/ground_truth")
     aligned = read_entity(path, f"{prefix}/world/trajectory/estimate_sim3", static=True)  # --scale none
-    refined = read_entity(path, f"{prefix}/world/trajectory/estimate_refined", static=True)  # the map's
-    if not aligned.is_empty() or not refined.is_empty():  # the scored estimate (aligned: of the refined poses)
-        strip = (aligned if not aligned.is_empty() else refined)["LineStrips3D:strips"][0][0]
+    refined = _refined_path(path, prefix, len(camera))  # the map's
+    if not aligned.is_empty() or refined is not None:  # the scored estimate (aligned: of the refined poses)
+        strip = aligned["LineStrips3D:strips"][0][0] if not aligned.is_empty() else refined
         estimate_xyz = np.array(strip, np.float64).reshape(-1, 3)
     else:
         translations = camera["Transform3D:translation"].to_list()
@@ -161,8 +161,19 @@ def scored_trajectory(path: Path, prefix: str = "") -> str:
     closing, as `--trajectory-out`, `vslam eval` and the run summary score them) or ``as tracked`` (the odometry
     backend, a map run localised in a saved map, another system's trajectory, or a recording written before the
     refined path was recorded)."""
-    refined = read_entity(path, f"{prefix}/world/trajectory/estimate_refined", static=True)
-    return "as tracked" if refined.is_empty() else "refined"
+    frames = len(read_entity(path, f"{prefix}/world/camera"))
+    return "as tracked" if _refined_path(path, prefix, frames) is None else "refined"
+
+
+def _refined_path(path: Path, prefix: str, frames: int) -> np.ndarray | None:
+    """(N, 3) the map's refined positions (`/world/trajectory/estimate_refined`), or None: not recorded, or not
+    one per frame of the file (a `vslam crop` keeps the whole run's static path; its frames' errors are then
+    those recorded)."""
+    table = read_entity(path, f"{prefix}/world/trajectory/estimate_refined", static=True)
+    if table.is_empty():
+        return None
+    positions = np.array(table["LineStrips3D:strips"][0][0], np.float64).reshape(-1, 3)
+    return positions if len(positions) == frames else None
 
 
 def _accuracy_alignment(path: Path, prefix: str = "") -> str:
