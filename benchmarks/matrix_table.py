@@ -45,9 +45,10 @@ def failed(row: Row) -> bool:
     return bool(row.get("error"))
 
 
-def held_pct(row: Row) -> float:
+def held_pct(row: Row, what: str = "held") -> float:
+    """% of the run's frames held (`what` ``coasted``: of those, dead-reckoned)."""
     frames = _float(row.get("frames"))
-    return 100.0 * _float(row.get("held")) / frames if frames and frames > 0 else math.nan
+    return 100.0 * _float(row.get(what)) / frames if frames and frames > 0 else math.nan
 
 
 def placed_pct(row: Row, mode: str) -> float:
@@ -87,6 +88,7 @@ def group_stats(rows: list[Row]) -> dict[str, float]:
         stats[f"{name}_noise"] = float(np.std(per_seed, ddof=1)) if len(per_seed) > 1 else math.nan
     for mode in ("map", "two_view", "relocalised", "coasted", "lost"):
         stats[f"placed_{mode}"] = _nanmean(placed_pct(r, mode) for r in good)
+    stats["coasted_pct"] = _nanmean(held_pct(r, "coasted") for r in good)
     return stats
 
 
@@ -94,6 +96,10 @@ def worst(rows: list[Row]) -> Row | None:
     """The group's worst run: the largest ATE after Sim(3) (a failed run is not scored: None when all failed)."""
     good = [r for r in rows if not failed(r) and math.isfinite(_float(r["ate_sim3"]))]
     return max(good, key=lambda r: _float(r["ate_sim3"])) if good else None
+
+
+def _held(held: float, coasted: float) -> str:
+    return f"{_cell(held, 1)} ({_cell(coasted, 1)})"
 
 
 def _cell(value: float, digits: int = 3) -> str:
@@ -109,7 +115,8 @@ def _placed(values: dict[str, float]) -> str:
     return f"{values['placed_map']:.0f} / {values['placed_two_view']:.0f} / {other:.0f}"
 
 
-HEADER = ("| group | backend | scale | row | runs | ATE Sim(3) m | ATE m | t_err % | final rot ° | held % | "
+HEADER = ("| group | backend | scale | row | runs | ATE Sim(3) m | ATE m | t_err % | final rot ° | "
+          "held % (dead-reckoned) | "
           "placed % PnP / 2-view / other | noise: ATE Sim(3) std over seeds m |")
 
 
@@ -123,14 +130,16 @@ def table(rows: list[Row]) -> str:
                                                             if stats["failed"] else "")
         lines.append(f"| {family} | {backend} | {scale} | mean | {runs} | {_cell(stats['ate_sim3'])} | "
                      f"{_cell(stats['ate'])} | {_cell(stats['t_err'], 2)} | {_cell(stats['rotation_deg'], 2)} | "
-                     f"{_cell(stats['held_pct'], 1)} | {_placed(stats)} | {_cell(stats['ate_sim3_noise'])} |")
+                     f"{_held(stats['held_pct'], stats['coasted_pct'])} | {_placed(stats)} | "
+                     f"{_cell(stats['ate_sim3_noise'])} |")
         bad = worst(members)
         if bad is not None:
             placed = {f"placed_{m}": placed_pct(bad, m) for m in ("map", "two_view", "relocalised", "coasted",
                                                                    "lost")}
             lines.append(f"| | | | worst: {bad['case']} seed {bad['seed']} | 1 | {_cell(_float(bad['ate_sim3']))} | "
                          f"{_cell(_float(bad['ate']))} | {_cell(_float(bad['t_err']), 2)} | "
-                         f"{_cell(_float(bad['rotation_deg']), 2)} | {_cell(held_pct(bad), 1)} | {_placed(placed)} |"
+                         f"{_cell(_float(bad['rotation_deg']), 2)} | "
+                         f"{_held(held_pct(bad), held_pct(bad, 'coasted'))} | {_placed(placed)} |"
                          " |")
         failures += [f"- {family} {backend} {scale} {r['case']} seed {r['seed']}: {r['error']}"
                      for r in members if failed(r)]

@@ -53,9 +53,9 @@ def test_group_mean_worst_noise_and_placements() -> None:
 def test_table_has_a_mean_and_a_worst_row_per_group_and_lists_failures() -> None:
     text = table(_rows())
     lines = text.splitlines()
-    assert "| KITTI step 1 | vo | gt | mean | 4 | 0.405 | 0.810 | n/a | 1.00 | 2.5 | - | 0.007 |" in lines
+    assert "| KITTI step 1 | vo | gt | mean | 4 | 0.405 | 0.810 | n/a | 1.00 | 2.5 (0.0) | - | 0.007 |" in lines
     assert any(line.startswith("| | | | worst: 00 0:150 seed 1 | 1 | 0.520 |") for line in lines)
-    assert "| TUM hand-held | map | gt | mean | 1 (1 failed) | 0.050 | 0.100 | n/a | 1.00 | 0.0 | 80 / 19 / 0 |" \
+    assert "| TUM hand-held | map | gt | mean | 1 (1 failed) | 0.050 | 0.100 | n/a | 1.00 | 0.0 (0.0) | 80 / 19 / 0 |" \
         in text
     assert "- TUM hand-held map gt desk seed 0: SourceError: no ground truth at frame 41" in lines
 
