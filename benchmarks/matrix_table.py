@@ -141,9 +141,17 @@ def table(rows: list[Row]) -> str:
                          f"{_cell(_float(bad['rotation_deg']), 2)} | "
                          f"{_held(held_pct(bad), held_pct(bad, 'coasted'))} | {_placed(placed)} |"
                          " |")
-        failures += [f"- {family} {backend} {scale} {r['case']} seed {r['seed']}: {r['error']}"
-                     for r in members if failed(r)]
-    return "\n".join(lines + (["", "Failed runs:", *failures] if failures else []))
+        failures += [r for r in members if failed(r)]
+    return "\n".join(lines + (["", "Failed runs:", *_failure_lines(failures)] if failures else []))
+
+
+def _failure_lines(rows: list[Row]) -> list[str]:
+    """One line per (family, case, error): the runs that failed with it, then the error (first 200 characters)."""
+    by_error: dict[tuple[str, str, str], list[str]] = {}
+    for r in rows:
+        by_error.setdefault((str(r["family"]), str(r["case"]), str(r["error"])), []).append(
+            f"{r['backend']} {r['scale']} seed {r['seed']}")
+    return [f"- {family} {case} ({', '.join(runs)}): {error[:200]}" for (family, case, error), runs in by_error.items()]
 
 
 def write_csv(path: Path, rows: list[Row]) -> None:

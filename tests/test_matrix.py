@@ -57,7 +57,7 @@ def test_table_has_a_mean_and_a_worst_row_per_group_and_lists_failures() -> None
     assert any(line.startswith("| | | | worst: 00 0:150 seed 1 | 1 | 0.520 |") for line in lines)
     assert "| TUM hand-held | map | gt | mean | 1 (1 failed) | 0.050 | 0.100 | n/a | 1.00 | 0.0 (0.0) | 80 / 19 / 0 |" \
         in text
-    assert "- TUM hand-held map gt desk seed 0: SourceError: no ground truth at frame 41" in lines
+    assert "- TUM hand-held desk (map gt seed 0): SourceError: no ground truth at frame 41" in lines
 
 
 def test_csv_round_trip_gives_the_same_table(tmp_path: Path) -> None:
