@@ -181,8 +181,16 @@ def compare(before: list[Row], after: list[Row]) -> tuple[str, list[str]]:
     """Per group the change of each metric's mean (after − before) and whether it is worse beyond its noise
     (more than `NOISE_FACTOR` × the larger of the two noises; a group whose noise is unmeasured — one seed — is
     flagged for any worsening, as are groups with more failed runs). Returns the Markdown table and the flagged
-    groups. The matrix as a whole: the mean over groups of the relative change of ATE after Sim(3)."""
-    old, new = groups(before), groups(after)
+    groups. The matrix as a whole: the mean over groups of the relative change of ATE after Sim(3). Only the runs
+    both CSVs hold (same family, case, backend, scale and seed) are compared: a `--quick` CSV against a whole
+    matrix compares its own runs."""
+    def run_key(row: Row) -> tuple[str, ...]:
+        return tuple(str(row[k]) for k in ("family", "case", "backend", "scale")) + (str(int(_float(row["seed"]))),)
+
+    both = {run_key(r) for r in before} & {run_key(r) for r in after}
+    old = groups([r for r in before if run_key(r) in both])
+    new = groups([r for r in after if run_key(r) in both])
+    gone = [k for k in groups(before) if k not in new] + [k for k in groups(after) if k not in old]
     lines = ["| group | backend | scale | ATE Sim(3) m before → after | Δ ATE m | Δ t_err % | Δ final rot ° | "
              "Δ held % | failed before → after | verdict |", "|---|---|---|---|---|---|---|---|---|---|"]
     flagged, relative = [], []
@@ -209,13 +217,13 @@ def compare(before: list[Row], after: list[Row]) -> tuple[str, list[str]]:
                      f"{_signed(b['rotation_deg'] - a['rotation_deg'], 2)} | "
                      f"{_signed(b['held_pct'] - a['held_pct'], 1)} | {int(a['failed'])} → {int(b['failed'])} | "
                      f"{verdict} |")
-    only = [f"{k[0]} {k[1]} {k[2]}" for k in new if k not in old] + [f"{k[0]} {k[1]} {k[2]} (gone)" for k in old
-                                                                     if k not in new]
+    only = [f"{k[0]} {k[1]} {k[2]}" for k in dict.fromkeys(gone)]
     whole = _nanmean(relative)
-    lines += ["", f"Matrix as a whole: ATE after Sim(3) {100 * whole:+.1f} % (mean over {len(relative)} groups of "
+    lines += ["", f"Compared: the {len(both)} runs both CSVs hold.",
+              f"Matrix as a whole: ATE after Sim(3) {100 * whole:+.1f} % (mean over {len(relative)} groups of "
               "each group's relative change)" if relative else "", f"Groups worse beyond their noise: {len(flagged)}"]
     if only:
-        lines.append("Not compared (in one CSV only): " + "; ".join(only))
+        lines.append("Not compared (no run in both CSVs): " + "; ".join(only))
     return "\n".join(line for line in lines if line is not None), flagged
 
 

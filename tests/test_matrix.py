@@ -121,3 +121,12 @@ def test_jobs_cover_every_family_backend_scale_and_seed_and_resume_keeps_done_ro
     kept = run_matrix(quick, 2, None, done)
     assert [(r["case"], r["backend"], r["scale"], r["seed"]) for r in kept] == \
         [(j.case, j.backend, j.scale, j.seed) for j in quick]
+
+
+def test_compare_takes_only_the_runs_both_csvs_hold() -> None:
+    """A subset (a --quick CSV) against the whole matrix: the same runs, not group means over different cases."""
+    subset = [row for row in _rows() if row["case"] == "05 0:150"]  # the better case of the KITTI group
+    text, flagged = compare(_rows(), subset)
+    assert flagged == [] and "Compared: the 2 runs both CSVs hold." in text
+    assert "| KITTI step 1 | vo | gt | 0.300 → 0.300 | +0.000 |" in text
+    assert "Not compared (no run in both CSVs): TUM hand-held map gt" in text
