@@ -43,6 +43,9 @@ class RunResult:
     indices: list[int]  # source frame indices, one per processed frame
     timestamps: list[float | None]
     poses: list[np.ndarray]  # (4, 4) T_world_cam per processed frame (map backend: refined by BA once complete)
+    # the map backend: each frame's pose as it was tracked (what the per-frame results said), kept when the run
+    # ended and `poses` became the refined ones; empty when nothing refines the poses (vo, localising in a map)
+    tracked_poses: list[np.ndarray] = field(default_factory=list)
     held: int = 0  # frames not tracked (status held): dead-reckoned, or keeping the previous pose
     coasted: int = 0  # of those, the frames whose pose was dead-reckoned (vslam_core.coasting)
     tracked: int = 0  # frames whose motion was measured (status ok) or dead-reckoned
@@ -55,6 +58,12 @@ class RunResult:
     @property
     def frames(self) -> int:
         return len(self.poses)
+
+    @property
+    def scored_trajectory(self) -> str:
+        """Which poses `poses` (and so every score of the run) are: ``refined`` (the map's, after bundle
+        adjustment and loop closing) or ``as tracked``."""
+        return "refined" if self.tracked_poses else "as tracked"
 
     def placed_summary(self, scale: ScaleSource) -> str | None:
         """Where the map backend's poses came from, e.g. ``281 by PnP against the map, 18 by two-view motion, 1
@@ -180,7 +189,8 @@ def run_odometry(
                 sink(frame, frame_result)
         completed = True
     finally:
-        if isinstance(engine, MapTracking):  # the map's refined poses replace the tracking-time ones
+        if isinstance(engine, MapTracking):  # the map's refined poses replace the tracking-time ones (kept)
+            run.tracked_poses[:] = run.poses
             run.poses[:] = engine.refined_poses(len(run.poses))
             run.loops_at_end[:] = engine.loops_at_end
         if completed and finish is not None:

@@ -275,6 +275,11 @@ def _print_evaluation(evaluation: Evaluation, scale: str, backend: str, report: 
         elif len(evaluation.matchings) > 1:
             for name, matching in evaluation.matchings.items():
                 out.print(f"{name}: {matching.describe()}", highlight=False)
+        if evaluation.scored_trajectory is not None:
+            from vslam.evaluation import scored_sentence
+
+            out.print(f"scored      {scored_sentence(evaluation.scored_trajectory).removeprefix('Scored: ')}",
+                      highlight=False, markup=False)
         if report is not None:
             out.print(f"report      {report / 'report.md'}", highlight=False)
     if evaluation.interrupted is not None:

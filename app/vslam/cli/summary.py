@@ -70,4 +70,7 @@ def print_summary(source: FrameSource, run: RunResult, config: EngineConfig, in_
                      + ("   (after Sim(3) alignment: --scale none has no metric scale)" if aligned else ""))
         lines.append(f"paper RMS   {paper_rms_error(gt, scored):.2f} m (x–z, "
                      + ("after Sim(3) alignment)" if aligned else "no alignment)"))
+        lines.append("scored      " + ("the map's refined poses (after bundle adjustment and loop closing), as "
+                                      "--trajectory-out holds them and `vslam inspect` scores them"
+                                      if run.scored_trajectory == "refined" else "the poses as tracked"))
     out.print("\n".join(lines), highlight=False)

@@ -20,6 +20,7 @@ _HOMES = {
     "evaluate_sources": "evaluate",
     "evaluate_trajectory_files": "evaluate",
     "match_images": "matching",
+    "scored_sentence": "evaluate",
     "write_report": "evaluate",
     "write_trajectory_report": "evaluate",
 }
@@ -32,6 +33,7 @@ if TYPE_CHECKING:
         check_gates,
         evaluate_sources,
         evaluate_trajectory_files,
+        scored_sentence,
         write_report,
         write_trajectory_report,
     )
@@ -51,6 +53,7 @@ __all__ = [
     "evaluate_sources",
     "evaluate_trajectory_files",
     "match_images",
+    "scored_sentence",
     "write_report",
     "write_trajectory_report",
 ]

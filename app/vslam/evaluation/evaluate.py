@@ -60,11 +60,15 @@ class Evaluation:
     matchings: dict[str, Matching] = field(default_factory=dict)  # every --trajectory file's, by name
     inject: str | None = None  # faults injected into every sequence (--inject)
     notes: list[str] = field(default_factory=list)  # which sequence was interrupted, after how many frames
+    # which poses the engine's rows are of: "refined" (the map's) or "as tracked"; None for trajectory files
+    scored_trajectory: str | None = None
 
     def as_json(self) -> dict[str, Any]:
-        extra = {"matching": self.matching.as_json()} if self.matching is not None else {}
+        extra: dict[str, Any] = {"matching": self.matching.as_json()} if self.matching is not None else {}
         if len(self.matchings) > 1:
             extra = {"matchings": {name: m.as_json() for name, m in self.matchings.items()}}
+        if self.scored_trajectory is not None:
+            extra["scored_trajectory"] = self.scored_trajectory
         return json_ready({"sequences": self.rows, "mean": self.mean, **extra})
 
 
@@ -86,6 +90,7 @@ def evaluate_sources(
     so two windows of one sequence do not collide."""
     rows, by_length = [], {}
     interrupted = None
+    scored: str | None = None
     notes: list[str] = []  # how the runs ended early, for report.md
     for position, source in enumerate(sources):
         name = names[position] if names is not None else source.name
@@ -110,6 +115,7 @@ def evaluate_sources(
         check = run.gt_check.summary() if run.gt_check is not None else None
         for warning in check.warnings() if check is not None else []:  # the scores against it are suspect
             console.print(Text.assemble(("warning:", "bold yellow"), f" {source.name}: {warning}"), soft_wrap=True)
+        scored = run.result.scored_trajectory
         if run.result.frames >= 3:
             row, lengths = _score(name, gt, run.result.pose_array(), config, report_dir)
             row["fps"] = run.result.frames / run.result.seconds if run.result.seconds else math.nan
@@ -124,7 +130,7 @@ def evaluate_sources(
                 notes.append("not run: " + ", ".join(s.name for s in sources[position + 1:]))
             break
     evaluation = Evaluation(rows, mean_row(rows), by_length, interrupted, inject=(properties or {}).get("inject"),
-                            notes=notes)
+                            notes=notes, scored_trajectory=scored)
     if report_dir is not None and write_tables and (rows or notes):
         write_report(report_dir, evaluation, config)
     return evaluation
@@ -208,6 +214,14 @@ def write_report(report_dir: Path, evaluation: Evaluation, config: EngineConfig)
     (report_dir / "report.md").write_text("\n".join(lines) + "\n")
 
 
+def scored_sentence(scored: str) -> str:
+    """Which poses the rows are of (``refined`` or ``as tracked``: `RunResult.scored_trajectory`)."""
+    if scored == "refined":
+        return ("Scored: the map's refined poses (after bundle adjustment and loop closing), as the trajectory "
+                "files hold them.")
+    return "Scored: the poses as tracked (nothing refined them)."
+
+
 def _provenance_lines(evaluation: Evaluation, aligned: bool) -> list[str]:
     """What report.md says before its table: alignment, row matching, injected faults, interruption."""
     lines = []
@@ -222,6 +236,8 @@ def _provenance_lines(evaluation: Evaluation, aligned: bool) -> list[str]:
     if not evaluation.matchings:
         lines.append(f"Faults injected into every sequence: `{evaluation.inject}` (`--inject`)." if evaluation.inject
                      else "No faults injected.")
+    if evaluation.scored_trajectory is not None:
+        lines.append(scored_sentence(evaluation.scored_trajectory))
     if evaluation.notes:
         lines.append(f"**Interrupted by {evaluation.interrupted}**: " + "; ".join(evaluation.notes) + ".")
     return [line for item in lines for line in (item, "")]

@@ -19,7 +19,6 @@ from vslam.common import (
     has_footer,
     markdown_table,
     metrics_row,
-    scored_estimate,
     write_failure,
 )
 from vslam.recording.columns import FLUSH_FRAMES, FLUSH_SECONDS, NO_IMAGE, ColumnBuffer, Part
@@ -38,6 +37,7 @@ from vslam.recording.metrics import (
 )
 from vslam.recording.overview import DriveOverview
 from vslam.recording.schema import SCHEMA_VERSION
+from vslam.recording.scored import log_scored, scored_line
 from vslam.recording.stream import (
     StreamStopped,
     close_stream,
@@ -49,7 +49,6 @@ from vslam.recording.stream import (
 from vslam.recording.styles import (
     AXIS_COLOURS,
     CANDIDATE_COLOURS,
-    ESTIMATE_COLOUR,
     FATE_STYLE,
     HEALTH_LEVEL_LINES,
     HEALTH_LEVELS_ROOT,
@@ -76,9 +75,6 @@ from vslam_core.trajectory.gt_check import GroundTruthCheck
 if TYPE_CHECKING:
     from vslam.recording.video import VideoEntity
 
-#: --scale none: the position error and the estimate after Sim(3) alignment (logged when the run ends).
-ALIGNED_ERROR = "/metrics/error/position_m"
-ALIGNED_ESTIMATE = "/world/trajectory/estimate_sim3"
 
 #: Flow arrows are recorded to 1/FLOW_STEPS of a pixel.
 FLOW_STEPS = 8
@@ -122,8 +118,11 @@ class Recorder:
         self._name = properties.get("name", source.name)
         self._source_name = source.name
         self._scale = config.scale
+        # the map refines every pose after it was tracked: its errors are logged when the run ends, of the poses
+        # it ended with (the ones scored: `vslam.recording.scored`)
+        self._errors_at_end = config.backend == "map"
         # each frame's own error against the ground truth (drift attribution)
-        self._drift = (DriftRecording(source.ground_truth, online=config.scale != "none")
+        self._drift = (DriftRecording(source.ground_truth, online=config.scale != "none" and not self._errors_at_end)
                        if source.ground_truth is not None else None)
         self._previous_position: np.ndarray | None = None
         self._overview = DriveOverview()
@@ -209,7 +208,7 @@ class Recorder:
             if self._map is not None and run.loops_at_end and run.indices:  # at the last frame's time
                 self._map.log_loops_at_end(Frame(run.indices[-1], run.timestamps[-1], NO_IMAGE), run.frames - 1,
                                            run.loops_at_end)
-            aligned: np.ndarray | None = None
+            aligned: np.ndarray | None = None  # the scored estimate, with ground truth
             row: dict[str, Any] | None = None
             lines = [f"# {self._name}", "", f"{run.frames} frames, {run.held_summary}"
                      + (f" — {stopped}" if stopped else "")]
@@ -217,14 +216,15 @@ class Recorder:
                 lines += ["", f"Placed: {placed}."]
             if self._gt is not None and run.frames > 2:
                 row = metrics_row(self._source_name, self._gt[: run.frames], run.pose_array(), self._scale)
-                lines += ["", markdown_table([row])]
+                lines += ["", markdown_table([row]), "", scored_line(run, self._scale)]
+                scored = log_scored(self._rec, self._gt[: run.frames], run, self._scale, self._errors_at_end)
+                aligned = scored  # the overview draws the scored estimate (--scale none: Sim(3)-aligned)
                 if self._scale == "none":
-                    aligned = self._log_aligned(run)
                     lines += ["", "Every number is of the estimate after Sim(3) alignment onto the ground truth "
                               "(--scale none: no metric scale; "
                               + ("the map's own scale)." if self._map is not None else "unit steps).")]
                 if self._drift is not None:
-                    lines += ["", *self._drift.finish(self._rec, self._columns, aligned)]
+                    lines += ["", *self._drift.finish(self._rec, self._columns, scored)]
             if self._gt_check is not None and (check := self._gt_check.summary()) is not None:
                 lines += ["", f"Ground truth against the images: {check.line()}.", *(f"Warning: {w}." for w in
                                                                                      check.warnings())]
@@ -256,21 +256,6 @@ class Recorder:
         for name, _, value, _ in HEALTH_LEVEL_LINES:
             self._rec.send_columns(f"{HEALTH_LEVELS_ROOT}/{name}", indexes=[rr.TimeColumn("frame", sequence=ends)],
                                    columns=rr.Scalars.columns(scalars=[value, value]))
-
-    def _log_aligned(self, run: RunResult) -> np.ndarray:
-        """--scale none: the per-frame position error (not logged while running: unit steps against metres)
-        and the whole estimate, both after Sim(3) alignment onto the ground truth, as `vslam eval` scores it."""
-        assert self._gt is not None
-        gt = self._gt[: run.frames]
-        aligned = scored_estimate(gt, run.pose_array(), self._scale)
-        errors = np.linalg.norm(aligned[:, :3, 3] - gt[:, :3, 3], axis=1)
-        self._rec.log(ALIGNED_ERROR, rr.SeriesLines(names="position error after Sim(3) alignment (m)",
-                                                    colors=ESTIMATE_COLOUR), static=True)
-        self._rec.send_columns(ALIGNED_ERROR, indexes=[rr.TimeColumn("frame", sequence=list(run.indices))],
-                               columns=rr.Scalars.columns(scalars=errors))
-        self._rec.log(ALIGNED_ESTIMATE, rr.LineStrips3D([aligned[:, :3, 3]], colors=ESTIMATE_COLOUR, radii=0.12,
-                                                        labels=["estimate after Sim(3) alignment"]), static=True)
-        return aligned
 
     def _restate_frames(self, run: RunResult, stopped: str | None) -> None:
         """Static properties are last-write-wins: re-log them with the frames actually processed."""
@@ -456,8 +441,10 @@ class Recorder:
         values = {name: value for name, value in frame_metrics(result, self._gt).items() if name not in unreported}
         if self._gt_check is not None and (pair := self._gt_check.pairs.get(result.position)) is not None:
             values.update(gt_check_metrics(pair))
-        if self._scale == "none":  # unit steps against metres: logged after Sim(3) alignment at the end
-            values.pop("position_m", None)
+        if self._scale == "none" or self._errors_at_end:  # logged at the end, of the scored poses
+            values.pop("position_m", None)  # --scale none: unit steps against metres (aligned at the end)
+        if self._errors_at_end:
+            values.pop("heading_deg", None)
         for group, series in METRICS.items():
             for name in series:
                 if name in values and group not in ("timing_ms", "drift"):  # drift: its own names

@@ -66,6 +66,8 @@ ENTITIES: tuple[EntitySpec, ...] = (
                "one segment per frame of the ground truth (same world)"),
     EntitySpec("/world/trajectory/estimate_sim3", ("LineStrips3D:strips",), True, False, (INSPECT, COMPARE),
                "scale none: the whole estimate after Sim(3) alignment (errors are then of it)"),
+    EntitySpec("/world/trajectory/estimate_refined", ("LineStrips3D:strips",), True, False, (INSPECT,),
+               "map backend: the refined path the run is scored on (its error series are then of it)"),
     EntitySpec("/world/camera/image/corners", ("Points2D:positions",), False, False, VIEWER,
                "corners detected in this frame (raw image pixels)"),
     EntitySpec("/world/camera/image/flow", ("Arrows2D:origins", "Arrows2D:vectors", "Arrows2D:class_ids"), False,

@@ -151,10 +151,13 @@ def _paper_rms(path: Path, prefix: str = "") -> float:
     truth over the frames that have both; NaN when none has."""
     estimate = camera_positions(path, prefix)
     aligned = read_entity(path, f"{prefix}/world/trajectory/estimate_sim3", static=True)  # --scale none
-    if not aligned.is_empty():  # one point per camera frame, in frame order
+    refined = _refined_path(path, prefix, len(estimate))  # the map's refined poses: what the run is scored on
+    if not aligned.is_empty():  # one point per camera frame, in frame order (aligned: of the refined poses)
         points = np.array(aligned["LineStrips3D:strips"][0][0], np.float64).reshape(-1, 3)
         if len(points) == len(estimate):
             estimate = dict(zip(sorted(estimate), points, strict=True))
+    elif refined is not None:
+        estimate = dict(zip(sorted(estimate), refined, strict=True))
     truth = ground_truth_by_frame(path, prefix)
     common = sorted(set(estimate) & set(truth))
     if not common:
@@ -217,6 +220,26 @@ def _float(text: str) -> float | None:
     except ValueError:  # "n/a"
         return None
     return value if math.isfinite(value) else None
+
+
+def scored_trajectory(path: Path, prefix: str = "") -> str:
+    """Which poses the recording's accuracy is of: ``refined`` (the map's, after bundle adjustment and loop
+    closing, as `--trajectory-out`, `vslam eval` and the run summary score them) or ``as tracked`` (the odometry
+    backend, a map run localised in a saved map, another system's trajectory, or a recording written before the
+    refined path was recorded)."""
+    frames = len(read_entity(path, f"{prefix}/world/camera"))
+    return "as tracked" if _refined_path(path, prefix, frames) is None else "refined"
+
+
+def _refined_path(path: Path, prefix: str, frames: int) -> np.ndarray | None:
+    """(N, 3) the map's refined positions (`/world/trajectory/estimate_refined`), or None: not recorded, or not
+    one per frame of the file (a `vslam crop` keeps the whole run's static path; its frames' errors are then
+    those recorded)."""
+    table = read_entity(path, f"{prefix}/world/trajectory/estimate_refined", static=True)
+    if table.is_empty():
+        return None
+    positions = np.array(table["LineStrips3D:strips"][0][0], np.float64).reshape(-1, 3)
+    return positions if len(positions) == frames else None
 
 
 def _accuracy_alignment(path: Path, prefix: str = "") -> str:
@@ -305,6 +328,7 @@ def _run_report(path: Path, prefix: str = "") -> dict[str, Any]:
         "report_metrics_frames": properties.get("cropped_from", properties.get("frames")),
         "report_metrics_cropped": "cropped_from" in properties,
         "accuracy_alignment": _accuracy_alignment(path, prefix),
+        "scored_trajectory": scored_trajectory(path, prefix),
         "flagged": flagged,
         "drift": _drift(path, frame_reasons, prefix),
         "gt_check": _gt_check(path, prefix),
@@ -393,6 +417,9 @@ def _format_run(report: dict[str, Any]) -> list[str]:
             + (f"; heading error final {heading:.2f}°" if heading is not None else "")
             + (f"; mean direction error {direction:.2f}°" if direction is not None else "")
         )
+        lines.append("            of the map's refined poses (after bundle adjustment and loop closing), as "
+                     "--trajectory-out, eval and the run summary score them; /world/camera is as tracked"
+                     if report.get("scored_trajectory") == "refined" else "            of the poses as tracked")
         if report.get("accuracy_alignment") == "sim3":
             lines.append("            (position errors and paper RMS after Sim(3) alignment: --scale none has unit "
                          "steps; heading and direction errors need none)")
