@@ -125,6 +125,8 @@ def main() -> None:
     parser.add_argument("--no-loops", action="store_true", help="map backend without loop closing")
     args = parser.parse_args()
     at = tuple(sorted(int(a) for a in args.at.split(",")))
+    if not (args.kitti / "poses" / "00.txt").exists() or not (args.kitti / "sequences" / "00" / "image_0").is_dir():
+        parser.error(f"{args.kitti}: no KITTI sequence 00 (sequences/00/image_0 and poses/00.txt) there")
     with tempfile.TemporaryDirectory() as folder:
         root = str(make_drive(args.kitti, Path(folder), at[-1]))
         for backend in args.backends.split(","):

@@ -44,7 +44,7 @@ class LoopClosing:
         # every keyframe's place is kept only for a saved map (vslam_core/mapping/storage.py `snapshot`); without
         # one, only those `_refresh` still reads: the loop data of tracking's process then follows the place
         self.keep_places = True
-        self.closed: list[LoopClosed] = []
+        self.loops_closed = 0  # (the loops themselves go out with their frame's result: each holds every pose twice)
 
     def submit(self, keyframe_id: int, image: np.ndarray) -> None:
         """A keyframe was inserted: its search is submitted at the next insertion (after its bundle adjustment)."""
@@ -85,7 +85,7 @@ class LoopClosing:
         clock = time.perf_counter()
         closed, correction = self._apply(map_, result.graph, result.timings_ms.get("optimise", 0.0))
         timings["apply"] = _lap(clock)
-        self.closed.append(closed)
+        self.loops_closed += 1
         return LoopStep(result.candidates, closed, timings), correction
 
     def _keep_features(self, result: SearchResult) -> None:

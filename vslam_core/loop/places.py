@@ -38,25 +38,35 @@ class KeyframePlace:
     words: np.ndarray | None = None  # (V,) bag of words, once the vocabulary exists (until it was searched for)
 
 
-THUMBNAIL_QUALITY = 90  # JPEG quality of a stored keyframe's thumbnail: ~15 KB instead of ~115 KB raw on KITTI
+THUMBNAIL_QUALITY = 80  # a stored keyframe's thumbnail: JPEG of it at half its size (KITTI: ~7.5 KB, not 117 KB)
 
 
 def pack_thumbnail(image: np.ndarray) -> np.ndarray:
-    """(B,) uint8 JPEG bytes of a (H, W) uint8 thumbnail (an empty one stays empty)."""
+    """(4 + B,) uint8: the (H, W) uint8 thumbnail's height and width (two little-endian uint16), then the JPEG
+    bytes of it at half that size (an empty one stays empty). A stored keyframe is only ever shown as a loop
+    candidate beside its query, whose thumbnail is the full one."""
     if image.size == 0:
         return np.zeros(0, np.uint8)
-    ok, encoded = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, THUMBNAIL_QUALITY])
-    return np.asarray(encoded, np.uint8).reshape(-1) if ok else np.zeros(0, np.uint8)
+    small = cv2.resize(image, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
+    ok, encoded = cv2.imencode(".jpg", small, [cv2.IMWRITE_JPEG_QUALITY, THUMBNAIL_QUALITY])
+    if not ok:
+        return np.zeros(0, np.uint8)
+    shape = np.array(image.shape, "<u2").view(np.uint8)
+    return np.concatenate((shape, np.asarray(encoded, np.uint8).reshape(-1)))
 
 
 def unpack_thumbnail(stored: np.ndarray) -> np.ndarray:
-    """The (H, W) uint8 thumbnail of `pack_thumbnail`'s bytes (an image not packed is returned as it is)."""
+    """The (H, W) uint8 thumbnail of `pack_thumbnail`'s bytes, scaled back to its size (an image not packed is
+    returned as it is)."""
     if stored.ndim == 2:
         return stored
-    if stored.size == 0:
+    if stored.size <= 4:
         return np.zeros((0, 0), np.uint8)
-    decoded = cv2.imdecode(stored, cv2.IMREAD_GRAYSCALE)
-    return decoded if decoded is not None else np.zeros((0, 0), np.uint8)
+    height, width = (int(v) for v in stored[:4].view("<u2"))
+    decoded = cv2.imdecode(stored[4:], cv2.IMREAD_GRAYSCALE)
+    if decoded is None:
+        return np.zeros((0, 0), np.uint8)
+    return cv2.resize(decoded, (width, height), interpolation=cv2.INTER_LINEAR)
 
 
 def describe_image(image: np.ndarray, count: int, fast_threshold: int,
@@ -110,7 +120,7 @@ class PlaceDatabase:
         self.places: dict[int, KeyframePlace] = {}
         self.vocabulary: BinaryVocabulary | None = None
         self._ids: list[int] = []  # keyframes with words, in insertion order
-        self._rows = np.zeros((0, 0))  # (capacity, V) their words, the first len(_ids) rows used (grown by doubling)
+        self._rows = np.zeros((0, 0), np.float32)  # (capacity, V) their words: the first len(_ids) rows used
         self._segments: list[int] = []  # their segments
 
     @property
@@ -150,7 +160,7 @@ class PlaceDatabase:
         words = self.vocabulary.vector(place.descriptors)
         place.words = words
         if len(self._ids) == len(self._rows):  # full: double (no copy of the whole matrix per keyframe)
-            grown = np.zeros((max(2 * len(self._rows), 64), len(words)))
+            grown = np.zeros((max(2 * len(self._rows), 64), len(words)), np.float32)  # 4 KB a keyframe
             if self._ids:
                 grown[: len(self._ids)] = self._matrix
             self._rows = grown
