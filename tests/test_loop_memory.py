@@ -1,9 +1,12 @@
 """Loop closing's memory follows the place, not the time (issue 56): driven over the same places again, the
 place database keeps per keyframe only its bag of words, its landmarks and a JPEG thumbnail (the features of a
 keyframe already searched for are dropped), revisits are still recognised from it, and tracking's side keeps
-only the few recent places it still reads unless the map is to be saved."""
+only the few recent places it still reads unless the map is to be saved; a keyframe the map has forgotten
+releases its tracks and its landmark table."""
 
 from __future__ import annotations
+
+import sys
 
 import cv2
 import numpy as np
@@ -12,6 +15,7 @@ import pytest
 from vslam_core.config import EngineConfig, LoopConfig
 from vslam_core.loop.closing import LoopClosing
 from vslam_core.loop.places import PlaceDatabase, unpack_thumbnail
+from vslam_core.mapping.local_mapping import LocalMapping
 from vslam_core.mapping.map import Map
 from vslam_core.sources.base import CameraIntrinsics
 
@@ -91,3 +95,19 @@ def test_tracking_keeps_only_recent_places_unless_the_map_is_saved(drive) -> Non
     assert len(loop.places) <= settled + 2
     kept, _, _ = _drive(keep_places=True)
     assert len(kept.places) == 2 * PLACES  # every keyframe submitted
+
+
+def test_a_forgotten_keyframe_releases_its_tracks_and_its_landmark_table() -> None:
+    """A keyframe `map_keyframes` behind the newest keeps its pose only: no view keeping its (N,) track arrays
+    alive, and a landmark set no larger than what it still holds (a set never shrinks by itself)."""
+    mapping = LocalMapping(CAMERA, CONFIG.map, "gt", None)
+    world = mapping.map
+    tracks = np.arange(2000, dtype=np.int64)
+    keyframe = world.add_keyframe(0, 0, np.eye(4), tracks, np.zeros((2000, 2), np.float32), None)
+    for n in range(400):
+        world.add_landmark(np.array([0.0, 0.0, 10.0 + n]), {keyframe.id: np.zeros(2)})
+    full = sys.getsizeof(keyframe.landmark_ids)
+    mapping._forget(keyframe.id, alive_landmarks={0})  # landmark 0 is still tracked: it stays
+    assert keyframe.landmark_ids == {0}
+    assert sys.getsizeof(keyframe.landmark_ids) < full / 20
+    assert len(keyframe.track_ids) == 0 and keyframe.track_ids.base is None and keyframe.pixels.base is None
