@@ -1,5 +1,5 @@
-"""Memory on a street driven again: KITTI 00 frames 0-299 forward, back and forward again (0..299, 298..0,
-1..299, ...), as a car doing the same street, so every frame after the first 300 revisits a mapped place.
+"""Memory on a street driven again: KITTI 00 frames 0-299 forward, back and forward again (0..299, 298..1,
+0..299, ...), as a car doing the same street, so every frame after the first 300 revisits a mapped place.
 
     python -m benchmarks.revisit_memory ../shared/data/kitti  # both backends, RSS at 300 / 900 / 1800 frames
     python -m benchmarks.revisit_memory ../shared/data/kitti --backends map --at 300,900 --no-loops
