@@ -164,6 +164,8 @@ def run_odometry(
         engine = MapLocalisation(source.intrinsics, config, prior_map)
     else:
         engine = (MapTracking if config.backend == "map" else Odometry)(source.intrinsics, config, scale)
+        if isinstance(engine, MapTracking) and engine.loop is not None:
+            engine.loop.keep_places = finish is not None  # only `finish` (saving the map) reads every keyframe's
     run = result if result is not None else RunResult([], [], [])
     start = time.perf_counter()
     completed = False

@@ -40,8 +40,11 @@ class LoopClosing:
         self._settled = config.map.ba_window + config.map.ba_max_fixed + 1  # keyframes after which BA is done
         self._worker = LoopWorker(camera, config, worker)
         self._waiting: tuple[int, np.ndarray] | None = None  # (keyframe id, image) not submitted yet
-        self.places: dict[int, KeyframePlace] = {}  # every keyframe searched, with its features (the map file)
-        self.closed: list[LoopClosed] = []
+        self.places: dict[int, KeyframePlace] = {}  # keyframes searched, with their features (the map file)
+        # every keyframe's place is kept only for a saved map (vslam_core/mapping/storage.py `snapshot`); without
+        # one, only those `_refresh` still reads: the loop data of tracking's process then follows the place
+        self.keep_places = True
+        self.loops_closed = 0  # (the loops themselves go out with their frame's result: each holds every pose twice)
 
     def submit(self, keyframe_id: int, image: np.ndarray) -> None:
         """A keyframe was inserted: its search is submitted at the next insertion (after its bundle adjustment)."""
@@ -82,7 +85,7 @@ class LoopClosing:
         clock = time.perf_counter()
         closed, correction = self._apply(map_, result.graph, result.timings_ms.get("optimise", 0.0))
         timings["apply"] = _lap(clock)
-        self.closed.append(closed)
+        self.loops_closed += 1
         return LoopStep(result.candidates, closed, timings), correction
 
     def _keep_features(self, result: SearchResult) -> None:
@@ -97,6 +100,8 @@ class LoopClosing:
             return
         place = self._place(map_, waiting[0])
         self.places[place.keyframe_id] = place
+        if not self.keep_places:
+            self._drop_places_before(place.keyframe_id - self._settled)
         graph = [k for k in map_.keyframes.values() if k.segment == place.segment and k.id <= place.keyframe_id]
         self._worker.submit(SearchJob(
             keyframe_id=place.keyframe_id, position=place.position, segment=place.segment, image=waiting[1],
@@ -123,6 +128,11 @@ class LoopClosing:
             point_descriptors=(np.array([map_.landmarks[i].descriptor for i in landmark_ids], np.uint8)
                                if landmark_ids else EMPTY_DESCRIPTORS),
             thumbnail=NO_IMAGE)
+
+    def _drop_places_before(self, keyframe_id: int) -> None:
+        """Forget the places of keyframes older than `keyframe_id` (ids ascend in insertion order)."""
+        for old in [k for k in self.places if k < keyframe_id]:
+            del self.places[old]
 
     def _refresh(self, map_: Map, keyframe_id: int) -> tuple[int, np.ndarray] | None:
         """A keyframe's landmarks re-read once bundle adjustment no longer moves them (it left the window and

@@ -34,8 +34,39 @@ class KeyframePlace:
     points_cam: np.ndarray  # (L, 3) its landmarks in its camera frame
     point_pixels: np.ndarray  # (L, 2) where it saw them
     point_descriptors: np.ndarray  # (L, 32) uint8
-    thumbnail: np.ndarray  # (H/2, W/2) uint8 image, for the recording
-    words: np.ndarray | None = None  # (V,) bag of words, once the vocabulary exists
+    thumbnail: np.ndarray  # (H/2, W/2) uint8 image, or once stored its JPEG bytes as (B,) uint8 (for the recording)
+    words: np.ndarray | None = None  # (V,) bag of words, once the vocabulary exists (until it was searched for)
+
+
+THUMBNAIL_QUALITY = 80  # a stored keyframe's thumbnail: JPEG of it at half its size (KITTI: ~7.5 KB, not 117 KB)
+
+
+def pack_thumbnail(image: np.ndarray) -> np.ndarray:
+    """(4 + B,) uint8: the (H, W) uint8 thumbnail's height and width (two little-endian uint16), then the JPEG
+    bytes of it at half that size (an empty one stays empty). A stored keyframe is only ever shown as a loop
+    candidate beside its query, whose thumbnail is the full one."""
+    if image.size == 0:
+        return np.zeros(0, np.uint8)
+    small = cv2.resize(image, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
+    ok, encoded = cv2.imencode(".jpg", small, [cv2.IMWRITE_JPEG_QUALITY, THUMBNAIL_QUALITY])
+    if not ok:
+        return np.zeros(0, np.uint8)
+    shape = np.array(image.shape, "<u2").view(np.uint8)
+    return np.concatenate((shape, np.asarray(encoded, np.uint8).reshape(-1)))
+
+
+def unpack_thumbnail(stored: np.ndarray) -> np.ndarray:
+    """The (H, W) uint8 thumbnail of `pack_thumbnail`'s bytes, scaled back to its size (an image not packed is
+    returned as it is)."""
+    if stored.ndim == 2:
+        return stored
+    if stored.size <= 4:
+        return np.zeros((0, 0), np.uint8)
+    height, width = (int(v) for v in stored[:4].view("<u2"))
+    decoded = cv2.imdecode(stored[4:], cv2.IMREAD_GRAYSCALE)
+    if decoded is None:
+        return np.zeros((0, 0), np.uint8)
+    return cv2.resize(decoded, (width, height), interpolation=cv2.INTER_LINEAR)
 
 
 def describe_image(image: np.ndarray, count: int, fast_threshold: int,
@@ -77,7 +108,11 @@ def _strongest(points: np.ndarray, response: np.ndarray, count: int) -> np.ndarr
 
 
 class PlaceDatabase:
-    """The keyframes seen so far, their bags of words, and the search for places a keyframe revisits."""
+    """The keyframes seen so far, their bags of words, and the search for places a keyframe revisits.
+
+    Kept compact, since it grows with every keyframe of the drive (docs/map-backend.md, memory): once a keyframe
+    was searched for (`compact`), it keeps only what a later search uses of it as a candidate (its bag of words,
+    its landmarks, a JPEG thumbnail), not its 1000 features (~40 KB): only the query's features are matched."""
 
     def __init__(self, config: LoopConfig, seed: int) -> None:
         self._config = config
@@ -85,7 +120,26 @@ class PlaceDatabase:
         self.places: dict[int, KeyframePlace] = {}
         self.vocabulary: BinaryVocabulary | None = None
         self._ids: list[int] = []  # keyframes with words, in insertion order
-        self._matrix = np.zeros((0, 0))  # (N, V) their words
+        self._rows = np.zeros((0, 0), np.float32)  # (capacity, V) their words: the first len(_ids) rows used
+        self._segments: list[int] = []  # their segments
+
+    @property
+    def _matrix(self) -> np.ndarray:
+        """(N, V) the words of the keyframes with words."""
+        return self._rows[: len(self._ids)]
+
+    def compact(self, keyframe_id: int) -> None:
+        """The keyframe was searched for: drop its features once the vocabulary no longer needs them (it is
+        built from the first keyframes' features), and keep its thumbnail as JPEG bytes."""
+        place = self.places.get(keyframe_id)
+        if place is None:
+            return
+        place.thumbnail = pack_thumbnail(place.thumbnail) if place.thumbnail.ndim == 2 else place.thumbnail
+        place.words = None  # its row of the words matrix is what later searches score
+        if self.vocabulary is not None:
+            for stored in self.places.values():
+                if len(stored.descriptors) and stored.keyframe_id <= keyframe_id:
+                    stored.pixels, stored.descriptors = stored.pixels[:0].copy(), EMPTY_DESCRIPTORS
 
     def add(self, place: KeyframePlace) -> None:
         """Store a keyframe; the vocabulary is built once `vocabulary_keyframes` keyframes are stored."""
@@ -103,10 +157,16 @@ class PlaceDatabase:
 
     def _index(self, place: KeyframePlace) -> None:
         assert self.vocabulary is not None
-        place.words = self.vocabulary.vector(place.descriptors)
+        words = self.vocabulary.vector(place.descriptors)
+        place.words = words
+        if len(self._ids) == len(self._rows):  # full: double (no copy of the whole matrix per keyframe)
+            grown = np.zeros((max(2 * len(self._rows), 64), len(words)), np.float32)  # 4 KB a keyframe
+            if self._ids:
+                grown[: len(self._ids)] = self._matrix
+            self._rows = grown
+        self._rows[len(self._ids)] = words
         self._ids.append(place.keyframe_id)
-        row = place.words[None, :]
-        self._matrix = row if len(self._ids) == 1 else np.concatenate((self._matrix, row))
+        self._segments.append(place.segment)
 
     def candidates(self, query: KeyframePlace) -> list[tuple[int, float]]:
         """(keyframe id, score) of the best-scoring older keyframes of the query's segment, at least
@@ -123,7 +183,7 @@ class PlaceDatabase:
         if not neighbours.any():
             return []
         threshold = cfg.min_score_ratio * float(scores[neighbours].max())
-        segment = np.array([self.places[int(i)].segment == query.segment for i in ids])
+        segment = np.array(self._segments, np.int64) == query.segment
         eligible = segment & (ids <= query.keyframe_id - cfg.min_separation_keyframes) & (scores >= threshold)
         order = np.flatnonzero(eligible)[np.argsort(-scores[eligible], kind="stable")]
         return [(int(ids[i]), float(scores[i])) for i in order[: cfg.max_candidates]]

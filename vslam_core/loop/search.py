@@ -20,7 +20,7 @@ import numpy as np
 from vslam_core.config import EngineConfig
 from vslam_core.geometry import invert_pose
 from vslam_core.lens import distort_pixels
-from vslam_core.loop.places import KeyframePlace, PlaceDatabase, describe_image
+from vslam_core.loop.places import KeyframePlace, PlaceDatabase, describe_image, unpack_thumbnail
 from vslam_core.loop.pose_graph import LoopEdge, optimise
 from vslam_core.loop.verification import Verification, verify
 from vslam_core.mapping.local_mapping import DESCRIPTOR_PATCH
@@ -125,7 +125,9 @@ class LoopSearch:
             clock = time.perf_counter()
             graph = self._optimise(job, query, best[0], best[2])
             timings["optimise"] = _lap(clock)
-        return SearchResult(job.keyframe_id, query.pixels, query.descriptors, candidates, graph, timings)
+        pixels, descriptors = query.pixels, query.descriptors
+        self.database.compact(query.keyframe_id)  # after its verification: its features go back with the result
+        return SearchResult(job.keyframe_id, pixels, descriptors, candidates, graph, timings)
 
     # -- steps ------------------------------------------------------------------------------------------------
 
@@ -190,7 +192,7 @@ class LoopSearch:
             accepted=accepted, why=result.rejected if result.rejected is not None else why,
             query_pixels=result.query_pixels, candidate_pixels=self._raw(result.candidate_pixels),
             inlier_mask=result.inlier_mask, T_candidate_query=result.T_candidate_query,
-            query_image=query.thumbnail, candidate_image=place.thumbnail)
+            query_image=unpack_thumbnail(query.thumbnail), candidate_image=unpack_thumbnail(place.thumbnail))
 
     def _raw(self, ideal: np.ndarray) -> np.ndarray:
         """(M, 2) ideal pixels (the map's observations) on the raw image, where overlays are drawn (NaN stays)."""

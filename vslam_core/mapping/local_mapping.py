@@ -297,8 +297,13 @@ class LocalMapping:
                      if landmark.last_keyframe <= keyframe_id and i not in alive_landmarks]
         for landmark_id in forgotten:
             self.map.remove_landmark(landmark_id)
-        keyframe.track_ids = keyframe.track_ids[:0]
-        keyframe.pixels = keyframe.pixels[:0]
+        # copies, not views (a view of no rows keeps the whole array alive), and the landmark sets rebuilt: a set
+        # keeps the table it grew to however many it still holds (~16 KB a keyframe, for the whole run)
+        keyframe.track_ids = keyframe.track_ids[:0].copy()
+        keyframe.pixels = keyframe.pixels[:0].copy()
+        for old in (keyframe, self.map.keyframes.get(keyframe_id - self._config.map_keyframes)):
+            if old is not None:
+                old.landmark_ids = set(old.landmark_ids)
         return len(forgotten)
 
     def _view(self, previous_window: list[int]) -> MapView:
