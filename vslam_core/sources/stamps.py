@@ -8,7 +8,6 @@ from pathlib import Path
 import numpy as np
 
 from vslam_core.errors import SourceError, TrajectoryFormatError
-from vslam_core.geometry import interpolate_pose
 from vslam_core.sources.base import rebase_poses
 from vslam_core.trajectory.io import check_ground_truth_steps, detect_format, read_kitti_poses, read_tum_poses
 
@@ -93,6 +92,8 @@ def interpolated_ground_truth(
             f"ground truth spans {stamps[0]:.6f}–{stamps[-1]:.6f} s); frames {runs} are: choose --frames inside them "
             "or widen --gt-tolerance (the largest gap interpolated over)")
     fraction = np.where(gap > 0, (frame_stamps - stamps[before]) / np.where(gap > 0, gap, 1.0), 0.0)
+    from vslam_core.geometry import interpolate_pose  # here: geometry loads OpenCV, which `vslam --help` never needs
+
     matched = np.stack([interpolate_pose(poses[b], poses[a], float(f))
                         for b, a, f in zip(before, after, fraction, strict=True)])
     farthest = np.minimum(frame_stamps - stamps[before], stamps[after] - frame_stamps)

@@ -226,6 +226,9 @@ class TumRgbdSource(ImageFilesSource):
             self._ground_truth, self.gt_matching = interpolated_ground_truth(
                 self._times[np.asarray(self._indices)] + gt_time_offset_s, gt_stamps, gt_poses, gt_max_gap_s,
                 f"{folder} ({gt_file.name})", self._indices)
+            if gt_time_offset_s:
+                self.gt_matching += (f", the ground truth's clock {gt_time_offset_s:+.3f} s from the frames' "
+                                     "(--gt-time-offset)")
         accelerometer = folder / ACCELEROMETER_FILE
         self.gravity_by_frame: dict[int, np.ndarray] = {}
         if accelerometer.is_file():

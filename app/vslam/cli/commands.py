@@ -330,10 +330,10 @@ def snapshot_command(
     from vslam.viewer import parse_frame, parse_size, snapshot
 
     window = parse_size(size)
+    recording = _existing_recording(recording)  # before the contract: its own one line, said once
     try:
         with schema_contract(recording):  # a recording `vslam check` rejects: one line, never a traceback
-            paths = snapshot(_existing_recording(recording), parse_frame(frame), out_dir, window_size=window,
-                             only=view or ())
+            paths = snapshot(recording, parse_frame(frame), out_dir, window_size=window, only=view or ())
     except KeyboardInterrupt:
         fail(f"snapshot interrupted: no picture written to {out_dir}", 130)
     for path in paths:
@@ -357,8 +357,9 @@ def open_command(
 
     refuse(port_problem(web_port, "--web-port"))
     refuse(port_problem(grpc_port, "--grpc-port"))
+    recording = _existing_recording(recording)  # before the contract: its own one line, said once
     with schema_contract(recording):  # a recording `vslam check` rejects: one line, never a traceback
-        open_recording(_existing_recording(recording), web=web, web_port=web_port, grpc_port=grpc_port)
+        open_recording(recording, web=web, web_port=web_port, grpc_port=grpc_port)
 
 
 @app.command()

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import polars as pl
+import typer
 from rerun.chunk import Chunk
 
 from vslam.recording import (
@@ -262,6 +263,8 @@ def schema_contract(*paths: Path) -> Iterator[None]:
     try:
         yield
     except VslamError:  # already one line
+        raise
+    except typer.Exit:  # the command already said its one line (`fail`)
         raise
     except Exception as exc:  # noqa: BLE001 - see above: re-raised unless a recording breaks the schema
         for path in paths:
