@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
 import pytest
 import rerun as rr
 from cli_helpers import need_vulkan, vslam
@@ -136,8 +137,8 @@ def write_sdk(path: Path, frames: list[int], options: set[str], series: set[str]
             rec.log("/health", rr.AnyValues(status="ok", reasons=""))  # reasons="" (no such component at all)
         if "health" in options:
             status: object = ["ok", "warn", "fail"][k % 3]
-            if broken == "numeric_health":
-                status = k % 3
+            if broken == "numeric_health":  # an Arrow array: the SDK's type cache (per process, per
+                status = pa.array([k % 3], pa.int64())  # component name) would refuse an int after a string
             elif broken == "unknown_health" and k == 1:
                 status = "broken"
             rec.log("/health", rr.AnyValues(status=status, reasons="few_matches" if k % 3 else ""))
