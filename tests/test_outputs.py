@@ -208,8 +208,10 @@ def test_a_recording_cut_at_half_its_size_is_read_to_its_last_whole_frame(killed
     recorded, whole = camera_frames(cut), camera_frames(killed.rrd)
     images = [int(f) for f in read_entity(cut, "/world/camera/image")["frame"].to_list()]
     assert recorded == list(range(len(recorded))) and set(recorded) <= set(images)
-    # one flush (a second, a few frames under load) lost at most, beyond the half of the frames that was cut away
-    assert len(recorded) >= len(whole) // 2 - 15, (len(recorded), len(whole))
+    # one flush (a second of frames) lost at most, beyond the half of the frames that was cut away: as many frames
+    # as the run wrote in its last two seconds (a few under load, a few dozen when the busy loops lose the cores)
+    two_seconds = len(whole) - max((count for ago, count in killed.poses_at if ago >= 2.0), default=0)
+    assert len(recorded) >= len(whole) // 2 - max(15, two_seconds), (len(recorded), len(whole), two_seconds)
     last = recorded[-1]
     text = vslam("inspect", cut)
     assert text.returncode == 0, text.stderr
