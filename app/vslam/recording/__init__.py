@@ -54,7 +54,7 @@ _HOMES = {
     "MapRecording": "map_backend",
     "HEALTH_LEVELS": "metrics", "MAP_METRICS": "metrics", "MAP_STAGES": "metrics", "METRICS": "metrics",
     "MODE_LEVELS": "metrics", "STAGES": "metrics", "frame_metrics": "metrics", "map_frame_metrics": "metrics",
-    "Recorder": "recorder", "road_outline": "stream", "version_properties": "stream",
+    "Recorder": "recorder", "road_outline": "front_end", "version_properties": "stream",
     "APPLICATION_ID": "styles", "FATE_STYLE": "styles", "Detail": "levels", "ImageCodec": "levels",
     "JPEG_QUALITY": "levels",
     "CAR_ENTITY": "layout", "EYE_OFFSET": "layout",
@@ -69,6 +69,7 @@ if TYPE_CHECKING:
     from vslam.recording.columns import FLUSH_BYTES, FLUSH_FRAMES, ColumnBuffer
     from vslam.recording.drift import DRIFT_ENTITY, LINKS_ENTITY, WORST
     from vslam.recording.external import ExternalRun, RunFrames, record_external
+    from vslam.recording.front_end import road_outline
     from vslam.recording.layout import CAR_ENTITY, EYE_OFFSET, blueprint
     from vslam.recording.levels import JPEG_QUALITY, Detail, ImageCodec
     from vslam.recording.map_backend import MapRecording
@@ -93,7 +94,7 @@ if TYPE_CHECKING:
         TIMELINES,
         EntitySpec,
     )
-    from vslam.recording.stream import road_outline, version_properties
+    from vslam.recording.stream import version_properties
     from vslam.recording.styles import APPLICATION_ID, FATE_STYLE
     from vslam.recording.video import RERUN_CODEC, VIDEO_SETTINGS, open_encoder
 

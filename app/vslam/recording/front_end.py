@@ -1,5 +1,6 @@
 """The front end's per-frame entities that are pure functions of one frame's result: the four candidate poses,
-the road under the camera (``--scale height``) and the frame's events (`Recorder.log_frame` calls them)."""
+the road under the camera (``--scale height``, and the outline of its plane: `road_outline`) and the frame's events
+(`Recorder.log_frame` calls them)."""
 
 from __future__ import annotations
 
@@ -7,7 +8,6 @@ import numpy as np
 import rerun as rr
 
 from vslam.recording.columns import ColumnBuffer, add_event
-from vslam.recording.stream import road_outline
 from vslam_core.geometry import invert_pose
 from vslam_core.lens import distort_pixels
 from vslam_core.results import FrameResult, FrameStatus, HealthStatus, Reason
@@ -77,3 +77,14 @@ def log_events(columns: ColumnBuffer, frame: Frame, result: FrameResult) -> None
             what = "dead-reckoned" if Reason.COASTED in health.reasons else "pose held"
         event(f"{health.status} ({what}): " + ", ".join(health.reasons),
               "ERROR" if health.status == HealthStatus.FAIL else "WARN")
+
+
+def road_outline(normal: np.ndarray, height: float, half_width: float = 2.0, near: float = 4.0,
+                 far: float = 20.0) -> np.ndarray:
+    """(5, 3) closed outline of the plane nᵀ·X = height (camera frame) over x ∈ ±half_width, z ∈ [near, far]
+    metres: the patch of road ahead that the plane describes."""
+    corners = []
+    for x, z in ((-half_width, near), (half_width, near), (half_width, far), (-half_width, far), (-half_width, near)):
+        y = (height - normal[0] * x - normal[2] * z) / normal[1]
+        corners.append((x, y, z))
+    return np.array(corners)

@@ -8,7 +8,6 @@ import time
 from pathlib import Path
 
 import cv2
-import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
@@ -104,17 +103,6 @@ def close_stream(rec: rr.RecordingStream, stuck: bool) -> None:
         hold_stuck_writer(rec)
     else:
         rec.disconnect()
-
-def road_outline(normal: np.ndarray, height: float, half_width: float = 2.0, near: float = 4.0,
-                 far: float = 20.0) -> np.ndarray:
-    """(5, 3) closed outline of the plane nᵀ·X = height (camera frame) over x ∈ ±half_width, z ∈ [near, far]
-    metres: the patch of road ahead that the plane describes."""
-    corners = []
-    for x, z in ((-half_width, near), (half_width, near), (half_width, far), (-half_width, far), (-half_width, near)):
-        y = (height - normal[0] * x - normal[2] * z) / normal[1]
-        corners.append((x, y, z))
-    return np.array(corners)
-
 
 def version_properties() -> dict[str, str]:
     """The versions a recording states: vslam's, OpenCV's and Rerun's."""
