@@ -8,6 +8,7 @@ import json
 from pathlib import Path
 
 import cli_helpers
+import cv2
 import numpy as np
 import pytest
 from kitti_runs import kitti_folder
@@ -107,10 +108,20 @@ def test_candidates_and_images_are_recorded(revisit: tuple[Path, list[int]]) -> 
     inliers = [n for row in candidates["inliers"].to_list() for n in row]
     assert min(n for n, a in zip(inliers, accepted, strict=True) if a) >= 40
     image = read_entity(rrd, "/loops/candidate/image")
-    assert len(image) >= 1  # query and candidate side by side, half size: 2 x 620 wide
-    assert "Image:buffer" in image.columns
+    assert len(image) >= 1
+    assert set(image["EncodedImage:media_type"].explode().to_list()) == {"image/jpeg"}
     matches = read_entity(rrd, "/loops/candidate/image/matches")
     assert len(matches) == len(image)
+    first = cv2.imread(str(sorted((rrd.parent / "images").glob("*.png"))[0]), cv2.IMREAD_GRAYSCALE)
+    for blob, strips in zip(image["EncodedImage:blob"].to_list(), matches["LineStrips2D:strips"].to_list(),
+                            strict=True):
+        side = cv2.imdecode(np.frombuffer(bytes(blob[0]), np.uint8), cv2.IMREAD_UNCHANGED)
+        # query and candidate side by side, half size, grey
+        assert side.ndim == 2 and side.shape[1] == 2 * (first.shape[1] // 2), (side.shape, first.shape)
+        assert side.std() > 10  # frames, not an empty canvas
+        ends = np.array(strips, np.float64).reshape(-1, 2)  # every match line's two ends, pixels of `side`
+        assert (ends >= 0).all() and (ends[:, 0] < side.shape[1]).all() and (ends[:, 1] < side.shape[0]).all()
+    assert any(matches["LineStrips2D:strips"].to_list())
     edges = read_entity(rrd, "/world/loops/edges")
     assert len(edges) == len(read_entity(rrd, "/loops/closed"))
     for name in ("/world/loops/before", "/world/loops/after"):
