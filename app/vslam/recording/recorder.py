@@ -158,7 +158,8 @@ class Recorder:
             entities = ["/world/camera/image"] + ([UNDISTORTED] if self._undistort is not None else [])
             self._videos = {e: VideoEntity(self._rec, e, image_codec, self._encoder) for e in entities}
         # the map backend's entities (statics logged here; nothing at all is logged with the odometry backend)
-        self._map = (MapRecording(self._rec, self._columns, source.intrinsics, detail, self._gt)
+        self._map = (MapRecording(self._rec, self._columns, source.intrinsics, detail, self._gt,
+                                  jpeg_quality)
                      if config.backend == "map" else None)
         self._check_written()  # the properties on disk before the first frame: a run killed in it says what it was
 
@@ -333,7 +334,8 @@ class Recorder:
         log_events(self._columns, frame, result)
         if result.mapping is not None:
             if self._map is None:
-                self._map = MapRecording(self._rec, columns, self._intrinsics, self.detail, self._gt)
+                self._map = MapRecording(self._rec, columns, self._intrinsics, self.detail, self._gt,
+                                         self._jpeg_quality)
             self._map.log_frame(frame, result, result.mapping)
         self._overview.add(frame.index, pose[:3, 3],
                            0 if "status" in unreported else HEALTH_LEVELS[result.health.status])

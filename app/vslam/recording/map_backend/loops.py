@@ -41,8 +41,11 @@ AFTER_COLOUR = (0, 200, 255)
 class LoopRecording:
     """Logs what loop closing did at each keyframe."""
 
-    def __init__(self, rec: rr.RecordingStream, columns: ColumnBuffer, detail: Detail) -> None:
+    def __init__(self, rec: rr.RecordingStream, columns: ColumnBuffer, detail: Detail,
+                 jpeg_quality: int = JPEG_QUALITY) -> None:
+        """`jpeg_quality`: of the candidate image (the camera frames')."""
         self._rec = rec
+        self._jpeg_quality = jpeg_quality
         self._columns = columns
         self._detail = detail
         self._indices: dict[int, int] = {}  # run position -> source frame index
@@ -122,7 +125,7 @@ class LoopRecording:
                           + np.array([left.shape[1], 0], np.float32))
         # JPEG, not raw pixels: ~15 KB instead of ~70 KB (LZ4 of 2 x 620 x 188 grey) at each keyframe that
         # searched, a map run's largest entity after the camera frames and the flow arrows
-        ok, jpeg = cv2.imencode(".jpg", side, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+        ok, jpeg = cv2.imencode(".jpg", side, [cv2.IMWRITE_JPEG_QUALITY, self._jpeg_quality])
         if not ok:
             raise RecordingError("JPEG encoding of a loop candidate image failed")
         self._rec.log("/loops/candidate/image", rr.EncodedImage(contents=bytes(jpeg.tobytes()),

@@ -58,7 +58,7 @@ import numpy as np
 import rerun as rr
 
 from vslam.recording.columns import ColumnBuffer, Part, add_event
-from vslam.recording.levels import Detail
+from vslam.recording.levels import JPEG_QUALITY, Detail
 from vslam.recording.map_backend import local_map
 from vslam.recording.map_backend.loops import LoopRecording
 from vslam.recording.metrics import MAP_METRICS, MAP_STAGES, MAP_TIMING, map_frame_metrics
@@ -97,7 +97,7 @@ class MapRecording:
     """Buffers the map backend's entities of each frame into the recorder's column buffer."""
 
     def __init__(self, rec: rr.RecordingStream, columns: ColumnBuffer, intrinsics: CameraIntrinsics,
-                 detail: Detail, ground_truth: np.ndarray | None = None) -> None:
+                 detail: Detail, ground_truth: np.ndarray | None = None, jpeg_quality: int = JPEG_QUALITY) -> None:
         self._columns = columns
         self._truth = ground_truth[:, :3, 3] if ground_truth is not None else None  # (N, 3) positions
         self._previous: tuple[int, np.ndarray] | None = None  # run position and centre of the last frame with a pose
@@ -105,7 +105,7 @@ class MapRecording:
         self._frustum = frustum_outline(intrinsics.K, intrinsics.width, intrinsics.height, FRUSTUM_DEPTH)
         self._segment: int | None = None
         self._log_static(rec)
-        self._loops = LoopRecording(rec, columns, detail)
+        self._loops = LoopRecording(rec, columns, detail, jpeg_quality)
 
     def _log_static(self, rec: rr.RecordingStream) -> None:
         for group, series in MAP_METRICS.items():
