@@ -11,6 +11,7 @@ import cli_helpers
 import cv2
 import numpy as np
 import pytest
+import rerun as rr
 from kitti_runs import kitti_folder
 from rerun.chunk import RrdReader
 
@@ -183,3 +184,40 @@ def test_no_loop_on_an_open_route(open_route: tuple[Path, list[int]]) -> None:
     assert read_entity(rrd, "/loops/closed").is_empty()
     result = cli_helpers.vslam("inspect", rrd, "--json")
     assert json.loads(result.stdout)["loops"] == []
+
+
+def _candidate_image(tmp: Path, quality: int, left: np.ndarray, right: np.ndarray) -> np.ndarray:
+    """The `/loops/candidate/image` a map recording at JPEG `quality` writes for one candidate, decoded."""
+    from vslam.recording.columns import ColumnBuffer
+    from vslam.recording.levels import Detail
+    from vslam.recording.map_backend.loops import LoopRecording
+    from vslam_core.results import LoopCandidate, LoopStep
+    from vslam_core.sources.base import Frame
+
+    path = tmp / f"q{quality}.rrd"
+    rec = rr.RecordingStream("loop-image-test")
+    rec.save(path)
+    columns = ColumnBuffer(rec)
+    loops = LoopRecording(rec, columns, Detail.STANDARD, jpeg_quality=quality)
+    pixels = np.array([[10.0, 20.0], [50.0, 30.0]])
+    candidate = LoopCandidate(3, 30, 0, 0, 0.5, 2, 2, False, "2 inliers < 40", pixels, pixels,
+                              np.array([True, False]), None, left, right)
+    loops.log_frame(Frame(30, None, np.zeros((0, 0), np.uint8)), 30, LoopStep(candidates=(candidate,)))
+    columns.flush()
+    rec.disconnect()
+    blob = read_entity(path, "/loops/candidate/image")["EncodedImage:blob"].to_list()[0][0]
+    return np.asarray(cv2.imdecode(np.frombuffer(bytes(blob), np.uint8), cv2.IMREAD_UNCHANGED))
+
+
+def test_candidate_image_is_a_jpeg_at_the_run_quality(tmp_path: Path) -> None:
+    """The query (left) and candidate (right) thumbnails side by side, JPEG at the recording's --jpeg-quality."""
+    rng = np.random.default_rng(0)
+    left = cv2.GaussianBlur(rng.integers(0, 256, (94, 160), np.uint8), (5, 5), 2)
+    right = cv2.GaussianBlur(rng.integers(0, 256, (94, 160), np.uint8), (5, 5), 2)
+    side = np.hstack([left, right]).astype(np.float64)
+    errors = {}
+    for quality in (10, 95):
+        decoded = _candidate_image(tmp_path, quality, left, right)
+        assert decoded.shape == side.shape
+        errors[quality] = float(np.abs(decoded - side).mean())
+    assert errors[95] < 2.0 < errors[10]  # near the thumbnails at q95, visibly coarser at q10: the quality is used
