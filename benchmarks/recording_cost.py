@@ -3,6 +3,7 @@
     python -m benchmarks.recording_cost ../shared/data/kitti --sequence 05 --frames 0:300 --backends vo,map \
         --levels off,summary,standard,full --repeats 3 --csv cost.csv
     python -m benchmarks.recording_cost synthetic --frames 0:1500 --levels off,full   # memory over a long run
+    python -m benchmarks.recording_cost ../shared/data/kitti --sequence 05 --backends vo,map --pace 10  # a live drive
 
 Each (backend, level) runs in its own process, one after the other so they do not compete for the 2 cores,
 `--repeats` times (the levels interleaved, so a burst of other work on the machine hits every level alike):
@@ -11,7 +12,9 @@ its threads: less sensitive to other work on the machine than wall time, but bli
 engine); the recorder's own time per frame on the calling thread; the file's KB per frame; peak RSS, and RSS
 after the first third and at the end of the run (flat memory = the recording does not accumulate in memory).
 Timings on a shared machine are noisy: the table keeps the fastest repeat of each (`added` compares fastest
-with fastest).
+with fastest). `--pace HZ` feeds the frames no faster than HZ a second, as a live drive does: the file's size
+then is a live recording's (rows are written every second, so KB per frame follow the frame rate); its times
+are not the run's cost.
 """
 
 from __future__ import annotations
@@ -35,8 +38,8 @@ from vslam_core.sources.kitti import KittiSource
 from vslam_core.sources.synthetic import SyntheticStreet
 
 
-def _measure(args: tuple[str, str, str, str, str, str, int]) -> dict[str, object]:
-    root, sequence, frames, level, backend, codec, quality = args
+def _measure(args: tuple[str, str, str, str, str, str, int, float]) -> dict[str, object]:
+    root, sequence, frames, level, backend, codec, quality, pace = args
     detail = Detail(level)
     config = EngineConfig().with_backend(backend)  # type: ignore[arg-type]
     selection = FrameRange.parse(frames)
@@ -46,6 +49,7 @@ def _measure(args: tuple[str, str, str, str, str, str, int]) -> dict[str, object
     )
     rss: list[float] = []
     record_ms: list[float] = []
+    begun = [time.perf_counter()]  # when the run started (`--pace`)
     with tempfile.TemporaryDirectory() as folder:
         path = Path(folder) / "run.rrd"
         recorder = None if detail == Detail.OFF else Recorder(path, source, config, {"name": "bench"},
@@ -59,8 +63,11 @@ def _measure(args: tuple[str, str, str, str, str, str, int]) -> dict[str, object
                 record_ms.append((time.perf_counter() - start) * 1000)
             if result.position in (len(source) // 3, len(source) - 1):
                 rss.append(status_mb("VmRSS"))
+            if pace and (wait := begun[0] + (result.position + 1) / pace - time.perf_counter()) > 0:
+                time.sleep(wait)  # not before this frame's time of a live camera at `pace` Hz
 
         start, cpu = time.perf_counter(), time.process_time()
+        begun[0] = start
         run: RunResult = run_odometry(source, config, sinks=(sink,))
         if recorder is not None:
             recorder.close()
@@ -91,6 +98,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=1, help="runs of each; the fastest is kept")
     parser.add_argument("--image-codec", default="jpeg", choices=[c.value for c in ImageCodec])
     parser.add_argument("--jpeg-quality", type=int, default=JPEG_QUALITY)
+    parser.add_argument("--pace", type=float, default=0.0, help="frames a second at most (a live camera); 0: none")
     args = parser.parse_args()
     levels = args.levels.split(",")
     if "off" not in levels:
@@ -103,7 +111,7 @@ def main() -> None:
                 # not a multiprocessing.Pool: its workers are daemons, and the map backend starts a process
                 with ProcessPoolExecutor(1, mp_context=context) as pool:
                     rows.append(pool.submit(_measure, (str(args.root), args.sequence, args.frames, level, backend,
-                                                       args.image_codec, args.jpeg_quality)).result())
+                                                       args.image_codec, args.jpeg_quality, args.pace)).result())
     every = pl.DataFrame(rows)
     table = every.group_by("backend", "detail", maintain_order=True).agg(
         pl.col("ms_per_frame").min(), pl.col("ms_per_frame").max().alias("ms_max"), pl.col("cpu_ms_per_frame").min(),
@@ -118,7 +126,8 @@ def main() -> None:
         table.write_csv(args.csv)
     name = "synthetic street" if args.root == "synthetic" else "KITTI " + args.sequence
     print(f"{name}, frames {args.frames}, images {args.image_codec}"
-          + (f" q{args.jpeg_quality}" if args.image_codec == "jpeg" else "") + f", fastest of {args.repeats}")
+          + (f" q{args.jpeg_quality}" if args.image_codec == "jpeg" else "") + f", fastest of {args.repeats}"
+          + (f", paced at {args.pace:g} Hz" if args.pace else ""))
     print("| backend | detail | ms/frame (slowest) | added vs off | CPU ms/frame | CPU added | recorder ms/frame "
           "(caller thread) | KB/frame | RSS at 1/3 → end MB | peak RSS MB |")
     print("|---|---|---|---|---|---|---|---|---|---|")
