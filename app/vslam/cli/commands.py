@@ -113,7 +113,9 @@ def run(
                                                 "[default: recordings/<source>_<frames>_<time>-<run id>.rrd]")]
     = None,
     detail: Annotated[Detail, typer.Option(help="full = every intermediate; standard = no 3-D points or per-track "
-                                            "hover data; summary = no image or per-point data; off = no file")]
+                                            "hover data; summary = no image or per-point data; off = no file "
+                                            "(KITTI at 10 Hz, vo / map: full 63 / 79 KB a frame, standard 57 / 70, "
+                                            "summary 6 / 9; docs/recordings.md)")]
     = Detail.FULL,
     jpeg_quality: Annotated[int, typer.Option(min=1, max=100,
                                               help="JPEG quality of the recorded frames")] = JPEG_QUALITY,
