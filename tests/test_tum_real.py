@@ -126,16 +126,31 @@ def _steps(source: TumRgbdSource, hold: bool) -> tuple[list[int], list[int]]:
 
 def test_steps_of_a_hand_held_start_are_held_not_reversed(tum_root: Path) -> None:
     """fr1_desk's first 50 frames (hand-held, 30 Hz, ~1 cm a frame 1 m from the desk): without the rule three
-    two-view steps come out against the true one (measured: frames 4, 19, 45); with it, the frames whose step
-    went against the motion model's are held to it (named in their health) and only a step right after a held one
-    (the rule never holds twice in a row, so that a real reversal is taken) may still be reversed (measured:
-    frame 4, after 3)."""
+    frame-to-frame steps come out against the true one (measured: frames 4, 21, 22); with it, steps whose
+    direction went against the motion model's (the world direction of the step accepted on the frame before,
+    from its own keyframe) are held to it, named in their health (measured: 4 and 22), and at most one is still
+    reversed (measured: 21, a step measured from a keyframe several frames back whose direction agreed with the
+    model's)."""
     source = TumRgbdSource(tum_root / DESK, frames=FrameRange.parse("0:50"))
     reversed_off, _ = _steps(source, hold=False)
     assert len(reversed_off) >= 3, reversed_off
     reversed_on, held = _steps(source, hold=True)
-    assert len(reversed_on) <= 1 and {19, 45} <= set(held), (reversed_on, held)
-    assert all(position - 1 in held for position in reversed_on), (reversed_on, held)
+    assert len(reversed_on) <= 1 and len(held) >= 2, (reversed_on, held)
+    assert set(held) <= set(reversed_off), (held, reversed_off)  # it held steps that would have been reversed
+
+
+def test_rotation_of_fr1_desk_is_not_lost_to_short_steps(tum_root: Path) -> None:
+    """fr1_desk's first 100 frames (3.3 s, hand-held, 30 Hz), vo with ground-truth scale: chained one-frame
+    two-view steps lose the rotation about the camera's x axis (traded for a sideways step); measuring from a
+    keyframe until 10 px of parallax are left once the rotation is removed (``pose.keyframe_parallax_px``) keeps
+    it. Measured: 4.7° off at the last frame (8.0° with a keyframe on every frame, keyframe_parallax_px 0)."""
+    source = TumRgbdSource(tum_root / DESK, frames=FrameRange.parse("0:100"))
+    run = run_odometry(source, EngineConfig(scale="gt", threads=1))
+    truth, poses = source.ground_truth, run.pose_array()
+    assert truth is not None and run.held == 0
+    true_turn = truth[0, :3, :3].T @ truth[-1, :3, :3]
+    estimated_turn = poses[0, :3, :3].T @ poses[-1, :3, :3]
+    assert math.degrees(rotation_angle(true_turn.T @ estimated_turn)) < 6.0
 
 
 def test_a_run_on_fr1_xyz_against_its_ground_truth(tum_root: Path, tmp_path: Path) -> None:

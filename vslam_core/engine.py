@@ -7,10 +7,12 @@ pixels of the scale estimate are ideal pixels too.
 Per frame: KLT-track the live tracks (forward–backward checked) → 5-point essential matrix in RANSAC
 between the keyframe and this frame → the four candidate poses and their chirality counts → (refined)
 winner → scale → T_w_cur = T_w_key · T_key_cur → re-detect FAST corners where tracks are missing.
-The keyframe is the last frame whose motion was accepted: a frame that cannot be trusted (too little
-parallax, too few inliers, …) keeps the previous pose, and the next frame is measured from the keyframe
-with a longer baseline. A frame too degraded to track (blurred, dark, washed out), or one whose tracks are
-lost, is dead-reckoned from its contrast-normalised image (`vslam_core.coasting`, flagged `coasted`) rather
+The keyframe is the last frame whose motion was accepted with enough parallax once the rotation is
+removed (``pose.keyframe_parallax_px``; with less, the frame is placed but the next one is measured from the
+same keyframe: chained short steps lose rotation); a frame that cannot be trusted (too little parallax, too
+few inliers, …) keeps the previous pose, and the next frame is measured from the keyframe with a longer
+baseline. A frame too degraded to track (blurred, dark, washed out), or one whose tracks are lost, is
+dead-reckoned from its contrast-normalised image (`vslam_core.coasting`, flagged `coasted`) rather
 than held, so that a turn taken while the camera was blind is not lost.
 """
 
@@ -73,6 +75,9 @@ class Odometry:
         self._previous: np.ndarray | None = None  # last usable image
         # (position, R, unit t) of the last step measured from the frame before it
         self._last_motion: tuple[int, np.ndarray, np.ndarray] | None = None
+        # (position, (3,) unit direction in the world) of the last accepted step, from its keyframe: the motion
+        # model the reversed-step rule holds a step to (the keyframe may lie several frames back)
+        self._last_direction: tuple[int, np.ndarray] | None = None
         self._held_steps = (-2, 0)  # the last frame whose step direction was held, and how many in a row before it
         self._previous_position = -1  # its run position
         self._position = 0
@@ -160,6 +165,7 @@ class Odometry:
                 T_key_cur = pose_matrix(motion.rotation, scale * motion.translation)  # noqa: N806
                 self._last_motion = (self._position, motion.rotation, motion.translation) \
                     if self._key_position == self._position - 1 else None
+                self._last_direction = (self._position, self._T_w_key[:3, :3] @ motion.translation)
                 T_w_cur = self._T_w_key @ T_key_cur  # noqa: N806
                 if motion.points_cur is not None:
                     points_world = (scale * motion.points_cur) @ T_w_cur[:3, :3].T + T_w_cur[:3, 3]
@@ -176,10 +182,10 @@ class Odometry:
             self._tracks = _Tracks(tracks.ids[keep], tracked[keep], tracks.ages[keep] + 1, tracks.key_points[keep],
                                    tracked[keep] - tracks.points[keep])
 
-        # The keyframe advances on every accepted frame, and when the tracks were lost (tracking starts
-        # afresh from this frame, with its pose measured by matching or, failing that, held); other held
-        # frames keep it, so the next frame is measured over a longer baseline.
-        if status != FrameStatus.HELD or lost:
+        # The keyframe advances on every accepted frame that moved far enough from it (`_short_step`), and when
+        # the tracks were lost (tracking starts afresh from this frame, with its pose measured by matching or,
+        # failing that, held); other frames keep it, so the next frame is measured over a longer baseline.
+        if (status != FrameStatus.HELD and not self._short_step(motion)) or lost:
             if lost:
                 self._tracks = _Tracks.empty()
             self._reckoning.in_gap = False
@@ -312,23 +318,32 @@ class Odometry:
         return warnings
 
     def _hold_reversed(self, motion: Motion, warnings: list[Reason]) -> Motion:
-        """The motion with its unit translation replaced by the motion model's (the last step's, measured from the
-        frame before) when it points against it (cosine < 0; ``pose.hold_reversed_step``), with a `STEP_HELD`
-        warning. At 10-30 Hz a true step never turns back between two frames; a low-parallax two-view step often
-        does (rotation and translation confused, or a sign vote of noise). Not twice in a row: a real reversal
-        (a car that stops and backs up) is taken one frame late (``pose.hold_reversed_frames``). Its points
-        (triangulated along the rejected direction) are dropped. `vo` only: the map places its frames by PnP, and
-        its fallbacks measured worse with the rule (fr1_desk, ground-truth scale, 3 seeds: 5.0 -> 6.3 cm ATE after
-        Sim(3))."""
-        last, (held_at, in_a_row) = self._last_motion, self._held_steps
+        """The motion with its unit translation replaced by the motion model's (the direction, in the world, of the
+        step accepted on the frame before, from its own keyframe) when it points against it (cosine < 0;
+        ``pose.hold_reversed_step``), with a `STEP_HELD` warning. At 10-30 Hz a true step never turns back between
+        two frames; a low-parallax two-view step often does (rotation and translation confused, or a sign vote of
+        noise). Not twice in a row: a real reversal (a car that stops and backs up) is taken one frame late
+        (``pose.hold_reversed_frames``). Its points (triangulated along the rejected direction) are dropped. `vo`
+        only: the map places its frames by PnP, and its fallbacks measured worse with the rule (fr1_desk,
+        ground-truth scale, 3 seeds: 5.0 -> 6.3 cm ATE after Sim(3))."""
+        last, (held_at, in_a_row) = self._last_direction, self._held_steps
         in_a_row = in_a_row if held_at == self._position - 1 else 0
         if (not self.config.pose.hold_reversed_step or self.config.backend != "vo" or last is None
-                or motion.translation is None or not last[0] == self._position - 1 == self._key_position
-                or in_a_row >= self.config.pose.hold_reversed_frames or float(motion.translation @ last[2]) >= 0.0):
+                or motion.translation is None or last[0] != self._position - 1
+                or in_a_row >= self.config.pose.hold_reversed_frames):
+            return motion
+        R_w_key = self._T_w_key[:3, :3]  # noqa: N806
+        if float((R_w_key @ motion.translation) @ last[1]) >= 0.0:
             return motion
         self._held_steps = (self._position, in_a_row + 1)
         warnings.append(Reason.STEP_HELD)
-        return replace(motion, translation=last[2].copy(), points_cur=np.zeros((0, 3)), pixels_cur=np.zeros((0, 2)))
+        return replace(motion, translation=R_w_key.T @ last[1], points_cur=np.zeros((0, 3)),
+                       pixels_cur=np.zeros((0, 2)))
+
+    def _short_step(self, motion: Motion) -> bool:
+        """An accepted step too short to be the next keyframe (``pose.keyframe_parallax_px``, `vo`): its pose is
+        kept, and the next frame is measured from the same keyframe, over a longer baseline."""
+        return self.config.backend == "vo" and motion.derotated_parallax < self.config.pose.keyframe_parallax_px
 
     def _motion_warnings(self, motion: Motion, used: int, step: float) -> list[Reason]:
         """Suspicious but accepted motion."""
