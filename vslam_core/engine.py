@@ -75,9 +75,6 @@ class Odometry:
         self._previous: np.ndarray | None = None  # last usable image
         # (position, R, unit t) of the last step measured from the frame before it
         self._last_motion: tuple[int, np.ndarray, np.ndarray] | None = None
-        # (position, (3,) unit direction in the world) of the last accepted step, from its keyframe: the motion
-        # model the reversed-step rule holds a step to (the keyframe may lie several frames back)
-        self._last_direction: tuple[int, np.ndarray] | None = None
         self._held_steps = (-2, 0)  # the last frame whose step direction was held, and how many in a row before it
         self._previous_position = -1  # its run position
         self._position = 0
@@ -165,7 +162,6 @@ class Odometry:
                 T_key_cur = pose_matrix(motion.rotation, scale * motion.translation)  # noqa: N806
                 self._last_motion = (self._position, motion.rotation, motion.translation) \
                     if self._key_position == self._position - 1 else None
-                self._last_direction = (self._position, self._T_w_key[:3, :3] @ motion.translation)
                 T_w_cur = self._T_w_key @ T_key_cur  # noqa: N806
                 if motion.points_cur is not None:
                     points_world = (scale * motion.points_cur) @ T_w_cur[:3, :3].T + T_w_cur[:3, 3]
@@ -318,27 +314,23 @@ class Odometry:
         return warnings
 
     def _hold_reversed(self, motion: Motion, warnings: list[Reason]) -> Motion:
-        """The motion with its unit translation replaced by the motion model's (the direction, in the world, of the
-        step accepted on the frame before, from its own keyframe) when it points against it (cosine < 0;
-        ``pose.hold_reversed_step``), with a `STEP_HELD` warning. At 10-30 Hz a true step never turns back between
-        two frames; a low-parallax two-view step often does (rotation and translation confused, or a sign vote of
-        noise). Not twice in a row: a real reversal (a car that stops and backs up) is taken one frame late
-        (``pose.hold_reversed_frames``). Its points (triangulated along the rejected direction) are dropped. `vo`
-        only: the map places its frames by PnP, and its fallbacks measured worse with the rule (fr1_desk,
-        ground-truth scale, 3 seeds: 5.0 -> 6.3 cm ATE after Sim(3))."""
-        last, (held_at, in_a_row) = self._last_direction, self._held_steps
+        """The motion with its unit translation replaced by the motion model's (the last step's, measured from the
+        frame before) when it points against it (cosine < 0; ``pose.hold_reversed_step``), with a `STEP_HELD`
+        warning. At 10-30 Hz a true step never turns back between two frames; a low-parallax two-view step often
+        does (rotation and translation confused, or a sign vote of noise). Not twice in a row: a real reversal
+        (a car that stops and backs up) is taken one frame late (``pose.hold_reversed_frames``). Its points
+        (triangulated along the rejected direction) are dropped. `vo` only: the map places its frames by PnP, and
+        its fallbacks measured worse with the rule (fr1_desk, ground-truth scale, 3 seeds: 5.0 -> 6.3 cm ATE after
+        Sim(3))."""
+        last, (held_at, in_a_row) = self._last_motion, self._held_steps
         in_a_row = in_a_row if held_at == self._position - 1 else 0
         if (not self.config.pose.hold_reversed_step or self.config.backend != "vo" or last is None
-                or motion.translation is None or last[0] != self._position - 1
-                or in_a_row >= self.config.pose.hold_reversed_frames):
-            return motion
-        R_w_key = self._T_w_key[:3, :3]  # noqa: N806
-        if float((R_w_key @ motion.translation) @ last[1]) >= 0.0:
+                or motion.translation is None or not last[0] == self._position - 1 == self._key_position
+                or in_a_row >= self.config.pose.hold_reversed_frames or float(motion.translation @ last[2]) >= 0.0):
             return motion
         self._held_steps = (self._position, in_a_row + 1)
         warnings.append(Reason.STEP_HELD)
-        return replace(motion, translation=R_w_key.T @ last[1], points_cur=np.zeros((0, 3)),
-                       pixels_cur=np.zeros((0, 2)))
+        return replace(motion, translation=last[2].copy(), points_cur=np.zeros((0, 3)), pixels_cur=np.zeros((0, 2)))
 
     def _short_step(self, motion: Motion) -> bool:
         """An accepted step too short to be the next keyframe (``pose.keyframe_parallax_px``, `vo`): its pose is
