@@ -32,10 +32,7 @@ def backwards(kitti_root: Path, tmp_path_factory: pytest.TempPathFactory) -> Pat
 
 #: The front end as it was: no re-detection for coverage, and only points within 50 baselines voting in the chirality
 #: check (now farther points vote when too few do, which alone keeps this run out of most of the trouble below).
-# the front end as it was: no coverage re-detection, near points only in the chirality vote, a keyframe on every
-# accepted step (keyframes kept over short steps measured from longer baselines hold no frame here either)
-OLD_DETECTOR = replace(DetectorConfig(), min_coverage=0.0)
-OLD_POSE = replace(PoseConfig(), chirality_far_depth=50.0, keyframe_parallax_px=0.0)
+OLD_DETECTOR, OLD_POSE = replace(DetectorConfig(), min_coverage=0.0), replace(PoseConfig(), chirality_far_depth=50.0)
 
 
 def run(folder: Path, config: EngineConfig) -> tuple[np.ndarray, np.ndarray, list[FrameResult]]:

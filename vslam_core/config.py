@@ -90,10 +90,11 @@ class PoseConfig:
     stationary_px: float = 0.05  # median flow below this (KLT's noise): the image did not move, a parked car
     # `vo`: an accepted step whose parallax left once the rotation is removed is below this (px) does not become
     # the keyframe: its pose is placed, and the next frame is measured from the same keyframe over a longer
-    # baseline. Chained two-view steps of a few px each lose rotation about the image's short (x) axis, traded
-    # for a sideways step (TUM fr1_desk at 30 Hz, ground-truth scale: per-step rotation about x 0.65 of the true
-    # one, 10.7 deg off after 6.6 s; 7.0 deg with 10 px; docs/method.md). 0: every accepted step is a keyframe
-    keyframe_parallax_px: float = 10.0
+    # baseline. Chained one-frame steps of a hand-held camera lose rotation about the image's short (x) axis,
+    # traded for a sideways step (TUM fr1_desk, 30 Hz, ground-truth scale: 10.7 deg off after 6.6 s, 7.0 with
+    # 10 px), but 10 px made KITTI, the synthetic routes and fr1_xyz's ATE worse (docs/method.md): off (0, a
+    # keyframe on every accepted step) by default. With --scale none each keyframe step is one unit long.
+    keyframe_parallax_px: float = 0.0
 
 
 @dataclass(frozen=True)

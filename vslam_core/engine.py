@@ -7,9 +7,9 @@ pixels of the scale estimate are ideal pixels too.
 Per frame: KLT-track the live tracks (forward–backward checked) → 5-point essential matrix in RANSAC
 between the keyframe and this frame → the four candidate poses and their chirality counts → (refined)
 winner → scale → T_w_cur = T_w_key · T_key_cur → re-detect FAST corners where tracks are missing.
-The keyframe is the last frame whose motion was accepted with enough parallax once the rotation is
-removed (``pose.keyframe_parallax_px``; with less, the frame is placed but the next one is measured from the
-same keyframe: chained short steps lose rotation); a frame that cannot be trusted (too little parallax, too
+The keyframe is the last frame whose motion was accepted (an option, ``pose.keyframe_parallax_px``, off by
+default: only with enough parallax once the rotation is removed; with less, the frame is placed but the next
+one is measured from the same keyframe); a frame that cannot be trusted (too little parallax, too
 few inliers, …) keeps the previous pose, and the next frame is measured from the keyframe with a longer
 baseline. A frame too degraded to track (blurred, dark, washed out), or one whose tracks are lost, is
 dead-reckoned from its contrast-normalised image (`vslam_core.coasting`, flagged `coasted`) rather

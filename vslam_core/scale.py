@@ -1,8 +1,8 @@
 """Where the length of each estimated translation comes from.
 
 The essential matrix gives the direction of motion only. `gt` takes the length from ground truth, as the
-published method does; `none` uses a unit speed (1 a frame: a trajectory up to scale); `height` uses no
-ground truth: the road plane under the camera, fitted to the frame's triangulated points, puts the camera h baselines
+published method does; `none` uses unit steps (a trajectory up to scale); `height` uses no ground truth:
+the road plane under the camera, fitted to the frame's triangulated points, puts the camera h baselines
 above the road, and the known camera height H makes the step H / h metres, filtered over time.
 """
 
@@ -54,14 +54,12 @@ class GroundTruthScale:
 
 
 class UnitScale:
-    """A unit speed: a step has the length of the frames it spans (1 a frame), so a keyframe kept over several
-    frames (``pose.keyframe_parallax_px``) moves as far as as many one-frame steps. The trajectory is known up to
-    one global scale at best."""
+    """Every accepted step has length 1: the trajectory is known up to one global scale at best."""
 
     name: ScaleSource = "none"
 
     def step_length(self, view: TwoView) -> tuple[float, ScaleEstimate | None]:
-        return float(max(1, view.cur_position - view.key_position)), None
+        return 1.0, None
 
 
 class HeightScale:
