@@ -88,6 +88,13 @@ class PoseConfig:
     min_inliers: int = 20
     min_parallax_px: float = 1.0  # median flow from the keyframe below this: too little motion to measure
     stationary_px: float = 0.05  # median flow below this (KLT's noise): the image did not move, a parked car
+    # `vo`: an accepted step whose parallax left once the rotation is removed is below this (px) does not become
+    # the keyframe: its pose is placed, and the next frame is measured from the same keyframe over a longer
+    # baseline. Chained one-frame steps of a hand-held camera lose rotation about the image's short (x) axis,
+    # traded for a sideways step (TUM fr1_desk, 30 Hz, ground-truth scale: 10.7 deg off after 6.6 s, 7.0 with
+    # 10 px), but 10 px made KITTI, the synthetic routes and fr1_xyz's ATE worse (docs/method.md): off (0, a
+    # keyframe on every accepted step) by default. With --scale none each keyframe step is one unit long.
+    keyframe_parallax_px: float = 0.0
 
 
 @dataclass(frozen=True)

@@ -107,6 +107,7 @@ RANGES: dict[str, Range] = {
     "pose.min_inliers": closed(5, 100_000),
     "pose.min_parallax_px": closed(0.0, 1000.0),
     "pose.stationary_px": closed(0.0, 1000.0),
+    "pose.keyframe_parallax_px": closed(0.0, 1000.0),
     # health
     "health.dark_mean": closed(0.0, 255.0),
     "health.bright_saturated": FRACTION,

@@ -7,10 +7,12 @@ pixels of the scale estimate are ideal pixels too.
 Per frame: KLT-track the live tracks (forward–backward checked) → 5-point essential matrix in RANSAC
 between the keyframe and this frame → the four candidate poses and their chirality counts → (refined)
 winner → scale → T_w_cur = T_w_key · T_key_cur → re-detect FAST corners where tracks are missing.
-The keyframe is the last frame whose motion was accepted: a frame that cannot be trusted (too little
-parallax, too few inliers, …) keeps the previous pose, and the next frame is measured from the keyframe
-with a longer baseline. A frame too degraded to track (blurred, dark, washed out), or one whose tracks are
-lost, is dead-reckoned from its contrast-normalised image (`vslam_core.coasting`, flagged `coasted`) rather
+The keyframe is the last frame whose motion was accepted (an option, ``pose.keyframe_parallax_px``, off by
+default: only with enough parallax once the rotation is removed; with less, the frame is placed but the next
+one is measured from the same keyframe); a frame that cannot be trusted (too little parallax, too
+few inliers, …) keeps the previous pose, and the next frame is measured from the keyframe with a longer
+baseline. A frame too degraded to track (blurred, dark, washed out), or one whose tracks are lost, is
+dead-reckoned from its contrast-normalised image (`vslam_core.coasting`, flagged `coasted`) rather
 than held, so that a turn taken while the camera was blind is not lost.
 """
 
@@ -176,10 +178,10 @@ class Odometry:
             self._tracks = _Tracks(tracks.ids[keep], tracked[keep], tracks.ages[keep] + 1, tracks.key_points[keep],
                                    tracked[keep] - tracks.points[keep])
 
-        # The keyframe advances on every accepted frame, and when the tracks were lost (tracking starts
-        # afresh from this frame, with its pose measured by matching or, failing that, held); other held
-        # frames keep it, so the next frame is measured over a longer baseline.
-        if status != FrameStatus.HELD or lost:
+        # The keyframe advances on every accepted frame that moved far enough from it (`_short_step`), and when
+        # the tracks were lost (tracking starts afresh from this frame, with its pose measured by matching or,
+        # failing that, held); other frames keep it, so the next frame is measured over a longer baseline.
+        if (status != FrameStatus.HELD and not self._short_step(motion)) or lost:
             if lost:
                 self._tracks = _Tracks.empty()
             self._reckoning.in_gap = False
@@ -329,6 +331,11 @@ class Odometry:
         self._held_steps = (self._position, in_a_row + 1)
         warnings.append(Reason.STEP_HELD)
         return replace(motion, translation=last[2].copy(), points_cur=np.zeros((0, 3)), pixels_cur=np.zeros((0, 2)))
+
+    def _short_step(self, motion: Motion) -> bool:
+        """An accepted step too short to be the next keyframe (``pose.keyframe_parallax_px``, `vo`): its pose is
+        kept, and the next frame is measured from the same keyframe, over a longer baseline."""
+        return self.config.backend == "vo" and motion.derotated_parallax < self.config.pose.keyframe_parallax_px
 
     def _motion_warnings(self, motion: Motion, used: int, step: float) -> list[Reason]:
         """Suspicious but accepted motion."""
