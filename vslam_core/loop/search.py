@@ -114,6 +114,8 @@ class LoopSearch:
                    for candidate, score in found]
         timings["verify"] = _lap(clock)
         best = max((c for c in checked if c[2].rejected is None), key=lambda c: (c[2].inliers, -c[0]), default=None)
+        if best is not None:  # an older place recognises this view: the query need not be kept as a place
+            self.database.cover(query.keyframe_id)
         accepted, why = self._consistent(query.keyframe_id, best[0] if best is not None else None, job.final)
         chosen = best[0] if accepted and best is not None else None
         candidates = tuple(self._candidate(query, candidate, score, result, candidate == chosen,
@@ -127,6 +129,7 @@ class LoopSearch:
             timings["optimise"] = _lap(clock)
         pixels, descriptors = query.pixels, query.descriptors
         self.database.compact(query.keyframe_id)  # after its verification: its features go back with the result
+        self.database.prune(query.keyframe_id)
         return SearchResult(job.keyframe_id, pixels, descriptors, candidates, graph, timings)
 
     # -- steps ------------------------------------------------------------------------------------------------
