@@ -150,6 +150,11 @@ class PlaceDatabase:
         if keyframe_id in self.places:
             self._covered.append(keyframe_id)
 
+    def uncovered(self, before: int, segment: int) -> list[int]:
+        """Stored places of the segment up to keyframe `before` that no older place covers."""
+        covered = set(self._covered)
+        return [k for k, p in self.places.items() if k <= before and p.segment == segment and k not in covered]
+
     def prune(self, newest: int) -> None:
         """Drop the covered places that no later query reads: a query's threshold scores its `NEIGHBOURS`
         previous keyframes, and only places `min_separation_keyframes` older are candidates."""
