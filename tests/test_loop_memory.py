@@ -31,16 +31,19 @@ def _image(place: int) -> np.ndarray:
     return cv2.GaussianBlur((rng.random((240, 640)) * 255).astype(np.uint8), (5, 5), 1.5)
 
 
-def _drive(keep_places: bool) -> tuple[LoopClosing, list[list[int]], list[int]]:
-    """Keyframes of the places 0..PLACES-1 then the same places again, searched in this process. Returns the
-    loop closing, the candidates of each search, and the place database's bytes after each search."""
+def _drive(keep_places: bool, spacing: float = 0.0) -> tuple[LoopClosing, list[list[int]], list[int]]:
+    """Keyframes of the places 0..PLACES-1 then the same places again, searched in this process; place p is
+    `spacing` * p metres along x (0: every keyframe at the origin). Returns the loop closing, the candidates of
+    each search, and the place database's bytes after each search."""
     loop = LoopClosing(CAMERA, CONFIG, None)
     loop.keep_places = keep_places
     map_ = Map()
     found: list[list[int]] = []
     stored: list[int] = []
     for n in range(2 * PLACES):
-        keyframe = map_.add_keyframe(n, 0, np.eye(4), np.zeros(0, np.int64), np.zeros((0, 2), np.float32), None)
+        pose = np.eye(4)
+        pose[0, 3] = spacing * (n % PLACES)
+        keyframe = map_.add_keyframe(n, 0, pose, np.zeros(0, np.int64), np.zeros((0, 2), np.float32), None)
         loop.submit(keyframe.id, _image(n % PLACES))
         collected = loop.collect(map_)
         if collected is not None:
@@ -142,3 +145,14 @@ def test_covered_places_are_dropped_and_the_first_pass_stays_the_candidate() -> 
     assert sorted(database.places) == list(range(PLACES)) + list(range(newest - NEIGHBOURS, newest + 1))
     assert database._ids == sorted(database.places) and len(database._matrix) == len(database.places)
     assert found[2 * PLACES:] == list(range(PLACES)), found  # the third pass: the first pass's keyframe each time
+
+
+def test_a_keyframe_where_a_stored_place_lies_is_not_kept(drive) -> None:
+    """The same drive with the keyframes 2 m apart, the second pass at the first pass's poses (no landmarks: no
+    verification passes, so only the poses say the places are known): the second pass's places are dropped
+    and each still finds its first-pass place first. At the origin (spacing 0) nothing is dropped."""
+    loop, found, _ = _drive(keep_places=False, spacing=2.0)
+    newest = 2 * PLACES - 2  # the last keyframe's search is submitted, not collected (the run did not finish)
+    assert sorted(_database(loop).places) == list(range(PLACES)) + list(range(newest - NEIGHBOURS, newest + 1))
+    assert [c[0] for c in found[PLACES:]] == list(range(PLACES - 1))
+    assert len(_database(drive[0]).places) == newest + 1  # every keyframe searched
