@@ -10,12 +10,14 @@ own process, one after the other, without a recording and without saving the map
 notes the resident memory (VmRSS) and its peak (VmHWM) of the run's process and of its worker process (bundle
 adjustment and loop search, vslam_core/mapping/worker_process.py); then the growth per revisited frame (peak
 RSS of both processes, from the first `--at` frame to the last, over the frames between), the keyframes
-inserted and the loops closed.
+inserted and the loops closed, and at each `--at` frame the keyframes and landmarks the run's map holds (objects
+counted by the garbage collector; the loop search's place database is in the worker and not counted).
 """
 
 from __future__ import annotations
 
 import argparse
+import gc
 import os
 import tempfile
 from concurrent.futures import ProcessPoolExecutor
@@ -74,6 +76,16 @@ def _children() -> list[int]:
     return [int(p) for p in text.split()]
 
 
+def _map_objects() -> tuple[int, int]:
+    """(keyframes, landmarks) alive in this process: the map's (vslam_core/mapping/map.py)."""
+    from vslam_core.mapping.map import Keyframe, Landmark
+    counts = {Keyframe: 0, Landmark: 0}
+    for item in gc.get_objects():
+        if type(item) in counts:
+            counts[type(item)] += 1
+    return counts[Keyframe], counts[Landmark]
+
+
 def _measure(args: tuple[str, str, int, tuple[int, ...], bool, str]) -> dict[str, object]:
     backend, root, frames, at, loops, scale = args
     config = EngineConfig().with_backend(backend).with_scale(scale)  # type: ignore[arg-type]
@@ -99,9 +111,11 @@ def _measure(args: tuple[str, str, int, tuple[int, ...], bool, str]) -> dict[str
         if done in at:
             worker_rss = sum(_kb(p, "VmRSS") for p in workers)
             worker_peak = sum(_kb(p, "VmHWM") for p in workers)
+            keyframes_kept, landmarks = _map_objects()
             samples.append({"frames": done, "rss_mb": _kb("self", "VmRSS") / 1024,
                             "peak_mb": _kb("self", "VmHWM") / 1024, "worker_rss_mb": worker_rss / 1024,
-                            "worker_peak_mb": worker_peak / 1024})
+                            "worker_peak_mb": worker_peak / 1024, "keyframes": keyframes_kept,
+                            "landmarks": landmarks})
 
     run = run_odometry(source, config, sinks=(keyframes, sink))  # no `finish`: a run without --save-map
     return {"backend": backend, "frames": run.frames, "samples": samples, "keyframes": len(inserted),
@@ -134,7 +148,8 @@ def main() -> None:
                 out = pool.submit(_measure, (backend, root, at[-1], at, not args.no_loops, args.scale)).result()
             for s in out["samples"]:  # type: ignore[attr-defined]
                 print(f"{backend:4s} frames {s['frames']:5d}  rss {s['rss_mb']:6.1f} MB  peak {s['peak_mb']:6.1f} MB"
-                      f"  worker rss {s['worker_rss_mb']:6.1f} MB  peak {s['worker_peak_mb']:6.1f} MB")
+                      f"  worker rss {s['worker_rss_mb']:6.1f} MB  peak {s['worker_peak_mb']:6.1f} MB"
+                      f"  map {s['keyframes']} keyframes, {s['landmarks']} landmarks")
             print(f"{backend:4s} growth {growth_kb(out['samples']):.1f} KB/frame (peak RSS, run + worker, "  # type: ignore[arg-type]
                   f"frames {at[0]}..{at[-1]}); {out['keyframes']} keyframes inserted, "
                   f"{len(out['loops'])} loops closed")  # type: ignore[arg-type]

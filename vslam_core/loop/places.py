@@ -19,6 +19,7 @@ from vslam_core.mapping.local_mapping import DESCRIPTOR_PATCH
 
 EMPTY_DESCRIPTORS = np.zeros((0, 32), np.uint8)
 PRESELECT_MARGIN = 10  # FAST is first run this much above the configured threshold (describe_image)
+NEIGHBOURS = 3  # a query's previous keyframes whose best score sets its candidates' threshold
 
 
 @dataclass
@@ -122,6 +123,7 @@ class PlaceDatabase:
         self._ids: list[int] = []  # keyframes with words, in insertion order
         self._rows = np.zeros((0, 0), np.float32)  # (capacity, V) their words: the first len(_ids) rows used
         self._segments: list[int] = []  # their segments
+        self._covered: list[int] = []  # places an older place was verified against, dropped once no query reads them
 
     @property
     def _matrix(self) -> np.ndarray:
@@ -140,6 +142,33 @@ class PlaceDatabase:
             for stored in self.places.values():
                 if len(stored.descriptors) and stored.keyframe_id <= keyframe_id:
                     stored.pixels, stored.descriptors = stored.pixels[:0].copy(), EMPTY_DESCRIPTORS
+
+    def cover(self, keyframe_id: int) -> None:
+        """An older place was verified against this keyframe (its view is already in the database): it will be
+        dropped (`prune`), so that a street driven again adds no places; the older place stays the candidate
+        of every later pass."""
+        if keyframe_id in self.places:
+            self._covered.append(keyframe_id)
+
+    def uncovered(self, before: int, segment: int) -> list[int]:
+        """Stored places of the segment up to keyframe `before` that no older place covers."""
+        covered = set(self._covered)
+        return [k for k, p in self.places.items() if k <= before and p.segment == segment and k not in covered]
+
+    def prune(self, newest: int) -> None:
+        """Drop the covered places that no later query reads: a query's threshold scores its `NEIGHBOURS`
+        previous keyframes, and only places `min_separation_keyframes` older are candidates."""
+        dropped = {k for k in self._covered if k < newest - NEIGHBOURS}
+        if not dropped:
+            return
+        self._covered = [k for k in self._covered if k not in dropped]
+        for keyframe_id in dropped:
+            del self.places[keyframe_id]
+        keep = [n for n, k in enumerate(self._ids) if k not in dropped]
+        if len(keep) < len(self._ids):  # rows moved up in order (a copy of the kept rows only)
+            self._rows[: len(keep)] = self._rows[keep]
+            self._ids = [self._ids[n] for n in keep]
+            self._segments = [self._segments[n] for n in keep]
 
     def add(self, place: KeyframePlace) -> None:
         """Store a keyframe; the vocabulary is built once `vocabulary_keyframes` keyframes are stored."""
@@ -179,7 +208,7 @@ class PlaceDatabase:
             return []
         ids = np.array(self._ids, np.int64)
         scores = similarity(query.words, self._matrix)
-        neighbours = (ids < query.keyframe_id) & (ids >= query.keyframe_id - 3)
+        neighbours = (ids < query.keyframe_id) & (ids >= query.keyframe_id - NEIGHBOURS)
         if not neighbours.any():
             return []
         threshold = cfg.min_score_ratio * float(scores[neighbours].max())

@@ -29,6 +29,10 @@ from vslam_core.sources.base import CameraIntrinsics
 
 CONSISTENT_KEYFRAMES = 5  # verified candidates of consecutive queries are this close (keyframe ids) to agree
 NEIGHBOURS = 2  # keyframes on each side of a candidate whose landmarks join its verification
+# a keyframe within this many of the map's keyframe spacings of an older stored place, looking the same way within
+# COVERED_ANGLE_DEG, is covered by it (not kept as a place): the map already knows that view
+COVERED_SPACINGS = 1.0
+COVERED_ANGLE_DEG = 30.0
 
 
 @dataclass(frozen=True)
@@ -114,6 +118,8 @@ class LoopSearch:
                    for candidate, score in found]
         timings["verify"] = _lap(clock)
         best = max((c for c in checked if c[2].rejected is None), key=lambda c: (c[2].inliers, -c[0]), default=None)
+        if best is not None or self._near_stored_place(job):  # the query need not be kept as a place
+            self.database.cover(query.keyframe_id)
         accepted, why = self._consistent(query.keyframe_id, best[0] if best is not None else None, job.final)
         chosen = best[0] if accepted and best is not None else None
         candidates = tuple(self._candidate(query, candidate, score, result, candidate == chosen,
@@ -127,6 +133,7 @@ class LoopSearch:
             timings["optimise"] = _lap(clock)
         pixels, descriptors = query.pixels, query.descriptors
         self.database.compact(query.keyframe_id)  # after its verification: its features go back with the result
+        self.database.prune(query.keyframe_id)
         return SearchResult(job.keyframe_id, pixels, descriptors, candidates, graph, timings)
 
     # -- steps ------------------------------------------------------------------------------------------------
@@ -162,6 +169,24 @@ class LoopSearch:
             ids.append(other.point_ids[new])
         return replace(place, points_cam=np.concatenate(points), point_pixels=np.concatenate(pixels),
                        point_descriptors=np.concatenate(descriptors), point_ids=np.concatenate(ids))
+
+    def _near_stored_place(self, job: SearchJob) -> bool:
+        """Whether an older stored place (at least `min_separation_keyframes` before the query, not itself covered)
+        lies within `COVERED_SPACINGS` median keyframe spacings of the query, its optical axis within
+        `COVERED_ANGLE_DEG` (the job's poses: tracking's, loop corrections included). Spacings, not metres: the
+        same rule in the map's units with --scale none."""
+        positions = job.graph_poses[:, :3, 3]
+        if len(positions) < 3:
+            return False
+        spacing = float(np.median(np.linalg.norm(np.diff(positions, axis=0), axis=1)))
+        stored = self.database.uncovered(job.keyframe_id - self._config.min_separation_keyframes, job.segment)
+        poses = np.array([self._poses[k] for k in stored if k in self._poses]).reshape(-1, 4, 4)
+        if not len(poses) or spacing <= 0.0:
+            return False
+        query = job.graph_poses[-1]
+        near = np.linalg.norm(poses[:, :3, 3] - query[:3, 3], axis=1) <= COVERED_SPACINGS * spacing
+        same_way = poses[:, :3, 2] @ query[:3, 2] >= np.cos(np.radians(COVERED_ANGLE_DEG))
+        return bool(np.any(near & same_way))
 
     def _consistent(self, query: int, candidate: int | None, final: bool) -> tuple[bool, str]:
         """Track verified places over consecutive keyframes: accept the `consistency`-th in a row, unless a loop
