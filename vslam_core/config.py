@@ -216,6 +216,16 @@ class MapConfig:
     search_min_radius_px: float = 16.0
     search_motion_fraction: float = 0.3
     search_widenings: int = 2
+    # --scale none: a frame placed by its two-view motion takes the step length that best reprojects the
+    # landmarks it still sees (vslam_core/mapping/step_scale.py) when at least this many agree within
+    # pnp_threshold_px (and half of those tried), the length within a factor step_fit_max_ratio of the map's
+    # speed; 0 turns it off (the step is the map's speed, as before)
+    step_fit_min_inliers: int = 0
+    step_fit_max_ratio: float = 2.0
+    step_fit_speed: bool = False
+    # a frame that sees too few of the map's landmarks (in view or tracked) is made a keyframe, so that landmarks
+    # are triangulated while its tracks still overlap the last keyframe's (always so with map_search)
+    starving_keyframes: bool = False
     # a landmark re-found, or followed by a track PnP rejected, this close to its projection (px) is observed by
     # a keyframe made then (for BA only); within pnp_threshold_px it is linked again
     keyframe_observation_px: float = 4.0
