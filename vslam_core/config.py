@@ -225,7 +225,8 @@ class MapConfig:
     step_fit_speed: bool = False
     # a frame that sees too few of the map's landmarks (in view or tracked) is made a keyframe, so that landmarks
     # are triangulated while its tracks still overlap the last keyframe's (always so with map_search)
-    starving_keyframes: bool = False
+    starving_keyframes: bool = True
+    starving_min_triangulation_deg: float = 0.0  # > 0: such a keyframe's new landmarks need rays meeting at this
     # a landmark re-found, or followed by a track PnP rejected, this close to its projection (px) is observed by
     # a keyframe made then (for BA only); within pnp_threshold_px it is linked again
     keyframe_observation_px: float = 4.0

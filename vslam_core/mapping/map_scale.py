@@ -168,9 +168,15 @@ def slow_camera(the_map: Map, keyframe_id: int, speed: float, config: MapConfig)
     return float(np.median(depths)) > config.slow_depth_frames * speed
 
 
-def landmark_settings(config: MapConfig, slow: bool) -> MapConfig:
-    """The map's settings for new landmarks: rays meeting at `slow_min_triangulation_deg` for a slow camera."""
-    return replace(config, min_triangulation_deg=config.slow_min_triangulation_deg) if slow else config
+def landmark_settings(config: MapConfig, slow: bool, starving: bool = False) -> MapConfig:
+    """The map's settings for new landmarks: rays meeting at `slow_min_triangulation_deg` for a slow camera, at
+    no more than `starving_min_triangulation_deg` at a keyframe made because the frame saw too few landmarks."""
+    if slow:
+        return replace(config, min_triangulation_deg=config.slow_min_triangulation_deg)
+    if starving and config.starving_min_triangulation_deg > 0:
+        return replace(config, min_triangulation_deg=min(config.min_triangulation_deg,
+                                                         config.starving_min_triangulation_deg))
+    return config
 
 
 def initialised(config: MapConfig, keyframe: KeyframeInserted) -> bool:

@@ -418,7 +418,8 @@ class MapTracking:
                 vo.position, self._segment, pose, track_ids, pixels, frame.image,
                 metric_step(self.config.scale, self._scale, self.mapping.map.keyframes.get(self._reference),
                             vo.position, pose),
-                why, {**self._links, **tied}, self._refound, landmark_settings(self._cfg, self._slow),
+                why, {**self._links, **tied}, self._refound,
+                landmark_settings(self._cfg, self._slow, starving=why.startswith("map:")),
                 self._chain.between(self.mapping.map.keyframes[self._reference].position, vo.position)
                 if self._reference >= 0 else None)
             live = set(track_ids.tolist())
