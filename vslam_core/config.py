@@ -187,6 +187,7 @@ class MapConfig:
     # placed at the map's last speed, and at 0.5 PnP refused 17 frames in a row with 20-60 inliers while the
     # scale drifted (00 150:300:2 seed 1, docs/map-backend.md)
     none_pnp_min_inlier_ratio: float = 0.35
+    none_starving_keyframes: bool = True  # starving_keyframes with --scale none
     # ... and each keyframe-to-keyframe distance enters BA as a prior at its length before the adjustment, with
     # this sigma (a fraction of it; 0: no prior): left free, BA lengthened each step by 0.3-0.5 %, which
     # accumulated into scale drift (KITTI 00/05 Sim(3) t_err mean 3.31 -> 2.70 %, docs/map-backend.md)
@@ -229,8 +230,10 @@ class MapConfig:
     step_fit_max_ratio: float = 2.0
     step_fit_speed: bool = False
     # a frame that sees too few of the map's landmarks (in view or tracked) is made a keyframe, so that landmarks
-    # are triangulated while its tracks still overlap the last keyframe's (always so with map_search)
-    starving_keyframes: bool = True
+    # are triangulated while its tracks still overlap the last keyframe's (always so with map_search; with
+    # --scale none none_starving_keyframes replaces it: on by default there, off with gt and height, where at
+    # step 3 it took the height rows' t_err from 18.1 to 21.8 %, docs/map-backend.md)
+    starving_keyframes: bool = False
     starving_min_triangulation_deg: float = 0.0  # > 0: such a keyframe's new landmarks need rays meeting at this
     # a landmark re-found, or followed by a track PnP rejected, this close to its projection (px) is observed by
     # a keyframe made then (for BA only); within pnp_threshold_px it is linked again

@@ -83,7 +83,8 @@ def for_scale(config: MapConfig, scale: ScaleSource) -> MapConfig:
         return config
     return replace(config, min_triangulation_deg=config.none_min_triangulation_deg,
                    ba_iterations=config.none_ba_iterations, rotation_prior_deg=config.none_rotation_prior_deg,
-                   pnp_min_inlier_ratio=config.none_pnp_min_inlier_ratio)
+                   pnp_min_inlier_ratio=config.none_pnp_min_inlier_ratio,
+                   starving_keyframes=config.none_starving_keyframes)
 
 
 def translation_parallax(T_world_key: np.ndarray, T_world_cur: np.ndarray, pixels_cur: np.ndarray,  # noqa: N803
