@@ -188,6 +188,12 @@ class MapConfig:
     # 1.41 / 2.98 % but TUM fr1_xyz seed 1 from 2.3 to 7.4 cm (docs/map-backend.md), so it stays at 0.5
     none_pnp_min_inlier_ratio: float = 0.5
     none_starving_keyframes: bool = True  # starving_keyframes with --scale none
+    # a PnP pose with an inlier ratio from low_ratio_pnp_min_ratio up to pnp_min_inlier_ratio is used only when
+    # its step from the keyframe points within low_ratio_direction_deg of the two-view step (with --scale none:
+    # none_low_ratio_pnp_min_ratio; 1.0: never)
+    low_ratio_pnp_min_ratio: float = 1.0
+    none_low_ratio_pnp_min_ratio: float = 0.35
+    low_ratio_direction_deg: float = 5.0
     # ... and each keyframe-to-keyframe distance enters BA as a prior at its length before the adjustment, with
     # this sigma (a fraction of it; 0: no prior): left free, BA lengthened each step by 0.3-0.5 %, which
     # accumulated into scale drift (KITTI 00/05 Sim(3) t_err mean 3.31 -> 2.70 %, docs/map-backend.md)

@@ -187,6 +187,9 @@ RANGES: dict[str, Range] = {
     "map.step_fit_max_ratio": closed(1.0, 100.0),
     "map.starving_min_triangulation_deg": Range(0.0, 90.0, high_open=True),
     "map.none_pnp_min_inlier_ratio": FRACTION,
+    "map.low_ratio_pnp_min_ratio": FRACTION,
+    "map.none_low_ratio_pnp_min_ratio": FRACTION,
+    "map.low_ratio_direction_deg": closed(0.0, 180.0),
     "map.keyframe_observation_px": PIXEL_SIZE,
     # loop closing
     "loop.features": closed(10, 100_000),

@@ -84,6 +84,7 @@ def for_scale(config: MapConfig, scale: ScaleSource) -> MapConfig:
     return replace(config, min_triangulation_deg=config.none_min_triangulation_deg,
                    ba_iterations=config.none_ba_iterations, rotation_prior_deg=config.none_rotation_prior_deg,
                    pnp_min_inlier_ratio=config.none_pnp_min_inlier_ratio,
+                   low_ratio_pnp_min_ratio=config.none_low_ratio_pnp_min_ratio,
                    starving_keyframes=config.none_starving_keyframes)
 
 

@@ -6,6 +6,7 @@ Points: (L, 3) world landmarks and (L, 2) pixels. Poses are camera-to-world (4, 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 
@@ -73,8 +74,11 @@ def check_pnp(solution: PnPSolution, pnp_motion: np.ndarray | None, T_key_cur: n
     if solution.T_world_cam is None or inliers < cfg.pnp_min_inliers:
         return ("no PnP solution" if solution.T_world_cam is None else f"{inliers} inliers"), False, \
             PnPFailure.RANSAC
-    if inliers < cfg.pnp_min_inlier_ratio * len(solution.inlier_mask):
-        return f"inlier ratio {inliers / len(solution.inlier_mask):.2f}", False, PnPFailure.RANSAC
+    ratio = inliers / len(solution.inlier_mask)
+    low = ratio < cfg.pnp_min_inlier_ratio  # usable only when it agrees with the two-view direction
+    if ratio < min(cfg.pnp_min_inlier_ratio, cfg.low_ratio_pnp_min_ratio) or (
+            low and not _same_direction(pnp_motion, T_key_cur, cfg.low_ratio_direction_deg)):
+        return f"inlier ratio {ratio:.2f}", False, PnPFailure.RANSAC
     if pnp_motion is not None and T_key_cur is not None:
         disagreement = np.degrees(rotation_angle(pnp_motion[:3, :3].T @ T_key_cur[:3, :3]))
         if disagreement > cfg.max_rotation_disagreement_deg:
@@ -86,6 +90,17 @@ def check_pnp(solution: PnPSolution, pnp_motion: np.ndarray | None, T_key_cur: n
                 return f"rotation {disagreement:.1f}° from the two-view motion", False, PnPFailure.DISAGREES
             return None, True, None
     return None, False, None
+
+
+def _same_direction(pnp_motion: np.ndarray | None, T_key_cur: np.ndarray | None,  # noqa: N803
+                    limit_deg: float) -> bool:
+    """PnP's step from the keyframe and the two-view step point the same way, within `limit_deg` (a PnP pose
+    on a low inlier ratio must agree with the images' own motion)."""
+    if pnp_motion is None or T_key_cur is None:
+        return False
+    a, b = pnp_motion[:3, 3], T_key_cur[:3, 3]
+    norms = float(np.linalg.norm(a) * np.linalg.norm(b))
+    return norms > 0 and math.degrees(math.acos(float(np.clip(a @ b / norms, -1.0, 1.0)))) <= limit_deg
 
 
 def metric_pose(pnp_pose: np.ndarray, two_view: np.ndarray | None, T_world_key: np.ndarray,  # noqa: N803
