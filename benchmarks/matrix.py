@@ -61,6 +61,8 @@ FAMILIES = ("kitti", "tum", "street", "loop", "walk", "lens", "handheld")
 QUICK_FAMILIES = ("kitti", "tum", "street", "walk")
 KITTI_WINDOWS = ("0:150", "150:300")  # two starts (0:300 would run their frames again)
 STEPS = (1, 2, 3)
+BACKENDS = ("vo", "map")
+SCALES = ("gt", "height", "none")
 TUM_SEQUENCES = ("rgbd_dataset_freiburg1_xyz", "rgbd_dataset_freiburg1_desk")
 LENS_CASES = (("00", "0:150"), ("05", "0:150"))
 HANDHELD_CASE = ("05", "0:150")
@@ -142,8 +144,9 @@ def run_job(job: Job) -> Row:
 
 
 def make_jobs(families: list[str], seeds: list[int], kitti: str, tum: str, folders: dict[str, str],
-              quick: bool) -> list[Job]:
-    """Every run of the chosen families (`folders`: the prepared lens folders by sequence, and ``handheld``)."""
+              quick: bool, backends: tuple[str, ...] = BACKENDS, scales_kept: tuple[str, ...] = SCALES) -> list[Job]:
+    """Every run of the chosen families (`folders`: the prepared lens folders by sequence, and ``handheld``),
+    of the chosen backends and scale sources only."""
     specs: list[tuple[str, str, str, str, str, str, tuple[str, ...], int]] = []  # + scales, frame count
     if "kitti" in families:
         cases = ([("00", "0:150", 1), ("05", "0:150", 2), ("00", "0:150", 3)] if quick else
@@ -177,7 +180,7 @@ def make_jobs(families: list[str], seeds: list[int], kitti: str, tum: str, folde
     jobs = [Job(family, case, kind, path, frames, sequence, backend, scale, seed,
                 count * (3.5 if backend == "map" else 1.0))
             for family, case, kind, path, frames, sequence, scales, count in specs
-            for backend in ("vo", "map") for scale in scales for seed in seeds]
+            for backend in backends for scale in scales if scale in scales_kept for seed in seeds]
     return jobs
 
 
@@ -240,6 +243,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--groups", default=None, help="families to run: " + ", ".join(FAMILIES) + " (default: all; "
                         "with --quick " + ", ".join(QUICK_FAMILIES) + ")")
     parser.add_argument("--seeds", default="0,1", help="RANSAC seeds (pose.seed); two or more measure the noise")
+    parser.add_argument("--backends", default=",".join(BACKENDS), help="backends to run (default: vo,map)")
+    parser.add_argument("--scales", default=",".join(SCALES), help="scale sources to run (default: gt,height,none; "
+                        "a family runs those of its own it names)")
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--csv", type=Path, default=None, help="write one row per run here (as they finish)")
     parser.add_argument("--compare", type=Path, default=None, help="a saved matrix CSV: per-group deltas")
@@ -257,6 +263,8 @@ def main(argv: list[str] | None = None) -> None:
     if rows is None:
         chosen = args.groups or ",".join(QUICK_FAMILIES if args.quick else FAMILIES)
         families = _split(chosen, FAMILIES, "--groups", parser)
+        backends = tuple(_split(args.backends, BACKENDS, "--backends", parser))
+        scales = tuple(_split(args.scales, SCALES, "--scales", parser))
         try:
             seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
         except ValueError:
@@ -269,7 +277,7 @@ def main(argv: list[str] | None = None) -> None:
             # the synthetic frames are rendered once and shared by every run of a route (its backends and seeds)
             os.environ.setdefault("VSLAM_SYNTHETIC_CACHE", str(Path(scratch) / "synthetic"))
             folders = prepare_folders(families, args.kitti, args.quick, Path(scratch))
-            jobs = make_jobs(families, seeds, args.kitti, args.tum, folders, args.quick)
+            jobs = make_jobs(families, seeds, args.kitti, args.tum, folders, args.quick, backends, scales)
             rows = run_matrix(jobs, args.jobs, args.csv, kept)
         minutes = (time.perf_counter() - start) / 60
         print(f"{'quick ' if args.quick else ''}matrix: {len(rows)} runs of {', '.join(families)}, seeds "

@@ -116,6 +116,8 @@ def test_jobs_cover_every_family_backend_scale_and_seed_and_resume_keeps_done_ro
     quick = make_jobs(list(QUICK_FAMILIES), [0, 1], "kitti", "tum", {}, quick=True)
     assert len(quick) == 48 and {j.family for j in quick} == {"KITTI step 1", "KITTI step 2", "KITTI step 3",
                                                               "TUM hand-held", "synthetic street", "synthetic walk"}
+    only = make_jobs(["kitti"], [0], "kitti", "tum", {}, quick=False, backends=("map",), scales_kept=("none",))
+    assert {(j.backend, j.scale) for j in only} == {("map", "none")} and len(only) == 12  # --backends, --scales
     # --resume: every row already in the CSV is kept (in the jobs' order), none is run again (no pool started)
     done = [_row(j.family, j.case, j.backend, j.seed, 0.1, scale=j.scale) for j in reversed(quick)]
     kept = run_matrix(quick, 2, None, done)

@@ -189,6 +189,18 @@ class MapConfig:
     # ... and the front end's rotations are held more loosely: at 0.01 deg loop closing made two of five
     # --scale none routes worse and the hand-held walk's ATE after Sim(3) grew from 1.0 to 1.4 cm
     none_rotation_prior_deg: float = 0.05
+    # ... and PnP is used with this inlier ratio. At every 2nd or 3rd KITTI frame, after a turn, half the landmarks
+    # a frame matches come from keyframes the two-view motion placed at the map's last speed, and PnP refused 17
+    # frames in a row with 20-60 inliers (00 150:300:2 seed 1); 0.35 took KITTI's steps 2-3 from 2.07 / 3.57 to
+    # 1.41 / 2.98 % but TUM fr1_xyz seed 1 from 2.3 to 7.4 cm (docs/map-backend.md), so it stays at 0.5
+    none_pnp_min_inlier_ratio: float = 0.5
+    none_starving_keyframes: bool = True  # starving_keyframes with --scale none
+    # a PnP pose with an inlier ratio from low_ratio_pnp_min_ratio up to pnp_min_inlier_ratio is used only when
+    # its step from the keyframe points within low_ratio_direction_deg of the two-view step (with --scale none:
+    # none_low_ratio_pnp_min_ratio; 1.0: never)
+    low_ratio_pnp_min_ratio: float = 1.0
+    none_low_ratio_pnp_min_ratio: float = 0.35
+    low_ratio_direction_deg: float = 5.0
     # ... and each keyframe-to-keyframe distance enters BA as a prior at its length before the adjustment, with
     # this sigma (a fraction of it; 0: no prior): left free, BA lengthened each step by 0.3-0.5 %, which
     # accumulated into scale drift (KITTI 00/05 Sim(3) t_err mean 3.31 -> 2.70 %, docs/map-backend.md)
@@ -223,6 +235,19 @@ class MapConfig:
     search_min_radius_px: float = 16.0
     search_motion_fraction: float = 0.3
     search_widenings: int = 2
+    # --scale none: a frame placed by its two-view motion takes the step length that best reprojects the
+    # landmarks it still sees (vslam_core/mapping/step_scale.py) when at least this many agree within
+    # pnp_threshold_px (and half of those tried), the length within a factor step_fit_max_ratio of the map's
+    # speed; 0 turns it off (the step is the map's speed, as before)
+    step_fit_min_inliers: int = 0
+    step_fit_max_ratio: float = 2.0
+    step_fit_speed: bool = False
+    # a frame that sees too few of the map's landmarks (in view or tracked) is made a keyframe, so that landmarks
+    # are triangulated while its tracks still overlap the last keyframe's (always so with map_search; with
+    # --scale none none_starving_keyframes replaces it: on by default there, off with gt and height, where at
+    # step 3 it took the height rows' t_err from 18.1 to 21.8 %, docs/map-backend.md)
+    starving_keyframes: bool = False
+    starving_min_triangulation_deg: float = 0.0  # > 0: such a keyframe's new landmarks need rays meeting at this
     # a landmark re-found, or followed by a track PnP rejected, this close to its projection (px) is observed by
     # a keyframe made then (for BA only); within pnp_threshold_px it is linked again
     keyframe_observation_px: float = 4.0

@@ -184,6 +184,13 @@ RANGES: dict[str, Range] = {
     "map.search_min_radius_px": positive(10_000.0),
     "map.search_motion_fraction": closed(0.0, 10.0),
     "map.search_widenings": closed(0, 10),
+    "map.step_fit_min_inliers": closed(0, 10_000),
+    "map.step_fit_max_ratio": closed(1.0, 100.0),
+    "map.starving_min_triangulation_deg": Range(0.0, 90.0, high_open=True),
+    "map.none_pnp_min_inlier_ratio": FRACTION,
+    "map.low_ratio_pnp_min_ratio": FRACTION,
+    "map.none_low_ratio_pnp_min_ratio": FRACTION,
+    "map.low_ratio_direction_deg": closed(0.0, 180.0),
     "map.keyframe_observation_px": PIXEL_SIZE,
     # loop closing
     "loop.features": closed(10, 100_000),

@@ -82,7 +82,10 @@ def for_scale(config: MapConfig, scale: ScaleSource) -> MapConfig:
     if scale != "none":
         return config
     return replace(config, min_triangulation_deg=config.none_min_triangulation_deg,
-                   ba_iterations=config.none_ba_iterations, rotation_prior_deg=config.none_rotation_prior_deg)
+                   ba_iterations=config.none_ba_iterations, rotation_prior_deg=config.none_rotation_prior_deg,
+                   pnp_min_inlier_ratio=config.none_pnp_min_inlier_ratio,
+                   low_ratio_pnp_min_ratio=config.none_low_ratio_pnp_min_ratio,
+                   starving_keyframes=config.none_starving_keyframes)
 
 
 def translation_parallax(T_world_key: np.ndarray, T_world_cur: np.ndarray, pixels_cur: np.ndarray,  # noqa: N803
@@ -168,9 +171,15 @@ def slow_camera(the_map: Map, keyframe_id: int, speed: float, config: MapConfig)
     return float(np.median(depths)) > config.slow_depth_frames * speed
 
 
-def landmark_settings(config: MapConfig, slow: bool) -> MapConfig:
-    """The map's settings for new landmarks: rays meeting at `slow_min_triangulation_deg` for a slow camera."""
-    return replace(config, min_triangulation_deg=config.slow_min_triangulation_deg) if slow else config
+def landmark_settings(config: MapConfig, slow: bool, starving: bool = False) -> MapConfig:
+    """The map's settings for new landmarks: rays meeting at `slow_min_triangulation_deg` for a slow camera, at
+    no more than `starving_min_triangulation_deg` at a keyframe made because the frame saw too few landmarks."""
+    if slow:
+        return replace(config, min_triangulation_deg=config.slow_min_triangulation_deg)
+    if starving and config.starving_min_triangulation_deg > 0:
+        return replace(config, min_triangulation_deg=min(config.min_triangulation_deg,
+                                                         config.starving_min_triangulation_deg))
+    return config
 
 
 def initialised(config: MapConfig, keyframe: KeyframeInserted) -> bool:

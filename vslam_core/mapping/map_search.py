@@ -20,6 +20,15 @@ Mur-Artal et al. 2015 §V-D, done when it is needed):
    that sees too few of the map's landmarks (in view or matched) is made a keyframe (tracking.py), so that
    landmarks are triangulated while its tracks still overlap the last keyframe's.
 
+When all fails, the frame takes its two-view motion: its rotation and direction are measured from the images, its
+length (--scale none) is only the map's recent speed. With `step_fit_min_inliers` > 0 (off by default) the length
+is measured on the few landmarks the frame still sees (`fitted_two_view`): with the rotation R and unit direction
+d given, a landmark at X_k (keyframe frame) seen along the ideal ray x constrains the length s by
+x × (Rᵀ(X_k − s·d)) = 0, linear in s; one-point RANSAC over the landmarks' own s, refined by least squares on
+the inliers (`fit_step_length`). Measured, it does not help yet: in 05's turn at step 3 the fitted lengths came
+out 15–25 % under the map speed's (landmarks triangulated from keyframes the two-view guesses had placed), and
+fed back as speed the scale collapsed (docs/map-backend.md).
+
 Why it failed is kept in the estimate (`PnPFailure`): too few landmarks in view, too few matched, RANSAC, or
 a pose that disagrees with the two-view and predicted rotations. Pixels are (N, 2) ideal pinhole pixels of K;
 poses camera-to-world (4, 4).
@@ -28,10 +37,12 @@ poses camera-to-world (4, 4).
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
 from vslam_core.config import MapConfig
+from vslam_core.geometry import invert_pose
 from vslam_core.mapping.local_map import FrameCorners, LocalMapSearcher
 from vslam_core.mapping.map import Map
 from vslam_core.mapping.pnp import PnPSolution, project, solve_pnp
@@ -139,3 +150,80 @@ def _matched(search: LocalMapSearch, tracked_ids: np.ndarray,
     found = search.found_mask
     return (np.concatenate([tracked_ids, search.landmark_ids[found]]).astype(np.int64),
             np.concatenate([tracked_pixels.reshape(-1, 2), search.found_pixels[found]]))
+
+
+@dataclass(frozen=True)
+class StepFit:
+    """A two-view step's length measured against landmarks."""
+
+    length: float  # in the map's units, keyframe to frame
+    inliers: int  # landmarks within the threshold at that length
+    landmarks: int  # landmarks tried
+
+
+def _rays(pixels: np.ndarray, K: np.ndarray) -> np.ndarray:  # noqa: N803
+    """(L, 3) ideal rays (z = 1) of (L, 2) pixels."""
+    return np.column_stack([(pixels[:, 0] - K[0, 2]) / K[0, 0], (pixels[:, 1] - K[1, 2]) / K[1, 1],
+                            np.ones(len(pixels))])
+
+
+def fit_step_length(T_world_key: np.ndarray, T_key_cur: np.ndarray, positions: np.ndarray,  # noqa: N803
+                    pixels: np.ndarray, K: np.ndarray, threshold_px: float) -> StepFit | None:  # noqa: N803
+    """The length of the step `T_key_cur` (its rotation and direction kept) that best reprojects the (L, 3)
+    landmarks onto their (L, 2) observed pixels in the current frame; None without a translation or landmarks."""
+    norm = float(np.linalg.norm(T_key_cur[:3, 3]))
+    if norm < 1e-12 or len(positions) == 0:
+        return None
+    rotation, direction = T_key_cur[:3, :3], T_key_cur[:3, 3] / norm
+    T_key_world = invert_pose(T_world_key)  # noqa: N806
+    in_key = positions @ T_key_world[:3, :3].T + T_key_world[:3, 3]
+    a, b = in_key @ rotation, direction @ rotation  # the point in the current camera is a − s·b
+    rays = _rays(pixels, K)
+    xa, xb = np.cross(rays, a), np.cross(rays, np.broadcast_to(b, rays.shape))
+    weight = np.einsum("ij,ij->i", xb, xb)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        own = np.einsum("ij,ij->i", xb, xa) / weight
+    candidates = own[np.isfinite(own) & (own > 0)]
+    if len(candidates) == 0:
+        return None
+
+    def inliers(length: float) -> np.ndarray:
+        step = T_key_cur.copy()
+        step[:3, 3] = length * direction
+        with np.errstate(invalid="ignore"):
+            error = np.linalg.norm(project(positions, T_world_key @ step, K) - pixels, axis=1)
+            return np.asarray(error <= threshold_px)
+
+    counts = [int(inliers(float(s)).sum()) for s in candidates]
+    best = float(candidates[int(np.argmax(counts))])  # the first of the most supported (deterministic)
+    mask = inliers(best)
+    total = float(weight[mask].sum())
+    if total <= 0:
+        return None
+    refined = float(np.einsum("ij,ij->i", xb[mask], xa[mask]).sum() / total)
+    if refined > 0 and inliers(refined).sum() >= mask.sum():
+        best, mask = refined, inliers(refined)
+    return StepFit(best, int(mask.sum()), len(positions))
+
+
+def rescale_step(T_key_cur: np.ndarray, length: float) -> np.ndarray:  # noqa: N803
+    """(4, 4) the step with its direction and rotation kept, its translation `length` long."""
+    step = T_key_cur.copy()
+    step[:3, 3] *= length / float(np.linalg.norm(T_key_cur[:3, 3]))
+    return step
+
+
+def fitted_two_view(world: Map, T_world_key: np.ndarray, T_key_cur: np.ndarray, pnp: PnPEstimate,  # noqa: N803
+                    K: np.ndarray, config: MapConfig) -> np.ndarray | None:  # noqa: N803
+    """--scale none: (4, 4) T_world_cam of the two-view motion `T_key_cur` from the keyframe at `T_world_key`
+    with its length measured on the landmarks `pnp` tried (`fit_step_length`), when `step_fit_min_inliers` and
+    half of them agree and the length is within `step_fit_max_ratio` of the map speed's guess; else None."""
+    if config.step_fit_min_inliers <= 0 or len(pnp.landmark_ids) == 0:
+        return None
+    fit = fit_step_length(T_world_key, T_key_cur, world.positions(pnp.landmark_ids), pnp.observed, K,
+                          config.pnp_threshold_px)
+    guess = float(np.linalg.norm(T_key_cur[:3, 3]))
+    if fit is None or fit.inliers < max(config.step_fit_min_inliers, fit.landmarks / 2) or \
+            not guess / config.step_fit_max_ratio <= fit.length <= guess * config.step_fit_max_ratio:
+        return None
+    return np.asarray(T_world_key @ rescale_step(T_key_cur, fit.length))

@@ -6,14 +6,17 @@ Points: (L, 3) world landmarks and (L, 2) pixels. Poses are camera-to-world (4, 
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
 
+from vslam_core.config import MapConfig
 from vslam_core.geometry import invert_pose, pose_matrix, rotation_angle
 from vslam_core.lens import distort_pixels
-from vslam_core.results import LocalMapSearch, PnPEstimate
+from vslam_core.results import LocalMapSearch, PnPEstimate, PnPFailure
 from vslam_core.sources.base import CameraIntrinsics
 
 
@@ -59,6 +62,45 @@ def solve_pnp(points: np.ndarray, pixels: np.ndarray, K: np.ndarray, threshold_p
     with np.errstate(invalid="ignore"):
         inlier_mask = np.linalg.norm(projected - pixels, axis=1) <= threshold_px
     return PnPSolution(T_world_cam, inlier_mask, projected)
+
+
+def check_pnp(solution: PnPSolution, pnp_motion: np.ndarray | None, T_key_cur: np.ndarray | None,  # noqa: N803
+              predicted: Callable[[], np.ndarray | None],
+              cfg: MapConfig) -> tuple[str | None, bool, PnPFailure | None]:
+    """Why a PnP pose is not trusted, if it is not; whether it outvoted the two-view rotation; the failure.
+    `pnp_motion`: (4, 4) PnP's pose relative to the front end's keyframe (None without a two-view pose),
+    `T_key_cur` the two-view motion from it, `predicted` the motion model's pose (asked only when needed)."""
+    inliers = int(solution.inlier_mask.sum())
+    if solution.T_world_cam is None or inliers < cfg.pnp_min_inliers:
+        return ("no PnP solution" if solution.T_world_cam is None else f"{inliers} inliers"), False, \
+            PnPFailure.RANSAC
+    ratio = inliers / len(solution.inlier_mask)
+    low = ratio < cfg.pnp_min_inlier_ratio  # usable only when it agrees with the two-view direction
+    if ratio < min(cfg.pnp_min_inlier_ratio, cfg.low_ratio_pnp_min_ratio) or (
+            low and not _same_direction(pnp_motion, T_key_cur, cfg.low_ratio_direction_deg)):
+        return f"inlier ratio {ratio:.2f}", False, PnPFailure.RANSAC
+    if pnp_motion is not None and T_key_cur is not None:
+        disagreement = np.degrees(rotation_angle(pnp_motion[:3, :3].T @ T_key_cur[:3, :3]))
+        if disagreement > cfg.max_rotation_disagreement_deg:
+            # two against one: PnP agreeing with the motion model outvotes a two-view rotation over a short
+            # baseline (reversing, 1 frame from the keyframe: the essential matrix's rotation was 2-4° off)
+            model = predicted()
+            if model is None or np.degrees(rotation_angle(model[:3, :3].T @ solution.T_world_cam[:3, :3])) \
+                    > cfg.max_rotation_disagreement_deg:
+                return f"rotation {disagreement:.1f}° from the two-view motion", False, PnPFailure.DISAGREES
+            return None, True, None
+    return None, False, None
+
+
+def _same_direction(pnp_motion: np.ndarray | None, T_key_cur: np.ndarray | None,  # noqa: N803
+                    limit_deg: float) -> bool:
+    """PnP's step from the keyframe and the two-view step point the same way, within `limit_deg` (a PnP pose
+    on a low inlier ratio must agree with the images' own motion)."""
+    if pnp_motion is None or T_key_cur is None:
+        return False
+    a, b = pnp_motion[:3, 3], T_key_cur[:3, 3]
+    norms = float(np.linalg.norm(a) * np.linalg.norm(b))
+    return norms > 0 and math.degrees(math.acos(float(np.clip(a @ b / norms, -1.0, 1.0)))) <= limit_deg
 
 
 def metric_pose(pnp_pose: np.ndarray, two_view: np.ndarray | None, T_world_key: np.ndarray,  # noqa: N803

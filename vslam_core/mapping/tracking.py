@@ -21,7 +21,7 @@ import numpy as np
 from vslam_core.coasting import agrees, degraded_motion
 from vslam_core.config import EngineConfig
 from vslam_core.engine import Odometry
-from vslam_core.geometry import interpolate_gaps, invert_pose, orthonormalise, pose_matrix, rotation_angle
+from vslam_core.geometry import interpolate_gaps, invert_pose, orthonormalise, pose_matrix
 from vslam_core.lens import distort_pixels, undistort_pixels
 from vslam_core.loop.closing import LoopClosing, rescale_relative
 from vslam_core.mapping.local_map import LocalMapSearcher
@@ -37,7 +37,8 @@ from vslam_core.mapping.map_scale import (
     slow_camera,
     translation_parallax,
 )
-from vslam_core.mapping.pnp import PnPSolution, at_raw_pixels, metric_pose, search_at_raw_pixels, solve_pnp
+from vslam_core.mapping.map_search import fitted_two_view
+from vslam_core.mapping.pnp import PnPSolution, at_raw_pixels, check_pnp, metric_pose, search_at_raw_pixels, solve_pnp
 from vslam_core.mapping.refinding import MapRefinding, suspended_at_keyframe
 from vslam_core.mapping.relocalisation import relocalise_by_descriptors
 from vslam_core.mapping.worker_process import BackendWorker
@@ -101,6 +102,7 @@ class MapTracking:
         self.loops_at_end: list[LoopStep] = []  # what the loop searches collected when the run ended did
         self._refound: dict[int, np.ndarray] = {}  # landmark id -> ideal pixel: re-found, for a keyframe now
         self._chain = RotationChain()  # the front end's rotations, a prior between keyframes in BA
+        self._step_measured = False  # --scale none: this two-view step's length was measured on landmarks
         self.refinding = MapRefinding(intrinsics, self._cfg, LocalMapSearcher(intrinsics, self._cfg), config.tracker)
 
     def close(self) -> None:
@@ -186,7 +188,7 @@ class MapTracking:
             if reckoned is not None and not agrees(two_view[:3, :3], reckoned, vo.position - vo.keyframe_position):
                 warnings.append(Reason.GAP_MOTION_REJECTED)
         if pose is None and two_view is not None and Reason.GAP_MOTION_REJECTED not in warnings:
-            pose, mode = two_view, TrackingMode.TWO_VIEW
+            pose, mode = self._fitted(two_view, vo, pnp), TrackingMode.TWO_VIEW
             if pnp is not None and self._has_map():
                 warnings.append(Reason.PNP_REJECTED)
         if pose is None and (self._gap or missing):  # the first frame after a gap that nothing else could place
@@ -274,6 +276,15 @@ class MapTracking:
             self._link_found(replace(estimate, inlier_mask=estimate.inlier_mask & found))
         return estimate
 
+    def _fitted(self, two_view: np.ndarray, vo: FrameResult, pnp: PnPEstimate | None) -> np.ndarray:
+        """--scale none: the two-view pose, its step's length measured on the landmarks the frame sees if
+        enough agree (map_search.fitted_two_view)."""
+        fitted = fitted_two_view(self.mapping.map, self.pose_of(vo.keyframe_position), vo.T_key_cur, pnp, self._K,
+                                 self._cfg) if self._speed and self._initialised and pnp and vo.T_key_cur is not None \
+            else None
+        self._step_measured = fitted is not None
+        return two_view if fitted is None else fitted
+
     def _link_found(self, found: PnPEstimate) -> None:
         """Start a track at each landmark re-found in this frame (PnP inliers when it has a pose) and link it,
         so the landmark is tracked on and observed by the next keyframe."""
@@ -285,25 +296,9 @@ class MapTracking:
     def _check_pnp(self, solution: PnPSolution, two_view: np.ndarray | None,
                    vo: FrameResult) -> tuple[str | None, bool, PnPFailure | None]:
         """Why a PnP pose is not trusted, if it is not; whether it outvoted the two-view rotation; the failure."""
-        cfg = self._cfg
-        inliers = int(solution.inlier_mask.sum())
-        if solution.T_world_cam is None or inliers < cfg.pnp_min_inliers:
-            return ("no PnP solution" if solution.T_world_cam is None else f"{inliers} inliers"), False, \
-                PnPFailure.RANSAC
-        if inliers < cfg.pnp_min_inlier_ratio * len(solution.inlier_mask):
-            return f"inlier ratio {inliers / len(solution.inlier_mask):.2f}", False, PnPFailure.RANSAC
-        if two_view is not None and vo.T_key_cur is not None:
-            pnp_motion = invert_pose(self.pose_of(vo.keyframe_position)) @ solution.T_world_cam
-            disagreement = np.degrees(rotation_angle(pnp_motion[:3, :3].T @ vo.T_key_cur[:3, :3]))
-            if disagreement > cfg.max_rotation_disagreement_deg:
-                # two against one: PnP agreeing with the motion model outvotes a two-view rotation over a short
-                # baseline (reversing, 1 frame from the keyframe: the essential matrix's rotation was 2-4° off)
-                predicted = self.refinding.predicted_pose()
-                if predicted is None or np.degrees(rotation_angle(predicted[:3, :3].T @ solution.T_world_cam[:3, :3])) \
-                        > cfg.max_rotation_disagreement_deg:
-                    return f"rotation {disagreement:.1f}° from the two-view motion", False, PnPFailure.DISAGREES
-                return None, True, None
-        return None, False, None
+        motion = (invert_pose(self.pose_of(vo.keyframe_position)) @ solution.T_world_cam
+                  if solution.T_world_cam is not None and two_view is not None else None)
+        return check_pnp(solution, motion, vo.T_key_cur, self.refinding.predicted_pose, self._cfg)
 
     def relocalise(self, image: np.ndarray, position: int) -> tuple[Relocalisation, PnPEstimate | None]:
         """Unguided relocalisation against the segment's recent keyframes (`relocalise_by_descriptors`). Returns
@@ -361,7 +356,8 @@ class MapTracking:
             return why, pose
         if self._since_keyframe >= cfg.keyframe_max_frames:
             return f"{self._since_keyframe} frames", pose
-        if cfg.map_search and pnp and pnp.failure in (PnPFailure.TOO_FEW_IN_VIEW, PnPFailure.TOO_FEW_MATCHED):
+        if (cfg.map_search or cfg.starving_keyframes) and pnp and \
+                pnp.failure in (PnPFailure.TOO_FEW_IN_VIEW, PnPFailure.TOO_FEW_MATCHED):
             return f"map: {pnp.failure}", pose  # new landmarks while tracks overlap the last keyframe's
         if len(in_frame):
             pixels = undistort_pixels(vo.track_cur[alive][in_frame], self._lens)
@@ -422,7 +418,8 @@ class MapTracking:
                 vo.position, self._segment, pose, track_ids, pixels, frame.image,
                 metric_step(self.config.scale, self._scale, self.mapping.map.keyframes.get(self._reference),
                             vo.position, pose),
-                why, {**self._links, **tied}, self._refound, landmark_settings(self._cfg, self._slow),
+                why, {**self._links, **tied}, self._refound,
+                landmark_settings(self._cfg, self._slow, starving=why.startswith("map:")),
                 self._chain.between(self.mapping.map.keyframes[self._reference].position, vo.position)
                 if self._reference >= 0 else None)
             live = set(track_ids.tolist())
@@ -443,7 +440,8 @@ class MapTracking:
         self._last_pose = pose
         self._posed_position = self._posed_position if held else vo.position
         if self._speed is not None and not held:
-            self._speed.observe(vo.position, pose, mode in (TrackingMode.MAP, TrackingMode.RELOCALISED))
+            self._speed.observe(vo.position, pose, mode in (TrackingMode.MAP, TrackingMode.RELOCALISED)
+                                or (mode == TrackingMode.TWO_VIEW and self._step_measured and self._cfg.step_fit_speed))
             if not self._initialised and keyframe is None:
                 alive = vo.track_fate >= TrackFate.NOT_USED
                 pixels = undistort_pixels(vo.track_cur[alive], self._lens)
