@@ -43,7 +43,7 @@ def kitti_run(kitti_root: Path, tmp_path_factory: pytest.TempPathFactory) -> tup
     out = tmp_path_factory.mktemp("run")
     rrd, trajectory = out / "00.rrd", out / "00.txt"
     result = vslam("run", kitti_root, "--sequence", "00", "--frames", "0:40", "-o", rrd, "--trajectory-out",
-                   trajectory)
+                   trajectory, "--backend", "vo")  # its poses are the engine's as tracked (the map refines them)
     assert result.returncode == 0, result.stderr
     return rrd, trajectory, result.stdout
 
@@ -62,7 +62,7 @@ def test_run_on_kitti_writes_a_valid_recording_and_one_pose_per_frame(
     # The recording holds what the engine computed (same input, same config: same numbers).
     source = KittiSource(kitti_root, sequence="00", frames=FrameRange(0, 40))
     results = []
-    run_odometry(source, EngineConfig(), sinks=(lambda _f, r: results.append(r),))
+    run_odometry(source, EngineConfig(backend="vo"), sinks=(lambda _f, r: results.append(r),))
     assert np.allclose(poses, np.array([r.T_world_cam for r in results]), atol=1e-6)
 
     corners = read_entity(rrd, "/world/camera/image/corners")
@@ -240,7 +240,7 @@ def test_corrupt_image_fails_naming_the_file_and_keeps_the_recording(corrupt_seq
 def test_corrupt_image_is_skipped_with_an_event(corrupt_sequence: Path, tmp_path: Path) -> None:
     rrd, trajectory = tmp_path / "skip.rrd", tmp_path / "skip.txt"
     result = vslam("run", corrupt_sequence, "--sequence", "00", "-o", rrd, "--trajectory-out", trajectory,
-                   "--on-bad-frame", "skip")
+                   "--on-bad-frame", "skip", "--backend", "vo")  # vo holds the pose (the map refines it)
     assert result.returncode == 0, result.stderr
     poses = read_kitti_poses(trajectory)
     assert len(poses) == 30 and np.allclose(poses[12], poses[11])  # the pose is held over the bad frame

@@ -52,8 +52,8 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     folder = tmp_path_factory.mktemp("runs")
     (folder / "b.toml").write_text("[detector]\ntarget_tracks = 400\nredetect_below = 300\n")
     a, b = folder / "a.rrd", folder / "b.rrd"
-    for args in (["run", "--frames", "0:20", "-o", a],
-                 ["run", "--frames", "0:20", "--config", folder / "b.toml", "-o", b]):
+    for args in (["run", "--frames", "0:20", "--backend", "vo", "-o", a],
+                 ["run", "--frames", "0:20", "--backend", "vo", "--config", folder / "b.toml", "-o", b]):
         result = vslam(*args)
         assert result.returncode == 0, result.stderr
     return a, b
@@ -250,12 +250,12 @@ def test_bad_inputs_and_outputs_are_one_line_errors_naming_the_file(runs: tuple[
     garbage = tmp_path / "garbage.rrd"
     garbage.write_bytes(b"not a recording\n")
     _one_line_error(lambda: compare_recordings(garbage, b, out), str(garbage), "not a readable Rerun recording")
-    truncated = tmp_path / "truncated.rrd"  # cut before its first /world/camera rows were written
-    truncated.write_bytes(a.read_bytes()[: a.stat().st_size // 2])
+    # cut before its first /world/camera rows were written (where they start depends on when the writer flushed:
+    # a cut at half the file can hold whole frames, which are then read)
+    truncated = tmp_path / "truncated.rrd"
+    truncated.write_bytes(a.read_bytes()[:4_000])
     message = _one_line_error(lambda: compare_recordings(a, truncated, out), str(truncated))
-    # what the first half holds depends on when the writer flushed (the blueprint store's messages can fill it)
-    assert ("not a vslam recording (no /world/camera" in message
-            or "not a readable Rerun recording (no recording data in it)" in message), message
+    assert "cut short before any of its recording data was written" in message, message
     other = tmp_path / "other.rrd"
     with rr.RecordingStream("other", recording_id="x", send_properties=False) as rec:
         rec.save(other)

@@ -160,7 +160,8 @@ def test_a_dead_reckoned_step_the_ambiguity_turned_around_repeats_the_step_befor
 @pytest.mark.kitti
 def test_dead_reckoned_frames_in_the_output_recording_and_inspect(kitti_root: Path, tmp_path: Path) -> None:
     rrd = tmp_path / "blind.rrd"
-    result = vslam("run", kitti_root, "--sequence", "00", "--frames", "190:230", "--inject", "blur@200:210", "-o", rrd)
+    result = vslam("run", kitti_root, "--sequence", "00", "--frames", "190:230", "--inject", "blur@200:210", "-o", rrd,
+                   "--backend", "vo")
     assert result.returncode == 0, result.stderr
     assert "frames      40 (13 not tracked: 13 dead-reckoned, 0 held the previous pose)" in result.stdout
     report = json.loads(vslam("inspect", rrd, "--json").stdout)

@@ -123,7 +123,7 @@ def test_save_map_refusals(kitti_root: Path, saved: Path, tmp_path: Path) -> Non
     assert again.stderr.strip().splitlines() == [f"error: {saved}: already exists (a saved map is never "
                                                  "overwritten; choose a new folder)"]
     vo = cli_helpers.vslam_here("run", kitti_root, "--sequence", "05", "--frames", "0:4", "--detail", "off",
-                                "--save-map", tmp_path / "m")
+                                "--save-map", tmp_path / "m", "--backend", "vo")
     assert vo.returncode != 0 and "--save-map needs --backend map" in vo.stderr
 
 

@@ -143,7 +143,8 @@ def kitti_height_runs(kitti_root: Path) -> dict[str, tuple[np.ndarray, np.ndarra
     for sequence in ("00", "05"):
         source = KittiSource(kitti_root, sequence=sequence, frames=FrameRange(0, 300))
         results: list[FrameResult] = []
-        run = run_odometry(source, EngineConfig(scale="height"), sinks=(lambda _f, r, kept=results: kept.append(r),))
+        run = run_odometry(source, EngineConfig(scale="height", backend="vo"),
+                           sinks=(lambda _f, r, kept=results: kept.append(r),))
         assert source.ground_truth is not None
         runs[sequence] = (source.ground_truth, run.pose_array(), results)
     return runs
@@ -182,7 +183,7 @@ def test_kitti_trajectory_is_the_same_without_a_poses_file(
     without_gt = KittiSource(tmp_path, sequence="05", frames=FrameRange(0, 80))
     assert without_gt.ground_truth is None
     _, with_gt, _ = kitti_height_runs["05"]
-    b = run_odometry(without_gt, EngineConfig(scale="height")).pose_array()
+    b = run_odometry(without_gt, EngineConfig(scale="height", backend="vo")).pose_array()
     assert np.array_equal(with_gt[:80], b)
 
 

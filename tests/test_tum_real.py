@@ -117,7 +117,7 @@ def _steps(source: TumRgbdSource, hold: bool) -> tuple[list[int], list[int]]:
     (``keyframe_parallax_px`` 0: the rule judges one-frame steps only): (the positions whose step from the previous
     frame points against the true one, cosine < 0, among true steps ≥ 3 mm; the positions held)."""
     pose = replace(PoseConfig(), hold_reversed_step=hold, keyframe_parallax_px=0.0)
-    config = EngineConfig(scale="gt", threads=1, pose=pose)
+    config = EngineConfig(scale="gt", backend="vo", threads=1, pose=pose)
     results: list[FrameResult] = []
     run = run_odometry(source, config, sinks=(lambda _frame, result: results.append(result),))
     truth = source.ground_truth
@@ -147,7 +147,7 @@ def test_rotation_of_fr1_desk_is_not_lost_to_short_steps(tum_root: Path) -> None
     it (an option, off by default: it made KITTI and the synthetic routes worse). Measured: 4.7° off at the last
     frame (8.0° with a keyframe on every frame, the default)."""
     source = TumRgbdSource(tum_root / DESK, frames=FrameRange.parse("0:100"))
-    run = run_odometry(source, EngineConfig(scale="gt", threads=1,
+    run = run_odometry(source, EngineConfig(scale="gt", backend="vo", threads=1,
                                             pose=replace(PoseConfig(), keyframe_parallax_px=10.0)))
     truth, poses = source.ground_truth, run.pose_array()
     assert truth is not None and run.held == 0

@@ -486,7 +486,10 @@ class MapTracking:
             status = FrameStatus.HELD
         else:
             reason = None
-            health = Health.of(None, [r for r in vo.health.reasons if r not in HOLD_REASONS] + warnings)
+            # a frame the map placed keeps `stationary` (the image did not move at all: a parked car, a frozen
+            # camera) as a warning, as vo does; the other reasons vo would have held it for are the map's to overrule
+            health = Health.of(None, [r for r in vo.health.reasons if r not in HOLD_REASONS or r == Reason.STATIONARY]
+                               + warnings)
             status = FrameStatus.INIT if mode == TrackingMode.INIT else FrameStatus.OK
         return replace(vo, T_world_cam=pose, status=status, reason=reason, points_world=points_world, health=health,
                        mapping=mapping)
