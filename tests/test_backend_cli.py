@@ -108,7 +108,7 @@ def test_eval_reports_the_backend_next_to_the_scale(tmp_path: Path) -> None:
     printed = vslam("eval", "synthetic", "--frames", "0:10")
     assert printed.returncode == 0, printed.stderr
     header, _, row = [line for line in printed.stdout.splitlines() if line.startswith("|")][:3]
-    assert "| scale | backend |" in header and "| gt | map |" in row  # the default backend
+    assert "| scale | backend |" in header and "| gt | vo |" in row
 
 
 def test_backend_does_not_apply_to_trajectory_files(tmp_path: Path) -> None:

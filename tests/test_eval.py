@@ -66,7 +66,7 @@ def test_json_has_the_documented_keys(report: tuple[Path, dict]) -> None:
     for row in [*data["sequences"], data["mean"]]:
         assert set(row) >= JSON_KEYS | {"scale", "backend"}
     assert data["gates"] == {"passed": True, "failures": []}
-    assert data["scale"] == "gt" and data["backend"] == "map"  # the default
+    assert data["scale"] == "gt" and data["backend"] == "vo"
 
 
 @pytest.mark.kitti
