@@ -183,11 +183,13 @@ def compare(before: list[Row], after: list[Row]) -> tuple[str, list[str]]:
     flagged for any worsening, as are groups with more failed runs). Returns the Markdown table and the flagged
     groups. The matrix as a whole: the mean over groups of the relative change of ATE after Sim(3). Only the runs
     both CSVs hold (same family, case, backend, scale and seed) are compared: a `--quick` CSV against a whole
-    matrix compares its own runs."""
+    matrix compares its own runs; and the means only over the runs finished in both (a run that failed before,
+    e.g. a sequence the code could not read then, would otherwise change a mean by being in it)."""
     def run_key(row: Row) -> tuple[str, ...]:
         return tuple(str(row[k]) for k in ("family", "case", "backend", "scale")) + (str(int(_float(row["seed"]))),)
 
     both = {run_key(r) for r in before} & {run_key(r) for r in after}
+    finished = {run_key(r) for r in before if not failed(r)} & {run_key(r) for r in after if not failed(r)}
     old = groups([r for r in before if run_key(r) in both])
     new = groups([r for r in after if run_key(r) in both])
     gone = [k for k in groups(before) if k not in new] + [k for k in groups(after) if k not in old]
@@ -195,7 +197,8 @@ def compare(before: list[Row], after: list[Row]) -> tuple[str, list[str]]:
              "Δ held % | failed before → after | verdict |", "|---|---|---|---|---|---|---|---|---|---|"]
     flagged, relative = [], []
     for key in [k for k in new if k in old]:
-        a, b = group_stats(old[key]), group_stats(new[key])
+        a = group_stats([r for r in old[key] if run_key(r) in finished]) | {"failed": sum(map(failed, old[key]))}
+        b = group_stats([r for r in new[key] if run_key(r) in finished]) | {"failed": sum(map(failed, new[key]))}
         worse = []
         for name in METRICS:
             delta = b[name] - a[name]
@@ -219,7 +222,7 @@ def compare(before: list[Row], after: list[Row]) -> tuple[str, list[str]]:
                      f"{verdict} |")
     only = [f"{k[0]} {k[1]} {k[2]}" for k in dict.fromkeys(gone)]
     whole = _nanmean(relative)
-    lines += ["", f"Compared: the {len(both)} runs both CSVs hold.",
+    lines += ["", f"Compared: the {len(both)} runs both CSVs hold, means over the {len(finished)} finished in both.",
               f"Matrix as a whole: ATE after Sim(3) {100 * whole:+.1f} % (mean over {len(relative)} groups of "
               "each group's relative change)" if relative else "", f"Groups worse beyond their noise: {len(flagged)}"]
     if only:

@@ -129,6 +129,16 @@ def test_compare_takes_only_the_runs_both_csvs_hold() -> None:
     """A subset (a --quick CSV) against the whole matrix: the same runs, not group means over different cases."""
     subset = [row for row in _rows() if row["case"] == "05 0:150"]  # the better case of the KITTI group
     text, flagged = compare(_rows(), subset)
-    assert flagged == [] and "Compared: the 2 runs both CSVs hold." in text
+    assert flagged == [] and "Compared: the 2 runs both CSVs hold, means over the 2 finished in both." in text
     assert "| KITTI step 1 | vo | gt | 0.300 → 0.300 | +0.000 |" in text
     assert "Not compared (no run in both CSVs): TUM hand-held map gt" in text
+
+
+def test_compare_means_only_the_runs_finished_in_both() -> None:
+    """A case that failed before (a sequence the code could not read then) and runs now is counted as a failure
+    fixed, not averaged into the after mean: the group's other case is what both means hold."""
+    before = [_row("TUM hand-held", "xyz", "vo", 0, 0.02), _row("TUM hand-held", "desk", "vo", 0, 0.0, error="x")]
+    after = [_row("TUM hand-held", "xyz", "vo", 0, 0.02), _row("TUM hand-held", "desk", "vo", 0, 0.09)]
+    text, flagged = compare(before, after)
+    assert flagged == [] and "| TUM hand-held | vo | gt | 0.020 → 0.020 | +0.000 |" in text
+    assert "| 1 → 0 | ok |" in text and "means over the 1 finished in both" in text
