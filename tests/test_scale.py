@@ -120,10 +120,11 @@ def test_height_scale_needs_a_camera_height() -> None:
     assert isinstance(provider, HeightScale) and provider.camera_height == 1.2
 
 
-@pytest.mark.parametrize("camera_height", [1.65, 1.3])
-def test_synthetic_street_metric_from_the_camera_height(camera_height: float) -> None:
-    """117 m of the street (t_err exists from 100 m): measured t_err 0.77 / 0.29 %, median and path-length scale
-    errors −0.4 / −1.0 % and −1.0 / −0.6 %, camera heights 1.650 / 1.290 m (1.65 / 1.3)."""
+def test_synthetic_street_metric_from_the_camera_height() -> None:
+    """117 m of the street (t_err exists from 100 m) seen from 1.3 m, not KITTI's 1.65 m (the default height is
+    KITTI's own, measured on real frames below): measured t_err 0.29 %, median and path-length scale errors
+    −1.0 % and −0.6 %, camera height 1.290 m (at 1.65 m: 0.77 %, −0.4 / −1.0 %, 1.650 m)."""
+    camera_height = 1.3
     source = SyntheticStreet(camera_height=camera_height, frames=FrameRange(0, 120))
     results: list[FrameResult] = []
     run = run_odometry(source, EngineConfig(scale="height"), sinks=(lambda _f, r: results.append(r),))
