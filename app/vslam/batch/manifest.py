@@ -139,6 +139,15 @@ def _spec(path: Path, label: str, index: int, row: dict[str, str]) -> LogSpec:
     def bad(message: str) -> ManifestError:
         return ManifestError(f"{where}: {message}")
 
+    def number(key: str, unit: str = "") -> float | None:
+        """The row's `key` as a float (None when empty); a row error naming it when it is not a number."""
+        if key not in values:
+            return None
+        try:
+            return float(values[key])
+        except ValueError:
+            raise bad(f"{key} {values[key]!r} is not a number{unit}") from None
+
     if not NAME_PATTERN.match(name):
         raise bad(f"name {name!r} must be letters, digits, '.', '_' or '-' (it names the report's files)")
     if "source" not in values:
@@ -180,23 +189,13 @@ def _spec(path: Path, label: str, index: int, row: dict[str, str]) -> LogSpec:
     for key, allowed in (("scale", SCALES), ("backend", BACKENDS)):
         if key in values and values[key] not in allowed:
             raise bad(f"{key} {values[key]!r} is not one of {', '.join(allowed)}")
-    camera_height = None
-    if "camera_height" in values:
-        try:
-            camera_height = float(values["camera_height"])
-        except ValueError:
-            raise bad(f"camera_height {values['camera_height']!r} is not a number (metres)") from None
-        problem = camera_height_problem(camera_height)
-        if problem is not None:
-            raise bad(problem.replace("--camera-height", "camera_height"))
-    calib_scale = None
-    if "calib_scale" in values:
-        try:
-            calib_scale = float(values["calib_scale"])
-        except ValueError:
-            raise bad(f"calib_scale {values['calib_scale']!r} is not a number") from None
-        if not 0.01 <= calib_scale <= 100.0:
-            raise bad(f"calib_scale {calib_scale:g} is outside [0.01, 100]")
+    camera_height = number("camera_height", " (metres)")
+    problem = camera_height_problem(camera_height) if camera_height is not None else None
+    if problem is not None:
+        raise bad(problem.replace("--camera-height", "camera_height"))
+    calib_scale = number("calib_scale")
+    if calib_scale is not None and not 0.01 <= calib_scale <= 100.0:
+        raise bad(f"calib_scale {calib_scale:g} is outside [0.01, 100]")
     if "config" in paths:
         from vslam_core.config import load_config
 
