@@ -4,6 +4,7 @@ and the map backend's run over KITTI 00 (tests/conftest.py shares one such run b
 from __future__ import annotations
 
 import os
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
@@ -18,14 +19,22 @@ from vslam_core.sources.kitti import KittiSource
 MapRun = tuple[list[FrameResult], np.ndarray, np.ndarray]
 
 
+def link_images(kitti_root: Path, folder: Path, order: Iterable[int], sequence: str = "05") -> Path:
+    """An image folder (made here) of the sequence's frames in `order`, numbered from 000000: symbolic links,
+    nothing copied, and nothing else (no calibration, times or ground truth)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    images = kitti_root / "sequences" / sequence / "image_0"
+    for k, i in enumerate(order):
+        os.symlink(images / f"{i:06d}.png", folder / f"{k:06d}.png")
+    return folder
+
+
 def kitti_folder(kitti_root: Path, folder: Path, order: list[int], sequence: str = "05") -> Path:
     """An image folder (made here) of the sequence's frames in `order` (symbolic links, nothing copied), with
     its calib.txt and the ground-truth rows in the same order as gt.txt (the folder source re-bases them on the
     first frame)."""
-    folder.mkdir(exist_ok=True)
+    link_images(kitti_root, folder, order, sequence)
     images = kitti_root / "sequences" / sequence
-    for k, i in enumerate(order):
-        os.symlink(images / "image_0" / f"{i:06d}.png", folder / f"{k:06d}.png")
     (folder / "calib.txt").write_text((images / "calib.txt").read_text())
     np.savetxt(folder / "gt.txt", np.loadtxt(kitti_root / "poses" / f"{sequence}.txt").reshape(-1, 12)[order])
     return folder

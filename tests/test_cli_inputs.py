@@ -11,6 +11,7 @@ from pathlib import Path
 import cv2
 import pytest
 from cli_helpers import vslam, vslam_here
+from kitti_runs import link_images
 
 ROOT = Path(__file__).resolve().parents[1]
 INTRINSICS = "718.856,718.856,607.1928,185.2157"
@@ -32,11 +33,7 @@ def assert_one_line_error(result: subprocess.CompletedProcess[str], *fragments: 
 
 @pytest.fixture
 def image_folder(kitti_root: Path, tmp_path: Path) -> Path:
-    folder = tmp_path / "images"
-    folder.mkdir()
-    for i in range(4):
-        (folder / f"{i:06d}.png").symlink_to(kitti_root / "sequences" / "00" / "image_0" / f"{i:06d}.png")
-    return folder
+    return link_images(kitti_root, tmp_path / "images", range(4), sequence="00")
 
 
 # ------------------------------------------------------------------------- item 4: ranges, CLI side

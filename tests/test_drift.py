@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from cli_helpers import vslam
+from kitti_runs import link_images
 
 from vslam.recording.drift import DRIFT_ENTITY, DRIFT_LIFT_M, DRIFT_RADIUS_M, LINKS_ENTITY, drift_colours
 from vslam.rrd.inspect import format_report, inspect_recording
@@ -154,11 +155,7 @@ def test_recording_holds_drift_series_trajectory_links_and_events(kitti_run: tup
 
 
 def test_no_ground_truth_no_drift(kitti_root: Path, tmp_path: Path) -> None:
-    images = tmp_path / "images"
-    images.mkdir()
-    for i in range(6):
-        name = f"{i:06d}.png"
-        (images / name).symlink_to(kitti_root / "sequences" / "00" / "image_0" / name)
+    images = link_images(kitti_root, tmp_path / "images", range(6), sequence="00")
     rrd = tmp_path / "folder.rrd"
     result = vslam("run", images, "--intrinsics", KITTI_K, "--detail", "summary", "-o", rrd)
     assert result.returncode == 0, result.stderr

@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 import pytest
 from cli_helpers import need_vulkan, vslam
+from kitti_runs import link_images
 
 from vslam.common.trajectory_images import stamps_from_names
 from vslam.evaluation.matching import MatchMode, match_images
@@ -207,10 +208,7 @@ def test_two_files_of_the_same_name_are_refused(tmp_path: Path) -> None:
 
 @pytest.mark.kitti
 def test_too_few_images_is_one_line_and_writes_nothing(kitti_root: Path, tmp_path: Path) -> None:
-    images = tmp_path / "images"
-    images.mkdir()
-    for i in range(5):
-        (images / f"{i:06d}.png").symlink_to(kitti_root / "sequences" / "00" / "image_0" / f"{i:06d}.png")
+    images = link_images(kitti_root, tmp_path / "images", range(5), sequence="00")
     poses = read_kitti_poses(kitti_root / "poses" / "00.txt", max_rows=10)
     write_kitti_poses(tmp_path / "est.txt", poses)
     write_kitti_poses(tmp_path / "gt.txt", poses)
@@ -225,10 +223,7 @@ def test_too_few_images_is_one_line_and_writes_nothing(kitti_root: Path, tmp_pat
 
 @pytest.mark.kitti
 def test_a_folder_without_camera_shows_its_images_in_2d_only(kitti_root: Path, tmp_path: Path) -> None:
-    images = tmp_path / "images"
-    images.mkdir()
-    for i in range(8):
-        (images / f"{i:06d}.png").symlink_to(kitti_root / "sequences" / "00" / "image_0" / f"{i:06d}.png")
+    images = link_images(kitti_root, tmp_path / "images", range(8), sequence="00")
     poses = read_kitti_poses(kitti_root / "poses" / "00.txt", max_rows=8)
     write_kitti_poses(tmp_path / "est.txt", poses)
     write_kitti_poses(tmp_path / "gt.txt", poses)

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import pytest
 from cli_helpers import vslam
+from kitti_runs import link_images
 
 from vslam.rrd.read import read_entity
 from vslam_core.config import EngineConfig
@@ -154,10 +155,7 @@ def test_kitti_ground_truth_of_other_frames_is_far_off(kitti_run: list[FrameResu
 @pytest.fixture
 def renumbered(kitti_root: Path, tmp_path: Path) -> Path:
     """KITTI 05 images 100–159 renumbered from 000000, with calib.txt, and no times.txt."""
-    folder = tmp_path / "frames"
-    folder.mkdir()
-    for i in range(60):
-        (folder / f"{i:06d}.png").symlink_to(kitti_root / "sequences" / "05" / "image_0" / f"{100 + i:06d}.png")
+    folder = link_images(kitti_root, tmp_path / "frames", range(100, 160))
     (folder / "calib.txt").write_text((kitti_root / "sequences" / "05" / "calib.txt").read_text())
     return folder
 

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from cli_helpers import vslam
+from kitti_runs import link_images
 
 from vslam.recording.overview import CANVAS, Stretch, top_view, worst_stretches
 from vslam.rrd.read import read_entity
@@ -64,11 +65,7 @@ def test_a_planted_bad_stretch_is_listed_first_and_drawn(kitti_root: Path, tmp_p
 def test_without_ground_truth_the_path_is_coloured_by_health(kitti_root: Path, tmp_path: Path) -> None:
     """An image folder of KITTI 05 frames without ground truth, frames 10..14 dark: the stretches are ranked by
     health and the dark frames' stretch comes first; the path's colours are the health's."""
-    folder = tmp_path / "frames"
-    folder.mkdir()
-    for index in range(30):
-        name = f"{index:06d}.png"
-        (folder / name).symlink_to(kitti_root / "sequences" / "05" / "image_0" / name)
+    folder = link_images(kitti_root, tmp_path / "frames", range(30))
     rrd = tmp_path / "run.rrd"
     result = vslam("run", folder, "--intrinsics", "707.0912,707.0912,601.8873,183.1104", "--scale", "none",
                    "--inject", "dark@10:14", "-o", rrd)

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from cli_helpers import vslam
+from kitti_runs import link_images
 
 from vslam.rrd.read import read_entity
 from vslam_core.config import EngineConfig, HeightScaleConfig
@@ -212,10 +213,7 @@ def test_cli_records_the_road_plane_and_reports_the_scale_source(kitti_root: Pat
 
 
 def test_cli_height_scale_errors(kitti_root: Path, tmp_path: Path) -> None:
-    folder = tmp_path / "images"
-    folder.mkdir()
-    for i in range(3):
-        (folder / f"{i:06d}.png").symlink_to(kitti_root / "sequences" / "00" / "image_0" / f"{i:06d}.png")
+    folder = link_images(kitti_root, tmp_path / "images", range(3), sequence="00")
     for args, fragment in (
         ([folder, "--intrinsics", "718.9,718.9,607.2,185.2", "--scale", "height"], "--camera-height"),
         ([kitti_root, "--sequence", "00", "--scale", "gt", "--camera-height", "1.5"], "only applies"),
