@@ -32,6 +32,7 @@ from vslam.recording import (
     TIMELINES,
     EntitySpec,
 )
+from vslam.rrd.health import read_statuses, unknown_statuses
 from vslam.rrd.provenance import PROPERTIES, comparison_prefixes, read_properties
 from vslam.rrd.read import RecordingError, first_line, open_store, read_entity, readable
 from vslam_core.errors import VslamError
@@ -239,19 +240,11 @@ def _rows(table: pl.DataFrame, column: str, width: int) -> np.ndarray | None:
 
 def _check_health(path: Path, prefix: str) -> list[Problem]:
     entity = prefix + "/health"
-    table = read_entity(path, entity)
-    if "status" not in table.columns:
-        return []
-    statuses = {_text(v) for v in table["status"].to_list()}
-    unknown = sorted(str(s) for s in statuses - set(HEALTH_STATUSES))
+    unknown = unknown_statuses(read_statuses(path, prefix), HEALTH_STATUSES)
     if unknown:
         return [Problem(f"{entity}:status", f"{unknown[0]!r} is not a health level ({', '.join(HEALTH_STATUSES)})",
                         ("inspect", "compare"))]
     return []
-
-
-def _text(value: object) -> object:
-    return value[0] if isinstance(value, list) and len(value) == 1 else value
 
 
 @contextmanager

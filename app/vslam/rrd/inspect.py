@@ -13,9 +13,10 @@ import numpy as np
 
 from vslam.common import COLUMNS
 from vslam.common import METRICS as REPORT_METRICS
-from vslam.recording import METRICS, STAGES
+from vslam.recording import HEALTH_STATUSES, METRICS, STAGES
 from vslam.recording import WORST as DRIFT_TOP
 from vslam.rrd.check import schema_contract
+from vslam.rrd.health import read_health, unknown_statuses
 from vslam.rrd.poses import camera_poses
 from vslam.rrd.provenance import (
     PROPERTIES,
@@ -283,20 +284,13 @@ def _run_report(path: Path, prefix: str = "") -> dict[str, Any]:
     if camera.is_empty() or "frame" not in camera.columns:
         raise RecordingError(no_frames(path, cut_short))
     frames = camera["frame"].to_list()
-    health = read_entity(path, f"{prefix}/health")
-    flagged = []
-    frame_reasons: dict[int, list[str]] = {}
-    if not health.is_empty():
-        reasons = health["reasons"].to_list() if "reasons" in health.columns else [None] * len(health)
-        codes = [_text(v) for v in reasons]
-        statuses = [_text(v) for v in health["status"].to_list()] if "status" in health.columns \
-            else [""] * len(health)
-        if unknown := sorted(set(statuses) - {"ok", "warn", "fail"}):
-            raise RecordingError(f"{path}: {prefix}/health:status: {unknown[0]!r} is not a health level (ok, warn, "
-                                 f"fail): the recording does not conform to the schema (vslam check {path})")
-        flagged = flagged_ranges(health["frame"].to_list(), statuses, codes)
-        frame_reasons = {int(f): [r for r in c.split(",") if r] for f, c in zip(health["frame"].to_list(), codes,
-                                                                                  strict=True)}
+    health = read_health(path, prefix)
+    if unknown := unknown_statuses((h.status for h in health.values()), HEALTH_STATUSES):
+        raise RecordingError(f"{path}: {prefix}/health:status: {unknown[0]!r} is not a health level (ok, warn, "
+                             f"fail): the recording does not conform to the schema (vslam check {path})")
+    flagged = flagged_ranges(list(health), [h.status for h in health.values()],
+                             [",".join(h.reasons) for h in health.values()])
+    frame_reasons = {frame: h.reasons for frame, h in health.items()}
     timing = _scalars(path, "timing_ms", prefix)
     tracks, ransac = _scalars(path, "tracks", prefix), _scalars(path, "ransac", prefix)
     ratio = _scalars(path, "ratio", prefix)
@@ -490,11 +484,3 @@ def _camera_lines(props: dict[str, Any]) -> list[str]:
     if "sixteen_bit" in props:
         lines.append(f"16-bit      {props['sixteen_bit']}")
     return lines
-
-
-
-def _text(value: object) -> str:
-    """One `AnyValues` cell as text (a one-element list as the reader gives it, or the bare value); "" for none."""
-    if isinstance(value, list):
-        value = value[0] if value else None
-    return "" if value is None else str(value)

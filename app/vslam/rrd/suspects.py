@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from vslam.rrd.health import read_health
 from vslam.rrd.poses import camera_poses
 from vslam.rrd.read import read_entity
 
@@ -63,13 +64,7 @@ def read_poses(path: Path, prefix: str = "") -> RunPoses:
     """Poses (``{prefix}/world/camera``, any rotation the schema allows: `vslam.rrd.poses`) and health
     (``{prefix}/health``) of a recording, by frame."""
     camera = camera_poses(path, prefix)
-    health: dict[int, tuple[str, list[str]]] = {}
-    table = read_entity(path, f"{prefix}/health")
-    if not table.is_empty() and "status" in table.columns:
-        reasons = table["reasons"].to_list() if "reasons" in table.columns else [None] * len(table)
-        for frame, status, codes in zip(table["frame"].to_list(), table["status"].to_list(), reasons, strict=True):
-            text = codes[0] if codes else ""
-            health[int(frame)] = (str(status[0]) if status else "", [r for r in str(text).split(",") if r])
+    health = {frame: (h.status, h.reasons) for frame, h in read_health(path, prefix).items()}
     return RunPoses(camera.frames, camera.poses, health)
 
 
