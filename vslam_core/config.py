@@ -114,6 +114,7 @@ class HeightScaleConfig:
     max_jump: float = 0.3  # an estimate further than this fraction from the trend is an outlier
     doubtful_jump: float = 0.15  # ... further than this (not an outlier): used, flagged road_plane_doubtful
     doubtful_tilt_deg: float = 3.0  # a plane's normal this far from the median of the recent planes': flagged too
+    doubtful_inliers: int = 12  # a plane on fewer inliers than this: flagged too (KITTI: its step 15 % off, median)
 
 
 @dataclass(frozen=True)

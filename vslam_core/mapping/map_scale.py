@@ -26,7 +26,7 @@ from vslam_core.geometry import invert_pose, normalise_points, pose_matrix, rota
 from vslam_core.mapping.local_mapping import well_triangulated
 from vslam_core.mapping.map import Keyframe, Map
 from vslam_core.mapping.pnp import solve_pnp
-from vslam_core.results import KeyframeInserted, ScaleEstimate
+from vslam_core.results import FrameResult, KeyframeInserted, Reason, ScaleEstimate
 from vslam_core.scale import ScaleProvider, TwoView
 from vslam_core.two_view import two_view_motion
 
@@ -232,11 +232,35 @@ class FramesBeforeMap:
         return placed
 
 
+def height_unmeasured(scale: ScaleSource, frame: FrameResult) -> bool:
+    """--scale height: the front end measured no step length for this frame (no road plane, or one over
+    `max_jump` off the trend: `scale_held`), so its step is the trend's extrapolation. The map then keeps its own
+    scale for the frame (PnP's pose, in the landmarks' scale) and gives bundle adjustment no range prior from it.
+    On KITTI 00 150:300:2 the extrapolated trend ran to 40-60 % of the true step over stretches without a plane,
+    and held to 5 % in bundle adjustment it shrank the map (17 % short at the end), which kept the shrunk scale
+    after the road came back; `vo` forgets it at the next plane (9 % short)."""
+    return scale == "height" and frame.scale_estimate is not None and frame.scale_estimate.held
+
+
+def height_off_map(frame: FrameResult, pnp_pose: np.ndarray, T_world_key: np.ndarray,  # noqa: N803
+                   config: EngineConfig) -> list[Reason]:
+    """--scale height, a frame PnP placed (pose (4, 4)): `height_off_map` when the step its road plane measured
+    from the front end's keyframe (pose `T_world_key`) is over `height.max_jump` off PnP's step, in the map's own
+    scale (a plane the trend rejected is `scale_held` already); else no reason."""
+    estimate = frame.scale_estimate
+    if estimate is None or estimate.held or estimate.measured_step is None:
+        return []
+    length = float(np.linalg.norm((invert_pose(T_world_key) @ pnp_pose)[:3, 3]))
+    off = length > 1e-9 and abs(estimate.measured_step / length - 1) > config.height.max_jump
+    return [Reason.HEIGHT_OFF_MAP] if off else []
+
+
 def metric_step(scale: ScaleSource, provider: ScaleProvider, previous: Keyframe | None, position: int,
-                pose: np.ndarray) -> float | None:
+                pose: np.ndarray, unmeasured: bool = False) -> float | None:
     """Distance of the frame at run `position` (pose (4, 4)) from the `previous` keyframe by the scale source (the
-    BA's range prior): gt's own, height's as tracked; None for --scale none or without a keyframe."""
-    if scale == "none" or previous is None:
+    BA's range prior): gt's own, height's as tracked when the front end measured this `frame`'s step; None for
+    --scale none, without a keyframe, or with height unmeasured (`height_unmeasured`)."""
+    if scale == "none" or previous is None or unmeasured:
         return None
     if scale == "gt":
         empty = np.zeros((0, 3))
