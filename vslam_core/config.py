@@ -172,7 +172,7 @@ class MapConfig:
     # m: keyframe-to-keyframe distance prior with --scale gt (vo takes each step's length exactly; at 1 cm BA let
     # the steps drift: mean ATE after Sim(3) over 36 KITTI runs 0.119 m, at 1-5 mm 0.109-0.110, at 3 cm 0.187)
     scale_sigma_gt: float = 0.003
-    scale_sigma_height: float = 0.05  # fraction of the distance with --scale height
+    scale_sigma_height: float = 0.025  # fraction of the distance with --scale height
     # --scale none: the map's own scale carries the trajectory (vslam_core/mapping/map_scale.py). The first
     # baseline waits for this much translation parallax; then these replace min_triangulation_deg and
     # ba_iterations
