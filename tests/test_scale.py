@@ -10,6 +10,8 @@ import pytest
 from cli_helpers import vslam
 from kitti_runs import link_images
 
+from vslam.rrd.health import read_health
+from vslam.rrd.inspect import inspect_recording
 from vslam.rrd.read import read_entity
 from vslam_core.config import EngineConfig, HeightScaleConfig
 from vslam_core.errors import ConfigError
@@ -169,6 +171,8 @@ def test_kitti_metric_without_ground_truth_within_three_percent(
     assert 0 < len(doubtful) < 0.5 * len(results)
     assert all((Reason.ROAD_PLANE_DOUBTFUL in r.health.reasons) == e.doubtful for r, e in estimates)
     assert not any(e.doubtful and e.held for _, e in estimates)
+    few = [e for _, e in estimates if not e.held and len(e.road_points) < CONFIG.doubtful_inliers]
+    assert few and all(e.doubtful for e in few)  # a plane on few inliers is doubtful
 
 
 def test_kitti_trajectory_is_the_same_without_a_poses_file(
@@ -223,3 +227,24 @@ def test_cli_height_scale_errors(kitti_root: Path, tmp_path: Path) -> None:
         lines = [line for line in result.stderr.splitlines() if line.strip()]
         assert len(lines) == 1 and fragment in lines[0], result.stderr
 
+
+
+def test_map_backend_flags_frames_without_a_sure_road_plane(kitti_root: Path, tmp_path: Path) -> None:
+    """--backend map --scale height on real KITTI frames (00 150:210: a stretch without road points, planes on few
+    inliers): a frame without a road plane (or with an outlier) reads back `scale_held` from the recording's
+    /health, one with a doubtful plane `road_plane_doubtful`, one whose plane disagrees with the map's own step
+    `height_off_map` (both only on frames with a measured step), all warn; `vslam inspect` lists them."""
+    rrd = tmp_path / "m.rrd"
+    result = vslam("run", kitti_root, "--sequence", "00", "--frames", "150:210", "--scale", "height", "--backend",
+                   "map", "-o", rrd)
+    assert result.returncode == 0, result.stderr
+    health = read_health(rrd)
+    measured = set(read_entity(rrd, "/metrics/road/measured_step")["frame"].to_list())
+    held, doubtful, off = ({f for f, h in health.items() if code in h.reasons}
+                           for code in ("scale_held", "road_plane_doubtful", "height_off_map"))
+    assert held and doubtful and off and not held & (doubtful | off)
+    assert set(range(151, 210)) - measured <= held  # no plane: held (the first frame has no step)
+    assert doubtful | off <= measured
+    assert all(health[f].status == "warn" for f in held | doubtful | off)
+    flagged = {code for flag in inspect_recording(rrd)["flagged"] for code in flag["reasons"]}
+    assert {"scale_held", "road_plane_doubtful", "height_off_map"} <= flagged

@@ -114,6 +114,7 @@ class HeightScaleConfig:
     max_jump: float = 0.3  # an estimate further than this fraction from the trend is an outlier
     doubtful_jump: float = 0.15  # ... further than this (not an outlier): used, flagged road_plane_doubtful
     doubtful_tilt_deg: float = 3.0  # a plane's normal this far from the median of the recent planes': flagged too
+    doubtful_inliers: int = 12  # a plane on fewer inliers than this: flagged too (KITTI: its step 15 % off, median)
 
 
 @dataclass(frozen=True)
@@ -171,7 +172,7 @@ class MapConfig:
     # m: keyframe-to-keyframe distance prior with --scale gt (vo takes each step's length exactly; at 1 cm BA let
     # the steps drift: mean ATE after Sim(3) over 36 KITTI runs 0.119 m, at 1-5 mm 0.109-0.110, at 3 cm 0.187)
     scale_sigma_gt: float = 0.003
-    scale_sigma_height: float = 0.05  # fraction of the distance with --scale height
+    scale_sigma_height: float = 0.025  # fraction of the distance with --scale height
     # --scale none: the map's own scale carries the trajectory (vslam_core/mapping/map_scale.py). The first
     # baseline waits for this much translation parallax; then these replace min_triangulation_deg and
     # ba_iterations

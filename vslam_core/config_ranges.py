@@ -133,6 +133,7 @@ RANGES: dict[str, Range] = {
     "height.max_jump": positive(100.0),
     "height.doubtful_jump": positive(100.0),
     "height.doubtful_tilt_deg": positive(90.0),
+    "height.doubtful_inliers": COUNT,
     # map backend
     "map.keyframe_parallax_px": positive(10_000.0),
     "map.keyframe_overlap": FRACTION,

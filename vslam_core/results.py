@@ -66,6 +66,8 @@ class Reason(StrEnum):
     # motion model's prediction, and was used
     RELOCALISED = "relocalised"  # warn: tracking was lost; the pose came from matching the map's landmarks
     NEW_MAP_SEGMENT = "new_map_segment"  # warn: relocalisation failed, a new map was started here
+    HEIGHT_OFF_MAP = "height_off_map"  # warn (--scale height): the road plane's step is over `max_jump` off the
+    # step of the map's own PnP pose: the road and the map's scale disagree
     COASTED = "coasted"  # the image could not be tracked; its pose is dead-reckoned from the degraded image
 
 

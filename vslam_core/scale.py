@@ -70,8 +70,9 @@ class HeightScale:
     squares with Cauchy weights: speed changes smoothly, a trend does not lag while the car accelerates,
     and a wrong plane barely moves it); the step used is the trend at this frame. A frame without a plane,
     or whose measurement lies more than `max_jump` from the trend, is flagged `held`: the trend carries it.
-    One whose plane is used but doubtful (more than `doubtful_jump` from the trend, or its normal over
-    `doubtful_tilt_deg` from the recent planes': a ramp or a crest) is flagged `doubtful`.
+    One whose plane is used but doubtful (more than `doubtful_jump` from the trend, its normal over
+    `doubtful_tilt_deg` from the recent planes': a ramp or a crest, or fewer than `doubtful_inliers` inliers) is
+    flagged `doubtful`.
     RANSAC is seeded per frame, so the result is deterministic.
     """
 
@@ -117,8 +118,9 @@ class HeightScale:
         speed = self.trend(view.cur_position)
         step = speed * frames if speed is not None else 1.0  # nothing measured yet: a unit step, flagged
         held = measured is None or abs(measured / step - 1) > cfg.max_jump
-        doubtful = measured is not None and not held and (abs(measured / step - 1) > cfg.doubtful_jump
-                                                          or self._tilted(plane))
+        doubtful = measured is not None and plane is not None and not held and (
+            abs(measured / step - 1) > cfg.doubtful_jump or self._tilted(plane)
+            or int(plane.inliers.sum()) < cfg.doubtful_inliers)
         if plane is not None:
             self._normals.append(plane.normal)
         return step, ScaleEstimate(

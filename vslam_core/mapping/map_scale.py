@@ -12,6 +12,10 @@ al. 2015, sec. V-B) predicts a frame from the last two.
 
 `MapSpeed` is a `ScaleProvider` (vslam_core/scale.py): the map backend hands it to the odometry front end and
 to dead reckoning in place of `UnitScale`, and tells it every frame's pose (`observe`).
+
+With a scale source the map takes its steps' lengths from it (`pnp_pose`, `metric_step`: the BA's range priors),
+except with `--scale height` on a frame without a road plane, where it keeps its own scale, as without one
+(`height_unmeasured`).
 """
 
 from __future__ import annotations
@@ -25,8 +29,8 @@ from vslam_core.config import EngineConfig, MapConfig, ScaleSource
 from vslam_core.geometry import invert_pose, normalise_points, pose_matrix, rotation_angle, triangulate
 from vslam_core.mapping.local_mapping import well_triangulated
 from vslam_core.mapping.map import Keyframe, Map
-from vslam_core.mapping.pnp import solve_pnp
-from vslam_core.results import KeyframeInserted, ScaleEstimate
+from vslam_core.mapping.pnp import metric_pose, solve_pnp
+from vslam_core.results import FrameResult, KeyframeInserted, PnPEstimate, Reason, ScaleEstimate
 from vslam_core.scale import ScaleProvider, TwoView
 from vslam_core.two_view import two_view_motion
 
@@ -232,11 +236,50 @@ class FramesBeforeMap:
         return placed
 
 
+def height_unmeasured(scale: ScaleSource, frame: FrameResult) -> bool:
+    """--scale height: the front end measured no step length for this frame (no road plane, or one over
+    `max_jump` off the trend: `scale_held`), so its step is the trend's extrapolation. The map then keeps its own
+    scale for the frame (PnP's pose, in the landmarks' scale) and gives bundle adjustment no range prior from it.
+    On KITTI 00 150:300:2 the extrapolated trend ran to 40-60 % of the true step over stretches without a plane,
+    and held to 5 % in bundle adjustment it shrank the map (17 % short at the end), which kept the shrunk scale
+    after the road came back; `vo` forgets it at the next plane (9 % short)."""
+    return scale == "height" and frame.scale_estimate is not None and frame.scale_estimate.held
+
+
+def height_off_map(frame: FrameResult, pnp_pose: np.ndarray, T_world_key: np.ndarray,  # noqa: N803
+                   config: EngineConfig) -> list[Reason]:
+    """--scale height, a frame PnP placed (pose (4, 4)): `height_off_map` when the step its road plane measured
+    from the front end's keyframe (pose `T_world_key`) is over `height.max_jump` off PnP's step, in the map's own
+    scale (a plane the trend rejected is `scale_held` already); else no reason."""
+    estimate = frame.scale_estimate
+    if estimate is None or estimate.held or estimate.measured_step is None:
+        return []
+    length = float(np.linalg.norm((invert_pose(T_world_key) @ pnp_pose)[:3, 3]))
+    off = length > 1e-9 and abs(estimate.measured_step / length - 1) > config.height.max_jump
+    return [Reason.HEIGHT_OFF_MAP] if off else []
+
+
+def pnp_pose(config: EngineConfig, map_config: MapConfig, frame: FrameResult, pnp: PnPEstimate,
+             two_view: np.ndarray | None, T_world_key: np.ndarray) -> tuple[np.ndarray, list[Reason]]:  # noqa: N803
+    """The (4, 4) pose of a `frame` PnP placed (`pnp.T_world_cam`, checked), and its warnings: PnP's own pose with
+    --scale none or when the height was not measured (`height_unmeasured`), else the front end's motion from its
+    keyframe (pose `T_world_key`; `two_view` = T_world_key · T_key_cur) at the scale source's length
+    (`pnp.metric_pose`); `two_view_outvoted`, `height_off_map`."""
+    assert pnp.T_world_cam is not None
+    pose = pnp.T_world_cam
+    if config.scale != "none" and frame.scale is not None and not height_unmeasured(config.scale, frame):
+        pose = metric_pose(pose, None if pnp.outvoted_two_view else two_view, T_world_key, frame.scale,
+                           map_config.front_end_agreement_deg)
+    warnings = [Reason.TWO_VIEW_OUTVOTED] if pnp.outvoted_two_view else []
+    return pose, warnings + height_off_map(frame, pnp.T_world_cam, T_world_key, config)
+
+
 def metric_step(scale: ScaleSource, provider: ScaleProvider, previous: Keyframe | None, position: int,
-                pose: np.ndarray) -> float | None:
+                pose: np.ndarray, frame: FrameResult | None = None) -> float | None:
     """Distance of the frame at run `position` (pose (4, 4)) from the `previous` keyframe by the scale source (the
-    BA's range prior): gt's own, height's as tracked; None for --scale none or without a keyframe."""
-    if scale == "none" or previous is None:
+    BA's range prior): gt's own, height's as tracked when the front end measured this `frame`'s step; None for
+    --scale none, without a keyframe, or with height unmeasured (`height_unmeasured`)."""
+    if scale == "none" or previous is None or (frame is not None and height_unmeasured(scale, frame)):
         return None
     if scale == "gt":
         empty = np.zeros((0, 3))

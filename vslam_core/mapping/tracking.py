@@ -34,11 +34,12 @@ from vslam_core.mapping.map_scale import (
     initialised,
     landmark_settings,
     metric_step,
+    pnp_pose,
     slow_camera,
     translation_parallax,
 )
 from vslam_core.mapping.map_search import fitted_two_view
-from vslam_core.mapping.pnp import PnPSolution, at_raw_pixels, check_pnp, metric_pose, search_at_raw_pixels, solve_pnp
+from vslam_core.mapping.pnp import PnPSolution, at_raw_pixels, check_pnp, search_at_raw_pixels, solve_pnp
 from vslam_core.mapping.refinding import MapRefinding, suspended_at_keyframe
 from vslam_core.mapping.relocalisation import relocalise_by_descriptors
 from vslam_core.mapping.worker_process import BackendWorker
@@ -164,11 +165,9 @@ class MapTracking:
         relocalisation = None
         pose, mode, why = None, TrackingMode.LOST, None
         if pnp is not None and pnp.rejected is None and pnp.T_world_cam is not None:
-            pose, mode = pnp.T_world_cam, TrackingMode.MAP  # --scale none: the map carries the scale
-            if self.config.scale != "none" and vo.scale is not None:
-                pose = metric_pose(pose, None if pnp.outvoted_two_view else two_view,
-                                   self.pose_of(vo.keyframe_position), vo.scale, self._cfg.front_end_agreement_deg)
-            warnings += [Reason.TWO_VIEW_OUTVOTED] if pnp.outvoted_two_view else []
+            mode = TrackingMode.MAP  # --scale none (or height without a plane): PnP's pose, in the map's scale
+            pose, flagged = pnp_pose(self.config, self._cfg, vo, pnp, two_view, self.pose_of(vo.keyframe_position))
+            warnings += flagged
         elif self._has_map() and (lost_tracks or self._gap):
             clock = time.perf_counter()
             relocalisation, found = self.refinding.relocalise(self.mapping.map, self._reference, self._segment,
@@ -417,7 +416,7 @@ class MapTracking:
             keyframe, links, view = self.mapping.insert_keyframe(
                 vo.position, self._segment, pose, track_ids, pixels, frame.image,
                 metric_step(self.config.scale, self._scale, self.mapping.map.keyframes.get(self._reference),
-                            vo.position, pose),
+                            vo.position, pose, vo),
                 why, {**self._links, **tied}, self._refound,
                 landmark_settings(self._cfg, self._slow, starving=why.startswith("map:")),
                 self._chain.between(self.mapping.map.keyframes[self._reference].position, vo.position)
