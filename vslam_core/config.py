@@ -149,6 +149,15 @@ class MapConfig:
     cull_reprojection_px: float = 4.0  # after BA, an observation reprojecting worse than this is dropped
     min_observations: int = 3  # a landmark that leaves the window with fewer keyframes seeing it is culled
     map_keyframes: int = 100  # landmarks none of the last this many keyframes sees are forgotten (memory bound)
+    # keyframe culling, of the keyframe leaving the BA window (local_mapping.py): it is removed when at least this
+    # share of its landmarks are seen by cull_observers other keyframes at the same or a finer scale (another
+    # keyframe at most cull_scale times farther; Mur-Artal et al. 2015, sec. V-E; 0: never), or with cull_revisits
+    # when an older keyframe (cull_separation ids before) is where it is: a street driven again keeps its keyframes
+    cull_redundant_share: float = 0.9
+    cull_observers: int = 3
+    cull_scale: float = 1.2
+    cull_revisits: bool = True
+    cull_separation: int = 30
     # tracking against the map
     pnp_min_landmarks: int = 30  # fewer landmarks seen: no PnP (two-view pose or relocalisation)
     pnp_threshold_px: float = 2.0  # RANSAC inlier threshold
