@@ -7,8 +7,8 @@ solution is applied when the next keyframe arrives, a fixed point, so the same i
 same map however long the solver took. Memory stays bounded: a landmark that leaves the window seen by
 fewer than `min_observations` keyframes is dropped, as is every observation that reprojects badly after BA,
 and a landmark none of the last `map_keyframes` keyframes sees is forgotten. The keyframe leaving the window is
-culled when redundant (`_cull`): most of its landmarks seen well by three other keyframes, as ORB-SLAM does, or
-an older keyframe at its place (a revisit), so the map's keyframes follow the place, not the time.
+culled when an older keyframe is at its place (a revisit; `_cull`), so the map's keyframes follow the place, not
+the time; ORB-SLAM's rule (most of its landmarks seen well by three other keyframes) is there, off by default.
 """
 
 from __future__ import annotations

@@ -94,7 +94,7 @@ class Map:
 
     def remove_keyframe(self, keyframe_id: int, keep: set[int]) -> int:
         """Remove a keyframe and its observations; landmarks left with fewer than two observations are removed
-        too, unless in `keep` (tracked now). Returns how many landmarks were removed."""
+        too, unless in `keep` (tracked now) and still observed. Returns how many landmarks were removed."""
         keyframe = self.keyframes.pop(keyframe_id)
         removed = 0
         for landmark_id in keyframe.landmark_ids:
@@ -102,7 +102,7 @@ class Map:
             del landmark.observations[keyframe_id]
             if landmark.observations:
                 landmark.first_keyframe, landmark.last_keyframe = min(landmark.observations), max(landmark.observations)
-            if landmark.observation_count < 2 and landmark_id not in keep:
+            if not landmark.observations or (landmark.observation_count < 2 and landmark_id not in keep):
                 self.remove_landmark(landmark_id)
                 removed += 1
         return removed
