@@ -16,6 +16,7 @@ from kitti_runs import kitti_folder
 from vslam.runs.map_files import map_saver
 from vslam_core.config import EngineConfig, MapConfig
 from vslam_core.mapping.map import Map, covering, redundant
+from vslam_core.mapping.map_scale import for_scale
 from vslam_core.mapping.tracking import MapTracking
 from vslam_core.pipeline import Engine, RunResult, run_odometry
 from vslam_core.results import FrameResult
@@ -114,3 +115,10 @@ def test_covering_is_an_older_keyframe_at_the_place_looking_the_same_way() -> No
     assert covering(map_, 4, older_by=3, spacings=1.0, angle_deg=30.0) is None  # new street: 3 m from 1
     map_.keyframes[5].T_world_cam[:3, :3] = np.diag([-1.0, 1.0, -1.0])  # the same place, looking back
     assert covering(map_, 5, older_by=3, spacings=1.0, angle_deg=30.0) is None
+
+
+def test_revisits_are_culled_only_with_a_scale_source() -> None:
+    """With --scale none the map's scale rests on the revisit's keyframes (KITTI 05 0..149..0: ATE after Sim(3)
+    0.47 -> 1.79 m when they were culled)."""
+    assert for_scale(MapConfig(), "gt").cull_revisits and for_scale(MapConfig(), "height").cull_revisits
+    assert not for_scale(MapConfig(), "none").cull_revisits
