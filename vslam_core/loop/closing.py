@@ -44,11 +44,18 @@ class LoopClosing:
         # every keyframe's place is kept only for a saved map (vslam_core/mapping/storage.py `snapshot`); without
         # one, only those `_refresh` still reads: the loop data of tracking's process then follows the place
         self.keep_places = True
+        self._culled: list[int] = []  # keyframes culled from the map, for the next job (the worker's places)
         self.loops_closed = 0  # (the loops themselves go out with their frame's result: each holds every pose twice)
 
     def submit(self, keyframe_id: int, image: np.ndarray) -> None:
         """A keyframe was inserted: its search is submitted at the next insertion (after its bundle adjustment)."""
         self._waiting = (keyframe_id, image)
+
+    def forget(self, keyframe_ids: list[int]) -> None:
+        """Keyframes culled from the map: their places go, here and (with the next job) in the search's database."""
+        for keyframe_id in keyframe_ids:
+            self.places.pop(keyframe_id, None)
+        self._culled += keyframe_ids
 
     def collect(self, map_: Map) -> tuple[LoopStep, np.ndarray | None] | None:
         """At a keyframe insertion, after the bundle adjustment was applied: collect the search submitted at the
@@ -110,7 +117,8 @@ class LoopClosing:
             graph_ids=np.array([k.id for k in graph], np.int64),
             graph_positions=np.array([k.position for k in graph], np.int64),
             graph_poses=np.array([k.T_world_cam for k in graph]).reshape(-1, 4, 4),
-            refreshed=self._refresh(map_, place.keyframe_id - self._settled), final=final))
+            refreshed=self._refresh(map_, place.keyframe_id - self._settled), final=final, culled=tuple(self._culled)))
+        self._culled = []
 
     def _place(self, map_: Map, keyframe_id: int) -> KeyframePlace:
         """The keyframe's landmarks in its camera frame (its features come back with its search)."""

@@ -158,7 +158,11 @@ class PlaceDatabase:
     def prune(self, newest: int) -> None:
         """Drop the covered places that no later query reads: a query's threshold scores its `NEIGHBOURS`
         previous keyframes, and only places `min_separation_keyframes` older are candidates."""
-        dropped = {k for k in self._covered if k < newest - NEIGHBOURS}
+        self.remove({k for k in self._covered if k < newest - NEIGHBOURS})
+
+    def remove(self, dropped: set[int]) -> None:
+        """Drop these keyframes' places (covered, or culled from the map)."""
+        dropped &= self.places.keys()
         if not dropped:
             return
         self._covered = [k for k in self._covered if k not in dropped]

@@ -24,15 +24,12 @@ from vslam_core.loop.places import KeyframePlace, PlaceDatabase, describe_image,
 from vslam_core.loop.pose_graph import LoopEdge, optimise
 from vslam_core.loop.verification import Verification, verify
 from vslam_core.mapping.local_mapping import DESCRIPTOR_PATCH
+from vslam_core.mapping.map import COVERED_ANGLE_DEG, COVERED_SPACINGS  # covered: not kept as a place
 from vslam_core.results import LoopCandidate
 from vslam_core.sources.base import CameraIntrinsics
 
 CONSISTENT_KEYFRAMES = 5  # verified candidates of consecutive queries are this close (keyframe ids) to agree
 NEIGHBOURS = 2  # keyframes on each side of a candidate whose landmarks join its verification
-# a keyframe within this many of the map's keyframe spacings of an older stored place, looking the same way within
-# COVERED_ANGLE_DEG, is covered by it (not kept as a place): the map already knows that view
-COVERED_SPACINGS = 1.0
-COVERED_ANGLE_DEG = 30.0
 
 
 @dataclass(frozen=True)
@@ -52,6 +49,7 @@ class SearchJob:
     graph_poses: np.ndarray  # (K, 4, 4) their T_world_cam
     refreshed: tuple[int, np.ndarray] | None = None  # an older keyframe's (L', 3) points_cam once BA settled them
     final: bool = False  # the run's last keyframe, searched when the run ends: no cooldown applies
+    culled: tuple[int, ...] = ()  # keyframes culled from the map since the last job: their places and loop edges go
 
 
 @dataclass(frozen=True)
@@ -104,6 +102,9 @@ class LoopSearch:
         timings: dict[str, float] = {}
         clock = time.perf_counter()
         self._poses = dict(zip(job.graph_ids.tolist(), job.graph_poses, strict=True))
+        if job.culled:
+            self.database.remove(set(job.culled))
+            self._edges = [edge for edge in self._edges if edge[0] not in job.culled and edge[1] not in job.culled]
         if job.refreshed is not None and job.refreshed[0] in self.database.places:
             self.database.places[job.refreshed[0]].points_cam = job.refreshed[1]
         query = self._place(job)

@@ -6,7 +6,9 @@ it. Each keyframe hands the BA window (its last `ba_window` keyframes) to the `B
 solution is applied when the next keyframe arrives, a fixed point, so the same input always gives the
 same map however long the solver took. Memory stays bounded: a landmark that leaves the window seen by
 fewer than `min_observations` keyframes is dropped, as is every observation that reprojects badly after BA,
-and a landmark none of the last `map_keyframes` keyframes sees is forgotten.
+and a landmark none of the last `map_keyframes` keyframes sees is forgotten. The keyframe leaving the window is
+culled when an older keyframe is at its place (a revisit; `_cull`), so the map's keyframes follow the place, not
+the time; ORB-SLAM's rule (most of its landmarks seen well by three other keyframes) is there, off by default.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from vslam_core.config import MapConfig, ScaleSource
 from vslam_core.geometry import invert_pose, normalise_points, orthonormalise, triangulate_each
 from vslam_core.lens import distort_pixels
 from vslam_core.mapping.bundle_adjustment import BundleAdjuster, Problem, Solution
-from vslam_core.mapping.map import Keyframe, Map
+from vslam_core.mapping.map import COVERED_ANGLE_DEG, COVERED_SPACINGS, Keyframe, Map, covering, redundant
 from vslam_core.mapping.worker_process import BackendWorker
 from vslam_core.results import BundleAdjusted, KeyframeInserted, MapView
 from vslam_core.sources.base import CameraIntrinsics
@@ -58,6 +60,8 @@ class LocalMapping:
         self.describer = cv2.ORB_create(edgeThreshold=int(DESCRIPTOR_PATCH), patchSize=int(DESCRIPTOR_PATCH))
         self._window: list[int] = []  # keyframe ids of the current BA window
         self.keyframe_images: dict[int, np.ndarray] = {}  # the newest KEYFRAME_IMAGES keyframes' (H, W) images
+        # keyframes culled at the last insertion: id -> (the keyframe its frames now follow, (4, 4) T_anchor_culled)
+        self.culled: dict[int, tuple[int, np.ndarray]] = {}
 
     # -- bundle adjustment ---------------------------------------------------------------------------------
 
@@ -218,9 +222,10 @@ class LocalMapping:
         self.keyframe_images[keyframe.id] = image
         self.keyframe_images.pop(keyframe.id - KEYFRAME_IMAGES, None)
         previous_window = self._window
-        self._submit(segment)
         alive_landmarks = set(track_landmarks.values()) | set(links.values())
-        culled = self._retire([k for k in previous_window if k not in self._window], alive_landmarks)
+        culled = self._cull(previous_window, segment, alive_landmarks)
+        self._submit(segment)
+        culled += self._retire([k for k in previous_window if k not in self._window], alive_landmarks)
         culled += self._forget(keyframe.id - self._config.map_keyframes, alive_landmarks)
         event = KeyframeInserted(keyframe.id, position, keyframe.T_world_cam.copy(), why, len(observed), len(links),
                                  culled, settings.min_triangulation_deg)
@@ -277,7 +282,7 @@ class LocalMapping:
         and no longer tracked are dropped. Returns how many."""
         culled = 0
         window = set(self._window)
-        for keyframe_id in keyframe_ids:
+        for keyframe_id in (k for k in keyframe_ids if k in self.map.keyframes):  # (a culled one is gone)
             for landmark_id in list(self.map.keyframes[keyframe_id].landmark_ids):
                 landmark = self.map.landmarks.get(landmark_id)
                 if (landmark is not None and landmark.observation_count < self._config.min_observations
@@ -285,6 +290,39 @@ class LocalMapping:
                     self.map.remove_landmark(landmark_id)
                     culled += 1
         return culled
+
+    def _cull(self, previous_window: list[int], segment: int, alive_landmarks: set[int]) -> int:
+        """Remove the keyframe leaving the BA window now if it is redundant: an older keyframe at its place
+        (`covering`; its frames then follow that one) or `cull_redundant_share` of its landmarks seen by
+        `cull_observers` others at the same or a finer scale (`redundant`; its frames follow the keyframe before
+        it). Never one of a segment's first two keyframes (the gauge). Records what it culled in `culled`;
+        returns the landmarks removed with it (left with one observation and not tracked)."""
+        self.culled = {}
+        cfg, keyframes = self._config, self.map.keyframes
+        window = {k.id for k in self.map.recent_keyframes(cfg.ba_window, segment)}
+        leaving = [k for k in previous_window if k not in window]
+        if len(leaving) != 1 or keyframes[leaving[0]].segment != segment:
+            return 0
+        keyframe_id = leaving[0]
+        before = [k for k in keyframes.values() if k.segment == segment and k.id < keyframe_id]
+        if len(before) < 2:
+            return 0
+        anchor = covering(self.map, keyframe_id, cfg.cull_separation, COVERED_SPACINGS, COVERED_ANGLE_DEG) \
+            if cfg.cull_revisits else None
+        if anchor is None and cfg.cull_redundant_share > 0 and \
+                redundant(self.map, keyframe_id, cfg.cull_observers, cfg.cull_scale) >= cfg.cull_redundant_share:
+            anchor = before[-1].id
+        if anchor is None:
+            return 0
+        self.culled[keyframe_id] = (anchor, invert_pose(keyframes[anchor].T_world_cam)
+                                    @ keyframes[keyframe_id].T_world_cam)
+        removed = self.map.remove_keyframe(keyframe_id, alive_landmarks)
+        if (successor := keyframes.get(keyframe_id + 1)) is not None:
+            successor.metric_step = None  # measured from the culled keyframe: no distance prior to the one before
+        self.keyframe_images.pop(keyframe_id, None)
+        sightings = {t: [(k, p) for k, p in seen if k != keyframe_id] for t, seen in self._sightings.items()}
+        self._sightings = {t: seen for t, seen in sightings.items() if seen}
+        return removed
 
     def _forget(self, keyframe_id: int, alive_landmarks: set[int]) -> int:
         """Landmarks no keyframe after `keyframe_id` (the one `map_keyframes` behind the newest) sees and no
@@ -311,6 +349,7 @@ class LocalMapping:
         keyframes = self.map.keyframes
         window = self._window
         fixed = self._submitted.keyframe_ids[self._submitted.optimised:] if self._submitted else []
+        previous_window = [k for k in previous_window if k in keyframes]  # a culled keyframe is not drawn
         retired = [k for k in previous_window if k not in window]
         landmark_ids = self.map.landmarks_seen_by([keyframes[k] for k in window])
         previous_landmarks = self.map.landmarks_seen_by([keyframes[k] for k in previous_window])
@@ -407,3 +446,15 @@ def _mean_per_landmark(errors: np.ndarray, point_index: np.ndarray, count: int) 
     seen = np.bincount(point_index[finite], minlength=count)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(seen > 0, total / np.maximum(seen, 1), np.nan)
+
+
+def reanchor(relative: dict[int, tuple[int, np.ndarray]], culled: dict[int, tuple[int, np.ndarray]]) -> None:
+    """Frames stored relative to culled keyframes (run position -> (keyframe id, (4, 4) T_key_frame), in place)
+    follow the keyframe each culled one names (`LocalMapping.culled`: (anchor id, T_anchor_culled)); their poses
+    are unchanged by it."""
+    if not culled:
+        return
+    for position, (keyframe_id, T_key_frame) in relative.items():  # noqa: N806
+        if keyframe_id in culled:
+            anchor, T_anchor_culled = culled[keyframe_id]  # noqa: N806
+            relative[position] = (anchor, T_anchor_culled @ T_key_frame)

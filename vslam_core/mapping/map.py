@@ -10,6 +10,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+# a keyframe within this many of the map's keyframe spacings of an older one, looking the same way within
+# COVERED_ANGLE_DEG, is at a place the map knows (`covering`: keyframe culling; the loop search's covered places)
+COVERED_SPACINGS = 1.0
+COVERED_ANGLE_DEG = 30.0
+
 
 @dataclass
 class Keyframe:
@@ -87,6 +92,21 @@ class Map:
         for keyframe_id in landmark.observations:
             self.keyframes[keyframe_id].landmark_ids.discard(landmark_id)
 
+    def remove_keyframe(self, keyframe_id: int, keep: set[int]) -> int:
+        """Remove a keyframe and its observations; landmarks left with fewer than two observations are removed
+        too, unless in `keep` (tracked now) and still observed. Returns how many landmarks were removed."""
+        keyframe = self.keyframes.pop(keyframe_id)
+        removed = 0
+        for landmark_id in keyframe.landmark_ids:
+            landmark = self.landmarks[landmark_id]
+            del landmark.observations[keyframe_id]
+            if landmark.observations:
+                landmark.first_keyframe, landmark.last_keyframe = min(landmark.observations), max(landmark.observations)
+            if not landmark.observations or (landmark.observation_count < 2 and landmark_id not in keep):
+                self.remove_landmark(landmark_id)
+                removed += 1
+        return removed
+
     def recent_keyframes(self, count: int, segment: int) -> list[Keyframe]:
         """The last `count` keyframes of a segment, oldest first."""
         recent: list[Keyframe] = []
@@ -109,3 +129,40 @@ class Map:
         landmarks = self.landmarks
         positions = [landmarks[i].position for i in np.asarray(landmark_ids, np.int64).tolist()]
         return np.concatenate(positions, dtype=np.float64).reshape(-1, 3) if positions else np.zeros((0, 3))
+
+
+def redundant(map_: Map, keyframe_id: int, observers: int, scale: float) -> float:
+    """Share of a keyframe's landmarks that at least `observers` other keyframes see at the same or a finer scale
+    (ORB-SLAM's keyframe culling, Mur-Artal et al. 2015, sec. V-E, with distances for pyramid levels: another
+    keyframe at most `scale` times farther from the landmark). 0 for a keyframe without landmarks."""
+    keyframe = map_.keyframes[keyframe_id]
+    if not keyframe.landmark_ids:
+        return 0.0
+    landmarks = [map_.landmarks[i] for i in keyframe.landmark_ids]
+    others = [k for landmark in landmarks for k in landmark.observations if k != keyframe_id]
+    owner = np.repeat(np.arange(len(landmarks)), [len(landmark.observations) - 1 for landmark in landmarks])
+    points = np.array([landmark.position for landmark in landmarks]).reshape(-1, 3)
+    centres = np.array([map_.keyframes[k].T_world_cam[:3, 3] for k in others]).reshape(-1, 3)
+    own = np.linalg.norm(points - keyframe.T_world_cam[:3, 3], axis=1)  # (L,) distances from this keyframe
+    finer = np.linalg.norm(points[owner] - centres, axis=1) <= scale * own[owner]
+    return float(np.mean(np.bincount(owner[finer], minlength=len(landmarks)) >= observers))
+
+
+def covering(map_: Map, keyframe_id: int, older_by: int, spacings: float, angle_deg: float) -> int | None:
+    """An older keyframe of the same segment (at least `older_by` ids before) where this one is: within `spacings`
+    median keyframe spacings of the segment, its optical axis within `angle_deg`; the nearest, None if none.
+    Spacings, not metres: the same rule in the map's own units with --scale none (the loop search's rule for a
+    covered place, vslam_core/loop/search.py)."""
+    keyframe = map_.keyframes[keyframe_id]
+    ids = [k.id for k in map_.keyframes.values() if k.segment == keyframe.segment]
+    if len(ids) < 3:
+        return None
+    poses = np.array([map_.keyframes[k].T_world_cam for k in ids])
+    spacing = float(np.median(np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1)))
+    older = np.array(ids) <= keyframe_id - older_by
+    distance = np.linalg.norm(poses[:, :3, 3] - keyframe.T_world_cam[:3, 3], axis=1)
+    same_way = poses[:, :3, 2] @ keyframe.T_world_cam[:3, 2] >= np.cos(np.radians(angle_deg))
+    near = np.flatnonzero(older & same_way & (distance <= spacings * spacing))
+    if spacing <= 0.0 or not len(near):
+        return None
+    return ids[int(near[np.argmin(distance[near])])]

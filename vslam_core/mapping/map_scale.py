@@ -82,14 +82,15 @@ def for_scale(config: MapConfig, scale: ScaleSource) -> MapConfig:
     adjustment must converge (`none_ba_iterations`): on KITTI 05 0:300 these took the Sim(3)-aligned t_err
     from 8.6 % to 6.7 % and 7.0 % (6.4 % together with keyframes spaced by translation parallax). The front
     end's rotations are held more loosely (`none_rotation_prior_deg`: at the metric sources' 0.01° loop closing
-    made two of five routes worse, docs/map-backend-history.md)."""
+    made two of five routes worse, docs/map-backend-history.md); a revisit's keyframes are not culled
+    (`none_cull_revisits`)."""
     if scale != "none":
         return config
     return replace(config, min_triangulation_deg=config.none_min_triangulation_deg,
                    ba_iterations=config.none_ba_iterations, rotation_prior_deg=config.none_rotation_prior_deg,
                    pnp_min_inlier_ratio=config.none_pnp_min_inlier_ratio,
                    low_ratio_pnp_min_ratio=config.none_low_ratio_pnp_min_ratio,
-                   starving_keyframes=config.none_starving_keyframes)
+                   starving_keyframes=config.none_starving_keyframes, cull_revisits=config.none_cull_revisits)
 
 
 def translation_parallax(T_world_key: np.ndarray, T_world_cur: np.ndarray, pixels_cur: np.ndarray,  # noqa: N803

@@ -25,7 +25,7 @@ from vslam_core.geometry import interpolate_gaps, invert_pose, orthonormalise, p
 from vslam_core.lens import distort_pixels, undistort_pixels
 from vslam_core.loop.closing import LoopClosing, rescale_relative
 from vslam_core.mapping.local_map import LocalMapSearcher
-from vslam_core.mapping.local_mapping import LocalMapping
+from vslam_core.mapping.local_mapping import LocalMapping, reanchor
 from vslam_core.mapping.map_scale import (
     FramesBeforeMap,
     MapSpeed,
@@ -421,6 +421,7 @@ class MapTracking:
                 landmark_settings(self._cfg, self._slow, starving=why.startswith("map:")),
                 self._chain.between(self.mapping.map.keyframes[self._reference].position, vo.position)
                 if self._reference >= 0 else None)
+            reanchor(self._relative, self.mapping.culled)  # the frames of a culled keyframe follow another
             live = set(track_ids.tolist())
             landmarks = self.mapping.map.landmarks
             self._links = {t: m for t, m in {**self._links, **links}.items() if t in live and m in landmarks}
@@ -431,6 +432,7 @@ class MapTracking:
             if self._speed is not None and self._initialised:
                 self._slow = slow_camera(self.mapping.map, keyframe.keyframe_id, self._speed.speed, self._cfg)
             if self.loop is not None:
+                self.loop.forget(list(self.mapping.culled))
                 self.loop.submit(keyframe.keyframe_id, frame.image)
             vo.timings_ms["mapping"] = _lap(clock)
         if self._reference >= 0:
@@ -466,7 +468,6 @@ class MapTracking:
         for position, T_world_cam in placed.items():  # noqa: N806
             key = self.mapping.map.keyframes[self._relative[position][0]]
             self._relative[position] = (key.id, invert_pose(key.T_world_cam) @ T_world_cam)
-
 
     def _result(self, vo: FrameResult, pose: np.ndarray, held: bool, mode: TrackingMode, warnings: list[Reason],
                 two_view: np.ndarray | None, mapping: MapFrame) -> FrameResult:
