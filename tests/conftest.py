@@ -133,6 +133,8 @@ SAME_WORKER = {
     "test_mapping.py": "kitti-00-map", "test_logs_cli.py": "kitti-00-map",  # kitti_00_map_run
     "test_cli.py": "interrupted-run", "test_provenance.py": "interrupted-run",  # interrupted_kitti_run
     "test_batch.py": "ray-cluster", "test_batch_ray.py": "ray-cluster",  # ray_cluster.py: one Ray head for both
+    # no fixture, the same 600 real frames (KITTI 00 and 05 0:300, two runs in each file): decoded once (DECODED)
+    "test_scale.py": "kitti-0-300", "test_engine.py": "kitti-0-300",
 }
 
 

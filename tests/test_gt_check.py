@@ -201,10 +201,12 @@ def test_kitti_and_time_matched_sources_refuse_what_does_not_apply(kitti_root: P
 
 
 def _run(tum_xyz: Path, tmp_path: Path, gt: Path, *extra: str) -> tuple[str, str, dict[str, Any]]:
-    """`vslam run` on TUM fr1 xyz frames 0:120 with `gt` (and `extra` options): its stdout, stderr, and the
-    `gt_check` of `vslam inspect --json` on its recording (whose text `inspect` states the same)."""
+    """`vslam run` on TUM fr1 xyz frames 0:60 with `gt` (and `extra` options): its stdout, stderr, and the
+    `gt_check` of `vslam inspect --json` on its recording (whose text `inspect` states the same). Half the frames
+    of `tum_run`: the check's figures on 0:120 are tested above, here what the CLI says and records (60 frames: two
+    windows, the wrong order and the 0.1 s shift found as on 120; ~7 CPU-s less over the three runs)."""
     rrd = tmp_path / f"{gt.stem}{len(extra)}.rrd"
-    result = vslam("run", tum_xyz, "--gt", gt, "--frames", "0:120", "--detail", "summary", "-o", rrd, *extra)
+    result = vslam("run", tum_xyz, "--gt", gt, "--frames", "0:60", "--detail", "summary", "-o", rrd, *extra)
     assert result.returncode == 0, result.stderr
     report = vslam("inspect", rrd, "--json")
     assert report.returncode == 0, report.stderr
@@ -222,9 +224,9 @@ def test_cli_warns_in_one_line_and_records_the_check(tum_xyz: Path, tmp_path: Pa
     warnings = [line for line in stderr.splitlines() if "ground truth" in line]
     assert len(warnings) == 1 and "disagrees with the images" in warnings[0]
     assert "gt check    Sampson" in stdout
-    assert check["far_off"] is True and check["ratio"] > FAR_OFF_RATIO and check["frames"] >= 100
+    assert check["far_off"] is True and check["ratio"] > FAR_OFF_RATIO and check["frames"] >= 50
     assert len(check["warnings"]) == 1 and "quaternion order" in check["warnings"][0]
-    assert check["windows"][0]["first"] == 0 and check["windows"][0]["last"] == 49
+    assert [(w["first"], w["last"]) for w in check["windows"]] == [(0, 49), (50, 59)]
 
     stdout, stderr, check = _run(tum_xyz, tmp_path, write_shifted(tmp_path, 0.1))
     warnings = [line for line in stderr.splitlines() if "ground truth" in line]
