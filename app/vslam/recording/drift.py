@@ -27,6 +27,7 @@ import numpy as np
 import rerun as rr
 
 from vslam.recording.columns import NO_IMAGE, ColumnBuffer, add_event
+from vslam.recording.metrics import HEALTH_LEVELS
 from vslam_core.geometry import invert_pose
 from vslam_core.sources.base import Frame
 from vslam_core.trajectory.drift import FrameErrors, frame_errors, step_errors, worst_frames
@@ -62,29 +63,52 @@ def drift_colours(pct: np.ndarray, scale: float = DRIFT_SCALE_PCT) -> np.ndarray
     colours[~np.isfinite(values)] = STILL_COLOUR
     return np.round(colours).astype(np.uint8)
 
+_LEVELS = {str(status): level for status, level in HEALTH_LEVELS.items()}
+
+
+@dataclass
+class FrameTrail:
+    """What the recorder keeps of each frame once its image is written: its index and time, estimated position and
+    health (a few numbers a frame), read by the drift attribution and by the drive overview when the run ends."""
+
+    frames: list[Frame] = field(default_factory=list)  # index and timestamp only (image dropped)
+    positions: list[np.ndarray] = field(default_factory=list)  # estimated camera positions (3,)
+    health: list[tuple[str, str]] = field(default_factory=list)  # (status, "reason,reason")
+
+    def add(self, frame: Frame, position: np.ndarray, status: str, reasons: str) -> None:
+        self.frames.append(Frame(frame.index, frame.timestamp, NO_IMAGE))
+        self.positions.append(np.asarray(position, dtype=np.float64)[:3].copy())
+        self.health.append((status, reasons))
+
+    def indices(self) -> np.ndarray:
+        """(N,) int64 frame indices."""
+        return np.array([f.index for f in self.frames], dtype=np.int64)
+
+    def levels(self) -> np.ndarray:
+        """(N,) int health levels (`HEALTH_LEVELS`: 0 ok, 1 warn, 2 fail; a status not reported is 0)."""
+        return np.array([_LEVELS.get(status, 0) for status, _ in self.health], dtype=np.int64)
+
+    def health_text(self, i: int) -> str:
+        status, reasons = self.health[i]
+        return status + (f": {reasons.replace(',', ', ')}" if reasons else "")
+
 
 @dataclass
 class DriftRecording:
-    """What the recorder keeps of each frame for the drift attribution (a few numbers per frame)."""
+    """Each frame's own error against the ground truth, of the frames in `trail` (which its owner fills)."""
 
     gt: np.ndarray  # (N, 4, 4) ground truth of the run's frames, by run position
     online: bool  # False with --scale none: the series are logged at the end, after Sim(3) alignment
-    frames: list[Frame] = field(default_factory=list)  # index and timestamp only (image dropped)
-    positions: list[np.ndarray] = field(default_factory=list)  # estimated camera positions (3,)
+    trail: FrameTrail
     run_positions: list[int] = field(default_factory=list)
-    health: list[tuple[str, str]] = field(default_factory=list)  # (status, "reason,reason")
     rows: list[tuple[float, float, float, float]] = field(default_factory=list)  # online errors per frame
     errors: FrameErrors | None = None  # each frame's own error, known once `finish` ran
     _previous: tuple[np.ndarray, int] | None = None
 
-    def frame_values(self, frame: Frame, position: int, pose: np.ndarray, status: str,
-                     reasons: str) -> dict[str, float]:
-        """Remember the frame; return its drift series (none with ``online`` False). NaN values are left out
-        (the recording's series hold none)."""
-        self.frames.append(Frame(frame.index, frame.timestamp, NO_IMAGE))
-        self.positions.append(pose[:3, 3].copy())
+    def frame_values(self, position: int, pose: np.ndarray) -> dict[str, float]:
+        """Remember the frame's run position (its trail row is added by the owner); return its drift series (none
+        with ``online`` False). NaN values are left out (the recording's series hold none)."""
         self.run_positions.append(position)
-        self.health.append((status, reasons))
         if not self.online:
             return {}
         if self._previous is None:
@@ -101,13 +125,13 @@ class DriftRecording:
     def finish(self, rec: rr.RecordingStream, columns: ColumnBuffer, aligned: np.ndarray | None) -> list[str]:
         """Log the coloured trajectory, the ground-truth links and the worst frames' events; with ``online``
         False (``aligned``: the (N, 4, 4) Sim(3)-aligned estimate) also the series. Returns the report lines."""
-        n = len(self.frames)
+        n = len(self.run_positions)
         if n < 2:
             return []
         gt = self.gt[np.array(self.run_positions)]
         if self.online:
             errors = FrameErrors(*(np.array(column) for column in zip(*self.rows, strict=True)))
-            estimate = np.array(self.positions)
+            estimate = np.array(self.trail.positions[:n])
         elif aligned is None:
             return []
         else:
@@ -115,7 +139,7 @@ class DriftRecording:
             estimate = aligned[:n, :3, 3]
             self._send_series(rec, errors)
         self.errors = errors  # the drive overview ranks its stretches by them
-        indices = np.array([f.index for f in self.frames])
+        indices = self.trail.indices()[:n]
         strips = np.stack([estimate[:-1], estimate[1:]], axis=1)
         rec.log(DRIFT_ENTITY, rr.Transform3D(translation=[0.0, -DRIFT_LIFT_M, 0.0]),
                 rr.LineStrips3D.from_fields(radii=DRIFT_RADIUS_M), static=True)
@@ -136,7 +160,7 @@ class DriftRecording:
         for name in SERIES:
             values = getattr(errors, name)
             keep = np.isfinite(values)
-            frames = [f.index for f, k in zip(self.frames, keep, strict=True) if k]
+            frames = [f.index for f, k in zip(self.trail.frames[:len(keep)], keep, strict=True) if k]
             rec.send_columns(f"/metrics/drift/{name}", indexes=[rr.TimeColumn("frame", sequence=frames)],
                              columns=rr.Scalars.columns(scalars=values[keep]))
 
@@ -159,25 +183,21 @@ class DriftRecording:
             t = translation[rank] if rank < len(translation) else None
             pct = errors.translation_pct[by_frame[t[0]]] if t is not None else np.nan
             lines.append(f"| {rank + 1} | {r[0] if r else ''} | {f'{r[1]:.3f}' if r else ''} | "
-                         f"{self._health_text(by_frame[r[0]]) if r else ''} | "
+                         f"{self.trail.health_text(by_frame[r[0]]) if r else ''} | "
                          f"{t[0] if t else ''} | {f'{t[1]:.3f}' if t else ''} | "
                          f"{f'{pct:.1f}' if np.isfinite(pct) else 'n/a'} | "
-                         f"{self._health_text(by_frame[t[0]]) if t else ''} |")
+                         f"{self.trail.health_text(by_frame[t[0]]) if t else ''} |")
         for rank, (index, value) in enumerate(rotation):
             i = by_frame[index]
-            add_event(columns, self.frames[i], f"drift: rotation #{rank + 1}, {value:.3f}° this frame "
-                      f"({errors.translation_m[i]:.3f} m); health {self._health_text(i)}", "WARN")
+            add_event(columns, self.trail.frames[i], f"drift: rotation #{rank + 1}, {value:.3f}° this frame "
+                      f"({errors.translation_m[i]:.3f} m); health {self.trail.health_text(i)}", "WARN")
         for rank, (index, value) in enumerate(translation):
             i = by_frame[index]
             pct = errors.translation_pct[i]
-            add_event(columns, self.frames[i], f"drift: translation #{rank + 1}, {value:.3f} m this frame"
+            add_event(columns, self.trail.frames[i], f"drift: translation #{rank + 1}, {value:.3f} m this frame"
                       + (f" ({pct:.1f} % of the step)" if np.isfinite(pct) else "")
-                      + f" ({errors.rotation_deg[i]:.3f}°); health {self._health_text(i)}", "WARN")
+                      + f" ({errors.rotation_deg[i]:.3f}°); health {self.trail.health_text(i)}", "WARN")
         return lines
-
-    def _health_text(self, i: int) -> str:
-        status, reasons = self.health[i]
-        return status + (f": {reasons.replace(',', ', ')}" if reasons else "")
 
 
 SERIES = ("rotation_deg", "translation_m", "translation_pct", "scale_ratio")

@@ -23,7 +23,7 @@ import rerun as rr
 
 from vslam.common import OutputError, RecordingError, TrajectoryImages, has_footer, write_failure
 from vslam.recording.columns import FLUSH_FRAMES, NO_IMAGE, ColumnBuffer
-from vslam.recording.drift import DriftRecording
+from vslam.recording.drift import DriftRecording, FrameTrail
 from vslam.recording.layout import blueprint
 from vslam.recording.levels import JPEG_QUALITY, Detail
 from vslam.recording.metrics import METRICS
@@ -78,7 +78,7 @@ def record_external(path: Path, run: ExternalRun, properties: dict[str, str], de
         log_world(rec, camera)
         _log_series_styles(rec)
         columns = ColumnBuffer(rec)
-        drift = DriftRecording(run.ground_truth, online=True)
+        drift = DriftRecording(run.ground_truth, online=True, trail=FrameTrail())
         for i in range(len(run.estimate)):
             frame = _frame(run, shown, i)
             _log_row(columns, drift, run, frame, i)
@@ -125,7 +125,8 @@ def _log_row(columns: ColumnBuffer, drift: DriftRecording, run: ExternalRun, fra
     columns.add_scalar("/metrics/error/position_m", frame, float(np.linalg.norm(truth[:3, 3] - pose[:3, 3])))
     columns.add_scalar("/metrics/angle_error/heading_deg", frame,
                        float(np.degrees(rotation_angle(truth[:3, :3].T @ pose[:3, :3]))))
-    for name, value in drift.frame_values(frame, i, pose, NO_HEALTH, "").items():
+    drift.trail.add(frame, pose[:3, 3], NO_HEALTH, "")
+    for name, value in drift.frame_values(i, pose).items():
         columns.add_scalar(f"/metrics/drift/{name}", frame, value)
 
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import rerun as rr
 
-from vslam.recording.drift import drift_colours
+from vslam.recording.drift import FrameTrail, drift_colours
 from vslam.recording.styles import GROUND_TRUTH_COLOUR, HEALTH_LEVEL_LINES, LOOP_MARK_COLOUR, WORST_MARK_COLOUR
 from vslam_core.trajectory.drift import FrameErrors
 
@@ -88,17 +88,10 @@ def canvas_transform(points: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
 
 @dataclass
 class DriveOverview:
-    """What the recorder keeps of each frame for the overview: its index, position and health (a few numbers)."""
+    """The overview of the frames in `trail` (which its owner fills) and the loops closed among them."""
 
-    frames: list[int] = field(default_factory=list)
-    positions: list[np.ndarray] = field(default_factory=list)
-    health: list[int] = field(default_factory=list)  # 0 ok, 1 warn, 2 fail
+    trail: FrameTrail
     loops: list[tuple[int, int]] = field(default_factory=list)  # (query frame, candidate frame)
-
-    def add(self, frame: int, position: np.ndarray, health: int) -> None:
-        self.frames.append(int(frame))
-        self.positions.append(np.asarray(position, dtype=np.float64)[:3].copy())
-        self.health.append(int(health))
 
     def add_loop(self, query_frame: int, candidate_frame: int) -> None:
         self.loops.append((int(query_frame), int(candidate_frame)))
@@ -109,15 +102,15 @@ class DriveOverview:
         with ``--scale none``), else those added; `ground_truth` (N, 3) positions; `errors`: each frame's own
         error (drift attribution), which ranks the stretches, else the health does. `headline`: the summary's
         first lines. Returns the worst stretches."""
-        frames = np.array(self.frames, dtype=np.int64)
+        frames = self.trail.indices()
         if len(frames) < 2:
             return []
         usable = errors is not None and len(errors.translation_m) == len(frames)
         translation_m = errors.translation_m if usable and errors is not None else None
         translation_pct = errors.translation_pct if usable and errors is not None else None
         rotation_deg = errors.rotation_deg if usable and errors is not None else None
-        positions = np.array(self.positions) if estimate is None else np.asarray(estimate)[: len(frames)]
-        health = np.array(self.health)
+        positions = np.array(self.trail.positions) if estimate is None else np.asarray(estimate)[: len(frames)]
+        health = self.trail.levels()
         with_errors = translation_m is not None and translation_pct is not None
         if with_errors:
             assert translation_m is not None and translation_pct is not None

@@ -22,13 +22,12 @@ from vslam.common import (
     write_failure,
 )
 from vslam.recording.columns import FLUSH_FRAMES, FLUSH_SECONDS, NO_IMAGE, ColumnBuffer, Part
-from vslam.recording.drift import DriftRecording
+from vslam.recording.drift import DriftRecording, FrameTrail
 from vslam.recording.front_end import log_candidates, log_events, log_road
 from vslam.recording.layout import UNDISTORTED, blueprint
 from vslam.recording.levels import JPEG_QUALITY, Detail, ImageCodec
 from vslam.recording.map_backend import MapRecording
 from vslam.recording.metrics import (
-    HEALTH_LEVELS,
     METRICS,
     SENSOR_METRICS,
     STAGES,
@@ -122,10 +121,11 @@ class Recorder:
         # it ended with (the ones scored: `vslam.recording.scored`)
         self._errors_at_end = config.backend == "map"
         # each frame's own error against the ground truth (drift attribution)
-        self._drift = (DriftRecording(source.ground_truth, online=config.scale != "none" and not self._errors_at_end)
-                       if source.ground_truth is not None else None)
+        self._trail = FrameTrail()  # each frame's index, position and health: for the drift and the overview
+        self._drift = (DriftRecording(source.ground_truth, online=config.scale != "none" and not self._errors_at_end,
+                                      trail=self._trail) if source.ground_truth is not None else None)
         self._previous_position: np.ndarray | None = None
-        self._overview = DriveOverview()
+        self._overview = DriveOverview(self._trail)
         self._frames = 0
         self._failed = False  # Rerun's writer stopped (full disk): reported once
         self._stuck = False  # …and a flush of it never returned: the stream must not be touched again
@@ -337,8 +337,8 @@ class Recorder:
                 self._map = MapRecording(self._rec, columns, self._intrinsics, self.detail, self._gt,
                                          self._jpeg_quality)
             self._map.log_frame(frame, result, result.mapping)
-        self._overview.add(frame.index, pose[:3, 3],
-                           0 if "status" in unreported else HEALTH_LEVELS[result.health.status])
+        self._trail.add(frame, pose[:3, 3], *(("not reported", "") if "status" in unreported else
+                                              (str(result.health.status), ",".join(result.health.reasons))))
         if "status" not in unreported:
             columns.add("/health", frame, (rr.AnyValues.columns, {"status": str(result.health.status),
                                                                   "reasons": ",".join(result.health.reasons)}))
@@ -452,8 +452,6 @@ class Recorder:
                 if name in values and group not in ("timing_ms", "drift"):  # drift: its own names
                     self._columns.add_scalar(f"/metrics/{group}/{name}", frame, values[name])
         if self._drift is not None:  # this frame's own error against the ground truth
-            health = result.health
-            drift = self._drift.frame_values(frame, result.position, result.T_world_cam, str(health.status),
-                                             ",".join(health.reasons))
+            drift = self._drift.frame_values(result.position, result.T_world_cam)
             for name, value in drift.items():
                 self._columns.add_scalar(f"/metrics/drift/{name}", frame, value)
