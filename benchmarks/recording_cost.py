@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import multiprocessing
+import shutil
 import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -38,8 +39,8 @@ from vslam_core.sources.kitti import KittiSource
 from vslam_core.sources.synthetic import SyntheticStreet
 
 
-def _measure(args: tuple[str, str, str, str, str, str, int, float]) -> dict[str, object]:
-    root, sequence, frames, level, backend, codec, quality, pace = args
+def _measure(args: tuple[str, str, str, str, str, str, int, float, str]) -> dict[str, object]:
+    root, sequence, frames, level, backend, codec, quality, pace, keep = args
     detail = Detail(level)
     config = EngineConfig().with_backend(backend)  # type: ignore[arg-type]
     selection = FrameRange.parse(frames)
@@ -73,6 +74,8 @@ def _measure(args: tuple[str, str, str, str, str, str, int, float]) -> dict[str,
             recorder.close()
         seconds, cpu = time.perf_counter() - start, time.process_time() - cpu
         size = path.stat().st_size if path.exists() else 0
+        if keep and path.exists():  # for `benchmarks.recording_entities`
+            shutil.copyfile(path, Path(keep) / f"{backend}_{level}_{codec}.rrd")
     return {
         "backend": backend,
         "detail": level,
@@ -99,6 +102,8 @@ def main() -> None:
     parser.add_argument("--image-codec", default="jpeg", choices=[c.value for c in ImageCodec])
     parser.add_argument("--jpeg-quality", type=int, default=JPEG_QUALITY)
     parser.add_argument("--pace", type=float, default=0.0, help="frames a second at most (a live camera); 0: none")
+    parser.add_argument("--keep", type=Path, default=None,
+                        help="folder to keep the last repeat's recordings in (BACKEND_DETAIL_CODEC.rrd)")
     args = parser.parse_args()
     levels = args.levels.split(",")
     if "off" not in levels:
@@ -111,7 +116,8 @@ def main() -> None:
                 # not a multiprocessing.Pool: its workers are daemons, and the map backend starts a process
                 with ProcessPoolExecutor(1, mp_context=context) as pool:
                     rows.append(pool.submit(_measure, (str(args.root), args.sequence, args.frames, level, backend,
-                                                       args.image_codec, args.jpeg_quality, args.pace)).result())
+                                                       args.image_codec, args.jpeg_quality, args.pace,
+                                                       str(args.keep or ""))).result())
     every = pl.DataFrame(rows)
     table = every.group_by("backend", "detail", maintain_order=True).agg(
         pl.col("ms_per_frame").min(), pl.col("ms_per_frame").max().alias("ms_max"), pl.col("cpu_ms_per_frame").min(),

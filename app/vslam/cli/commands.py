@@ -41,7 +41,7 @@ from vslam.cli.entry import run as run_app
 from vslam.cli.eval import eval_command
 from vslam.compare import ROTATION_DEG as DIVERGE_DEG
 from vslam.compare import TRANSLATION_PCT as DIVERGE_PCT
-from vslam.recording import JPEG_QUALITY, Detail, ImageCodec
+from vslam.recording import DEFAULT_DETAIL, JPEG_QUALITY, Detail, ImageCodec
 
 if TYPE_CHECKING:
     from vslam.runs import RecordedRun, RunOutputs
@@ -116,7 +116,7 @@ def run(
                                             "hover data; summary = no image or per-point data; off = no file "
                                             "(KITTI at 10 Hz, vo / map: full 63 / 79 KB a frame, standard 57 / 70, "
                                             "summary 6 / 9; docs/recordings.md)")]
-    = Detail.FULL,
+    = DEFAULT_DETAIL,
     jpeg_quality: Annotated[int, typer.Option(min=1, max=100,
                                               help="JPEG quality of the recorded frames")] = JPEG_QUALITY,
     image_codec: Annotated[ImageCodec, typer.Option(help=IMAGE_CODEC_HELP)] = ImageCodec.JPEG,
