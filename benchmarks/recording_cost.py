@@ -4,6 +4,8 @@
         --levels off,summary,standard,full --repeats 3 --csv cost.csv
     python -m benchmarks.recording_cost synthetic --frames 0:1500 --levels off,full   # memory over a long run
     python -m benchmarks.recording_cost ../shared/data/kitti --sequence 05 --backends vo,map --pace 10  # a live drive
+    python -m benchmarks.recording_cost ../shared/data/kitti --sequence 05 --levels standard --keep runs/
+    python -m benchmarks.recording_entities runs/vo_standard_jpeg.rrd     # where the bytes of a kept run go
 
 Each (backend, level) runs in its own process, one after the other so they do not compete for the 2 cores,
 `--repeats` times (the levels interleaved, so a burst of other work on the machine hits every level alike):
@@ -13,7 +15,7 @@ engine); the recorder's own time per frame on the calling thread; the file's KB 
 after the first third and at the end of the run (flat memory = the recording does not accumulate in memory).
 Timings on a shared machine are noisy: the table keeps the fastest repeat of each (`added` compares fastest
 with fastest). `--pace HZ` feeds the frames no faster than HZ a second, as a live drive does: the file's size
-then is a live recording's (rows are written every second, so KB per frame follow the frame rate); its times
+then is a live recording's (rows are written every 1.5 s, so KB per frame follow the frame rate); its times
 are not the run's cost.
 """
 
