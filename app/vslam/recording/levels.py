@@ -21,7 +21,8 @@ class Detail(StrEnum):
 
 #: The detail of a recording unless told otherwise: `standard`, the frame with every overlay, plots and events, for
 #: drives of hours; `full` (the 3-D points of every frame, the per-track and per-landmark hover values, BA
-#: residuals, the undistorted frame) costs ~5 KB a frame more with `vo` and ~8 KB with `map` (docs/recordings.md).
+#: residuals, the undistorted frame) costs ~6.5 KB a frame more with `vo` and ~10 KB with `map` (KITTI 05 at 10 Hz,
+#: docs/recordings.md).
 DEFAULT_DETAIL = Detail.STANDARD
 
 
