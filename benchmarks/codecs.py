@@ -40,7 +40,9 @@ def _x264(preset: str, crf: str) -> VideoSettings:
 #: (label, codec, settings or JPEG quality): the settings measured. The first of each codec is the offered one.
 SETTINGS: list[tuple[str, ImageCodec, VideoSettings | int]] = [
     ("jpeg q75", ImageCodec.JPEG, 75),
-    ("av1 svt preset 10 crf 41 rtc (offered)", ImageCodec.AV1, VIDEO_SETTINGS[ImageCodec.AV1]),
+    ("av1 svt preset 13 crf 41 rtc lp 1 (offered)", ImageCodec.AV1, VIDEO_SETTINGS[ImageCodec.AV1]),
+    ("av1 svt preset 13 crf 44 rtc lp 1", ImageCodec.AV1, _svt("13", "44", ":rtc=1:lp=1")),
+    ("av1 svt preset 10 crf 41 rtc (offered until issue 56)", ImageCodec.AV1, _svt("10", "41", ":rtc=1")),
     ("av1 svt preset 10 crf 40 rtc", ImageCodec.AV1, _svt("10", "40", ":rtc=1")),
     ("av1 svt preset 10 crf 42 rtc", ImageCodec.AV1, _svt("10", "42", ":rtc=1")),
     ("av1 svt preset 8 crf 40 rtc", ImageCodec.AV1, _svt("8", "40", ":rtc=1")),

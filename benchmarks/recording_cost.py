@@ -4,6 +4,8 @@
         --levels off,summary,standard,full --repeats 3 --csv cost.csv
     python -m benchmarks.recording_cost synthetic --frames 0:1500 --levels off,full   # memory over a long run
     python -m benchmarks.recording_cost ../shared/data/kitti --sequence 05 --backends vo,map --pace 10  # a live drive
+    python -m benchmarks.recording_cost ../shared/data/kitti --sequence 05 --levels standard --keep runs/
+    python -m benchmarks.recording_entities runs/vo_standard_jpeg.rrd     # where the bytes of a kept run go
 
 Each (backend, level) runs in its own process, one after the other so they do not compete for the 2 cores,
 `--repeats` times (the levels interleaved, so a burst of other work on the machine hits every level alike):
@@ -13,7 +15,7 @@ engine); the recorder's own time per frame on the calling thread; the file's KB 
 after the first third and at the end of the run (flat memory = the recording does not accumulate in memory).
 Timings on a shared machine are noisy: the table keeps the fastest repeat of each (`added` compares fastest
 with fastest). `--pace HZ` feeds the frames no faster than HZ a second, as a live drive does: the file's size
-then is a live recording's (rows are written every second, so KB per frame follow the frame rate); its times
+then is a live recording's (rows are written every 1.5 s, so KB per frame follow the frame rate); its times
 are not the run's cost.
 """
 
@@ -21,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import multiprocessing
+import shutil
 import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -38,8 +41,8 @@ from vslam_core.sources.kitti import KittiSource
 from vslam_core.sources.synthetic import SyntheticStreet
 
 
-def _measure(args: tuple[str, str, str, str, str, str, int, float]) -> dict[str, object]:
-    root, sequence, frames, level, backend, codec, quality, pace = args
+def _measure(args: tuple[str, str, str, str, str, str, int, float, str]) -> dict[str, object]:
+    root, sequence, frames, level, backend, codec, quality, pace, keep = args
     detail = Detail(level)
     config = EngineConfig().with_backend(backend)  # type: ignore[arg-type]
     selection = FrameRange.parse(frames)
@@ -73,6 +76,8 @@ def _measure(args: tuple[str, str, str, str, str, str, int, float]) -> dict[str,
             recorder.close()
         seconds, cpu = time.perf_counter() - start, time.process_time() - cpu
         size = path.stat().st_size if path.exists() else 0
+        if keep and path.exists():  # for `benchmarks.recording_entities`
+            shutil.copyfile(path, Path(keep) / f"{backend}_{level}_{codec}.rrd")
     return {
         "backend": backend,
         "detail": level,
@@ -99,6 +104,8 @@ def main() -> None:
     parser.add_argument("--image-codec", default="jpeg", choices=[c.value for c in ImageCodec])
     parser.add_argument("--jpeg-quality", type=int, default=JPEG_QUALITY)
     parser.add_argument("--pace", type=float, default=0.0, help="frames a second at most (a live camera); 0: none")
+    parser.add_argument("--keep", type=Path, default=None,
+                        help="folder to keep the last repeat's recordings in (BACKEND_DETAIL_CODEC.rrd)")
     args = parser.parse_args()
     levels = args.levels.split(",")
     if "off" not in levels:
@@ -111,7 +118,8 @@ def main() -> None:
                 # not a multiprocessing.Pool: its workers are daemons, and the map backend starts a process
                 with ProcessPoolExecutor(1, mp_context=context) as pool:
                     rows.append(pool.submit(_measure, (str(args.root), args.sequence, args.frames, level, backend,
-                                                       args.image_codec, args.jpeg_quality, args.pace)).result())
+                                                       args.image_codec, args.jpeg_quality, args.pace,
+                                                       str(args.keep or ""))).result())
     every = pl.DataFrame(rows)
     table = every.group_by("backend", "detail", maintain_order=True).agg(
         pl.col("ms_per_frame").min(), pl.col("ms_per_frame").max().alias("ms_max"), pl.col("cpu_ms_per_frame").min(),

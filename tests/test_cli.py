@@ -7,10 +7,13 @@ import signal
 import subprocess
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from cli_helpers import InterruptedRun, interrupt_kitti_run, vslam, vslam_here
 
+from vslam.recording import JPEG_QUALITY
+from vslam.rrd.provenance import PROPERTIES, read_properties
 from vslam.rrd.read import read_entity
 from vslam_core.config import EngineConfig
 from vslam_core.pipeline import run_odometry
@@ -74,6 +77,16 @@ def test_run_on_kitti_writes_a_valid_recording_and_one_pose_per_frame(
     fates = results[10].track_fate[results[10].track_fate != TrackFate.LOST]
     assert np.array_equal(np.sort(classes), np.sort(fates))
     assert (classes == TrackFate.INLIER).sum() == results[10].inlier_count
+
+    # the default detail is standard (issue 56): no 3-D points or hover values; the frames JPEG at q40, ~33 dB
+    assert read_properties(rrd, f"{PROPERTIES}/run")["detail"] == "standard"
+    assert read_entity(rrd, "/world/points").is_empty() and "track_id" not in flow.columns
+    images = read_entity(rrd, "/world/camera/image")
+    blob = np.frombuffer(bytes(images.filter(frame=10)["EncodedImage:blob"][0].to_list()[0]), np.uint8)
+    source_image = next(f.image for f in KittiSource(kitti_root, sequence="00", frames=FrameRange(10, 11)))
+    assert blob.tobytes() == cv2.imencode(".jpg", source_image, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])[1].tobytes()
+    error = cv2.imdecode(blob, cv2.IMREAD_GRAYSCALE).astype(float) - source_image
+    assert 32.0 <= 10 * np.log10(255**2 / np.mean(error**2)) <= 36.0  # PSNR, dB: the figure docs/recordings.md gives
 
     camera = read_entity(rrd, "/world/camera")
     assert len(camera) == 40

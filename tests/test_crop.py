@@ -31,7 +31,8 @@ ENTITIES = ["/world/camera", "/world/camera/image", "/world/camera/image/flow", 
 def full(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A real 30-frame recording of the synthetic street (full detail, embedded blueprint)."""
     path = tmp_path_factory.mktemp("crop") / "full.rrd"
-    done = vslam("run", "--frames", "0:30", "--backend", "vo", "-o", path, env={"RERUN_STRICT": "1"})
+    done = vslam("run", "--frames", "0:30", "--backend", "vo", "--detail", "full", "-o", path,
+                 env={"RERUN_STRICT": "1"})
     assert done.returncode == 0, done.stderr
     return path
 

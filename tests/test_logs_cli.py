@@ -96,7 +96,7 @@ def test_ignoring_the_lens_is_clearly_worse(logs: dict[str, LensLog],
 def test_run_records_the_raw_frame_the_lens_and_the_log(logs: dict[str, LensLog], tmp_path: Path) -> None:
     log = logs["mcap-plumb_bob"]
     rrd = tmp_path / "log.rrd"
-    result = vslam("run", log.path, "--gt", log.gt_path, "--frames", "0:30", "-o", rrd)
+    result = vslam("run", log.path, "--gt", log.gt_path, "--frames", "0:30", "--detail", "full", "-o", rrd)
     assert result.returncode == 0, result.stderr
     run = read_properties(rrd, f"{PROPERTIES}/run")
     assert run["calibration_model"] == "plumb_bob"

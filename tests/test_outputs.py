@@ -135,7 +135,7 @@ def test_a_taken_trajectory_leaves_no_empty_recording_behind(tmp_path: Path) -> 
 # ----------------------------------------------------------------------------------- 2. a killed run
 
 
-#: Seconds a killed run may lose (issue 56): the recorder flushes every FLUSH_SECONDS (1 s) plus one frame.
+#: Seconds a killed run may lose (issue 56): the recorder flushes every FLUSH_SECONDS (1.5 s), plus a frame.
 LOSS_S = 2.0
 
 

@@ -249,7 +249,8 @@ def test_landmarks_and_reprojection_lines_in_the_image(full: tuple[Path, list[Fr
         if pnp is None:
             continue
         row = points[r.index]
-        assert np.allclose(np.array(row["Points2D:positions"]).reshape(-1, 2), pnp.observed, atol=1e-3)
+        # to 1/2 px, the lines' ends to 1/4 px (issue 56: the file's size)
+        assert np.abs(np.array(row["Points2D:positions"]).reshape(-1, 2) - pnp.observed).max() <= 1 / 4 + 1e-4
         assert row["Points2D:class_ids"] == np.where(pnp.inlier_mask, PNP_INLIER, PNP_OUTLIER).tolist()
         assert row["landmark_id"] == pnp.landmark_ids.tolist()
         finite = np.isfinite(pnp.projected).all(axis=1)
@@ -257,8 +258,8 @@ def test_landmarks_and_reprojection_lines_in_the_image(full: tuple[Path, list[Fr
         assert len(strips) == finite.sum()
         if len(strips):
             with_lines += 1
-            assert np.allclose(strips[:, 0], pnp.projected[finite], atol=1e-3)
-            assert np.allclose(strips[:, 1], pnp.observed[finite], atol=1e-3)
+            assert np.abs(strips[:, 0] - pnp.projected[finite]).max() <= 1 / 8 + 1e-4
+            assert np.abs(strips[:, 1] - pnp.observed[finite]).max() <= 1 / 8 + 1e-4
     assert with_lines >= FRAMES // 2
 
 

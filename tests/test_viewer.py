@@ -49,7 +49,8 @@ VIEWS = ["frame", "overlays", "world", "drive", "position_error_m", "rotation_pe
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
     rrd = tmp_path_factory.mktemp("viewer") / "s.rrd"
-    result = vslam("run", "--frames", "0:15", "--backend", "vo", "-o", rrd)  # VIEWS: the vo layout
+    # VIEWS: the vo layout; full detail: the 3-D view's triangulated points (not in the default, standard)
+    result = vslam("run", "--frames", "0:15", "--backend", "vo", "--detail", "full", "-o", rrd)
     assert result.returncode == 0, result.stderr
     return rrd
 

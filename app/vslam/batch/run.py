@@ -26,7 +26,7 @@ from rich.console import Console
 from vslam.batch.manifest import LogSpec
 from vslam.batch.pool import CRASH, Terminated, run_on_pool
 from vslam.evaluation import evaluate_sources
-from vslam.recording import Detail, ImageCodec
+from vslam.recording import DEFAULT_DETAIL, Detail, ImageCodec
 from vslam.runs import input_warnings, with_camera_height
 from vslam_core.config import EngineConfig, load_config
 from vslam_core.errors import VslamError
@@ -45,7 +45,7 @@ class LogJob:
     spec: LogSpec
     config: EngineConfig  # the batch's config (--config, --scale, --backend); the log's own columns win
     report_dir: Path
-    detail: Detail = Detail.FULL
+    detail: Detail = DEFAULT_DETAIL
     image_codec: ImageCodec = ImageCodec.JPEG
 
 

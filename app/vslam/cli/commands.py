@@ -41,7 +41,7 @@ from vslam.cli.entry import run as run_app
 from vslam.cli.eval import eval_command
 from vslam.compare import ROTATION_DEG as DIVERGE_DEG
 from vslam.compare import TRANSLATION_PCT as DIVERGE_PCT
-from vslam.recording import JPEG_QUALITY, Detail, ImageCodec
+from vslam.recording import DEFAULT_DETAIL, JPEG_QUALITY, Detail, ImageCodec
 
 if TYPE_CHECKING:
     from vslam.runs import RecordedRun, RunOutputs
@@ -114,9 +114,9 @@ def run(
     = None,
     detail: Annotated[Detail, typer.Option(help="full = every intermediate; standard = no 3-D points or per-track "
                                             "hover data; summary = no image or per-point data; off = no file "
-                                            "(KITTI at 10 Hz, vo / map: full 63 / 79 KB a frame, standard 57 / 70, "
-                                            "summary 6 / 9; docs/recordings.md)")]
-    = Detail.FULL,
+                                            "(KITTI at 10 Hz, vo / map: standard 49 / 59 KB a frame, full 55 / 69, "
+                                            "summary 4.5 / 7; docs/recordings.md)")]
+    = DEFAULT_DETAIL,
     jpeg_quality: Annotated[int, typer.Option(min=1, max=100,
                                               help="JPEG quality of the recorded frames")] = JPEG_QUALITY,
     image_codec: Annotated[ImageCodec, typer.Option(help=IMAGE_CODEC_HELP)] = ImageCodec.JPEG,

@@ -34,7 +34,7 @@ from vslam.cli.common import (
     warn,
 )
 from vslam.evaluation import DEFAULT_TOLERANCE_MS, MatchMode
-from vslam.recording import Detail, ImageCodec
+from vslam.recording import DEFAULT_DETAIL, Detail, ImageCodec
 
 if TYPE_CHECKING:
     from vslam.evaluation import Evaluation
@@ -68,7 +68,7 @@ def eval_command(
     config_file: Annotated[Path | None, typer.Option("--config", help="engine config (TOML)")] = None,
     report: Annotated[Path | None, typer.Option(help="folder for metrics.csv/.parquet, report.md, trajectories, "
                                                 "recordings and plots")] = None,
-    detail: Annotated[Detail, typer.Option(help="detail of the recordings written to --report")] = Detail.FULL,
+    detail: Annotated[Detail, typer.Option(help="detail of the recordings written to --report")] = DEFAULT_DETAIL,
     image_codec: Annotated[ImageCodec, typer.Option(help=IMAGE_CODEC_HELP)] = ImageCodec.JPEG,
     trajectory: Annotated[list[Path] | None, typer.Option(help="evaluate this trajectory file instead of running "
                                                           "(repeat for several, all against --gt)")] = None,

@@ -29,7 +29,7 @@ from vslam.evaluation.matching import (
     match_poses,
 )
 from vslam.evaluation.plots import write_top_view
-from vslam.recording import Detail, ImageCodec, version_properties
+from vslam.recording import DEFAULT_DETAIL, Detail, ImageCodec, version_properties
 from vslam.runs import Interrupted, record_run
 from vslam_core.config import EngineConfig
 from vslam_core.errors import SourceError, TrajectoryFormatError
@@ -77,7 +77,7 @@ def evaluate_sources(
     config: EngineConfig,
     report_dir: Path | None,
     console: Console,
-    detail: Detail = Detail.FULL,
+    detail: Detail = DEFAULT_DETAIL,
     properties: dict[str, str] | None = None,
     image_codec: ImageCodec = ImageCodec.JPEG,
     *,

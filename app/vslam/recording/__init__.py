@@ -27,8 +27,9 @@ Entity layout (world = camera frame of the first frame, RDF: x right, y down, z 
 With --backend map also /tracking, /metrics/tracking/*, /metrics/ba/*, /world/map/** and the image's
 landmarks and reprojection lines: see `vslam.recording.map_backend`. The odometry backend writes none of them.
 
-Detail levels: full = all of it; standard = no triangulated points and no per-track hover data;
-summary = no image and no per-point data (camera pose, trajectories, series, events); off = no file.
+Detail levels: full = all of it; standard (the default, `DEFAULT_DETAIL`) = no triangulated points and no
+per-track hover data; summary = no image and no per-point data (camera pose, trajectories, series, events);
+off = no file.
 
 Every per-frame row is buffered and sent as columns every `FLUSH_SECONDS` (or `FLUSH_FRAMES`) and on close: one
 `send_columns` per entity instead of one `log` per entity per frame, which cost ~80–200 µs of Python
@@ -56,7 +57,7 @@ _HOMES = {
     "MODE_LEVELS": "metrics", "STAGES": "metrics", "frame_metrics": "metrics", "map_frame_metrics": "metrics",
     "Recorder": "recorder", "road_outline": "front_end", "version_properties": "stream",
     "APPLICATION_ID": "styles", "FATE_STYLE": "styles", "Detail": "levels", "ImageCodec": "levels",
-    "JPEG_QUALITY": "levels",
+    "JPEG_QUALITY": "levels", "DEFAULT_DETAIL": "levels",
     "CAR_ENTITY": "layout", "EYE_OFFSET": "layout",
     "DRIFT_ENTITY": "drift", "LINKS_ENTITY": "drift", "WORST": "drift",
     "ExternalRun": "external", "RunFrames": "external", "record_external": "external",
@@ -71,7 +72,7 @@ if TYPE_CHECKING:
     from vslam.recording.external import ExternalRun, RunFrames, record_external
     from vslam.recording.front_end import road_outline
     from vslam.recording.layout import CAR_ENTITY, EYE_OFFSET, blueprint
-    from vslam.recording.levels import JPEG_QUALITY, Detail, ImageCodec
+    from vslam.recording.levels import DEFAULT_DETAIL, JPEG_QUALITY, Detail, ImageCodec
     from vslam.recording.map_backend import MapRecording
     from vslam.recording.metrics import (
         HEALTH_LEVELS,
@@ -105,6 +106,7 @@ __all__ = [
     "APPLICATION_ID",
     "CAR_ENTITY",
     "ColumnBuffer",
+    "DEFAULT_DETAIL",
     "DRIFT_ENTITY",
     "Detail",
     "ENTITIES",

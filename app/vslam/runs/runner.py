@@ -15,7 +15,7 @@ import numpy as np
 from rich.console import Console
 
 from vslam.common import OutputError
-from vslam.recording import JPEG_QUALITY, Detail, ImageCodec
+from vslam.recording import DEFAULT_DETAIL, JPEG_QUALITY, Detail, ImageCodec
 from vslam.runs.progress import progress
 from vslam.runs.trajectory_out import TrajectoryWriter
 from vslam_core.config import EngineConfig
@@ -96,7 +96,7 @@ def record_run(
     rrd: Path | None,
     properties: dict[str, str],
     console: Console,
-    detail: Detail = Detail.FULL,
+    detail: Detail = DEFAULT_DETAIL,
     jpeg_quality: int = JPEG_QUALITY,
     trajectory: TrajectoryWriter | None = None,
     image_codec: ImageCodec = ImageCodec.JPEG,
