@@ -78,7 +78,9 @@ def test_summary_and_size(full: Path, cropped: tuple[Path, CropSummary]) -> None
     assert summary.output == out
     assert summary.input_bytes == full.stat().st_size
     assert summary.output_bytes == out.stat().st_size
-    assert summary.output_bytes < 0.5 * summary.input_bytes  # 10 of 30 frames (+ static data, blueprint)
+    # 10 of 30 frames, plus what every crop keeps whole (~0.55 MB here: static data, blueprint); all 30 kept
+    # would be ~100 %, and how rows fall into chunks follows the wall clock (the share moves by a few %)
+    assert summary.output_bytes < 0.6 * summary.input_bytes
     assert [p.name for p in out.parent.iterdir()] == [out.name]  # no temporary files left behind
 
 
