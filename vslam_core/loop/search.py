@@ -24,7 +24,7 @@ from vslam_core.loop.places import KeyframePlace, PlaceDatabase, describe_image,
 from vslam_core.loop.pose_graph import LoopEdge, optimise
 from vslam_core.loop.verification import Verification, verify
 from vslam_core.mapping.local_mapping import DESCRIPTOR_PATCH
-from vslam_core.mapping.map import COVERED_ANGLE_DEG, COVERED_SPACINGS  # covered: not kept as a place
+from vslam_core.mapping.map import at_place, median_spacing  # covered: not kept as a place
 from vslam_core.results import LoopCandidate
 from vslam_core.sources.base import CameraIntrinsics
 
@@ -179,15 +179,12 @@ class LoopSearch:
         positions = job.graph_poses[:, :3, 3]
         if len(positions) < 3:
             return False
-        spacing = float(np.median(np.linalg.norm(np.diff(positions, axis=0), axis=1)))
+        spacing = median_spacing(positions)
         stored = self.database.uncovered(job.keyframe_id - self._config.min_separation_keyframes, job.segment)
         poses = np.array([self._poses[k] for k in stored if k in self._poses]).reshape(-1, 4, 4)
         if not len(poses) or spacing <= 0.0:
             return False
-        query = job.graph_poses[-1]
-        near = np.linalg.norm(poses[:, :3, 3] - query[:3, 3], axis=1) <= COVERED_SPACINGS * spacing
-        same_way = poses[:, :3, 2] @ query[:3, 2] >= np.cos(np.radians(COVERED_ANGLE_DEG))
-        return bool(np.any(near & same_way))
+        return bool(np.any(at_place(poses, job.graph_poses[-1], spacing)))
 
     def _consistent(self, query: int, candidate: int | None, final: bool) -> tuple[bool, str]:
         """Track verified places over consecutive keyframes: accept the `consistency`-th in a row, unless a loop

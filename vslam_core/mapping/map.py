@@ -148,21 +148,34 @@ def redundant(map_: Map, keyframe_id: int, observers: int, scale: float) -> floa
     return float(np.mean(np.bincount(owner[finer], minlength=len(landmarks)) >= observers))
 
 
+def median_spacing(positions: np.ndarray) -> float:
+    """Median distance between consecutive (N, 3) keyframe positions (the map's own units); 0 for fewer than 2."""
+    return float(np.median(np.linalg.norm(np.diff(positions, axis=0), axis=1))) if len(positions) > 1 else 0.0
+
+
+def at_place(poses: np.ndarray, query: np.ndarray, spacing: float, spacings: float = COVERED_SPACINGS,
+             angle_deg: float = COVERED_ANGLE_DEG) -> np.ndarray:
+    """(N,) bool: which of the (N, 4, 4) T_world_cam `poses` are where the (4, 4) `query` is: within `spacings` x
+    `spacing` of it (spacings, not metres: the same rule in the map's own units with --scale none), their optical
+    axes within `angle_deg` of its. The rule of keyframe culling (`covering`) and of the loop search's covered
+    places (vslam_core/loop/search.py)."""
+    near = np.linalg.norm(poses[:, :3, 3] - query[:3, 3], axis=1) <= spacings * spacing
+    same_way = poses[:, :3, 2] @ query[:3, 2] >= np.cos(np.radians(angle_deg))
+    return near & same_way
+
+
 def covering(map_: Map, keyframe_id: int, older_by: int, spacings: float, angle_deg: float) -> int | None:
-    """An older keyframe of the same segment (at least `older_by` ids before) where this one is: within `spacings`
-    median keyframe spacings of the segment, its optical axis within `angle_deg`; the nearest, None if none.
-    Spacings, not metres: the same rule in the map's own units with --scale none (the loop search's rule for a
-    covered place, vslam_core/loop/search.py)."""
+    """An older keyframe of the same segment (at least `older_by` ids before) where this one is (`at_place`, with
+    the segment's median keyframe spacing); the nearest, None if none."""
     keyframe = map_.keyframes[keyframe_id]
     ids = [k.id for k in map_.keyframes.values() if k.segment == keyframe.segment]
     if len(ids) < 3:
         return None
     poses = np.array([map_.keyframes[k].T_world_cam for k in ids])
-    spacing = float(np.median(np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1)))
+    spacing = median_spacing(poses[:, :3, 3])
     older = np.array(ids) <= keyframe_id - older_by
-    distance = np.linalg.norm(poses[:, :3, 3] - keyframe.T_world_cam[:3, 3], axis=1)
-    same_way = poses[:, :3, 2] @ keyframe.T_world_cam[:3, 2] >= np.cos(np.radians(angle_deg))
-    near = np.flatnonzero(older & same_way & (distance <= spacings * spacing))
+    near = np.flatnonzero(older & at_place(poses, keyframe.T_world_cam, spacing, spacings, angle_deg))
     if spacing <= 0.0 or not len(near):
         return None
-    return ids[int(near[np.argmin(distance[near])])]
+    distance = np.linalg.norm(poses[near, :3, 3] - keyframe.T_world_cam[:3, 3], axis=1)
+    return ids[int(near[np.argmin(distance)])]
