@@ -129,7 +129,7 @@ def _snapshot(rrd: Path, index: int, out_dir: Path, timeout_s: float, window_siz
     window = (window_size[0], window_size[1] + TOP_BAR_ROWS)
     with viewer.stop_viewer_on_sigterm(), viewer.headless_viewer(deadline, window) as (process, client):
         try:
-            shots = _settled_screenshots(client, rrd, index, deadline, only)
+            shots = _settled_screenshots(client, rrd, index, deadline, only, window_size[1])
         except ViewerError:
             raise
         except Exception as exc:
@@ -187,7 +187,7 @@ def _write_pictures(shots: list[tuple[str, bytes]], out_dir: Path) -> list[Path]
 
 
 def _settled_screenshots(
-    client: ViewerClient, rrd: Path, frame: int, deadline: float, only: Sequence[str]
+    client: ViewerClient, rrd: Path, frame: int, deadline: float, only: Sequence[str], height: int
 ) -> list[tuple[str, bytes]]:
     opened = client.open(str(viewer.viewable(rrd).resolve()))
     if not opened.store_ids:
@@ -213,7 +213,7 @@ def _settled_screenshots(
     if whole_window:  # without the viewer's top bar (its menu and "Software rasterizer" / "Docker" banners)
         client.set_blueprint(without_top_bar(layout), store_id=store_id)
         _pause_at(client, store_id, frame, rrd, deadline)
-        window = crop_blank_top(_settled(client, None, rrd, deadline))
+        window = crop_blank_top(_settled(client, None, rrd, deadline), height)
     shots = []
     for view in views:  # each view alone, maximised: as large as the window allows
         client.set_blueprint(maximised(layout, view.view_id), store_id=store_id)
@@ -280,9 +280,11 @@ MIN_BLANK_ROWS = 8
 TOP_BAR_ROWS = 37
 
 
-def crop_blank_top(png: bytes) -> bytes:
+def crop_blank_top(png: bytes, height: int | None = None) -> bytes:
     """The PNG without the band a hidden top bar leaves: the leading rows that are one colour across the window
-    (the window's rounded corners, 20 px each side, left out of the test), when there are `MIN_BLANK_ROWS`."""
+    (the window's rounded corners, 20 px each side, left out of the test), when there are `MIN_BLANK_ROWS`. With
+    `height`, exactly the rows above the last `height` go (the band is a few rows short on some screenshots: the
+    picture keeps the size asked for)."""
     image = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED)
     if image is None or image.shape[1] <= 40:
         return png
@@ -291,6 +293,8 @@ def crop_blank_top(png: bytes) -> bytes:
     rows = len(blank) if blank.all() else int(np.argmin(blank))
     if rows < MIN_BLANK_ROWS or rows == len(blank):
         return png
+    if height is not None and 0 < image.shape[0] - height <= TOP_BAR_ROWS:
+        rows = image.shape[0] - height
     ok, encoded = cv2.imencode(".png", image[rows:])
     return encoded.tobytes() if ok else png
 
