@@ -1,7 +1,10 @@
 """pandas kept out of vslam's processes: pyarrow (under rerun and polars) imports it, when it is installed (evo,
 in the dev extra, brings it), the first time it converts a Python list or scalar, only to recognise pandas
 objects among its inputs: ~0.3 s of CPU, a quarter of a short run's start-up. vslam never uses pandas nor hands
-pyarrow a pandas object; without pandas pyarrow converts the same values the same way."""
+pyarrow a pandas object; without pandas pyarrow converts the same values the same way, except Arrow's nanosecond
+times to Python values (vslam reads them as numbers, or not at all: `vslam.rrd.read.blueprint_view_names`).
+pyarrow, once it found no pandas, takes it as absent for the rest of the process (after an in-process command too),
+but for the pandas conversions themselves, which import it when asked."""
 
 from __future__ import annotations
 
