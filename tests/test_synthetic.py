@@ -13,7 +13,7 @@ from vslam_core.errors import SourceError
 from vslam_core.geometry import rotation_angle
 from vslam_core.sources.base import FrameRange, FrameSource
 from vslam_core.sources.synthetic import SyntheticStreet, frame_cache
-from vslam_core.sources.synthetic.street import _world
+from vslam_core.sources.synthetic.street import _panorama, _world
 
 pytestmark = pytest.mark.usefixtures("no_render_cache")  # the renderer itself under test: every frame rendered
 
@@ -283,6 +283,24 @@ def test_frame_cache_gives_the_rendered_frames_and_is_read_back(monkeypatch: pyt
     np.testing.assert_array_equal(again.render(4), expected[1])
     np.testing.assert_array_equal(np.load(folder / files[1]), expected[1])
     assert not list(folder.glob(".frame-*"))  # no temporary file left
+    # the scene the frames are rendered from is kept beside them: a process without it in memory builds it and
+    # writes it, a later one reads it back (the file is not written again), one finding it unreadable builds it
+    # again; the same pixels each time (frame 5 is in no cache)
+    scenes = tmp_path / f"scenes-{frame_cache.renderer_version()}"
+    stored = scenes / "street-seed0-n20.npz"
+    images, writes = [], []
+    for damage in (None, None, b"cut"):
+        if damage is not None:
+            stored.write_bytes(damage)
+        _world.cache_clear()
+        _panorama.cache_clear()
+        (folder / f"street-seed0-n20-h1.65-310x94-f179.714-{5:05d}.npy").unlink(missing_ok=True)
+        images.append(SyntheticStreet(n_frames=20, frames=FrameRange(5, 6), resolution=0.25).render(5))
+        assert sorted(p.name for p in scenes.iterdir()) == ["panorama-seed0-f179.714.npz", stored.name]
+        writes.append(stored.stat().st_mtime_ns)
+    assert writes[1] == writes[0] and frame_cache.load_arrays(stored) is not None
+    for image in images:
+        np.testing.assert_array_equal(image, uncached._render(5))
     monkeypatch.setattr(frame_cache, "renderer_version", lambda: "another")
     np.testing.assert_array_equal(SyntheticStreet(n_frames=20, frames=FrameRange(3, 4), resolution=0.25).render(3),
                                   expected[0])

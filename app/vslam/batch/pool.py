@@ -23,6 +23,8 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wai
 from concurrent.futures.process import BrokenProcessPool
 from typing import TypeVar
 
+from vslam.no_pandas import leave_out_pandas
+
 Job = TypeVar("Job")
 Result = TypeVar("Result")
 
@@ -61,7 +63,8 @@ def _run_pool(task: Callable[[Job], Result], jobs: list[Job], waiting: deque[int
     """Run jobs from `waiting` on one pool until it is empty, a result stops the batch, or the pool breaks;
     (the jobs in flight when it broke, whether a result stopped the batch)."""
     context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=max(1, min(workers, len(waiting))), mp_context=context) as pool:
+    with ProcessPoolExecutor(max_workers=max(1, min(workers, len(waiting))), mp_context=context,
+                             initializer=leave_out_pandas) as pool:
         pending: dict[Future[Result], int] = {}
 
         def submit_next() -> None:

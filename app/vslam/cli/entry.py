@@ -5,6 +5,7 @@
   problems itself, in one line.
 - Usage errors (an unknown option, a value of the wrong type or out of an option's range) are one line on
   stderr, ``error: …`` and exit 2, like every `VslamError`; never a box, never a traceback.
+- pandas is not imported while a command runs (`vslam.no_pandas`): vslam never uses it (~0.3 s of CPU a process).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from typing import Any
 
 import typer
 
+from vslam.no_pandas import pandas_left_out
 from vslam_core.errors import VslamError
 
 #: Click's exception classes, found through typer's public `BadParameter` (typer ≥ 0.2x vendors Click)
@@ -59,7 +61,8 @@ def run(app: Callable[..., Any], report: Callable[[str], None]) -> None:
     if callable(reconfigure):  # a path that is not UTF-8 is printed with \xff escapes, never a UnicodeEncodeError
         reconfigure(errors="backslashreplace")
     try:
-        code = app(standalone_mode=False)
+        with pandas_left_out():
+            code = app(standalone_mode=False)
     except VslamError as exc:
         report(one_line(exc))
         code = 2

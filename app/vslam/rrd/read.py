@@ -196,6 +196,10 @@ def open_store(source: Path) -> tuple[RrdReader, StoreEntry, list[StoreEntry]]:
     return reader, recordings[0], blueprints
 
 
+#: The components of a blueprint's `/view/*` entities that `blueprint_view_names` reads.
+_VIEW_COLUMNS = ("ViewBlueprint:display_name", "ViewBlueprint:class_identifier", "ViewBlueprint:visible")
+
+
 def blueprint_view_names(path: Path) -> list[str] | None:
     """The display names of the views in the recording's embedded blueprint (its last value per view; views
     set invisible left out), or None when the file has no blueprint or a view has no name (the viewer then
@@ -211,6 +215,8 @@ def blueprint_view_names(path: Path) -> list[str] | None:
                     continue
                 batch = chunk.to_record_batch()
                 for column, values in zip(batch.schema.names, batch.columns, strict=True):
+                    if not column.endswith(_VIEW_COLUMNS):  # the timelines' ns times need pandas as Python values
+                        continue
                     last = next((v for v in reversed(values.to_pylist()) if v), None)
                     if column.endswith("ViewBlueprint:display_name"):
                         names[entity] = last[0] if last else names.get(entity)

@@ -3,7 +3,9 @@
 Rendering costs ~0.08 s a full-size frame, several times what tracking it costs, so running the embedded
 default again (a demo, a CI job, a test suite with many short runs in many processes) is mostly rendering
 the same frames again. With the environment variable ``VSLAM_SYNTHETIC_CACHE`` naming a folder, each frame is
-read from there when present and written there once rendered; without it nothing is written.
+read from there when present and written there once rendered; without it nothing is written. The scene the
+frames are rendered from (its textures and rectangles, ~1 s of CPU to build) is kept beside them, so that a
+process rendering frames no other has rendered yet reads it instead of building it again (`scene_folder`).
 
 A frame is a pure function of the renderer's code and of (route, seed, n_frames, camera height, image size,
 index), so the file name holds all of them and the renderer's version is a hash of its source files: a
@@ -18,7 +20,10 @@ import functools
 import hashlib
 import os
 import tempfile
+import zipfile
+from collections.abc import Callable
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
@@ -41,6 +46,27 @@ def cache_folder() -> Path | None:
     return Path(root) / renderer_version() if root else None
 
 
+def scene_folder() -> Path | None:
+    """The folder of the stored scenes (beside the frames' folder, ``scenes-VERSION``), or None when
+    ``VSLAM_SYNTHETIC_CACHE`` is unset or empty."""
+    root = os.environ.get(ENVIRONMENT)
+    return Path(root) / f"scenes-{renderer_version()}" if root else None
+
+
+def load_arrays(path: Path) -> dict[str, np.ndarray] | None:
+    """The named arrays stored at `path` (`store_arrays`), or None when the file is missing or unreadable."""
+    try:
+        with np.load(path, allow_pickle=False) as stored:
+            return {name: stored[name] for name in stored.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile):
+        return None
+
+
+def store_arrays(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    """Write `arrays` to `path` (.npz, uncompressed) atomically; a failure (full disk, no permission) is ignored."""
+    _store(path, lambda file: np.savez(file, allow_pickle=False, **arrays))
+
+
 def frame_path(folder: Path, key: tuple[str, int, int, float, int, int, float], index: int) -> Path:
     """File of frame `index` of the street `key` = (route, seed, n_frames, camera height, width, height, fx):
     fx too, as two resolutions can round to the same image size."""
@@ -59,12 +85,17 @@ def load_frame(path: Path, shape: tuple[int, int]) -> np.ndarray | None:
 
 def store_frame(path: Path, image: np.ndarray) -> None:
     """Write `image` to `path` atomically; a failure (full disk, no permission) is ignored."""
+    _store(path, lambda file: np.save(file, image, allow_pickle=False))
+
+
+def _store(path: Path, write: Callable[[BinaryIO], None]) -> None:
+    """`write` the file to a temporary name beside `path`, then rename it into place; OSError ignored."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=".frame-", suffix=".npy")
+        handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=".frame-", suffix=path.suffix)
         try:
             with os.fdopen(handle, "wb") as file:
-                np.save(file, image, allow_pickle=False)
+                write(file)
             os.replace(temporary, path)
         except BaseException:
             Path(temporary).unlink(missing_ok=True)

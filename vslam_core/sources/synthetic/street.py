@@ -31,9 +31,10 @@ source that renders a frame from them (its temporary arrays in a reused `scratch
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -62,7 +63,7 @@ from vslam_core.sources.synthetic.road import (
     make_loop_centreline,
     walk_path,
 )
-from vslam_core.sources.synthetic.scene import COARSE_RES, build_street, ground_layout
+from vslam_core.sources.synthetic.scene import COARSE_RES, _Quads, build_street, ground_layout
 from vslam_core.sources.synthetic.scratch import Scratch
 from vslam_core.sources.synthetic.textures import FINE_TILE, PANO_ELEV_MAX, ground_fine_tile, mip_pyramid, panorama
 
@@ -125,22 +126,53 @@ def _centreline(n_frames: int, seed: int, route: Route) -> Centreline:
 def _world(n_frames: int, seed: int, route: Route) -> _World:
     """The street's scene, built once per process for the same arguments (building it takes seconds; a
     pure function of them, so every `SyntheticStreet` alike shares it)."""
-    rngs = _streams(seed)
-    line = _centreline(n_frames, seed, route)
-    quads, atlas = build_street(line, rngs[2:8])
-    layout = ground_layout(line, rngs[8])
-    fine = [cv2.copyMakeBorder(t, 2, 2, 2, 2, cv2.BORDER_WRAP) for t in mip_pyramid(ground_fine_tile(rngs[9]), 9)]
-    world = _World(line, quads, mip_pyramid(atlas, _MIP_LEVELS), layout.origin,
-                   mip_pyramid(layout.image, _MIP_LEVELS), fine)
-    for array in (layout.origin, *world.atlas, *world.ground, *fine, *vars(quads).values()):
+    parts = _stored(f"{route}-seed{seed}-n{n_frames}", _SCENE_PARTS, lambda: _scene_parts(n_frames, seed, route))
+    quads = _Quads(**{name: parts[f"quads.{name}"] for name in _QUAD_FIELDS})
+    fine = [cv2.copyMakeBorder(t, 2, 2, 2, 2, cv2.BORDER_WRAP) for t in mip_pyramid(parts["fine"], 9)]
+    world = _World(_centreline(n_frames, seed, route), quads, mip_pyramid(parts["atlas"], _MIP_LEVELS),
+                   parts["ground_origin"], mip_pyramid(parts["ground"], _MIP_LEVELS), fine)
+    for array in (world.ground_origin, *world.atlas, *world.ground, *fine, *vars(quads).values()):
         if isinstance(array, np.ndarray):
             array.setflags(write=False)
     return world
 
 
+_QUAD_FIELDS = tuple(field.name for field in dataclasses.fields(_Quads))
+_SCENE_PARTS = ("atlas", "ground", "ground_origin", "fine", *(f"quads.{name}" for name in _QUAD_FIELDS))
+
+
+def _scene_parts(n_frames: int, seed: int, route: Route) -> dict[str, np.ndarray]:
+    """What `_world` is made of, by name: the rectangles (``quads.*``), the texture atlas, the ground layout and
+    its origin, the fine ground speckle tile (the mip-maps are made from them, quickly)."""
+    rngs = _streams(seed)
+    line = _centreline(n_frames, seed, route)
+    quads, atlas = build_street(line, rngs[2:8])
+    layout = ground_layout(line, rngs[8])
+    parts = {"atlas": atlas, "ground": layout.image, "ground_origin": layout.origin, "fine": ground_fine_tile(rngs[9]),
+             **{f"quads.{name}": getattr(quads, name) for name in _QUAD_FIELDS}}
+    assert all(isinstance(array, np.ndarray) for array in parts.values())
+    return parts
+
+
+def _stored(name: str, names: tuple[str, ...], build: Callable[[], dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """`build()` (arrays by name: `names`), or the same arrays read back from the frame cache's scenes
+    (`frame_cache.scene_folder`), where they are written once built: a process rendering frames no other has
+    rendered yet skips building them. A file that cannot be read, or holds other names, is built again."""
+    folder = frame_cache.scene_folder()
+    if folder is None:
+        return build()
+    path = folder / f"{name}.npz"
+    parts = frame_cache.load_arrays(path)
+    if parts is None or sorted(parts) != sorted(names):
+        parts = build()
+        frame_cache.store_arrays(path, parts)
+    return parts
+
+
 @functools.lru_cache(maxsize=2)
 def _panorama(seed: int, fx: float) -> np.ndarray:
-    pano = panorama(_streams(seed)[10], fx)
+    name = f"panorama-seed{seed}-f{fx!r}"
+    pano = _stored(name, ("panorama",), lambda: {"panorama": panorama(_streams(seed)[10], fx)})["panorama"]
     pano.setflags(write=False)
     return pano
 
