@@ -299,7 +299,7 @@ class LocalMapping:
         it). Never one of a segment's first two keyframes (the gauge), nor one holding a loop edge
         (`Map.loop_keyframes`). Records what it culled in `culled`; returns the landmarks removed with it (left with
         one observation and not tracked). Culled at the window's edge, the window lost the fixed keyframes that tie
-        it to the keyframes before it (the synthetic drive's ATE after Sim(3) 0.45 -> 0.63 m, docs/map-backend.md)."""
+        it to the keyframes before it (synthetic drive seed 2: ATE after Sim(3) 0.54 -> 1.02 m, docs/map-backend.md)."""
         self.culled = {}
         cfg, keyframes = self._config, self.map.keyframes
         held = cfg.ba_window + cfg.ba_max_fixed
