@@ -162,7 +162,7 @@ class MapConfig:
     cull_redundant_share: float = 0.0
     cull_observers: int = 3
     cull_scale: float = 1.2
-    # on: KITTI 00 driven back and forth grows 13.7-14.2 KB a revisited frame at its peak (19.3-28.6 without); the
+    # on: KITTI 00 driven back and forth grows 13.7-14.2 KB a revisited frame at its peak (19.0-28.6 without); the
     # synthetic drive (frames 0:1500, resolution 0.5, --scale gt, seeds 0-2) keeps its ATE after Sim(3) (0.462 m,
     # 0.466 without; 12.0 when loop keyframes were culled too and at the window's edge, docs/map-backend.md)
     cull_revisits: bool = True
