@@ -163,8 +163,8 @@ class MapConfig:
     cull_observers: int = 3
     cull_scale: float = 1.2
     # on: KITTI 00 driven back and forth grows 13.7-14.2 KB a revisited frame at its peak (19.0-28.6 without); the
-    # synthetic drive (frames 0:1500, resolution 0.5, --scale gt, seeds 0-2) keeps its ATE after Sim(3) (0.462 m,
-    # 0.466 without; 12.0 when loop keyframes were culled too and at the window's edge, docs/map-backend.md)
+    # synthetic drive (frames 0:1500, resolution 0.5, --scale gt, seeds 0-5) keeps its ATE after Sim(3) (0.508 m,
+    # 0.501 without; 10-25 m when loop keyframes were culled too and at the window's edge, docs/map-backend.md)
     cull_revisits: bool = True
     # ... with --scale none (off): on KITTI 05 0..149..0 culling the revisit's keyframes took the ATE after Sim(3)
     # from 0.47 to 1.79 m with loop closing, 3.88 to 4.19 m without (the map's scale rests on those keyframes); with
