@@ -150,22 +150,25 @@ class MapConfig:
     cull_reprojection_px: float = 4.0  # after BA, an observation reprojecting worse than this is dropped
     min_observations: int = 3  # a landmark that leaves the window with fewer keyframes seeing it is culled
     map_keyframes: int = 100  # landmarks none of the last this many keyframes sees are forgotten (memory bound)
-    # keyframe culling, of the keyframe leaving the BA window (local_mapping.py): with cull_revisits it is removed
-    # when an older keyframe (cull_separation ids before) is where it is (a street driven again keeps its
-    # keyframes), or when at least cull_redundant_share of its landmarks are seen by cull_observers other keyframes
-    # at the same or a finer scale (another keyframe at most cull_scale times farther; ORB-SLAM's rule at 0.9,
-    # Mur-Artal et al. 2015, sec. V-E). That rule is off (0): at 0.9 it culled 1-19 keyframes of the quick matrix's
-    # TUM and synthetic-street runs and made their ATE after Sim(3) 17-23 % worse (docs/map-backend.md); on KITTI a
-    # keyframe leaving the window shares only 30-60 % of its landmarks so (the KLT tracks' landmarks live briefly)
+    # keyframe culling, of the keyframe bundle adjustment has just stopped holding (local_mapping.py `_cull`: it left
+    # the window and the fixed keyframes behind it; a keyframe holding a loop edge is never culled): with
+    # cull_revisits it is removed when an older keyframe (cull_separation ids before) is where it is (a street driven
+    # again keeps its keyframes), or when at least cull_redundant_share of its landmarks are seen by cull_observers
+    # other keyframes at the same or a finer scale (another keyframe at most cull_scale times farther; ORB-SLAM's rule
+    # at 0.9, Mur-Artal et al. 2015, sec. V-E). That rule is off (0): at 0.9 it culled 1-19 keyframes of the quick
+    # matrix's TUM and synthetic-street runs and made their ATE after Sim(3) 17-23 % worse (docs/map-backend.md); on
+    # KITTI a keyframe leaving the window shares only 30-60 % of its landmarks so (the KLT tracks' landmarks live
+    # briefly)
     cull_redundant_share: float = 0.0
     cull_observers: int = 3
     cull_scale: float = 1.2
-    # off by default: on the synthetic drive (frames 0:1500 at resolution 0.5, --scale gt, two laps) culling the
-    # revisits took the map from ATE after Sim(3) 0.306 to 4.147 m (t_err 0.39 -> 1.83 %), although it kept the
-    # KITTI back-and-forth drive's peak memory at 5.8 KB a frame (28.6 without) with its ATE unchanged
-    cull_revisits: bool = False
+    # on: KITTI 00 driven back and forth grows 13.7-14.2 KB a revisited frame at its peak (19.0-28.6 without); the
+    # synthetic drive (frames 0:1500, resolution 0.5, --scale gt, seeds 0-5) keeps its ATE after Sim(3) (0.508 m,
+    # 0.501 without; 10-25 m when loop keyframes were culled too and at the window's edge, docs/map-backend.md)
+    cull_revisits: bool = True
     # ... with --scale none (off): on KITTI 05 0..149..0 culling the revisit's keyframes took the ATE after Sim(3)
-    # from 0.47 to 1.79 m with loop closing, 3.88 to 4.19 m without (the map's scale rests on those keyframes)
+    # from 0.47 to 1.79 m with loop closing, 3.88 to 4.19 m without (the map's scale rests on those keyframes); with
+    # the loop keyframes kept and the cull after BA, 0.47 to 0.66 m and 3.88 to 4.30 m
     none_cull_revisits: bool = False
     cull_separation: int = 30
     # tracking against the map

@@ -179,6 +179,7 @@ class LoopClosing:
                 moved += 1
         for k, pose in zip(ids, after, strict=True):
             map_.keyframes[k].T_world_cam = pose
+        map_.loop_keyframes |= {graph.query_keyframe, graph.candidate_keyframe}
         scales = np.array([graph.scales[node_of[k]] for k in ids])
         correction = similarities[node_of[ids[-1]]] if graph.similarity else after[-1] @ invert_pose(before[-1])
         closed = LoopClosed(

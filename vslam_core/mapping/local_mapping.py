@@ -223,7 +223,7 @@ class LocalMapping:
         self.keyframe_images.pop(keyframe.id - KEYFRAME_IMAGES, None)
         previous_window = self._window
         alive_landmarks = set(track_landmarks.values()) | set(links.values())
-        culled = self._cull(previous_window, segment, alive_landmarks)
+        culled = self._cull(segment, alive_landmarks)
         self._submit(segment)
         culled += self._retire([k for k in previous_window if k not in self._window], alive_landmarks)
         culled += self._forget(keyframe.id - self._config.map_keyframes, alive_landmarks)
@@ -291,19 +291,22 @@ class LocalMapping:
                     culled += 1
         return culled
 
-    def _cull(self, previous_window: list[int], segment: int, alive_landmarks: set[int]) -> int:
-        """Remove the keyframe leaving the BA window now if it is redundant: an older keyframe at its place
+    def _cull(self, segment: int, alive_landmarks: set[int]) -> int:
+        """Remove the keyframe bundle adjustment has just stopped holding (it left the window and then the
+        `ba_max_fixed` keyframes behind it, which BA holds fixed) if it is redundant: an older keyframe at its place
         (`covering`; its frames then follow that one) or `cull_redundant_share` of its landmarks seen by
         `cull_observers` others at the same or a finer scale (`redundant`; its frames follow the keyframe before
-        it). Never one of a segment's first two keyframes (the gauge). Records what it culled in `culled`;
-        returns the landmarks removed with it (left with one observation and not tracked)."""
+        it). Never one of a segment's first two keyframes (the gauge), nor one holding a loop edge
+        (`Map.loop_keyframes`). Records what it culled in `culled`; returns the landmarks removed with it (left with
+        one observation and not tracked). Culled at the window's edge, the window lost the fixed keyframes that tie
+        it to the keyframes before it (synthetic drive seed 2: ATE after Sim(3) 0.54 -> 1.02 m, docs/map-backend.md)."""
         self.culled = {}
         cfg, keyframes = self._config, self.map.keyframes
-        window = {k.id for k in self.map.recent_keyframes(cfg.ba_window, segment)}
-        leaving = [k for k in previous_window if k not in window]
-        if len(leaving) != 1 or keyframes[leaving[0]].segment != segment:
+        held = cfg.ba_window + cfg.ba_max_fixed
+        recent = self.map.recent_keyframes(held + 1, segment)
+        if len(recent) <= held or recent[0].id in self.map.loop_keyframes:
             return 0
-        keyframe_id = leaving[0]
+        keyframe_id = recent[0].id
         before = [k for k in keyframes.values() if k.segment == segment and k.id < keyframe_id]
         if len(before) < 2:
             return 0

@@ -53,6 +53,9 @@ class Map:
     def __init__(self) -> None:
         self.keyframes: dict[int, Keyframe] = {}
         self.landmarks: dict[int, Landmark] = {}
+        # keyframes at either end of a loop edge the pose graph holds: never culled (ORB-SLAM's rule, a keyframe with
+        # loop edges is not erased): a later loop's correction would otherwise run round the whole older pass
+        self.loop_keyframes: set[int] = set()
         self._next_keyframe = 0
         self._next_landmark = 0
 
