@@ -136,12 +136,12 @@ def _revisit(loop_keyframes: set[int]) -> tuple[Map, dict[int, int]]:
     keyframe, the newest keyframe at its culling."""
     config = MapConfig(cull_revisits=True)
     mapping = LocalMapping(CameraIntrinsics(700.0, 700.0, 320.0, 120.0, 640, 240), config, "gt", None)
+    mapping.map.loop_keyframes = loop_keyframes
     culled_at: dict[int, int] = {}
     for n, z in enumerate([*range(40), *(z + 0.3 for z in range(20))]):
         pose = np.eye(4)
         pose[2, 3] = z
         mapping.map.add_keyframe(n, 0, pose, np.zeros(0, np.int64), np.zeros((0, 2), np.float32), None)
-        mapping.map.loop_keyframes = loop_keyframes
         mapping._cull(0, set())
         culled_at.update({k: n for k in mapping.culled})
     return mapping.map, culled_at

@@ -49,8 +49,24 @@ def cache_folder() -> Path | None:
 def scene_folder() -> Path | None:
     """The folder of the stored scenes (beside the frames' folder, ``scenes-VERSION``), or None when
     ``VSLAM_SYNTHETIC_CACHE`` is unset or empty."""
-    root = os.environ.get(ENVIRONMENT)
-    return Path(root) / f"scenes-{renderer_version()}" if root else None
+    frames = cache_folder()
+    return frames.with_name(f"scenes-{frames.name}") if frames is not None else None
+
+
+def stored_arrays(name: str, names: tuple[str, ...],
+                  build: Callable[[], dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """`build()` (arrays by name: `names`), or the same arrays read back from the stored scenes (`scene_folder`),
+    where they are written once built: a process rendering frames no other has rendered yet skips building them.
+    A file that cannot be read, or holds other names, is built again."""
+    folder = scene_folder()
+    if folder is None:
+        return build()
+    path = folder / f"{name}.npz"
+    parts = load_arrays(path)
+    if parts is None or sorted(parts) != sorted(names):
+        parts = build()
+        store_arrays(path, parts)
+    return parts
 
 
 def load_arrays(path: Path) -> dict[str, np.ndarray] | None:

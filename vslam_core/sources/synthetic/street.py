@@ -34,7 +34,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -126,7 +126,8 @@ def _centreline(n_frames: int, seed: int, route: Route) -> Centreline:
 def _world(n_frames: int, seed: int, route: Route) -> _World:
     """The street's scene, built once per process for the same arguments (building it takes seconds; a
     pure function of them, so every `SyntheticStreet` alike shares it)."""
-    parts = _stored(f"{route}-seed{seed}-n{n_frames}", _SCENE_PARTS, lambda: _scene_parts(n_frames, seed, route))
+    parts = frame_cache.stored_arrays(f"{route}-seed{seed}-n{n_frames}", _SCENE_PARTS,
+                                      lambda: _scene_parts(n_frames, seed, route))
     quads = _Quads(**{name: parts[f"quads.{name}"] for name in _QUAD_FIELDS})
     fine = [cv2.copyMakeBorder(t, 2, 2, 2, 2, cv2.BORDER_WRAP) for t in mip_pyramid(parts["fine"], 9)]
     world = _World(_centreline(n_frames, seed, route), quads, mip_pyramid(parts["atlas"], _MIP_LEVELS),
@@ -154,25 +155,11 @@ def _scene_parts(n_frames: int, seed: int, route: Route) -> dict[str, np.ndarray
     return parts
 
 
-def _stored(name: str, names: tuple[str, ...], build: Callable[[], dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
-    """`build()` (arrays by name: `names`), or the same arrays read back from the frame cache's scenes
-    (`frame_cache.scene_folder`), where they are written once built: a process rendering frames no other has
-    rendered yet skips building them. A file that cannot be read, or holds other names, is built again."""
-    folder = frame_cache.scene_folder()
-    if folder is None:
-        return build()
-    path = folder / f"{name}.npz"
-    parts = frame_cache.load_arrays(path)
-    if parts is None or sorted(parts) != sorted(names):
-        parts = build()
-        frame_cache.store_arrays(path, parts)
-    return parts
-
-
 @functools.lru_cache(maxsize=2)
 def _panorama(seed: int, fx: float) -> np.ndarray:
     name = f"panorama-seed{seed}-f{fx!r}"
-    pano = _stored(name, ("panorama",), lambda: {"panorama": panorama(_streams(seed)[10], fx)})["panorama"]
+    built = frame_cache.stored_arrays(name, ("panorama",), lambda: {"panorama": panorama(_streams(seed)[10], fx)})
+    pano = built["panorama"]
     pano.setflags(write=False)
     return pano
 
