@@ -32,7 +32,7 @@ from pathlib import Path
 import polars as pl
 
 from benchmarks.memory import status_mb
-from vslam.recording import JPEG_QUALITY, Detail, ImageCodec, Recorder
+from vslam.recording import Detail, ImageCodec, Recorder
 from vslam_core.config import EngineConfig
 from vslam_core.pipeline import RunResult, run_odometry
 from vslam_core.results import FrameResult
@@ -102,7 +102,7 @@ def main() -> None:
     parser.add_argument("--backends", default="vo", help="comma-separated: vo, map")
     parser.add_argument("--repeats", type=int, default=1, help="runs of each; the fastest is kept")
     parser.add_argument("--image-codec", default="jpeg", choices=[c.value for c in ImageCodec])
-    parser.add_argument("--jpeg-quality", type=int, default=JPEG_QUALITY)
+    parser.add_argument("--jpeg-quality", type=int, default=None, help="default: the level's (vslam run's)")
     parser.add_argument("--pace", type=float, default=0.0, help="frames a second at most (a live camera); 0: none")
     parser.add_argument("--keep", type=Path, default=None,
                         help="folder to keep the last repeat's recordings in (BACKEND_DETAIL_CODEC.rrd)")
@@ -134,7 +134,8 @@ def main() -> None:
         table.write_csv(args.csv)
     name = "synthetic street" if args.root == "synthetic" else "KITTI " + args.sequence
     print(f"{name}, frames {args.frames}, images {args.image_codec}"
-          + (f" q{args.jpeg_quality}" if args.image_codec == "jpeg" else "") + f", fastest of {args.repeats}"
+          + ((f" q{args.jpeg_quality}" if args.jpeg_quality else " (standard: half size q30, full: q40)")
+             if args.image_codec == "jpeg" else "") + f", fastest of {args.repeats}"
           + (f", paced at {args.pace:g} Hz" if args.pace else ""))
     print("| backend | detail | ms/frame (slowest) | added vs off | CPU ms/frame | CPU added | recorder ms/frame "
           "(caller thread) | KB/frame | RSS at 1/3 → end MB | peak RSS MB |")

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from cli_helpers import InterruptedRun, interrupt_kitti_run, vslam, vslam_here
 
-from vslam.recording import JPEG_QUALITY
+from vslam.recording import HALF_SIZE_JPEG_QUALITY
 from vslam.rrd.provenance import PROPERTIES, read_properties
 from vslam.rrd.read import read_entity
 from vslam_core.config import EngineConfig
@@ -78,15 +78,21 @@ def test_run_on_kitti_writes_a_valid_recording_and_one_pose_per_frame(
     assert np.array_equal(np.sort(classes), np.sort(fates))
     assert (classes == TrackFate.INLIER).sum() == results[10].inlier_count
 
-    # the default detail is standard (issue 56): no 3-D points or hover values; the frames JPEG at q40, ~33 dB
+    # the default detail is standard (issue 56): no 3-D points or hover values; the frames at half size, JPEG q30,
+    # drawn (linear filtering) over the pinhole's whole image plane
     assert read_properties(rrd, f"{PROPERTIES}/run")["detail"] == "standard"
     assert read_entity(rrd, "/world/points").is_empty() and "track_id" not in flow.columns
     images = read_entity(rrd, "/world/camera/image")
     blob = np.frombuffer(bytes(images.filter(frame=10)["EncodedImage:blob"][0].to_list()[0]), np.uint8)
     source_image = next(f.image for f in KittiSource(kitti_root, sequence="00", frames=FrameRange(10, 11)))
-    assert blob.tobytes() == cv2.imencode(".jpg", source_image, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])[1].tobytes()
-    error = cv2.imdecode(blob, cv2.IMREAD_GRAYSCALE).astype(float) - source_image
-    assert 32.0 <= 10 * np.log10(255**2 / np.mean(error**2)) <= 36.0  # PSNR, dB: the figure docs/recordings.md gives
+    half = cv2.resize(source_image, (620, 188), interpolation=cv2.INTER_AREA)
+    assert blob.tobytes() == cv2.imencode(".jpg", half, [cv2.IMWRITE_JPEG_QUALITY, HALF_SIZE_JPEG_QUALITY])[1].tobytes()
+    drawn = read_entity(rrd, "/world/camera/image", static=True)
+    assert np.allclose(drawn["InstancePoses3D:scales"][0].to_list(), [[1241 / 620, 2.0, 1.0]])
+    assert drawn["EncodedImage:magnification_filter"][0].to_list() == [2]  # Linear
+    shown = cv2.resize(cv2.imdecode(blob, cv2.IMREAD_GRAYSCALE), (1241, 376), interpolation=cv2.INTER_LINEAR)
+    error = shown.astype(float) - source_image
+    assert 26.0 <= 10 * np.log10(255**2 / np.mean(error**2)) <= 29.0  # PSNR, dB: the figure docs/recordings.md gives
 
     camera = read_entity(rrd, "/world/camera")
     assert len(camera) == 40

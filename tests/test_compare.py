@@ -113,6 +113,8 @@ def test_static_data_of_both_runs_is_kept(runs: tuple[Path, Path], compared: Com
             assert not original.is_empty() and moved.equals(original), entity
         pinhole = read_entity(compared.output, f"/{prefix}/world/camera/image", static=True)
         assert pinhole["Pinhole:resolution"].to_list() == [[[1241.0, 376.0]]]
+        # standard: the frames stored at half size, drawn over the whole image plane in each run's frame view
+        assert np.allclose(pinhole["InstancePoses3D:scales"][0].to_list(), [[1241 / 620, 2.0, 1.0]])
 
 
 def test_metrics_of_both_runs_with_labelled_legends(runs: tuple[Path, Path], compared: ComparisonResult) -> None:

@@ -37,7 +37,7 @@ import numpy as np
 
 from vslam.common import ClaimedFile, claim
 from vslam.log_arrays import Candidates, Corners, Tracks, candidate_poses, corner_arrays, points_array, track_arrays
-from vslam.recording import JPEG_QUALITY, STAGES, Detail, Recorder, version_properties
+from vslam.recording import STAGES, Detail, Recorder, version_properties
 from vslam.runs import TrajectoryWriter
 from vslam_core.config import EngineConfig
 from vslam_core.geometry import invert_pose
@@ -92,9 +92,11 @@ class FrameLog:
     or give ``gt=`` per frame instead. scale: ``metric`` (poses in metres: errors per frame) or ``none`` (unit or
     arbitrary scale: errors after Sim(3) alignment, when closing). detail: ``standard`` (images, corners, tracks)
     or ``full`` (also track and corner ids on hover: give corners as ``(ids, pixels)``) or ``summary`` (no
-    images or pixels). properties: extra run properties (strings). trajectory: also write the (re-based) poses to
-    this file, one line per frame as it goes (``kitti`` or ``tum``: `vslam run --trajectory-out`'s writer), for
-    ``vslam eval --trajectory``. force: replace an existing file at `path` (else FileExistsError).
+    images or pixels); the images are stored at half size at ``standard`` (at full size at ``full``), as JPEG at
+    `jpeg_quality` (default: `vslam run`'s). properties: extra run properties (strings). trajectory: also write
+    the (re-based) poses to this file, one line per frame as it goes (``kitti`` or ``tum``: `vslam run
+    --trajectory-out`'s writer), for ``vslam eval --trajectory``. force: replace an existing file at `path`
+    (else FileExistsError).
     `stream`: the underlying `rr.RecordingStream` (from the first frame on), for what the schema does not cover."""
 
     def __init__(
@@ -109,7 +111,7 @@ class FrameLog:
         detail: Literal["full", "standard", "summary"] = "standard",
         name: str | None = None,
         properties: Mapping[str, str] | None = None,
-        jpeg_quality: int = JPEG_QUALITY,
+        jpeg_quality: int | None = None,
         trajectory: str | Path | None = None,
         trajectory_format: Literal["kitti", "tum"] = "kitti",
         force: bool = False,

@@ -41,7 +41,7 @@ from vslam.cli.entry import run as run_app
 from vslam.cli.eval import eval_command
 from vslam.compare import ROTATION_DEG as DIVERGE_DEG
 from vslam.compare import TRANSLATION_PCT as DIVERGE_PCT
-from vslam.recording import DEFAULT_DETAIL, JPEG_QUALITY, Detail, ImageCodec
+from vslam.recording import DEFAULT_DETAIL, HALF_SIZE_JPEG_QUALITY, JPEG_QUALITY, Detail, ImageCodec
 
 if TYPE_CHECKING:
     from vslam.runs import RecordedRun, RunOutputs
@@ -117,8 +117,10 @@ def run(
                                             "(KITTI at 10 Hz, vo / map: standard 49 / 59 KB a frame, full 55 / 69, "
                                             "summary 4.5 / 7; docs/recordings.md)")]
     = DEFAULT_DETAIL,
-    jpeg_quality: Annotated[int, typer.Option(min=1, max=100,
-                                              help="JPEG quality of the recorded frames")] = JPEG_QUALITY,
+    jpeg_quality: Annotated[int | None, typer.Option(
+        min=1, max=100, show_default=False,
+        help=f"JPEG quality of the recorded frames [default: {HALF_SIZE_JPEG_QUALITY} at standard, where they are "
+             f"stored at half size; {JPEG_QUALITY} at full]")] = None,
     image_codec: Annotated[ImageCodec, typer.Option(help=IMAGE_CODEC_HELP)] = ImageCodec.JPEG,
     trajectory_out: Annotated[Path | None, typer.Option(help="write one pose per input frame here")] = None,
     trajectory_format: Annotated[TrajectoryFormat, typer.Option(help="kitti or tum")] = TrajectoryFormat.kitti,

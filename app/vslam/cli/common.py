@@ -114,8 +114,8 @@ def refuse(problem: str | None, code: int = 2) -> None:
         fail(problem, code)
 
 
-IMAGE_CODEC_HELP = ("recorded camera frames: jpeg images, or an av1 / h264 video stream (half the size; the native "
-                    "viewer needs ffmpeg on PATH for h264)")
+IMAGE_CODEC_HELP = ("recorded camera frames: jpeg images, or an av1 / h264 video stream at the source's size (the "
+                    "native viewer needs ffmpeg on PATH for h264)")
 
 
 @contextmanager

@@ -57,7 +57,7 @@ _HOMES = {
     "MODE_LEVELS": "metrics", "STAGES": "metrics", "frame_metrics": "metrics", "map_frame_metrics": "metrics",
     "Recorder": "recorder", "road_outline": "front_end", "version_properties": "stream",
     "APPLICATION_ID": "styles", "FATE_STYLE": "styles", "Detail": "levels", "ImageCodec": "levels",
-    "JPEG_QUALITY": "levels", "DEFAULT_DETAIL": "levels",
+    "JPEG_QUALITY": "levels", "HALF_SIZE_JPEG_QUALITY": "levels", "DEFAULT_DETAIL": "levels",
     "CAR_ENTITY": "layout", "EYE_OFFSET": "layout",
     "DRIFT_ENTITY": "drift", "LINKS_ENTITY": "drift", "WORST": "drift",
     "ExternalRun": "external", "RunFrames": "external", "record_external": "external",
@@ -72,7 +72,7 @@ if TYPE_CHECKING:
     from vslam.recording.external import ExternalRun, RunFrames, record_external
     from vslam.recording.front_end import road_outline
     from vslam.recording.layout import CAR_ENTITY, EYE_OFFSET, blueprint
-    from vslam.recording.levels import DEFAULT_DETAIL, JPEG_QUALITY, Detail, ImageCodec
+    from vslam.recording.levels import DEFAULT_DETAIL, HALF_SIZE_JPEG_QUALITY, JPEG_QUALITY, Detail, ImageCodec
     from vslam.recording.map_backend import MapRecording
     from vslam.recording.metrics import (
         HEALTH_LEVELS,
@@ -120,6 +120,7 @@ __all__ = [
     "FRAME_TIMELINE",
     "HEALTH_LEVELS",
     "HEALTH_STATUSES",
+    "HALF_SIZE_JPEG_QUALITY",
     "ImageCodec",
     "JPEG_QUALITY",
     "LINKS_ENTITY",

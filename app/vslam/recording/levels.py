@@ -6,11 +6,6 @@ from __future__ import annotations
 
 from enum import StrEnum
 
-#: The recorded frames' default JPEG quality, the lowest whose worst frame stays at ~32 dB PSNR against the source:
-#: KITTI 05 frames 0:300 at 36.5 KB a frame, 33.6 dB (worst frame 31.9); q50 42.0 KB, 34.4 dB (32.7); q30 30.8 KB,
-#: 32.7 dB (30.9) (docs/recordings.md).
-JPEG_QUALITY = 40
-
 
 class Detail(StrEnum):
     FULL = "full"
@@ -24,6 +19,30 @@ class Detail(StrEnum):
 #: residuals, the undistorted frame) costs ~6.5 KB a frame more with `vo` and ~10 KB with `map` (KITTI 05 at 10 Hz,
 #: docs/recordings.md).
 DEFAULT_DETAIL = Detail.STANDARD
+
+
+#: The size the camera frame is recorded at (`--image-codec jpeg`), as a fraction of the source's: at `standard`
+#: half (a quarter of the pixels: the default layout draws a KITTI frame at about half size anyway), drawn over
+#: the pinhole's whole image plane so that every overlay stays in the source's pixels; at `full` the source's own.
+IMAGE_SCALE: dict[Detail, float] = {Detail.FULL: 1.0, Detail.STANDARD: 0.5, Detail.SUMMARY: 1.0, Detail.OFF: 1.0}
+
+#: The recorded frames' default JPEG quality at full size, the lowest whose worst frame stays at ~32 dB PSNR
+#: against the source: KITTI 05 frames 0:300 at 36.5 KB a frame, 33.6 dB (worst frame 31.9); q50 42.0 KB, 34.4 dB
+#: (32.7); q30 30.8 KB, 32.7 dB (30.9) (docs/recordings.md).
+JPEG_QUALITY = 40
+#: ...and at half size, where the halving, not the JPEG, sets the fidelity against the source (27.3 dB at q30,
+#: 27.7 at q40, 28.0 at q50, the frame drawn with linear filtering; 26.7 at q20): 10.1 KB a frame (q40 11.9).
+HALF_SIZE_JPEG_QUALITY = 30
+
+
+def default_jpeg_quality(detail: Detail) -> int:
+    """The JPEG quality of the frames recorded at `detail` unless told otherwise (`--jpeg-quality`)."""
+    return HALF_SIZE_JPEG_QUALITY if IMAGE_SCALE[detail] < 1.0 else JPEG_QUALITY
+
+
+def scaled_size(width: int, height: int, scale: float) -> tuple[int, int]:
+    """(width, height) of a frame stored at `scale` of (width, height), at least one pixel each."""
+    return max(1, round(width * scale)), max(1, round(height * scale))
 
 
 class ImageCodec(StrEnum):

@@ -25,7 +25,7 @@ from vslam.recording.columns import FLUSH_FRAMES, FLUSH_SECONDS, NO_IMAGE, Colum
 from vslam.recording.drift import DriftRecording, FrameTrail
 from vslam.recording.front_end import log_candidates, log_events, log_road
 from vslam.recording.layout import UNDISTORTED, blueprint
-from vslam.recording.levels import DEFAULT_DETAIL, JPEG_QUALITY, Detail, ImageCodec
+from vslam.recording.levels import DEFAULT_DETAIL, IMAGE_SCALE, Detail, ImageCodec, default_jpeg_quality, scaled_size
 from vslam.recording.map_backend import MapRecording
 from vslam.recording.metrics import (
     METRICS,
@@ -94,7 +94,7 @@ class Recorder:
         config: EngineConfig,
         properties: dict[str, str],
         detail: Detail = DEFAULT_DETAIL,
-        jpeg_quality: int = JPEG_QUALITY,
+        jpeg_quality: int | None = None,
         image_codec: ImageCodec = ImageCodec.JPEG,
         external: bool = False,
         live_url: str | None = None,
@@ -110,7 +110,9 @@ class Recorder:
         self.path = path
         self.detail = detail
         self._external = external
-        self._jpeg_quality = jpeg_quality
+        self._jpeg_quality = jpeg_quality if jpeg_quality is not None else default_jpeg_quality(detail)
+        # video streams keep the source's size (their codec, not the size, makes them small)
+        self._image_scale = IMAGE_SCALE[detail] if image_codec == ImageCodec.JPEG else 1.0
         # with a second core, frames are JPEG-encoded beside the engine (cv2.imencode releases the GIL)
         self._encoder = ThreadPoolExecutor(1, thread_name_prefix="vslam-jpeg") if config.threads > 1 else None
         self._gt = source.ground_truth
@@ -161,7 +163,7 @@ class Recorder:
             self._videos = {e: VideoEntity(self._rec, e, image_codec, self._encoder) for e in entities}
         # the map backend's entities (statics logged here; nothing at all is logged with the odometry backend)
         self._map = (MapRecording(self._rec, self._columns, source.intrinsics, detail, self._gt,
-                                  jpeg_quality)
+                                  self._jpeg_quality)
                      if config.backend == "map" else None)
         self._check_written()  # the properties on disk before the first frame: a run killed in it says what it was
 
@@ -274,7 +276,7 @@ class Recorder:
         """Pinhole, legend, and every style that does not change from frame to frame (logged once)."""
         rec = self._rec
         intr = source.intrinsics
-        log_world(rec, intr)
+        log_world(rec, intr, self._image_scale if self.detail in (Detail.FULL, Detail.STANDARD) else 1.0)
         if self._undistort is not None:
             rec.log(UNDISTORTED, pinhole(intr), static=True)
         rec.log(
@@ -423,6 +425,9 @@ class Recorder:
         columns.add("/world/camera/image/flow", frame, *flow, batch=True)
 
     def _encode(self, image: np.ndarray) -> bytes:
+        if self._image_scale != 1.0:
+            image = cv2.resize(image, scaled_size(image.shape[1], image.shape[0], self._image_scale),
+                               interpolation=cv2.INTER_AREA)
         ok, jpeg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, self._jpeg_quality])
         if not ok:
             raise RecordingError("JPEG encoding of a frame failed")

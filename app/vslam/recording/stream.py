@@ -14,6 +14,7 @@ import rerun.blueprint as rrb
 import vslam_core
 from vslam.common import OutputError, hold_stuck_writer, likely_errno, write_failure
 from vslam.recording.layout import CAR_ENTITY
+from vslam.recording.levels import scaled_size
 from vslam.recording.styles import APPLICATION_ID, CAR_COLOUR, ESTIMATE_COLOUR, GROUND_TRUTH_COLOUR
 from vslam_core.sources.base import CameraIntrinsics
 
@@ -43,13 +44,21 @@ def open_stream(path: Path, recording_id: str | None, layout: rrb.Blueprint, nam
     return rec
 
 
-def log_world(rec: rr.RecordingStream, camera: CameraIntrinsics | None) -> None:
+def log_world(rec: rr.RecordingStream, camera: CameraIntrinsics | None, image_scale: float = 1.0) -> None:
     """What every run recording declares once: the world's axes (RDF: x right, y down, z forward, the camera
     frame of the first frame), the pinhole of ``/world/camera/image`` when the camera is known, the car
-    around the camera that the 3-D view follows, and the styles of the two trajectories."""
+    around the camera that the 3-D view follows, and the styles of the two trajectories. `image_scale`: the
+    size the frames are stored at, as a fraction of the source's (`IMAGE_SCALE`)."""
     rec.log("/world", rr.ViewCoordinates.RDF, static=True)
     if camera is not None:
-        rec.log("/world/camera/image", pinhole(camera), static=True)
+        drawn: list[rr.AsComponents] = []
+        if image_scale != 1.0:
+            # drawn over the pinhole's whole image plane, smoothly; an instance pose is not passed on to the
+            # overlays below the image: they stay in the source's pixels
+            width, height = scaled_size(camera.width, camera.height, image_scale)
+            drawn = [rr.InstancePoses3D(scales=[[camera.width / width, camera.height / height, 1.0]]),
+                     rr.EncodedImage.from_fields(magnification_filter="Linear")]
+        rec.log("/world/camera/image", pinhole(camera), *drawn, static=True)
     # metres, camera frame: 1.6 m wide, roof to road under a camera 1.65 m up, 0.5 m of bonnet ahead of it
     rec.log(CAR_ENTITY, rr.Boxes3D(centers=[[0.0, 0.75, -1.5]], half_sizes=[[0.8, 0.9, 2.0]], colors=[CAR_COLOUR],
                                  radii=[0.02]),  # thin edges: the car must not hide the lines around it

@@ -15,7 +15,7 @@ import numpy as np
 from rich.console import Console
 
 from vslam.common import OutputError
-from vslam.recording import DEFAULT_DETAIL, JPEG_QUALITY, Detail, ImageCodec
+from vslam.recording import DEFAULT_DETAIL, Detail, ImageCodec
 from vslam.runs.progress import progress
 from vslam.runs.trajectory_out import TrajectoryWriter
 from vslam_core.config import EngineConfig
@@ -97,7 +97,7 @@ def record_run(
     properties: dict[str, str],
     console: Console,
     detail: Detail = DEFAULT_DETAIL,
-    jpeg_quality: int = JPEG_QUALITY,
+    jpeg_quality: int | None = None,
     trajectory: TrajectoryWriter | None = None,
     image_codec: ImageCodec = ImageCodec.JPEG,
     prior_map: StoredMap | None = None,
