@@ -114,8 +114,8 @@ def run(
     = None,
     detail: Annotated[Detail, typer.Option(help="full = every intermediate; standard = no 3-D points or per-track "
                                             "hover data; summary = no image or per-point data; off = no file "
-                                            "(KITTI at 10 Hz, vo / map: standard 49 / 59 KB a frame, full 55 / 69, "
-                                            "summary 4.5 / 7; docs/recordings.md)")]
+                                            "(KITTI at 10 Hz, vo / map: standard 22 / 29 KB a frame, full 55 / 68, "
+                                            "summary 4.4 / 7; docs/recordings.md)")]
     = DEFAULT_DETAIL,
     jpeg_quality: Annotated[int | None, typer.Option(
         min=1, max=100, show_default=False,
