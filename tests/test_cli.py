@@ -14,7 +14,7 @@ from cli_helpers import InterruptedRun, interrupt_kitti_run, vslam, vslam_here
 
 from vslam.recording import HALF_SIZE_JPEG_QUALITY
 from vslam.rrd.provenance import PROPERTIES, read_properties
-from vslam.rrd.read import read_entity
+from vslam.rrd.read import read_entity, read_events
 from vslam_core.config import EngineConfig
 from vslam_core.pipeline import run_odometry
 from vslam_core.results import TrackFate
@@ -263,8 +263,7 @@ def test_corrupt_image_is_skipped_with_an_event(corrupt_sequence: Path, tmp_path
     assert result.returncode == 0, result.stderr
     poses = read_kitti_poses(trajectory)
     assert len(poses) == 30 and np.allclose(poses[12], poses[11])  # the pose is held over the bad frame
-    events = read_entity(rrd, "/events")
-    texts = [t[0] for t in events["TextLog:text"].to_list()]
+    texts = [text for _, _, text in read_events(rrd)]
     assert any(t.startswith("frame 12: fail") and "unreadable_image" in t for t in texts)
     inspect = json.loads(vslam("inspect", rrd, "--json").stdout)
     assert inspect["flagged"] == [{"start": 12, "end": 12, "status": "fail", "reasons": ["unreadable_image"]}]

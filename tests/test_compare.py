@@ -191,7 +191,7 @@ def test_embedded_blueprint_has_both_runs_and_overlaid_plots(compared: Compariso
                                         *(f"- /{p}/world/trajectory/{e}" for p in "ab" for e in ("drift", "gt_links"))]
     assert trajectories["overrides"] == {f"/{p}/world/trajectory/{t}" for p in "ab"
                                          for t in ("estimate", "ground_truth")}
-    assert views["events"]["contents"] == ["/compare/events", "/a/events", "/b/events"]
+    assert views["events"]["contents"] == ["/compare/events", "/a/events/**", "/b/events/**"]
     for name, _, kind in DIFFERENCE_SERIES:  # B's per-frame differences from A, the marker with the rotation
         assert views[DIFFERENCE_TITLES[kind]]["contents"] == [f"/compare/b/{name}"] + (
             ["/compare/b/divergence"] if kind == "rotation" else [])
@@ -410,7 +410,7 @@ def test_three_real_runs_in_one_valid_recording(kitti_runs: list[Path],
     views = _views(output)
     assert views["trajectories: base red, tracks400 orange, later purple, truth blue"]["contents"][:3] == [
         f"/{p}/world/trajectory/**" for p in "abc"]
-    assert views["events"]["contents"] == ["/compare/events", "/a/events", "/b/events", "/c/events"]
+    assert views["events"]["contents"] == ["/compare/events", "/a/events/**", "/b/events/**", "/c/events/**"]
     assert views[plot_title("tracks")]["contents"] == [f"/{p}/metrics/tracks/**" for p in "abc"]
     assert {f"{label}: frame" for label in labels} <= set(views)  # one tab per run
 

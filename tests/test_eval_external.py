@@ -16,7 +16,7 @@ from kitti_runs import link_images
 from vslam.common.trajectory_images import stamps_from_names
 from vslam.evaluation.matching import MatchMode, match_images
 from vslam.evaluation.plots import ESTIMATES_BGR, GROUND_TRUTH_BGR, top_view
-from vslam.rrd.read import read_entity
+from vslam.rrd.read import read_entity, read_events
 from vslam_core.errors import TrajectoryFormatError
 from vslam_core.sources.kitti import read_times
 from vslam_core.trajectory.io import read_kitti_poses, write_kitti_poses, write_tum_poses
@@ -87,7 +87,7 @@ def test_recording_verifies_and_inspect_ranks_the_planted_kink(external: dict[st
     assert all(entry["reasons"] == [] for entry in drift["rotation"] + drift["translation"])  # none invented
     assert report["flagged"] == [] and report["config"] == {}
     assert report["accuracy"]["final_position_error_m"] > 1.0  # the kink swings the rest of the path
-    events = [t[0] for t in read_entity(rrd, "/events")["TextLog:text"].to_list()]
+    events = [text for _, _, text in read_events(rrd)]
     assert any(f"frame {KINK_FRAME}: drift: rotation #1" in e for e in events)
     assert all("health not reported (external trajectory)" in e for e in events if "drift:" in e)
     text = read_entity(rrd, "/report", static=True)["TextDocument:text"].to_list()[-1][0]

@@ -11,7 +11,7 @@ import pytest
 from cli_helpers import vslam
 from ros_logs import PLUMB_BOB, kitti_clip, make_reimager, write_lens_folder
 
-from vslam.rrd.read import read_entity
+from vslam.rrd.read import read_events
 from vslam_core.config import EngineConfig
 from vslam_core.errors import SourceError
 from vslam_core.geometry import rotation_angle
@@ -167,7 +167,7 @@ def test_dead_reckoned_frames_in_the_output_recording_and_inspect(kitti_root: Pa
     report = json.loads(vslam("inspect", rrd, "--json").stdout)
     assert report["flagged"][0] == {"start": 200, "end": 210, "status": "fail", "reasons": ["image_blurred", "coasted"]}
     assert report["drift"]["rotation"][0]["deg"] < 1.0  # each blurred frame's own error (holding: ~3.9°)
-    events = [t[0] for t in read_entity(rrd, "/events")["TextLog:text"].to_list()]
+    events = [text for _, _, text in read_events(rrd)]
     assert "frame 200: fail (dead-reckoned): image_blurred, coasted" in events
 
 

@@ -15,7 +15,7 @@ import rerun as rr
 from kitti_runs import kitti_folder
 from rerun.chunk import RrdReader
 
-from vslam.rrd.read import read_entity
+from vslam.rrd.read import read_entity, read_events
 from vslam_core.config import EngineConfig
 from vslam_core.pipeline import run_odometry
 from vslam_core.sources.folder import ImageFolderSource
@@ -131,8 +131,7 @@ def test_candidates_and_images_are_recorded(revisit: tuple[Path, list[int]]) -> 
         bars = _bar_charts(rrd, name)
         assert len(bars) == len(edges), name
         assert all(len(b) >= 10 and min(b) >= 0.0 for b in bars), name
-    events = read_entity(rrd, "/events")
-    texts = [t[0] for t in events["TextLog:text"].to_list()]
+    texts = [text for _, _, text in read_events(rrd)]
     assert any("loop closed: frame" in t for t in texts)
     assert any("loop candidate: frame" in t for t in texts)
 

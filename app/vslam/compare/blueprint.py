@@ -166,7 +166,7 @@ def blueprint(labels: tuple[str, ...] = ("A", "B"),
     # every run's events in one log, ordered by frame; the entity path tells the runs apart (no level column:
     # the body needs the room, and its text says what happened)
     events = rrb.TextLogView(
-        name="events", origin="/", contents=[DIFFERENCE_EVENTS, *(f"/{prefix}/events" for prefix in prefixes)],
+        name="events", origin="/", contents=[DIFFERENCE_EVENTS, *(f"/{prefix}/events/**" for prefix in prefixes)],
         columns=rrb.archetypes.TextLogColumns(text_log_columns=[
             rrb.encodings.TextLogColumn(rrb.encodings.TextLogColumnKind.EntityPath),
             rrb.encodings.TextLogColumn(rrb.encodings.TextLogColumnKind.Body),

@@ -75,6 +75,20 @@ class ColumnBuffer:
         if rows.nbytes >= FLUSH_BYTES:
             self._submit(self._send, entity, self._rows.pop(entity))
 
+    def add_instance(self, entity: str, frame: Frame, make: Callable[..., Any], **values: Any) -> None:
+        """One more instance (one value per component) of `entity` at `frame`: appended to the frame's row while
+        it is buffered, else a row of its own. The viewer's text-log level filter (Rerun 0.41) shows the wrong
+        level or drops a row when two rows of an entity share a time: events get one row a frame."""
+        rows = self._rows.get(entity)
+        row = rows.frames.index(frame.index) if rows is not None and frame.index in rows.frames else None
+        if rows is None or row is None:
+            self.add(entity, frame, (make, {name: [value] for name, value in values.items()}), batch=True)
+            return
+        for name, value in values.items():
+            rows.values[0][name][row].append(value)
+            rows.nbytes += _size(value)
+        rows.lengths[0][row] += 1
+
     def add_scalar(self, entity: str, frame: Frame, value: float) -> None:
         """`add` of one `Scalars` value, without the generic bookkeeping (~20 series per frame)."""
         rows = self._rows.get(entity)
@@ -160,9 +174,15 @@ def _concatenate(batches: list[Any]) -> Any:
     return [value for batch in batches for value in batch]
 
 
-def add_event(columns: ColumnBuffer, frame: Frame, text: str, level: str) -> None:
-    """One line of the `/events` text log, prefixed with the frame index."""
-    columns.add("/events", frame, (rr.TextLog.columns, {"text": f"frame {frame.index}: {text}", "level": level}))
+EVENTS = "/events"
+#: What is known only when the run ends (the drift ranking, loop searches finished at the last frame), at the
+#: frames it is about: beside `/events`, whose rows of those frames are written already (one row a frame).
+EVENTS_AT_END = "/events/at_end"
+
+
+def add_event(columns: ColumnBuffer, frame: Frame, text: str, level: str, entity: str = EVENTS) -> None:
+    """One line of the `/events` text log (or of `entity`), prefixed with the frame index."""
+    columns.add_instance(entity, frame, rr.TextLog.columns, text=f"frame {frame.index}: {text}", level=level)
 
 
 #: The image of a `Frame` made only to place something on the timelines.

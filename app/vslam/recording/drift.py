@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import rerun as rr
 
-from vslam.recording.columns import NO_IMAGE, ColumnBuffer, add_event
+from vslam.recording.columns import EVENTS_AT_END, NO_IMAGE, ColumnBuffer, add_event
 from vslam.recording.metrics import HEALTH_LEVELS
 from vslam_core.geometry import invert_pose
 from vslam_core.sources.base import Frame
@@ -190,13 +190,14 @@ class DriftRecording:
         for rank, (index, value) in enumerate(rotation):
             i = by_frame[index]
             add_event(columns, self.trail.frames[i], f"drift: rotation #{rank + 1}, {value:.3f}° this frame "
-                      f"({errors.translation_m[i]:.3f} m); health {self.trail.health_text(i)}", "WARN")
+                      f"({errors.translation_m[i]:.3f} m); health {self.trail.health_text(i)}", "WARN", EVENTS_AT_END)
         for rank, (index, value) in enumerate(translation):
             i = by_frame[index]
             pct = errors.translation_pct[i]
             add_event(columns, self.trail.frames[i], f"drift: translation #{rank + 1}, {value:.3f} m this frame"
                       + (f" ({pct:.1f} % of the step)" if np.isfinite(pct) else "")
-                      + f" ({errors.rotation_deg[i]:.3f}°); health {self.trail.health_text(i)}", "WARN")
+                      + f" ({errors.rotation_deg[i]:.3f}°); health {self.trail.health_text(i)}", "WARN",
+                      EVENTS_AT_END)
         return lines
 
 

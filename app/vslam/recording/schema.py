@@ -76,7 +76,10 @@ ENTITIES: tuple[EntitySpec, ...] = (
     # no reason (reasons="") is written without the component; readers take it as "" everywhere
     EntitySpec("/health", ("status",), False, False, (INSPECT, COMPARE),
                "per frame: status ok|warn|fail and comma-separated reason codes"),
-    EntitySpec("/events", ("TextLog:text", "TextLog:level"), False, False, VIEWER, "text log"),
+    EntitySpec("/events", ("TextLog:text", "TextLog:level"), False, False, VIEWER,
+               "text log: one row a frame, an instance per event"),
+    EntitySpec("/events/at_end", ("TextLog:text", "TextLog:level"), False, False, VIEWER,
+               "text log of what is known when the run ends (drift ranking, last loop searches), at its frames"),
     EntitySpec("/report", ("TextDocument:text",), True, False, (INSPECT, COMPARE),
                "Markdown verdict; its metrics table (t_err, r_err, ATE) is read back"),
     EntitySpec("/overview/path", ("LineStrips2D:strips",), True, False, VIEWER,

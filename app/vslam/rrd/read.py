@@ -172,6 +172,17 @@ def read_entity(path: Path, entity: str, static: bool = False) -> pl.DataFrame:
     return table.sort("frame") if "frame" in table.columns else table
 
 
+def read_events(path: Path) -> list[tuple[int, str, str]]:
+    """Every line of the recording's text logs (`/events` and below it, e.g. `/events/at_end`) as (frame,
+    level, text), by frame: a row holds all of a frame's events, one instance each."""
+    table = read_entity(path, "/events/**")
+    if table.is_empty():
+        return []
+    rows = zip(table["frame"].to_list(), table["TextLog:level"].to_list(), table["TextLog:text"].to_list(), strict=True)
+    return [(frame, level, text) for frame, levels, texts in rows
+            for level, text in zip(levels or [""] * len(texts), texts, strict=True)]
+
+
 @functools.lru_cache(maxsize=16)
 def _recording_store(data: str, _size: int, _mtime_ns: int) -> LazyStore | None:
     """The recording store of a finalised `.rrd` (keyed by its size and time too: a file written again is read

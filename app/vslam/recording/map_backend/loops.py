@@ -26,7 +26,7 @@ import numpy as np
 import rerun as rr
 
 from vslam.common import RecordingError
-from vslam.recording.columns import UNIX_STAMPS_AFTER_S, ColumnBuffer, add_event
+from vslam.recording.columns import EVENTS, EVENTS_AT_END, UNIX_STAMPS_AFTER_S, ColumnBuffer, add_event
 from vslam.recording.levels import JPEG_QUALITY, Detail
 from vslam_core.results import LoopCandidate, LoopStep
 from vslam_core.sources.base import Frame
@@ -57,12 +57,14 @@ class LoopRecording:
         rec.log("/loops/candidate/image/matches", rr.AnnotationContext(
             [(class_id, label, colour) for class_id, (label, colour) in MATCH_STYLE.items()]), static=True)
 
-    def log_frame(self, frame: Frame, position: int, step: LoopStep | None) -> None:
+    def log_frame(self, frame: Frame, position: int, step: LoopStep | None, at_end: bool = False) -> None:
+        """`at_end`: a search that finished when the run ended (its events go to `EVENTS_AT_END`)."""
         self._indices[position] = frame.index
         if step is None:
             return
+        events = EVENTS_AT_END if at_end else EVENTS
         if step.candidates:
-            self._log_candidates(frame, step.candidates)
+            self._log_candidates(frame, step.candidates, events)
         closed = step.closed
         if closed is None:
             return
@@ -87,12 +89,12 @@ class LoopRecording:
         add_event(self._columns, frame, f"loop closed: frame {query} revisits frame {candidate} ({closed.inliers} "
                   f"inliers); {len(closed.keyframe_ids)} keyframes corrected, up to "
                   f"{closed.correction_m.max():.2f} m and {closed.correction_deg.max():.2f}°, "
-                  f"{closed.landmarks_moved} landmarks moved", "INFO")
+                  f"{closed.landmarks_moved} landmarks moved", "INFO", events)
 
     def _index(self, position: int) -> int:
         return self._indices.get(position, position)
 
-    def _log_candidates(self, frame: Frame, candidates: tuple[LoopCandidate, ...]) -> None:
+    def _log_candidates(self, frame: Frame, candidates: tuple[LoopCandidate, ...], events: str) -> None:
         rows = {
             "query_frame": np.array([self._index(c.query_position) for c in candidates], np.int64),
             "candidate_frame": np.array([self._index(c.candidate_position) for c in candidates], np.int64),
@@ -107,7 +109,7 @@ class LoopRecording:
             add_event(self._columns, frame, f"loop candidate: frame {self._index(c.query_position)} vs frame "
                       f"{self._index(c.candidate_position)} (score {c.score:.3f}): {c.matches} matches, {c.inliers} "
                       f"inliers, {'accepted' if c.accepted else 'rejected: ' + c.why}",
-                      "INFO" if c.accepted else "DEBUG")
+                      "INFO" if c.accepted else "DEBUG", events)
         if self._detail == Detail.SUMMARY:
             return
         best = max(candidates, key=lambda c: (c.accepted, c.inliers, c.matches))

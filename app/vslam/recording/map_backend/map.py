@@ -189,7 +189,7 @@ class MapRecording:
     def log_loops_at_end(self, frame: Frame, position: int, steps: list[LoopStep]) -> None:
         """The loop searches collected when the run ended (`RunResult.loops_at_end`), at the last frame."""
         for step in steps:
-            self._loops.log_frame(frame, position, step)
+            self._loops.log_frame(frame, position, step, at_end=True)
 
     def _log_scale(self, frame: Frame, result: FrameResult, mapping: MapFrame) -> None:
         """The map's scale: this frame's step in map units, and over the ground truth's step when known."""
