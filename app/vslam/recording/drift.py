@@ -145,7 +145,7 @@ class DriftRecording:
                 rr.LineStrips3D.from_fields(radii=DRIFT_RADIUS_M), static=True)
         # one segment per frame on the `frame` timeline, so the 3-D view shows the past only (as the estimate)
         rec.send_columns(DRIFT_ENTITY, indexes=[rr.TimeColumn("frame", sequence=indices[1:])],
-                         columns=[*rr.LineStrips3D.columns(strips=list(strips),
+                         columns=[*rr.LineStrips3D.columns(strips=strips,  # (n, 2, 3): ~100x faster than a list
                                                            colors=drift_colours(errors.translation_pct[1:])),
                                   *rr.AnyValues.columns(frame_index=indices[1:],
                                                         translation_pct=np.nan_to_num(errors.translation_pct[1:]),

@@ -126,7 +126,7 @@ class DriveOverview:
         gt_view = top_view(np.asarray(ground_truth)[: len(frames)], positions) if ground_truth is not None else None
         to_canvas = canvas_transform(view if gt_view is None else np.vstack([view, gt_view]))
         view = to_canvas(view)
-        rec.log(OVERVIEW_PATH, rr.LineStrips2D(list(np.stack([view[:-1], view[1:]], axis=1)), colors=colours,
+        rec.log(OVERVIEW_PATH, rr.LineStrips2D(np.stack([view[:-1], view[1:]], axis=1), colors=colours,
                                                radii=rr.Radius.ui_points(2.5)), static=True)
         if gt_view is not None:
             rec.log(OVERVIEW_GT, rr.LineStrips2D([to_canvas(gt_view)], colors=GROUND_TRUTH_COLOUR,

@@ -79,7 +79,7 @@ def log_search(columns: ColumnBuffer, frame: Frame, search: LocalMapSearch | Non
     columns.add(IMAGE_ENTITIES[0], frame, *points, batch=True)
     columns.add(IMAGE_ENTITIES[1], frame, (rr.Boxes2D.columns, {
         "centers": projected, "half_sizes": np.repeat(radius[:, None], 2, axis=1), "class_ids": classes}), batch=True)
-    strips = list(np.stack([projected[found], pixels[found]], axis=1))
+    strips = np.stack([projected[found], pixels[found]], axis=1)  # (n, 2, 2): ~100x faster than a list
     columns.add(IMAGE_ENTITIES[2], frame, (rr.LineStrips2D.columns, {
         "strips": strips, "class_ids": classes[found]}), batch=True)
 

@@ -265,7 +265,8 @@ class MapRecording:
         drawn = np.isfinite(projected).all(axis=1)
         if self._detail != Detail.FULL:
             drawn &= np.linalg.norm(projected - observed, axis=1) > HIDDEN_LINE_PX
-        strips = list(quantised(np.stack([projected[drawn], observed[drawn]], axis=1), LINE_STEPS))
+        # (n, 2, 2), not a list of strips: Rerun converts an array ~100x faster
+        strips = quantised(np.stack([projected[drawn], observed[drawn]], axis=1), LINE_STEPS)
         self._columns.add("/world/camera/image/reprojection", frame,
                           (rr.LineStrips2D.columns, {"strips": strips, "class_ids": classes[drawn]}), batch=True)
 
