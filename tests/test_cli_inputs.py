@@ -178,7 +178,8 @@ def test_help_shows_the_defaults_rich_used_to_eat() -> None:
     assert "[default: gt when the source has ground truth]" in run_help  # --scale
     assert "[default: the source's own: KITTI 1.65 m, the synthetic street's]" in run_help  # --camera-height
     assert "[default: recordings/<source>_<frames>_<time>-<run id>.rrd]" in run_help  # --output
-    assert "[default: standard]" in run_help and "[default: 40; 1<=x<=100]" in run_help
+    assert "[default: standard]" in run_help  # --detail; --jpeg-quality:
+    assert "[default: 30 at standard, where they are stored at half size; 40 at full] [1<=x<=100]" in run_help
     assert "[default: from the columns]" in " ".join(vslam_here("eval", "--help").stdout.split())  # eval --format
 
 
