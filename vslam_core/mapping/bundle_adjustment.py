@@ -3,7 +3,8 @@
 Minimises Σ ρ_Huber(‖π(K, T_cam_world·X_j) − z_ij‖ / σ) over the window's keyframe poses and landmark
 positions (Triggs et al., "Bundle Adjustment — A Modern Synthesis", 2000, eq. 2 with a robust cost;
 gtsam's `GenericProjectionFactorCal3_S2`, Levenberg–Marquardt). Older keyframes that see the window's
-landmarks are held fixed (`NonlinearEquality`), which fixes the gauge. The scale source stays in charge:
+landmarks are held fixed (`NonlinearEquality`), which fixes the gauge; their observations constrain only the
+landmark (`TriangulationFactorCal3_S2`, the held camera as a constant). The scale source stays in charge:
 with a metric scale, the distance between consecutive keyframes enters as a `RangeFactorPose3` with the
 scale source's length; with the map's own scale (`--scale none`) two poses are held fixed instead, and the
 distance enters at its length before the adjustment, with a sigma of `none_step_sigma` times it. Whatever the
@@ -81,7 +82,13 @@ def reprojection_errors(K: np.ndarray, poses: np.ndarray, points: np.ndarray, po
 
 def solve(problem: Problem) -> Solution:
     """Levenberg–Marquardt on the factor graph of `problem` (gtsam, sequential Cholesky: measured fastest
-    on these graphs)."""
+    on these graphs), landmarks eliminated before poses (the Schur complement's order).
+
+    Why that order, and held poses out of the landmarks' factors: gtsam eliminates a variable with an equality
+    constraint by QR over every factor it touches; when COLAMD picked a held pose before its landmarks, that was
+    a dense system over hundreds of landmarks, 10–25 MB for one windowed job on a revisited street (the worker's
+    peak: docs/map-backend.md, memory on a revisited street). Eliminated first, a landmark leaves a small factor
+    on the window's poses that see it. The solution is the same up to rounding (1e-9 m on those jobs)."""
     import gtsam  # imported here: the worker process and the map backend need it, the rest of vslam does not
     from gtsam.symbol_shorthand import L, X
 
@@ -100,10 +107,15 @@ def solve(problem: Problem) -> Solution:
     for key, point in zip(point_keys, problem.points, strict=True):
         initial.insert(key, point)
     pose_keys = [X(i) for i in range(len(problem.poses))]
-    projection, add = gtsam.GenericProjectionFactorCal3_S2, graph.add  # the hot loop: ~2.5k factors
+    held_cameras = {i: gtsam.PinholeCameraCal3_S2(gtsam.Pose3(pose), calibration)
+                    for i, pose in enumerate(problem.poses) if i >= problem.optimised or i < problem.fix_first}
+    projection, from_held, add = gtsam.GenericProjectionFactorCal3_S2, gtsam.TriangulationFactorCal3_S2, graph.add
     for i, j, pixel in zip(problem.observation_pose.tolist(), problem.observation_point.tolist(),
-                           problem.observation_pixels, strict=True):
-        add(projection(pixel, pixel_noise, pose_keys[i], point_keys[j], calibration))
+                           problem.observation_pixels, strict=True):  # the hot loop: ~2.5k factors
+        if i in held_cameras:
+            add(from_held(held_cameras[i], pixel, pixel_noise, point_keys[j]))
+        else:
+            add(projection(pixel, pixel_noise, pose_keys[i], point_keys[j], calibration))
     for a, b, distance, sigma in problem.ranges:
         graph.add(gtsam.RangeFactorPose3(X(int(a)), X(int(b)), float(distance),
                                          gtsam.noiseModel.Isotropic.Sigma(1, float(sigma))))
@@ -115,7 +127,7 @@ def solve(problem: Problem) -> Solution:
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(problem.iterations)
     params.setLinearSolverType("SEQUENTIAL_CHOLESKY")
-    params.setOrderingType("COLAMD")
+    params.setOrdering(gtsam.Ordering.ColamdConstrainedLastNonlinearFactorGraph(graph, pose_keys))  # landmarks first
     optimizer = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
     cost_before = optimizer.error()  # the graph's error at `initial`, computed by the optimizer's constructor
     try:
