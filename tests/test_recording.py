@@ -98,6 +98,8 @@ def test_full_recording_equals_the_engine_results(full: tuple[Path, list[FrameRe
                        results[-1].T_world_cam[:3, 3], atol=1e-5)
     inliers = read_entity(path, "/metrics/ransac/inliers").filter(frame=k)
     assert inliers["Scalars:scalars"][0].to_list() == [result.inlier_count]
+    rejected = read_entity(path, "/metrics/tracks/fb_rejected").filter(frame=k)["Scalars:scalars"][0].to_list()
+    assert rejected == [np.count_nonzero(result.track_fate == TrackFate.FB_REJECTED)]  # FrameResult.fate_counts
     for stage in ("decode", "track", "essential", "record"):
         assert len(read_entity(path, f"/metrics/timing_ms/{stage}")) >= FRAMES - 1, stage
 

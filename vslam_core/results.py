@@ -358,4 +358,5 @@ class FrameResult:
         return int(np.count_nonzero(self.track_fate == TrackFate.INLIER))
 
     def fate_counts(self) -> dict[str, int]:
-        return {fate.name.lower(): int(np.count_nonzero(self.track_fate == fate)) for fate in TrackFate}
+        counts = np.bincount(self.track_fate, minlength=len(TrackFate))  # one pass, not one per fate
+        return {fate.name.lower(): int(counts[fate]) for fate in TrackFate}
