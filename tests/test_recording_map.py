@@ -16,7 +16,7 @@ import rerun as rr
 from rerun.chunk import RrdReader
 
 from vslam.recording import MAP_METRICS, MAP_STAGES, MODE_LEVELS, Detail, Recorder
-from vslam.recording.map_backend.map import FRUSTUM_DEPTH, PNP_INLIER, PNP_OUTLIER, observation_colours
+from vslam.recording.map_backend.map import FRUSTUM_DEPTH, HIDDEN_LINE_PX, PNP_INLIER, PNP_OUTLIER, observation_colours
 from vslam.rrd.read import read_entity
 from vslam_core.config import EngineConfig
 from vslam_core.pipeline import RunResult, run_odometry
@@ -307,7 +307,14 @@ def test_detail_levels_of_the_map(kitti_root: Path, tmp_path: Path) -> None:
         else:
             assert "Points3D:positions" in landmarks.columns and "landmark_id" not in landmarks.columns
             assert len(image) == 12 and "landmark_id" not in image.columns
-            assert not read_entity(path, "/world/camera/image/reprojection").is_empty()
+            lines = read_entity(path, "/world/camera/image/reprojection")
+            assert len(lines) == 12
+            # the lines their dot would hide are left out (their ends rounded to 1/4 px), no class labels drawn
+            strips = [np.array(row, float).reshape(-1, 2, 2) for row in lines["LineStrips2D:strips"].to_list() if row]
+            assert strips and all((np.linalg.norm(s[:, 0] - s[:, 1], axis=1) > HIDDEN_LINE_PX - 0.5).all()
+                                  for s in strips)
+            style = read_entity(path, "/world/camera/image/reprojection", static=True)
+            assert [row for row in style["LineStrips2D:show_labels"].to_list() if row] == [[False]]
 
 
 @pytest.mark.kitti

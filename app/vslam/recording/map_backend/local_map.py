@@ -44,9 +44,10 @@ def log_static(rec: rr.RecordingStream, detail: Detail) -> None:
     if detail == Detail.SUMMARY:
         return
     classes = rr.AnnotationContext([(class_id, label, colour) for class_id, (label, colour) in LOCAL_MAP_STYLE.items()])
-    rec.log(IMAGE_ENTITIES[0], classes, rr.Points2D.from_fields(radii=2.0), static=True)
-    rec.log(IMAGE_ENTITIES[1], classes, rr.Boxes2D.from_fields(radii=0.5), static=True)
-    rec.log(IMAGE_ENTITIES[2], classes, rr.LineStrips2D.from_fields(radii=0.8), static=True)
+    # no class labels on the frame (the legend names the colours): a frame with few of them would show them all
+    rec.log(IMAGE_ENTITIES[0], classes, rr.Points2D.from_fields(radii=2.0, show_labels=False), static=True)
+    rec.log(IMAGE_ENTITIES[1], classes, rr.Boxes2D.from_fields(radii=0.5, show_labels=False), static=True)
+    rec.log(IMAGE_ENTITIES[2], classes, rr.LineStrips2D.from_fields(radii=0.8, show_labels=False), static=True)
 
 
 def log_search(columns: ColumnBuffer, frame: Frame, search: LocalMapSearch | None, detail: Detail) -> None:

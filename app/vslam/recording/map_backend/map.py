@@ -134,9 +134,12 @@ class MapRecording:
         rec.log("/world/map/landmarks/window", rr.Points3D.from_fields(radii=0.06), static=True)
         rec.log("/world/map/landmarks/retired", rr.Points3D.from_fields(radii=0.04), static=True)
         classes = rr.AnnotationContext([(class_id, label, colour) for class_id, (label, colour) in PNP_STYLE.items()])
-        rec.log("/world/camera/image/landmarks", classes, rr.Points2D.from_fields(radii=LANDMARK_RADIUS_PX),
+        # no class labels on the frame (the legend names the colours): a frame with few lines would show them all
+        rec.log("/world/camera/image/landmarks", classes, rr.Points2D.from_fields(radii=LANDMARK_RADIUS_PX,
+                                                                                  show_labels=False),
                 static=True)
-        rec.log("/world/camera/image/reprojection", classes, rr.LineStrips2D.from_fields(radii=LINE_RADIUS_PX),
+        rec.log("/world/camera/image/reprojection", classes, rr.LineStrips2D.from_fields(radii=LINE_RADIUS_PX,
+                                                                                         show_labels=False),
                 static=True)
         if self._detail == Detail.FULL:
             rec.log("/world/map/ba_residuals", rr.Points3D.from_fields(radii=0.08), static=True)
