@@ -97,7 +97,7 @@ MIN_TRUTH_STEP_M = 0.05  # a ground-truth step shorter than this (the car stands
 DOT_STEPS, LINE_STEPS = 2, 4
 LANDMARK_RADIUS_PX, LINE_RADIUS_PX = 2.5, 0.8
 #: At `standard` a reprojection line no longer than this is not recorded: drawn, it lies wholly inside its
-#: landmark's dot of the same colour (86 % of the lines on KITTI 05 frames 0:300, 3.5 → 0.5 KB a frame at 10 Hz).
+#: landmark's dot of the same colour (86 % of the lines on KITTI 05 frames 0:300, 3.5 → 0.7 KB a frame at 10 Hz).
 HIDDEN_LINE_PX = LANDMARK_RADIUS_PX - LINE_RADIUS_PX
 PNP_STYLE = {PNP_OUTLIER: ("PnP outlier", (230, 30, 30)), PNP_INLIER: ("PnP inlier", (0, 230, 255))}
 
