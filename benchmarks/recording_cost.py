@@ -32,7 +32,7 @@ from pathlib import Path
 import polars as pl
 
 from benchmarks.memory import status_mb
-from vslam.recording import Detail, ImageCodec, Recorder
+from vslam.recording import HALF_SIZE_JPEG_QUALITY, JPEG_QUALITY, Detail, ImageCodec, Recorder
 from vslam_core.config import EngineConfig
 from vslam_core.pipeline import RunResult, run_odometry
 from vslam_core.results import FrameResult
@@ -134,7 +134,8 @@ def main() -> None:
         table.write_csv(args.csv)
     name = "synthetic street" if args.root == "synthetic" else "KITTI " + args.sequence
     print(f"{name}, frames {args.frames}, images {args.image_codec}"
-          + ((f" q{args.jpeg_quality}" if args.jpeg_quality else " (standard: half size q30, full: q40)")
+          + ((f" q{args.jpeg_quality}" if args.jpeg_quality
+               else f" (standard: half size q{HALF_SIZE_JPEG_QUALITY}, full: q{JPEG_QUALITY})")
              if args.image_codec == "jpeg" else "") + f", fastest of {args.repeats}"
           + (f", paced at {args.pace:g} Hz" if args.pace else ""))
     print("| backend | detail | ms/frame (slowest) | added vs off | CPU ms/frame | CPU added | recorder ms/frame "

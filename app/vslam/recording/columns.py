@@ -80,10 +80,10 @@ class ColumnBuffer:
         it is buffered, else a row of its own. The viewer's text-log level filter (Rerun 0.41) shows the wrong
         level or drops a row when two rows of an entity share a time: events get one row a frame."""
         rows = self._rows.get(entity)
-        row = rows.frames.index(frame.index) if rows is not None and frame.index in rows.frames else None
-        if rows is None or row is None:
+        if rows is None or frame.index not in rows.frames:
             self.add(entity, frame, (make, {name: [value] for name, value in values.items()}), batch=True)
             return
+        row = rows.frames.index(frame.index)
         for name, value in values.items():
             rows.values[0][name][row].append(value)
             rows.nbytes += _size(value)

@@ -276,7 +276,7 @@ class Recorder:
         """Pinhole, legend, and every style that does not change from frame to frame (logged once)."""
         rec = self._rec
         intr = source.intrinsics
-        log_world(rec, intr, self._image_scale if self.detail in (Detail.FULL, Detail.STANDARD) else 1.0)
+        log_world(rec, intr, self._image_scale)
         if self._undistort is not None:
             rec.log(UNDISTORTED, pinhole(intr), static=True)
         rec.log(
