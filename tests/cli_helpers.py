@@ -120,3 +120,30 @@ def need_vulkan() -> None:
         if "CI" in os.environ:
             pytest.fail(f"{viewer_processes.NO_VULKAN} (CI is set: the viewer tests must not be skipped)")
         pytest.skip(viewer_processes.NO_VULKAN)
+
+
+def assert_same_recording(a: Path, b: Path, tmp: Path, named: tuple[str, ...] = ()) -> None:
+    """Two recordings of the same input hold the same rows but for the measured stage timings and the `named`
+    entities (those that name the input, when it was read from two folders). (Where rows are
+    cut into chunks is not deterministic: they are written every 1.5 s of wall-clock time, issue 56;
+    `rerun rrd optimize` merges them the same way, but for the event log, whose rows from during and after the
+    run it interleaves by chunk: compared as rows.)"""
+    from vslam.recording import STAGES
+    from vslam.recording.metrics import MAP_STAGES
+    from vslam.rrd.read import read_events
+
+    events = [sorted(read_events(path)) for path in (a, b)]
+    assert len(events[0]) > 10 and events[0] == events[1]
+    merged = []
+    for name, path in (("a", a), ("b", b)):
+        filtered, optimised = tmp / f"{name}-no-timing.rrd", tmp / f"{name}-merged.rrd"
+        measured = [f"/metrics/timing_ms/{stage}" for stage in (*STAGES, *MAP_STAGES)] + ["/metrics/ba/milliseconds"]
+        drop = [arg for entity in (*measured, "/events", "/events/at_end", *named) for arg in ("--drop-entity", entity)]
+        subprocess.run(["rerun", "rrd", "filter", *drop, "-o", str(filtered), str(path)], check=True,
+                       capture_output=True, timeout=120)
+        subprocess.run(["rerun", "rrd", "optimize", "-o", str(optimised), str(filtered)], check=True,
+                       capture_output=True, timeout=120)
+        merged.append(optimised)
+    compare = subprocess.run(["rerun", "rrd", "compare", "--unordered", *map(str, merged)], capture_output=True,
+                             text=True, timeout=120)
+    assert compare.returncode == 0, compare.stderr[-2000:]

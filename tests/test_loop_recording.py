@@ -163,12 +163,16 @@ LOOP_ENTITIES = ("/loops/closed", "/loops/candidates", "/world/trajectory/estima
 
 def test_loop_closing_is_deterministic(kitti_root: Path, revisit: tuple[Path, list[int]],
                                        tmp_path: Path) -> None:
-    """The same revisit with the loop search in the tracking thread (1 thread) instead of the worker process: the
-    search is collected at the same keyframe either way, so the loops, the candidates, the recorded trajectory
-    and the trajectory written after the run are identical."""
+    """The same revisit on 1 thread: the loop search in the tracking thread instead of the worker process, and
+    each frame recorded by the tracking thread instead of the recording thread (once handed over, a frame's
+    result is not changed). The search is collected at the same keyframe either way, so the trajectory written
+    after the run and the whole recording are identical."""
     rrd, order = revisit
     inline, _ = _run(kitti_root, tmp_path, order, threads=1)
     assert (tmp_path / "run.txt").read_text() == (rrd.parent / "run.txt").read_text()
+    # the name, the report and the run's properties name the input's folder; the config says `threads`
+    named = ("/report", "/overview/summary", "/__properties", "/__properties/run", "/__properties/config")
+    cli_helpers.assert_same_recording(rrd, inline, tmp_path, named=named)
     for entity in LOOP_ENTITIES:
         ours, theirs = read_entity(rrd, entity), read_entity(inline, entity)
         components = sorted(c for c in ours.columns if "RowId" not in c and c != "frame")  # each run its own row ids

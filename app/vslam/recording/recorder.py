@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import re
 import time
+from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -83,6 +84,10 @@ FLOW_STEPS = 2
 #: The entity whose row marks a frame as complete in the file (sent last: `ColumnBuffer`); `inspect` counts it.
 CAMERA = "/world/camera"
 
+#: Frames the recording thread may lag the engine by (it then waits): memory stays bounded, and a SIGKILL loses
+#: at most these frames more than the last flush's ~1.5 s.
+MAX_PENDING_FRAMES = 4
+
 
 class Recorder:
     """Writes one run to a `.rrd` file. Always `close()` it (or use `with`): that writes the footer."""
@@ -113,8 +118,15 @@ class Recorder:
         self._jpeg_quality = jpeg_quality if jpeg_quality is not None else default_jpeg_quality(detail)
         # video streams keep the source's size (their codec, not the size, makes them small)
         self._image_scale = IMAGE_SCALE[detail] if image_codec == ImageCodec.JPEG else 1.0
-        # with a second core, frames are JPEG-encoded beside the engine (cv2.imencode releases the GIL)
-        self._encoder = ThreadPoolExecutor(1, thread_name_prefix="vslam-jpeg") if config.threads > 1 else None
+        # With a second core the engine's frames are recorded by a thread of their own, in order, beside the engine
+        # (a frame's result and image are not changed after the engine hands them over: tests/test_recording_thread.py).
+        # Not another pipeline's frames (`vslam.log`): its caller may reuse its arrays once `log_frame` returns.
+        self._worker = (ThreadPoolExecutor(1, thread_name_prefix="vslam-record") if config.threads > 1 and not external
+                        else None)
+        self._pending: deque[Future[None]] = deque()
+        # … else frames are JPEG-encoded beside the caller (cv2.imencode releases the GIL); video streams always are
+        self._encoder = (ThreadPoolExecutor(1, thread_name_prefix="vslam-jpeg")
+                         if config.threads > 1 and (self._worker is None or image_codec != ImageCodec.JPEG) else None)
         self._gt = source.ground_truth
         self._gt_check = gt_check  # a frame sink run before this one: each frame's figures, then the run's
         self._gt_buffer: np.ndarray | None = None  # `extend_ground_truth`: room for more
@@ -177,6 +189,7 @@ class Recorder:
         """Send the buffered columns, flush and write the footer; the file is valid afterwards. Raises
         `OutputError` if the file could not be written (full disk): it keeps what was written."""
         try:
+            self._sync()
             self._columns.wait()  # a write error of a flush in the background is raised here
             if not self._failed:  # after a write error nothing more reaches the file
                 for video in self._videos.values():
@@ -185,6 +198,8 @@ class Recorder:
                 self._columns.wait()
                 self._check_written()
         finally:
+            if self._worker is not None:
+                self._worker.shutdown(wait=True, cancel_futures=True)
             self._columns.close()
             if self._encoder is not None:
                 self._encoder.shutdown(cancel_futures=True)
@@ -208,6 +223,7 @@ class Recorder:
         then re-logged to say which frames the file really holds (``frames``, ``frame_count``, ``stopped``), as
         they are when the frame count was not known up front (the logging API, `vslam.log`)."""
         try:
+            self._sync()
             if stopped is not None or self._properties.get("frame_count") != str(run.frames):
                 self._restate_frames(run, stopped)
             if self._map is not None and run.loops_at_end and run.indices:  # at the last frame's time
@@ -306,6 +322,7 @@ class Recorder:
 
     def log_static(self, entity: str, *archetypes: Any) -> None:
         """Log something that holds for the whole run (e.g. the prior map of `vslam run --map`)."""
+        self._sync()
         self._rec.log(entity, *archetypes, static=True)
 
     def log_frame(self, frame: Frame, result: FrameResult, unreported: frozenset[str] = frozenset()) -> None:
@@ -314,7 +331,21 @@ class Recorder:
         `unreported`: what the frame's producer did not report (another pipeline's frames, `vslam.log`): names of
         `METRICS` series (and ``record``: the recorder's own time, which is not the producer's), left out rather
         than recorded as zero; ``status`` also leaves out the frame's ``/health`` row. A frame whose
-        `frame.image` is empty (0×0) records no image."""
+        `frame.image` is empty (0×0) records no image. With a recording thread the frame is recorded there: an
+        error of an earlier frame's recording (a full disk) is raised here."""
+        if self._worker is None:
+            self._log_frame(frame, result, unreported)
+            return
+        while self._pending and (self._pending[0].done() or len(self._pending) >= MAX_PENDING_FRAMES):
+            self._pending.popleft().result()
+        self._pending.append(self._worker.submit(self._log_frame, frame, result, unreported))
+
+    def _sync(self) -> None:
+        """Wait until the recording thread has recorded every frame handed to it; raise its first error."""
+        while self._pending:
+            self._pending.popleft().result()
+
+    def _log_frame(self, frame: Frame, result: FrameResult, unreported: frozenset[str]) -> None:
         start = time.perf_counter()
         columns = self._columns
         pose = result.T_world_cam
@@ -352,7 +383,7 @@ class Recorder:
                 columns.add_scalar(f"/metrics/timing_ms/{stage}", frame, timings[stage])
         self._frames += 1
         if self._frames % FLUSH_FRAMES == 0 or time.monotonic() - self._flushed_at >= FLUSH_SECONDS:
-            self.flush()
+            self._flush()
 
     def flush(self) -> None:
         """Send every buffered row and wait until Rerun's writer thread has written it to the file (in the
@@ -361,6 +392,10 @@ class Recorder:
         go first and the camera poses last: a frame with a pose in the file is whole. With a second core the
         columns are built, sent and waited for on the sending thread (`ColumnBuffer`), beside the engine; its
         write error stops the run at the next flush."""
+        self._sync()
+        self._flush()
+
+    def _flush(self) -> None:
         self._flushed_at = time.monotonic()
         for video in self._videos.values():
             video.flush()
@@ -375,6 +410,7 @@ class Recorder:
         """Series of the frame's producer beyond `METRICS` (another pipeline's own, `vslam.log`):
         ``<root>/<name>`` (a name may hold its plot: ``plot/name``); its own stages with root
         ``/metrics/timing_ms``."""
+        self._sync()
         for name, value in values.items():
             self._columns.add_scalar(f"{root}/{name}", frame, float(value))
 
@@ -383,6 +419,7 @@ class Recorder:
         (`vslam.log`): the recorder was opened with an empty (0, 4, 4) ground truth. Amortised O(1)."""
         if self._gt is None:
             raise ValueError("this recording was opened without ground truth")
+        self._sync()
         count = len(self._gt)
         if self._gt_buffer is None or count == len(self._gt_buffer):
             grown = np.empty((max(64, 2 * count), 4, 4))
