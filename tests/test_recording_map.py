@@ -16,12 +16,21 @@ import rerun as rr
 from rerun.chunk import RrdReader
 
 from vslam.recording import MAP_METRICS, MAP_STAGES, MODE_LEVELS, Detail, Recorder
-from vslam.recording.map_backend.map import FRUSTUM_DEPTH, HIDDEN_LINE_PX, PNP_INLIER, PNP_OUTLIER, observation_colours
+from vslam.recording.columns import NO_IMAGE, ColumnBuffer
+from vslam.recording.map_backend import map as map_recording
+from vslam.recording.map_backend.map import (
+    FRUSTUM_DEPTH,
+    HIDDEN_LINE_PX,
+    PATH_ROOT,
+    PNP_INLIER,
+    PNP_OUTLIER,
+    observation_colours,
+)
 from vslam.rrd.read import read_entity
 from vslam_core.config import EngineConfig
 from vslam_core.pipeline import RunResult, run_odometry
 from vslam_core.results import FrameResult, MapFrame, PnPFailure, Reason, TrackingMode
-from vslam_core.sources.base import FrameRange
+from vslam_core.sources.base import Frame, FrameRange
 from vslam_core.sources.kitti import KittiSource
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -155,10 +164,55 @@ def test_keyframes_as_frusta(full: tuple[Path, list[FrameResult]]) -> None:
     expected = [int(i) for v in views.values() if v is not None for i in v.retired_ids]
     assert expected and [i for row in retired["keyframe_id"].to_list() for i in row] == expected
 
-    keyframe_path = by_frame(path, "/world/map/keyframe_path")
-    assert sorted(keyframe_path) == sorted(views)
-    assert np.allclose(np.array(keyframe_path[max(views)]["LineStrips3D:strips"][0]),
-                       last.keyframe_path, atol=1e-4)
+    paths = recorded_keyframe_paths(path, sorted(views))
+    for frame, view in views.items():
+        assert view is not None and np.allclose(paths[frame], view.keyframe_path, atol=1e-4)
+
+
+def recorded_keyframe_paths(path: Path, frames: list[int]) -> dict[int, np.ndarray]:
+    """frame → the keyframe path as the viewer shows it there: each block's latest row (the blocks of
+    `/world/map/keyframe_path/<block>`, in order), joined without the point each repeats of the block before."""
+    blocks = sorted((int(e.rsplit("/", 1)[1]), e) for e in logged_entities(path, static=False)
+                    if e.startswith(PATH_ROOT + "/"))
+    rows = [by_frame(path, entity) for _, entity in blocks]
+    paths = {}
+    for frame in frames:
+        parts = []
+        for block in rows:
+            latest = max((f for f in block if f <= frame), default=None)
+            strip = np.array(block[latest]["LineStrips3D:strips"][0]).reshape(-1, 3) if latest is not None else []
+            if len(strip):
+                parts.append(strip[1:] if parts else strip)
+        paths[frame] = np.concatenate(parts) if parts else np.empty((0, 3))
+    return paths
+
+
+@pytest.mark.kitti
+def test_keyframe_path_blocks_rebuild_every_keyframes_path(kitti_root: Path, full: tuple[Path, list[FrameResult]],
+                                                           tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """In blocks of 3 keyframe ids, a keyframe re-logs only the blocks that changed (never the whole path), and
+    the blocks joined at each keyframe give its whole path as refined then."""
+    _, results = full
+    monkeypatch.setattr(map_recording, "PATH_BLOCK_KEYFRAMES", 3)
+    path = tmp_path / "blocks.rrd"
+    rec = rr.RecordingStream("keyframe-path-blocks")
+    rec.save(path)
+    columns = ColumnBuffer(rec)
+    intrinsics = KittiSource(kitti_root, sequence="00", frames=FrameRange(0, 1)).intrinsics
+    recording = map_recording.MapRecording(rec, columns, intrinsics, Detail.SUMMARY)
+    for result in results:
+        recording.log_frame(Frame(result.index, None, NO_IMAGE), result, mapping(result))
+    columns.flush()
+    rec.disconnect()
+    views = {r.index: mapping(r).view for r in results if mapping(r).view is not None}
+    paths = recorded_keyframe_paths(path, sorted(views))
+    for frame, view in views.items():
+        assert view is not None and np.allclose(paths[frame], view.keyframe_path, atol=1e-4)
+    last = views[max(views)]
+    assert last is not None and len(last.keyframe_path) >= 9  # at least three blocks
+    rows = [row for e in logged_entities(path, static=False) if e.startswith(PATH_ROOT + "/")
+            for row in by_frame(path, e).values()]
+    assert max(len(row["LineStrips3D:strips"][0]) for row in rows) <= 3 + 1  # a block and its join point
 
 
 @pytest.mark.kitti
@@ -296,7 +350,7 @@ def test_detail_levels_of_the_map(kitti_root: Path, tmp_path: Path) -> None:
         verify(path)
         assert len(read_entity(path, "/tracking")) == 12
         assert not read_entity(path, "/world/map/keyframes/window").is_empty()
-        assert not read_entity(path, "/world/map/keyframe_path").is_empty()
+        assert not read_entity(path, f"{PATH_ROOT}/0").is_empty()
         assert not read_entity(path, "/metrics/ba/mean_error_after_px").is_empty()
         assert read_entity(path, "/world/map/ba_residuals").is_empty()
         landmarks = read_entity(path, "/world/map/landmarks/window")
@@ -328,7 +382,7 @@ def test_odometry_backend_writes_none_of_the_map_entities(kitti_root: Path, tmp_
     map_run = logged_entities(full[0], static=False)
     assert {e for e in map_run if is_map_entity(e)} >= {
         "/tracking", "/world/map/keyframes/window", "/world/map/keyframes/retired", "/world/map/landmarks/window",
-        "/world/map/landmarks/retired", "/world/map/keyframe_path", "/world/map/ba_residuals",
+        "/world/map/landmarks/retired", f"{PATH_ROOT}/0", "/world/map/ba_residuals",
         "/metrics/tracking/mode", "/metrics/ba/iterations", "/world/camera/image/landmarks",
         "/world/camera/image/reprojection"}
     assert vo <= map_run | logged_entities(full[0], static=True)  # the map run has everything vo's has

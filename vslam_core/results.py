@@ -242,7 +242,8 @@ class MapView:
     retired_landmark_ids: np.ndarray  # (Q,) landmarks no window keyframe sees any more (final positions)
     retired_landmark_positions: np.ndarray  # (Q, 3)
     retired_landmark_observations: np.ndarray  # (Q,)
-    keyframe_path: np.ndarray  # (N, 3) every keyframe's position in this segment, refined so far
+    keyframe_path: np.ndarray  # (N, 3) every keyframe's position in this segment, refined so far, by keyframe id
+    keyframe_path_ids: np.ndarray  # (N,) their keyframe ids, ascending
     landmarks_total: int  # landmarks in the map
 
 

@@ -359,6 +359,7 @@ class LocalMapping:
         retired_landmarks = sorted(set(previous_landmarks) - set(landmark_ids))
         retired_landmarks = [i for i in retired_landmarks if i in self.map.landmarks]
         segment = keyframes[window[-1]].segment if window else 0
+        path = sorted((k for k in keyframes.values() if k.segment == segment), key=lambda k: k.id)
 
         def poses(ids: list[int]) -> np.ndarray:
             return np.array([keyframes[k].T_world_cam for k in ids]).reshape(-1, 4, 4)
@@ -375,7 +376,8 @@ class LocalMapping:
             retired_landmark_ids=np.array(retired_landmarks, np.int64),
             retired_landmark_positions=self.map.positions(retired_landmarks),
             retired_landmark_observations=observations(retired_landmarks),
-            keyframe_path=np.array([k.T_world_cam[:3, 3] for k in keyframes.values() if k.segment == segment]),
+            keyframe_path=np.array([k.T_world_cam[:3, 3] for k in path]).reshape(-1, 3),
+            keyframe_path_ids=np.array([k.id for k in path], np.int64),
             landmarks_total=len(self.map.landmarks),
         )
 

@@ -26,9 +26,13 @@
     /world/map/landmarks/window         Points3D: the landmarks the window sees, re-logged at each keyframe
     /world/map/landmarks/retired        Points3D: landmarks no window keyframe sees any more, logged once at
                                         their final position (whole past in the 3-D view: the cloud grows)
-    /world/map/keyframe_path            LineStrips3D: every keyframe position of the map segment, as refined
-                                        so far (re-logged at each keyframe); not /world/trajectory/estimate,
-                                        which holds the poses as tracked
+    /world/map/keyframe_path/<block>    LineStrips3D: every keyframe position of the map segment, as refined
+                                        so far, in blocks of `PATH_BLOCK_KEYFRAMES` keyframe ids (block = id //
+                                        64; each block's strip starts at the previous block's last position);
+                                        a keyframe re-logs only the blocks whose positions changed (bundle
+                                        adjustment's window, a loop correction), an empty row when a block
+                                        leaves the path (a new segment); not /world/trajectory/estimate, which
+                                        holds the poses as tracked
     /world/map/ba_residuals             Points3D: the landmarks of the last BA at their refined positions,
                                         coloured by mean reprojection error after (full detail)
     /world/camera/image/landmarks       Points2D: landmarks tracked in this frame at their tracked pixel,
@@ -48,9 +52,10 @@ Detail levels: summary logs the tracking mode, series, events, keyframe frusta a
 per-point data, nothing in the image); standard adds the landmark clouds and the image overlays without
 per-point hover values; full adds those and the BA residual points.
 
-Rows are logged where a thing changes and persist until the next row (latest-at): the window keyframes,
-landmarks and the keyframe path until the next keyframe, the BA residuals until the next BA (cleared with
-an empty row when a new map segment starts); the image overlays get a row every frame (empty without PnP).
+Rows are logged where a thing changes and persist until the next row (latest-at): the window keyframes and
+landmarks until the next keyframe, each block of the keyframe path until it changes, the BA residuals until
+the next BA (cleared with an empty row when a new map segment starts); the image overlays get a row every
+frame (empty without PnP).
 """
 
 from __future__ import annotations
@@ -99,6 +104,10 @@ LANDMARK_RADIUS_PX, LINE_RADIUS_PX = 2.5, 0.8
 #: At `standard` a reprojection line no longer than this is not recorded: drawn, it lies wholly inside its
 #: landmark's dot of the same colour (86 % of the lines on KITTI 05 frames 0:300, 3.5 → 0.7 KB a frame at 10 Hz).
 HIDDEN_LINE_PX = LANDMARK_RADIUS_PX - LINE_RADIUS_PX
+#: The keyframe path is recorded in blocks of this many keyframe ids: re-logged whole at each keyframe, row k
+#: would hold k points, a file growing with the square of the keyframes over hours of new road.
+PATH_BLOCK_KEYFRAMES = 64
+PATH_ROOT = "/world/map/keyframe_path"
 PNP_STYLE = {PNP_OUTLIER: ("PnP outlier", (230, 30, 30)), PNP_INLIER: ("PnP inlier", (0, 230, 255))}
 
 
@@ -107,7 +116,9 @@ class MapRecording:
 
     def __init__(self, rec: rr.RecordingStream, columns: ColumnBuffer, intrinsics: CameraIntrinsics,
                  detail: Detail, ground_truth: np.ndarray | None = None, jpeg_quality: int = JPEG_QUALITY) -> None:
+        self._rec = rec
         self._columns = columns
+        self._path_blocks: dict[int, np.ndarray] = {}  # block → its strip as last recorded (not yet emptied)
         self._truth = ground_truth[:, :3, 3] if ground_truth is not None else None  # (N, 3) positions
         self._previous: tuple[int, np.ndarray] | None = None  # run position and centre of the last frame with a pose
         self._detail = detail
@@ -125,8 +136,6 @@ class MapRecording:
         # labels "KF <id>" on hover only: drawn, the window's ~10 close keyframes' labels overlap
         rec.log("/world/map/keyframes/window", rr.LineStrips3D.from_fields(radii=0.04, show_labels=False), static=True)
         rec.log("/world/map/keyframes/retired", rr.LineStrips3D.from_fields(radii=0.02, colors=RETIRED_COLOUR),
-                static=True)
-        rec.log("/world/map/keyframe_path", rr.LineStrips3D.from_fields(radii=0.08, colors=KEYFRAME_PATH_COLOUR),
                 static=True)
         local_map.log_static(rec, self._detail)
         if self._detail == Detail.SUMMARY:
@@ -227,8 +236,7 @@ class MapRecording:
                         (rr.LineStrips3D.columns, {"strips": self._frusta(view.retired_poses)}),
                         (rr.AnyValues.columns, {"keyframe_id": view.retired_ids.astype(np.uint32)}),
                         batch=True)
-        path = np.asarray(view.keyframe_path, np.float32).reshape(-1, 3)
-        columns.add("/world/map/keyframe_path", frame, (rr.LineStrips3D.columns, {"strips": path}))
+        self._log_path(frame, view)
         if self._detail == Detail.SUMMARY:
             return
         self._log_landmarks("/world/map/landmarks/window", frame, view.landmark_ids, view.landmark_positions,
@@ -236,6 +244,31 @@ class MapRecording:
         if len(view.retired_landmark_ids):
             self._log_landmarks("/world/map/landmarks/retired", frame, view.retired_landmark_ids,
                                 view.retired_landmark_positions, view.retired_landmark_observations, full)
+
+    def _log_path(self, frame: Frame, view: MapView) -> None:
+        """The blocks of the keyframe path (`PATH_BLOCK_KEYFRAMES`) whose strips changed since they were recorded."""
+        points = np.asarray(view.keyframe_path, np.float32).reshape(-1, 3)
+        blocks = view.keyframe_path_ids // PATH_BLOCK_KEYFRAMES
+        strips: dict[int, np.ndarray] = {}
+        end: np.ndarray | None = None  # the previous block's last position: the line stays continuous
+        for block in np.unique(blocks).tolist():
+            part = points[blocks == block]
+            strips[block] = part if end is None else np.vstack([end, part])
+            end = part[-1:]
+        for block in self._path_blocks.keys() - strips.keys():  # left the path: a new segment
+            strips[block] = np.empty((0, 3), np.float32)
+        for block, strip in sorted(strips.items()):
+            recorded = self._path_blocks.get(block)
+            if recorded is None and len(strip):
+                self._rec.log(f"{PATH_ROOT}/{block}", rr.LineStrips3D.from_fields(
+                    radii=0.08, colors=KEYFRAME_PATH_COLOUR), static=True)
+            elif recorded is None or np.array_equal(recorded, strip):
+                continue
+            self._columns.add(f"{PATH_ROOT}/{block}", frame, (rr.LineStrips3D.columns, {"strips": strip}))
+            if len(strip):
+                self._path_blocks[block] = strip
+            else:
+                del self._path_blocks[block]
 
     def _log_landmarks(self, entity: str, frame: Frame, ids: np.ndarray, positions: np.ndarray,
                        observations: np.ndarray, hover: bool) -> None:
