@@ -119,11 +119,16 @@ class ColumnBuffer:
         if self._sender is None:
             send(*args)
             return
-        done = [job for job in self._sending if job.done()]
-        self._sending = [job for job in self._sending if not job.done()]
-        for job in done:
-            job.result()
+        self.raise_failed()
         self._sending.append(self._sender.submit(send, *args))
+
+    def raise_failed(self) -> None:
+        """Raise the error of a send that has ended (a full disk), without waiting for those still running."""
+        done = [job for job in self._sending if job.done()]
+        if done:
+            self._sending = [job for job in self._sending if not job.done()]
+            for job in done:
+                job.result()
 
     def _send_all(self, rows: dict[str, _Rows], then: Callable[[], None] | None) -> None:
         # most entities have a row on every frame: their index columns are built once per flush

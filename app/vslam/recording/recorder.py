@@ -119,7 +119,8 @@ class Recorder:
         # video streams keep the source's size (their codec, not the size, makes them small)
         self._image_scale = IMAGE_SCALE[detail] if image_codec == ImageCodec.JPEG else 1.0
         # With a second core the engine's frames are recorded by a thread of their own, in order, beside the engine
-        # (a frame's result and image are not changed after the engine hands them over: tests/test_recording_thread.py).
+        # (a frame's result and image are not changed after the engine hands them over: the loop revisit recorded on
+        # 1 thread and on 2 compare equal, tests/test_loop_recording.py).
         # Not another pipeline's frames (`vslam.log`): its caller may reuse its arrays once `log_frame` returns.
         self._worker = (ThreadPoolExecutor(1, thread_name_prefix="vslam-record") if config.threads > 1 and not external
                         else None)
@@ -337,17 +338,28 @@ class Recorder:
             self._log_frame(frame, result, unreported)
             return
         while self._pending and (self._pending[0].done() or len(self._pending) >= MAX_PENDING_FRAMES):
-            self._pending.popleft().result()
+            self._wait_oldest()
         self._pending.append(self._worker.submit(self._log_frame, frame, result, unreported))
 
     def _sync(self) -> None:
         """Wait until the recording thread has recorded every frame handed to it; raise its first error."""
         while self._pending:
-            self._pending.popleft().result()
+            self._wait_oldest()
+
+    def _wait_oldest(self) -> None:
+        """Wait for the oldest frame handed over, and raise its error once. Interrupted (Ctrl-C) it stays
+        pending: `finish` waits for it before it touches what that frame's recording writes to."""
+        job = self._pending[0]
+        try:
+            job.result()
+        finally:
+            if job.done():
+                self._pending.popleft()
 
     def _log_frame(self, frame: Frame, result: FrameResult, unreported: frozenset[str]) -> None:
         start = time.perf_counter()
         columns = self._columns
+        columns.raise_failed()  # a write that failed (full disk) stops the run now, not at the next flush
         pose = result.T_world_cam
         columns.add(CAMERA, frame, (rr.Transform3D.columns, {"translation": pose[:3, 3],
                                                                       "mat3x3": pose[:3, :3]}))
