@@ -22,9 +22,9 @@ from vslam.common import (
     metrics_row,
     write_failure,
 )
-from vslam.recording.columns import FLUSH_FRAMES, FLUSH_SECONDS, NO_IMAGE, ColumnBuffer, Part
+from vslam.recording.columns import FLUSH_FRAMES, FLUSH_SECONDS, NO_IMAGE, ColumnBuffer
 from vslam.recording.drift import DriftRecording, FrameTrail
-from vslam.recording.front_end import log_candidates, log_events, log_road
+from vslam.recording.front_end import log_candidates, log_events, log_road, log_tracks
 from vslam.recording.layout import UNDISTORTED, blueprint
 from vslam.recording.levels import DEFAULT_DETAIL, IMAGE_SCALE, Detail, ImageCodec, default_jpeg_quality, scaled_size
 from vslam.recording.map_backend import MapRecording
@@ -60,7 +60,7 @@ from vslam.recording.styles import (
 from vslam_core.config import EngineConfig
 from vslam_core.lens import undistortion_maps
 from vslam_core.pipeline import RunResult
-from vslam_core.results import FrameResult, TrackFate
+from vslam_core.results import FrameResult
 from vslam_core.sources.base import (
     Frame,
     FrameSource,
@@ -75,11 +75,6 @@ from vslam_core.trajectory.gt_check import GroundTruthCheck
 if TYPE_CHECKING:
     from vslam.recording.video import VideoEntity
 
-
-#: Flow arrows are recorded to 1/FLOW_STEPS of a pixel: both ends within 1/4 px of the tracked positions, which
-#: no view shows (a KITTI frame is drawn at about half size), and the file's LZ4 then packs them into 19 % fewer
-#: bytes than at 1/8 px (7.9 → 6.4 KB a frame, KITTI 05 frames 0:300; docs/recordings.md).
-FLOW_STEPS = 2
 
 #: The entity whose row marks a frame as complete in the file (sent last: `ColumnBuffer`); `inspect` counts it.
 CAMERA = "/world/camera"
@@ -454,24 +449,7 @@ class Recorder:
             jpeg: bytes | Future[bytes] = (self._encoder.submit(self._encode, image) if self._encoder is not None
                                            else self._encode(image))
             columns.add(entity, frame, (rr.EncodedImage.columns, {"blob": jpeg, "media_type": "image/jpeg"}))
-        full = self.detail == Detail.FULL
-        corners: list[Part] = [(rr.Points2D.columns, {"positions": result.new_corners})]
-        if full:
-            corners.append((rr.AnyValues.columns, {"track_id": result.new_corner_ids.astype(np.uint32)}))
-        columns.add("/world/camera/image/corners", frame, *corners, batch=True)
-        reached = result.track_fate != TrackFate.LOST
-        # both ends to 1/2 px (`FLOW_STEPS`): LZ4 packs the coarser values tighter
-        prev = np.round(result.track_prev[reached] * FLOW_STEPS) / FLOW_STEPS
-        cur = np.round(result.track_cur[reached] * FLOW_STEPS) / FLOW_STEPS
-        flow: list[Part] = [(rr.Arrows2D.columns, {
-            "origins": prev.astype(np.float32),
-            "vectors": (cur - prev).astype(np.float32),
-            "class_ids": result.track_fate[reached].astype(np.uint16),
-        })]
-        if full:
-            flow.append((rr.AnyValues.columns, {"track_id": result.track_ids[reached].astype(np.uint32),
-                                                "age": result.track_age[reached].astype(np.uint16)}))
-        columns.add("/world/camera/image/flow", frame, *flow, batch=True)
+        log_tracks(columns, frame, result, full=self.detail == Detail.FULL)
 
     def _encode(self, image: np.ndarray) -> bytes:
         if self._image_scale != 1.0:
