@@ -189,6 +189,8 @@ RANGES: dict[str, Range] = {
     "map.search_min_radius_px": positive(10_000.0),
     "map.search_motion_fraction": closed(0.0, 10.0),
     "map.search_widenings": closed(0, 10),
+    "map.search_band_px": closed(0.0, 10_000.0),
+    "map.search_rival_px": closed(0.0, 10_000.0),
     "map.step_fit_min_inliers": closed(0, 10_000),
     "map.step_fit_max_ratio": closed(1.0, 100.0),
     "map.starving_min_triangulation_deg": Range(0.0, 90.0, high_open=True),
