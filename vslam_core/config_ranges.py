@@ -95,6 +95,7 @@ RANGES: dict[str, Range] = {
     "tracker.epsilon": positive(10.0),
     "tracker.fb_threshold_px": Range(0.0, INF, low_open=True, note="inf: no forward-backward check"),
     "tracker.border_px": closed(0, 1000),
+    "tracker.retry_failed_share": FRACTION,
     # pose (the 5-point solver needs 5 correspondences; RANSAC's confidence lies strictly between 0 and 1)
     "pose.ransac_probability": Range(0.0, 1.0, low_open=True, high_open=True),
     "pose.ransac_threshold_px": positive(100.0),
