@@ -267,7 +267,8 @@ class MapConfig:
     search_band_px: float = 0.0
     # ... and its ratio test compares the best corner with the best one more than this many px from it (0: with any)
     search_rival_px: float = 0.0
-    # map_search with --scale none. Off: on the KITTI rows of the matrix (map, none, seeds 0-1) all rows went
+    # map_search with --scale none. Off: on the KITTI rows of the matrix (map, none, seeds 0-1; measured before
+    # tracker.retry_failed_share) all rows went
     # 2.14 -> 3.33 % with square windows, 2.93 % with search_band_px = 4, 3.06 % adding search_rival_px = 3: it
     # helps 00 0:150:3 (4.1 -> 2.7-3.1 %) but 00 150:300:3 seed 0 loses its map in the turn (6.8 -> 25-34 %)
     # and 05 0:150:3 seed 1 gets worse (2.2 -> 3.1-4.5 %) (docs/map-backend.md)
