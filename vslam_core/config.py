@@ -62,6 +62,10 @@ class TrackerConfig:
     epsilon: float = 0.03  # px: stop iterating once an update is smaller
     fb_threshold_px: float = 1.0  # forward–backward round trip must land this close
     border_px: int = 2  # tracks closer than this to the border are dropped
+    # when more than this share of the tracks started at their guess fail (a turn whose rate changes: on KITTI at
+    # every 3rd frame 30-92 % of a frame's, at every frame up to 22-45 %, on the synthetic street up to 33 %), they
+    # are tracked again from the guess with max_level levels (1.0: never; at 0.3 the synthetic street got worse)
+    retry_failed_share: float = 0.4
 
 
 @dataclass(frozen=True)
@@ -257,6 +261,18 @@ class MapConfig:
     search_min_radius_px: float = 16.0
     search_motion_fraction: float = 0.3
     search_widenings: int = 2
+    # ... when the prediction is the two-view pose (rotation and direction measured), each landmark is searched
+    # within this many px of the segment its projection sweeps as the step's length goes over (1 -/+ f) x the
+    # predicted, f = search_motion_fraction, doubled on each widening; 0: square windows as above
+    search_band_px: float = 0.0
+    # ... and its ratio test compares the best corner with the best one more than this many px from it (0: with any)
+    search_rival_px: float = 0.0
+    # map_search with --scale none. Off: on the KITTI rows of the matrix (map, none, seeds 0-1; measured before
+    # tracker.retry_failed_share) all rows went
+    # 2.14 -> 3.33 % with square windows, 2.93 % with search_band_px = 4, 3.06 % adding search_rival_px = 3: it
+    # helps 00 0:150:3 (4.1 -> 2.7-3.1 %) but 00 150:300:3 seed 0 loses its map in the turn (6.8 -> 25-34 %)
+    # and 05 0:150:3 seed 1 gets worse (2.2 -> 3.1-4.5 %) (docs/map-backend.md)
+    none_map_search: bool = False
     # --scale none: a frame placed by its two-view motion takes the step length that best reprojects the
     # landmarks it still sees (vslam_core/mapping/step_scale.py) when at least this many agree within
     # pnp_threshold_px (and half of those tried), the length within a factor step_fit_max_ratio of the map's

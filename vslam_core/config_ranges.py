@@ -95,6 +95,7 @@ RANGES: dict[str, Range] = {
     "tracker.epsilon": positive(10.0),
     "tracker.fb_threshold_px": Range(0.0, INF, low_open=True, note="inf: no forward-backward check"),
     "tracker.border_px": closed(0, 1000),
+    "tracker.retry_failed_share": FRACTION,
     # pose (the 5-point solver needs 5 correspondences; RANSAC's confidence lies strictly between 0 and 1)
     "pose.ransac_probability": Range(0.0, 1.0, low_open=True, high_open=True),
     "pose.ransac_threshold_px": positive(100.0),
@@ -189,6 +190,8 @@ RANGES: dict[str, Range] = {
     "map.search_min_radius_px": positive(10_000.0),
     "map.search_motion_fraction": closed(0.0, 10.0),
     "map.search_widenings": closed(0, 10),
+    "map.search_band_px": closed(0.0, 10_000.0),
+    "map.search_rival_px": closed(0.0, 10_000.0),
     "map.step_fit_min_inliers": closed(0, 10_000),
     "map.step_fit_max_ratio": closed(1.0, 100.0),
     "map.starving_min_triangulation_deg": Range(0.0, 90.0, high_open=True),

@@ -116,14 +116,34 @@ def track_points(
         if subset.any():
             tracked[subset], ok[subset] = _lucas_kanade(previous, current, points[subset],
                                                         None if start is None else start[subset], level, config)
-    height, width = current.shape
-    border = config.border_px
-    ok &= (
-        (tracked[:, 0] >= border)
-        & (tracked[:, 0] < width - border)
-        & (tracked[:, 1] >= border)
-        & (tracked[:, 1] < height - border)
-    )
+    ok &= _inside(tracked, current.shape, config.border_px)
+    fb_error = _backward(previous, current, points, tracked, ok, config)
+    if config.retry_failed_share < 1.0 and guessed.any() and np.isfinite(config.fb_threshold_px):
+        # guesses off by more than their few levels reach (a turn whose rate changes) fail together: again from
+        # them, every level; lone failures (a point occluded, gone) are left alone
+        again = guessed & ~(fb_error <= config.fb_threshold_px)
+        if again.sum() > config.retry_failed_share * guessed.sum():
+            assert predicted is not None
+            retried, retried_ok = _lucas_kanade(previous, current, points[again], predicted[again], config.max_level,
+                                                config)
+            retried_ok &= _inside(retried, current.shape, config.border_px)
+            retried_fb = _backward(previous, current, points[again], retried, retried_ok, config)
+            better = retried_fb <= config.fb_threshold_px
+            rows = np.flatnonzero(again)[better]
+            tracked[rows], ok[rows], fb_error[rows] = retried[better], True, retried_fb[better]
+    return tracked, ok, fb_error
+
+
+def _inside(tracked: np.ndarray, shape: tuple[int, ...], border: int) -> np.ndarray:
+    """(N,) bool: the (N, 2) points lie at least `border` px inside an image of `shape`."""
+    height, width = shape[:2]
+    return np.asarray((tracked[:, 0] >= border) & (tracked[:, 0] < width - border) & (tracked[:, 1] >= border)
+                      & (tracked[:, 1] < height - border))
+
+
+def _backward(previous: np.ndarray, current: np.ndarray, points: np.ndarray, tracked: np.ndarray, ok: np.ndarray,
+              config: TrackerConfig) -> np.ndarray:
+    """(N,) float32 forward–backward error of the `ok` tracks (inf elsewhere; 0 with the check disabled)."""
     fb_error = np.full(len(points), np.inf, np.float32)
     if np.isfinite(config.fb_threshold_px) and ok.any():
         back, back_ok = _lucas_kanade(current, previous, tracked[ok], points[ok], config.backward_max_level, config)
@@ -132,7 +152,7 @@ def track_points(
         fb_error[ok] = err
     elif ok.any():
         fb_error[ok] = 0.0  # check disabled
-    return tracked, ok, fb_error
+    return fb_error
 
 
 def _lucas_kanade(

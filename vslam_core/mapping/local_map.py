@@ -136,10 +136,16 @@ class LocalMapSearcher:
         return descriptors, valid
 
     def search(self, world: Map, corners: FrameCorners, keyframe_ids: list[int], T_world_cam: np.ndarray,  # noqa: N803
-               radius: float, exclude: set[int], purpose: str) -> LocalMapSearch:
+               radius: float, exclude: set[int], purpose: str,
+               along: tuple[np.ndarray, float] | None = None) -> LocalMapSearch:
         """Project the landmarks of `keyframe_ids` (except `exclude`) with `T_world_cam` and search each in a
         window of half-size `radius` px. Matches have distance ≤ `local_map_max_distance` and pass the ratio
-        test against the window's second-best corner; a corner is kept by its best landmark only."""
+        test against the window's second-best corner; a corner is kept by its best landmark only.
+
+        With `along` = (T_world_origin, f) only the step's length from the origin is uncertain (the rotation and
+        direction measured from the images): each landmark is searched within `radius` px of the segment its
+        projection sweeps as the step's length goes from (1 − f) to (1 + f) times `T_world_cam`'s (an epipolar
+        segment), so the ratio test compares the few corners near where it can be, not a wide square's."""
         cfg = self._config
         seen: set[int] = set()
         for keyframe_id in keyframe_ids:
@@ -159,7 +165,12 @@ class LocalMapSearcher:
                                 np.zeros(len(landmark_ids), bool))
         if not len(landmark_ids) or not len(corners.pixels):
             return result
-        candidates = corners.tree.query_ball_point(projected, r=radius, p=np.inf)
+        if along is None:
+            candidates = corners.tree.query_ball_point(projected, r=radius, p=np.inf)
+        else:
+            candidates, reach = _near_segments(corners, world.positions(landmark_ids), T_world_cam, along, radius,
+                                               self._K)
+            result.radius_px[:] = reach
         pair_landmark = np.repeat(np.arange(len(landmark_ids)), [len(c) for c in candidates])
         pair_corner = np.array([c for cs in candidates for c in cs], np.int64)
         if not len(pair_corner):
@@ -170,8 +181,9 @@ class LocalMapSearcher:
         landmark_descriptors = np.array([world.landmarks[int(i)].descriptor for i in landmark_ids])
         per_level = hamming(descriptors[row], landmark_descriptors[pair_landmark][:, None, :])
         pair_distance = np.where(valid[row], per_level, 1 << 16).min(axis=1)
+        rivals = None if along is None or cfg.search_rival_px <= 0 else (corners.pixels, cfg.search_rival_px)
         best_corner, best_distance = _best_in_window(pair_landmark, pair_corner, pair_distance, len(landmark_ids),
-                                                     cfg.local_map_ratio, cfg.local_map_max_distance)
+                                                     cfg.local_map_ratio, cfg.local_map_max_distance, rivals)
         order = np.argsort(best_distance, kind="stable")
         order = order[best_corner[order] >= 0]
         _, first = np.unique(best_corner[order], return_index=True)  # a corner goes to its best landmark
@@ -181,10 +193,48 @@ class LocalMapSearcher:
         return result
 
 
+def _near_segments(corners: FrameCorners, positions: np.ndarray, T_world_cam: np.ndarray,  # noqa: N803
+                   along: tuple[np.ndarray, float], band: float, K: np.ndarray) -> tuple[list[list[int]], np.ndarray]:  # noqa: N803
+    """Per landmark at (S, 3) `positions`, the corners within `band` px of the segment its projection sweeps
+    as the step from `along`'s origin to `T_world_cam` is scaled by 1 ∓ f (`LocalMapSearcher.search`), and
+    (S,) how far from the projection they may lie (half the segment plus the band)."""
+    origin, fraction = along
+    ends = []
+    for factor in (1.0 - fraction, 1.0 + fraction):
+        pose = T_world_cam.copy()
+        pose[:3, 3] = origin[:3, 3] + factor * (T_world_cam[:3, 3] - origin[:3, 3])
+        ends.append(project(positions, pose, K).reshape(-1, 2))
+    start, end = ends
+    projected = project(positions, T_world_cam, K).reshape(-1, 2)
+    ok = np.isfinite(start).all(axis=1) & np.isfinite(end).all(axis=1)
+    start, end = np.where(ok[:, None], start, projected), np.where(ok[:, None], end, projected)
+    middle, half = (start + end) / 2, np.linalg.norm(end - start, axis=1) / 2
+    reach = half + band
+    candidates = corners.tree.query_ball_point(middle, r=reach)
+    kept: list[list[int]] = []
+    for n, near in enumerate(candidates):
+        if not near:
+            kept.append([])
+            continue
+        points = corners.pixels[np.array(near, np.int64)]
+        axis = end[n] - start[n]
+        length2 = float(axis @ axis)
+        t = np.clip((points - start[n]) @ axis / length2, 0.0, 1.0) if length2 > 0 else np.zeros(len(points))
+        off = np.linalg.norm(points - (start[n] + t[:, None] * axis), axis=1)
+        kept.append([c for c, o in zip(near, off, strict=True) if o <= band])
+    return kept, reach
+
+
 def _best_in_window(pair_landmark: np.ndarray, pair_corner: np.ndarray, pair_distance: np.ndarray, count: int,
-                    ratio: float, max_distance: int) -> tuple[np.ndarray, np.ndarray]:
+                    ratio: float, max_distance: int, rivals: tuple[np.ndarray, float] | None = None,
+                    ) -> tuple[np.ndarray, np.ndarray]:
     """Per landmark, the corner of its window with the smallest distance if that is ≤ `max_distance` and below
-    `ratio` × the second smallest (when there is one). Returns (count,) corner index (−1: none) and distance."""
+    `ratio` × the second smallest (when there is one). With `rivals` = ((C, 2) corner pixels, r) the second
+    is the best among corners more than r px from the best one: FAST fires on neighbouring pixels of one
+    structure, whose descriptors are alike, and such a pair is no ambiguity about where the landmark is.
+    Returns (count,) corner index (−1: none) and distance."""
+    if rivals is not None:
+        return _best_apart(pair_landmark, pair_corner, pair_distance, count, ratio, max_distance, *rivals)
     order = np.lexsort((pair_distance, pair_landmark))
     landmark, corner, dist = pair_landmark[order], pair_corner[order], pair_distance[order]
     first = np.ones(len(landmark), bool)
@@ -275,3 +325,22 @@ def refind_by_flow(world: Map, keyframe_images: dict[int, np.ndarray], image: np
         agrees = np.linalg.norm(found - projected, axis=1) <= config.pnp_threshold_px
     search.accepted[:] = agrees
     return search, agrees
+
+
+def _best_apart(pair_landmark: np.ndarray, pair_corner: np.ndarray, pair_distance: np.ndarray, count: int,
+                ratio: float, max_distance: int, pixels: np.ndarray, apart: float) -> tuple[np.ndarray, np.ndarray]:
+    """`_best_in_window` with the ratio taken against corners more than `apart` px from the best one."""
+    order = np.lexsort((pair_distance, pair_landmark))
+    landmark, corner, dist = pair_landmark[order], pair_corner[order], pair_distance[order]
+    first = np.ones(len(landmark), bool)
+    first[1:] = landmark[1:] != landmark[:-1]
+    best_corner = np.full(count, -1, np.int64)
+    best_distance = np.full(count, 1 << 16, np.int64)
+    best_corner[landmark[first]] = corner[first]
+    best_distance[landmark[first]] = dist[first]
+    far = np.linalg.norm(pixels[corner] - pixels[best_corner[landmark]], axis=1) > apart
+    second_distance = np.full(count, 1 << 16, np.int64)
+    np.minimum.at(second_distance, landmark[far], dist[far])
+    good = (best_distance <= max_distance) & (best_distance < ratio * second_distance)
+    best_corner[~good] = -1
+    return best_corner, best_distance

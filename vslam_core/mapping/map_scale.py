@@ -90,7 +90,8 @@ def for_scale(config: MapConfig, scale: ScaleSource) -> MapConfig:
                    ba_iterations=config.none_ba_iterations, rotation_prior_deg=config.none_rotation_prior_deg,
                    pnp_min_inlier_ratio=config.none_pnp_min_inlier_ratio,
                    low_ratio_pnp_min_ratio=config.none_low_ratio_pnp_min_ratio,
-                   starving_keyframes=config.none_starving_keyframes, cull_revisits=config.none_cull_revisits)
+                   starving_keyframes=config.none_starving_keyframes, cull_revisits=config.none_cull_revisits,
+                   map_search=config.map_search or config.none_map_search)
 
 
 def translation_parallax(T_world_key: np.ndarray, T_world_cur: np.ndarray, pixels_cur: np.ndarray,  # noqa: N803

@@ -50,6 +50,7 @@ from vslam_core.results import LocalMapSearch, PnPEstimate, PnPFailure
 
 MAX_RADIUS_PX = 128.0  # a window no wider (half-size): beyond it a descriptor search is not local any more
 COARSE_MIN_INLIERS = 12  # a first pose from the wide window: enough to search again narrowly
+MAX_STEP_FRACTION = 0.95  # a banded search sweeps the step's length over (1 ∓ f) × the predicted, f at most this
 PURPOSE = "map_search"  # LocalMapSearch.purpose of these searches
 
 #: the tracking checks of a PnP solution: (why it is refused or None, it outvoted the two-view rotation, failure)
@@ -85,19 +86,30 @@ def count_in_view(world: Map, keyframe_ids: list[int], predicted: np.ndarray, K:
 def search_map(searcher: LocalMapSearcher, world: Map, corners: FrameCorners, keyframe_ids: list[int],
                predicted: np.ndarray, previous: np.ndarray, tracked: tuple[np.ndarray, np.ndarray],
                K: np.ndarray, config: MapConfig, seed: tuple[int, ...],  # noqa: N803
-               check: Check) -> tuple[PnPEstimate, LocalMapSearch | None]:
+               check: Check, origin: np.ndarray | None = None) -> tuple[PnPEstimate, LocalMapSearch | None]:
     """Track the frame against the local map of `keyframe_ids` (module docstring) from the `predicted` pose, with
-    `tracked` = ((T,) landmark ids linked to live tracks, (T, 2) their pixels). Returns the estimate (a pose
-    when `failure` is None; `found` of its landmarks come from the search) and the last search made."""
+    `tracked` = ((T,) landmark ids linked to live tracks, (T, 2) their pixels). With `origin` (the keyframe
+    pose the predicted step is measured from, its rotation and direction from the images) and
+    `search_band_px` > 0, each landmark is searched along the segment its step's length sweeps (`along`).
+    Returns the estimate (a pose when `failure` is None; `found` of its landmarks come from the search) and the
+    last search made."""
     tracked_ids, tracked_pixels = tracked
     exclude = set(tracked_ids.tolist())
     seen = sorted({i for k in keyframe_ids for i in world.keyframes[k].landmark_ids} - exclude)
     radius = initial_radius(world, seen, previous, predicted, K, config)
     failure, search, best = PnPFailure.TOO_FEW_MATCHED, None, None
     in_view, widest = len(tracked_ids), radius
+    banded = origin is not None and config.search_band_px > 0
     for attempt in range(config.search_widenings + 1):
         widest = radius
-        search = searcher.search(world, corners, keyframe_ids, predicted, radius, exclude, PURPOSE)
+        if banded:
+            assert origin is not None
+            fraction = min(config.search_motion_fraction * 2**attempt, MAX_STEP_FRACTION)
+            search = searcher.search(world, corners, keyframe_ids, predicted, config.search_band_px, exclude,
+                                     PURPOSE, (origin, fraction))
+            widest = float(search.radius_px.max()) if len(search.radius_px) else config.search_band_px
+        else:
+            search = searcher.search(world, corners, keyframe_ids, predicted, radius, exclude, PURPOSE)
         in_view = len(tracked_ids) + len(search.landmark_ids)
         if in_view < config.pnp_min_landmarks:  # a wider window sees no more of the map
             failure = PnPFailure.TOO_FEW_IN_VIEW

@@ -131,13 +131,15 @@ class MapRefinding:
                            agrees[found], T_world_cam)
 
     def search_map(self, world: Map, reference: int, segment: int, predicted: np.ndarray, previous: np.ndarray,
-                   tracked: tuple[np.ndarray, np.ndarray], seed: tuple[int, ...], check: Check) -> PnPEstimate:
+                   tracked: tuple[np.ndarray, np.ndarray], seed: tuple[int, ...], check: Check,
+                   origin: np.ndarray | None = None) -> PnPEstimate:
         """PnP on the `tracked` landmarks ((T,) ids, (T, 2) ideal pixels) failed: the local map around keyframe
-        `reference` searched by projection from `predicted` (the last pose `previous`) in widening windows and
-        PnP solved again (map_search.py). The estimate has a pose when its `failure` is None."""
+        `reference` searched by projection from `predicted` (the last pose `previous`; `origin`, the pose a
+        two-view prediction's step is measured from) in widening windows and PnP solved again (map_search.py).
+        The estimate has a pose when its `failure` is None."""
         keyframe_ids = local_keyframes(world, reference, segment, self._config.local_map_keyframes)
         estimate, search = search_map(self._searcher, world, self._frame_corners(), keyframe_ids, predicted, previous,
-                                      tracked, self._camera.K, self._config, seed, check)
+                                      tracked, self._camera.K, self._config, seed, check, origin)
         self.search = search
         return estimate
 

@@ -266,9 +266,10 @@ class MapTracking:
         if predicted is None or not self._cfg.map_search:  # off: only the landmarks in view counted, if any tracked
             return self.refinding.in_view(self.mapping.map, self._reference, self._segment, predicted, tracked)
         ids, pixels = (tracked.landmark_ids, tracked.observed) if tracked else (np.zeros(0, np.int64), np.zeros((0, 2)))
+        origin = self.pose_of(vo.keyframe_position) if two_view is not None else None
         estimate = self.refinding.search_map(self.mapping.map, self._reference, self._segment, predicted,
                                              self._last_pose, (ids, pixels), (self.config.pose.seed, vo.position, 2),
-                                             lambda solution: self._check_pnp(solution, two_view, vo))
+                                             lambda solution: self._check_pnp(solution, two_view, vo), origin)
         if estimate.failure is None:  # outliers unlinked; landmarks found and kept start tracks linked to them
             self._unlink_outliers(ids, estimate.inlier_mask)
             found = np.arange(len(estimate.landmark_ids)) >= len(ids)
