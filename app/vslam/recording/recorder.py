@@ -398,7 +398,7 @@ class Recorder:
         killed run loses at most about that much, and a full disk stops the run that soon. The video samples
         go first and the camera poses last: a frame with a pose in the file is whole. With a second core the
         columns are built, sent and waited for on the sending thread (`ColumnBuffer`), beside the engine; its
-        write error stops the run at the next flush."""
+        write error stops the run at the next frame recorded."""
         self._sync()
         self._flush()
 
