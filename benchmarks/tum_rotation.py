@@ -17,6 +17,7 @@ import math
 import numpy as np
 
 from benchmarks.accuracy import benchmark_config
+from vslam_core.errors import SourceError
 from vslam_core.geometry import rotation_angle, so3_log
 from vslam_core.pipeline import run_odometry
 from vslam_core.sources.tum_rgbd import TumRgbdSource
@@ -64,8 +65,12 @@ def main() -> None:
     parser.add_argument("--backend", default="vo", choices=("vo", "map"))
     parser.add_argument("--seeds", default="0")
     args = parser.parse_args()
-    source = TumRgbdSource(args.folder)
-    assert source.ground_truth is not None, "the folder has no ground truth"
+    try:
+        source = TumRgbdSource(args.folder)
+    except SourceError as error:
+        parser.error(str(error))
+    if source.ground_truth is None:
+        parser.error(f"{args.folder}: no ground truth (groundtruth.txt)")
     print("| seed | final ° | gain x / y / z | offset ° x / y / z (× frames) | worst 5 fixed ° | worst 20 fixed ° |")
     print("|---|---|---|---|---|---|")
     for seed in (int(s) for s in args.seeds.split(",")):

@@ -134,11 +134,11 @@ def assert_same_recording(a: Path, b: Path, tmp: Path, named: tuple[str, ...] = 
 
     events = [sorted(read_events(path)) for path in (a, b)]
     assert len(events[0]) > 10 and events[0] == events[1]
+    measured = [f"/metrics/timing_ms/{stage}" for stage in (*STAGES, *MAP_STAGES)] + ["/metrics/ba/milliseconds"]
+    drop = [arg for entity in (*measured, "/events", "/events/at_end", *named) for arg in ("--drop-entity", entity)]
     merged = []
     for name, path in (("a", a), ("b", b)):
         filtered, optimised = tmp / f"{name}-no-timing.rrd", tmp / f"{name}-merged.rrd"
-        measured = [f"/metrics/timing_ms/{stage}" for stage in (*STAGES, *MAP_STAGES)] + ["/metrics/ba/milliseconds"]
-        drop = [arg for entity in (*measured, "/events", "/events/at_end", *named) for arg in ("--drop-entity", entity)]
         subprocess.run(["rerun", "rrd", "filter", *drop, "-o", str(filtered), str(path)], check=True,
                        capture_output=True, timeout=120)
         subprocess.run(["rerun", "rrd", "optimize", "-o", str(optimised), str(filtered)], check=True,
