@@ -99,7 +99,11 @@ class ColumnBuffer:
         rows.values[0]["scalars"].append(value)
 
     def flush(self, then: Callable[[], None] | None = None) -> None:
-        """Send every buffered row, then call `then` (on the sending thread, when in the background)."""
+        """Send every buffered row, then call `then` (on the sending thread, when in the background).
+
+        At most one flush is in flight: a sending thread that falls behind (a starved core) holds the caller
+        back, so a write that failed (a full disk) is raised here at the latest, one flush after it."""
+        self.wait()
         rows, self._rows = self._rows, {}
         self._submit(self._send_all, rows, then)
 

@@ -21,7 +21,7 @@ from vslam_core.sources.base import CameraIntrinsics
 #: How long to wait for Rerun's writer thread to catch up before calling the file unwritable (a slow disk)…
 WRITE_TIMEOUT_S = 120.0
 #: … asking this often whether it has caught up, and giving up at once when the disk is full.
-FLUSH_STEP_S = 1.0
+FLUSH_STEP_S = 0.25
 
 
 def open_stream(path: Path, recording_id: str | None, layout: rrb.Blueprint, name: str,
