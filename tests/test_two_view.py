@@ -17,7 +17,7 @@ import pytest
 from vslam_core.config import EngineConfig
 from vslam_core.engine import Odometry
 from vslam_core.features import detect_corners, track_points
-from vslam_core.geometry import rotation_angle, so3_exp
+from vslam_core.geometry import rotation_angle, so3_exp, so3_log
 from vslam_core.scale import GroundTruthScale
 from vslam_core.sources.base import CameraIntrinsics, Frame, FrameRange
 from vslam_core.sources.kitti import KittiSource
@@ -127,9 +127,43 @@ def test_the_rotation_chain_links_frames_through_front_end_keyframes_and_breaks_
     chain.extend(3, 1, steps[2] @ steps[3])
     between = chain.between(0, 3)
     assert between is not None
-    np.testing.assert_allclose(between, steps[1] @ steps[2] @ steps[3], atol=1e-12)
+    np.testing.assert_allclose(between[0], steps[1] @ steps[2] @ steps[3], atol=1e-12)
     chain.extend(4, 3, None)  # e.g. a coasted frame
     chain.extend(5, 4, steps[5])
     assert chain.between(3, 5) is None and chain.between(4, 5) is not None
     chain.forget_before(4)
     assert chain.between(0, 3) is None
+
+
+def test_the_rotation_chain_propagates_each_steps_covariance_to_the_rotation_between_two_frames() -> None:
+    """Monte Carlo: steps drawn around their nominal rotations with their covariances, chained through
+    keyframes as the front end does (frames 2 and 3 both measured from keyframe 1); the spread of the relative
+    rotation between two frames, including two measured from the same keyframe, is the one `between` gives."""
+    rng = np.random.default_rng(1)
+    nominal = [so3_exp(rng.normal(0, 0.2, 3)) for _ in range(4)]
+    covariances = []
+    for _ in range(4):
+        a = rng.normal(0, 1e-3, (3, 3))
+        covariances.append(a @ a.T + 1e-7 * np.eye(3))
+
+    def chain_of(steps: list[np.ndarray]) -> RotationChain:
+        chain = RotationChain()
+        chain.extend(0, 0, None)
+        chain.extend(1, 0, steps[1], covariances[1])
+        chain.extend(2, 1, steps[2], covariances[2])
+        chain.extend(3, 1, steps[3], covariances[3])
+        return chain
+
+    expected = chain_of(nominal)
+    for before, after in ((0, 3), (2, 3), (0, 2)):
+        between = expected.between(before, after)
+        assert between is not None
+        samples = []
+        for _ in range(4000):
+            noisy = [step @ so3_exp(rng.multivariate_normal(np.zeros(3), c))
+                     for step, c in zip(nominal, covariances, strict=True)]
+            sampled = chain_of(noisy).between(before, after)
+            assert sampled is not None
+            samples.append(so3_log(between[0].T @ sampled[0]))
+        empirical = np.cov(np.array(samples).T)
+        np.testing.assert_allclose(empirical, between[1], atol=0.08 * np.abs(between[1]).max())

@@ -212,6 +212,7 @@ class Odometry:
             candidate_poses=motion.candidates,
             chosen_candidate=motion.chosen,
             T_key_cur=T_key_cur,
+            rotation_covariance=motion.rotation_covariance if T_key_cur is not None else None,
             points_world=points_world,
             scale=scale,
             scale_estimate=scale_estimate,

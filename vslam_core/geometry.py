@@ -305,6 +305,30 @@ def _cauchy_cost(errors: np.ndarray, robust_scale: float) -> float:
     return float(np.sum(np.log1p(errors**2 / robust_scale**2)))
 
 
+def relative_pose_covariance(
+    rotation: np.ndarray, translation: np.ndarray, x_cur: np.ndarray, x_prev: np.ndarray, robust_scale: float
+) -> np.ndarray | None:
+    """(5, 5) covariance of the relative pose that minimises the robust Sampson cost (`refine_relative_pose`),
+    in its parameters (ω, β): R·exp([ω]ₓ), t + B·β. The Gauss–Newton estimate σ²·(JᵀWJ)⁻¹ at the minimum,
+    with the Cauchy IRLS weights W and σ² the weighted residual variance (Hartley & Zisserman sec. 5.2.3,
+    eq. 5.12). Where the views cannot tell a rotation from a step sideways (low parallax, a narrow view) the
+    rotation block is large along that direction. None with fewer than 6 correspondences."""
+    if len(x_cur) < 6:
+        return None
+    translation = np.asarray(translation, np.float64).reshape(3)
+    translation = translation / np.linalg.norm(translation)
+    h_cur, h_prev = _homogeneous(x_cur), _homogeneous(x_prev)
+    residuals = _sampson(essential_from_pose(rotation, translation), h_cur, h_prev)
+    jacobian = sampson_jacobian(rotation, translation, _tangent_basis(translation), h_cur, h_prev)
+    weights = 1.0 / (1.0 + residuals**2 / robust_scale**2)
+    information = (jacobian.T * weights) @ jacobian
+    variance = float(np.sum(weights * residuals**2) / max(float(np.sum(weights)) - 5.0, 1.0))
+    try:
+        return np.asarray(variance * np.linalg.inv(information))
+    except np.linalg.LinAlgError:
+        return None
+
+
 def refine_relative_pose(
     rotation: np.ndarray,
     translation: np.ndarray,

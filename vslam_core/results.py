@@ -353,6 +353,8 @@ class FrameResult:
     scale_estimate: ScaleEstimate | None = None  # with --scale height
     timings_ms: dict[str, float] = field(default_factory=dict)  # stage -> milliseconds
     mapping: MapFrame | None = None  # --backend map: tracking mode, PnP, keyframes, bundle adjustment
+    # (3, 3) rad², of T_key_cur's rotation as R·exp([ω]ₓ), from the two-view refinement (`Motion`); else None
+    rotation_covariance: np.ndarray | None = None
 
     @property
     def inlier_count(self) -> int:

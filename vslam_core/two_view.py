@@ -21,6 +21,7 @@ from vslam_core.geometry import (
     in_front_mask,
     normalise_points,
     refine_relative_pose,
+    relative_pose_covariance,
     robust_sampson_cost,
     rotation_angle,
     triangulate,
@@ -45,6 +46,7 @@ class Motion:
     points_cur: np.ndarray | None = None  # (P, 3) in front, current frame, unit baseline
     pixels_cur: np.ndarray | None = None  # (P, 2) their pixel positions in the current frame
     derotated_parallax: float = 0.0  # median inlier parallax (px) left once the rotation is removed
+    rotation_covariance: np.ndarray | None = None  # (3, 3) rad² of `rotation` (as R·exp([ω]ₓ)), refined only
     reason: Reason | None = None
 
     def fates(self) -> np.ndarray:
@@ -96,6 +98,7 @@ def two_view_motion(
         timings["chirality"] = _lap(clock)
         return Motion(essential=essential, inlier_mask=inlier_mask, candidates=tuple(candidates),
                        chosen=best, reason=Reason.CHIRALITY)
+    covariance = None
     if cfg.refine:
         focal = 0.5 * (K[0, 0] + K[1, 1])
         rotation, translation = refine_relative_pose(
@@ -105,6 +108,8 @@ def two_view_motion(
         if prior is not None:
             rotation, translation = _better_of(rotation, translation, prior, x_cur[inlier_mask], x_key[inlier_mask],
                                                cfg.ransac_threshold_px / focal)
+        covariance = relative_pose_covariance(rotation, translation, x_cur[inlier_mask], x_key[inlier_mask],
+                                              cfg.ransac_threshold_px / focal)
     derotated = derotated_parallax(rotation, p_cur[inlier_mask], p_key[inlier_mask], K)
     points = triangulate(rotation, translation, x_cur, x_key)
     # A track fails chirality only if it lands behind a camera; far points are fine, just not shown.
@@ -127,6 +132,7 @@ def two_view_motion(
         points_cur=points[inlier_mask & near],
         pixels_cur=p_cur[inlier_mask & near],
         derotated_parallax=derotated,
+        rotation_covariance=covariance[:3, :3] if cfg.refine and covariance is not None else None,
     )
 
 
@@ -188,28 +194,65 @@ class RotationChain:
     """The front end's two-view rotations chained frame by frame: each frame's rotation from its front-end
     keyframe times that keyframe's chained rotation, so any two frames of one chain have a relative rotation
     measured by essential matrices alone (all tracks, far points included) and never by the map. A frame
-    whose rotation is not the front end's starts a new chain; frames before `forget_before` are dropped."""
+    whose rotation is not the front end's starts a new chain; frames before `forget_before` are dropped.
+
+    Each link also carries its rotation's covariance (`Motion.rotation_covariance`, rad², as R·exp([ω]ₓ)),
+    propagated to first order along the links (R_ac = R_ab·R_bc: Σ_ac = R_bcᵀ·Σ_ab·R_bc + Σ_bc), so that a
+    prior between two frames is as loose as the steps between them were ambiguous."""
 
     def __init__(self) -> None:
-        self._chain: dict[int, tuple[int, np.ndarray]] = {}  # run position -> (chain id, (3, 3) R_chain_cam)
+        # run position -> (chain id, (3, 3) R_chain_cam, (3, 3) its covariance, the position it was measured from)
+        self._chain: dict[int, tuple[int, np.ndarray, np.ndarray, int]] = {}
 
-    def extend(self, position: int, key_position: int, R_key_cur: np.ndarray | None) -> None:  # noqa: N803
-        """Frame `position`'s rotation from the front end's keyframe at `key_position`; None: a new chain."""
+    def extend(self, position: int, key_position: int, R_key_cur: np.ndarray | None,  # noqa: N803
+               covariance: np.ndarray | None = None) -> None:
+        """Frame `position`'s rotation from the front end's keyframe at `key_position` and its (3, 3)
+        covariance (None: not known, taken as exact); None: a new chain."""
         start = self._chain.get(key_position)
         if R_key_cur is None or start is None:
-            self._chain[position] = (position, np.eye(3))
+            self._chain[position] = (position, np.eye(3), np.zeros((3, 3)), -1)
         else:
-            self._chain[position] = (start[0], start[1] @ R_key_cur)
+            step = covariance if covariance is not None else np.zeros((3, 3))
+            self._chain[position] = (start[0], start[1] @ R_key_cur, R_key_cur.T @ start[2] @ R_key_cur + step,
+                                     key_position)
 
-    def between(self, before: int, after: int) -> np.ndarray | None:
-        """(3, 3) R_before_after if one chain links the two frames, else None."""
+    def between(self, before: int, after: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """(3, 3) R_before_after and its (3, 3) covariance if one chain links the two frames, else None. The
+        covariance is that of the links from the last frame both were measured through."""
         first, second = self._chain.get(before), self._chain.get(after)
         if first is None or second is None or first[0] != second[0]:
             return None
-        return first[1].T @ second[1]
+        rotation = first[1].T @ second[1]
+        common = self._common(before, after)
+        if common is None:
+            return rotation, np.zeros((3, 3))
+        R_chain_common, covariance_common = self._chain[common][1:3]  # noqa: N806
+        hops = []
+        for R_chain_cam, covariance in (first[1:3], second[1:3]):  # noqa: N806
+            R_common_cam = R_chain_common.T @ R_chain_cam  # noqa: N806
+            hops.append(covariance - R_common_cam.T @ covariance_common @ R_common_cam)
+        covariance = rotation.T @ hops[0] @ rotation + hops[1]
+        return rotation, 0.5 * (covariance + covariance.T)
+
+    def _common(self, before: int, after: int) -> int | None:
+        """The latest frame both frames' rotations were measured through (None: forgotten)."""
+        ancestors = set()
+        position = before
+        while position in self._chain:
+            ancestors.add(position)
+            position = self._chain[position][3]
+        position = after
+        while position in self._chain:
+            if position in ancestors:
+                return position
+            position = self._chain[position][3]
+        return None
 
     def forget_before(self, position: int) -> None:
-        for old in [p for p in self._chain if p < position]:
+        """Drop the frames before `position`, but not the one `position` was measured from (a later frame's
+        rotation relative to `position` runs through it)."""
+        kept = self._chain[position][3] if position in self._chain and self._chain[position][3] >= 0 else position
+        for old in [p for p in self._chain if p < min(position, kept)]:
             del self._chain[old]
 
 

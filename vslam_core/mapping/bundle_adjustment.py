@@ -45,6 +45,7 @@ class Problem:
     rotations: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))  # (Q, 2) pose indices a, b
     rotation_measurements: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))  # (Q, 3, 3) R_a_b
     rotation_sigma: float = 0.0  # rad
+    rotation_covariances: np.ndarray | None = None  # (Q, 3, 3) rad² of each measurement; None: rotation_sigma
 
 
 @dataclass(frozen=True)
@@ -121,7 +122,12 @@ def solve(problem: Problem) -> Solution:
                                          gtsam.noiseModel.Isotropic.Sigma(1, float(sigma))))
     if len(problem.rotations):
         rotation_noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([problem.rotation_sigma] * 3 + [1e6] * 3))
-        for (a, b), rotation in zip(problem.rotations.tolist(), problem.rotation_measurements, strict=True):
+        for q, ((a, b), rotation) in enumerate(zip(problem.rotations.tolist(), problem.rotation_measurements,
+                                                   strict=True)):
+            if problem.rotation_covariances is not None:  # Pose3's tangent: rotation first, translation free
+                covariance = np.diag([0.0] * 3 + [1e12] * 3)
+                covariance[:3, :3] = problem.rotation_covariances[q]
+                rotation_noise = gtsam.noiseModel.Gaussian.Covariance(covariance)
             graph.add(gtsam.BetweenFactorPose3(X(a), X(b), gtsam.Pose3(gtsam.Rot3(rotation), np.zeros(3)),
                                                rotation_noise))
     params = gtsam.LevenbergMarquardtParams()

@@ -192,7 +192,7 @@ class LocalMapping:
         self, position: int, segment: int, T_world_cam: np.ndarray, track_ids: np.ndarray,  # noqa: N803
         pixels: np.ndarray, image: np.ndarray, metric_step: float | None, why: str,
         track_landmarks: dict[int, int], refound: dict[int, np.ndarray] | None = None,
-        landmark_config: MapConfig | None = None, chained_rotation: np.ndarray | None = None,
+        landmark_config: MapConfig | None = None, chained_rotation: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> tuple[KeyframeInserted, dict[int, int], MapView]:
         """Add a keyframe seeing (N,) tracks at (N, 2) pixels; `track_landmarks` links live tracks to
         landmarks; `refound` maps landmarks re-found in this frame without a track to their (2,) pixel (they
@@ -392,10 +392,16 @@ def rotation_priors(map_: Map, index: dict[int, int], config: MapConfig) -> dict
     end's chain drifted 0.01° (docs/map-backend.md)."""
     keyframes = [k for k in index if k - 1 in index and map_.keyframes[k].chained_rotation is not None] \
         if config.rotation_prior_deg > 0 else []
+    sigma = float(np.radians(config.rotation_prior_deg))
+    covariances = None
+    if config.rotation_prior_inflation > 0:
+        chained = [map_.keyframes[k].chained_covariance for k in keyframes]
+        covariances = np.array([sigma**2 * np.eye(3) + config.rotation_prior_inflation**2
+                                * (c if c is not None else np.zeros((3, 3))) for c in chained]).reshape(-1, 3, 3)
     return {"rotations": np.array([(index[k - 1], index[k]) for k in keyframes], np.int64).reshape(-1, 2),
             "rotation_measurements": np.array([map_.keyframes[k].chained_rotation for k in keyframes],
                                               np.float64).reshape(-1, 3, 3),
-            "rotation_sigma": float(np.radians(config.rotation_prior_deg))}
+            "rotation_sigma": sigma, "rotation_covariances": covariances}
 
 
 def _window_observations(observations: list[dict[int, np.ndarray]], keyframe_ids: list[int],

@@ -28,6 +28,7 @@ class Keyframe:
     pixels: np.ndarray  # (N, 2) float32 their positions
     metric_step: float | None  # distance from the previous keyframe given by the scale source (None: unit scale)
     chained_rotation: np.ndarray | None = None  # (3, 3) R_previous_this by the front end's two-view chain
+    chained_covariance: np.ndarray | None = None  # (3, 3) rad², of chained_rotation (as R·exp([ω]ₓ))
     landmark_ids: set[int] = field(default_factory=set)  # landmarks observed here
 
 
@@ -61,9 +62,11 @@ class Map:
 
     def add_keyframe(self, position: int, segment: int, T_world_cam: np.ndarray, track_ids: np.ndarray,  # noqa: N803
                      pixels: np.ndarray, metric_step: float | None,
-                     chained_rotation: np.ndarray | None = None) -> Keyframe:
+                     chained_rotation: tuple[np.ndarray, np.ndarray] | None = None) -> Keyframe:
+        """`chained_rotation`: R_previous_this by the front end's two-view chain and its covariance."""
+        rotation, covariance = chained_rotation if chained_rotation is not None else (None, None)
         keyframe = Keyframe(self._next_keyframe, position, segment, T_world_cam.copy(), track_ids, pixels, metric_step,
-                            chained_rotation=chained_rotation)
+                            chained_rotation=rotation, chained_covariance=covariance)
         self.keyframes[keyframe.id] = keyframe
         self._next_keyframe += 1
         return keyframe

@@ -377,12 +377,12 @@ class MapTracking:
     def _finish(self, frame: Frame, vo: FrameResult, pose: np.ndarray | None, mode: TrackingMode,
                 pnp: PnPEstimate | None, relocalisation: Relocalisation | None, warnings: list[Reason],
                 why: str | None, two_view: np.ndarray | None = None) -> FrameResult:
-        """Keyframe insertion when due, the pose stored relative to its keyframe, the front end re-anchored,
-        and the frame's result."""
+        """Keyframe insertion when due, the pose stored relative to its keyframe, the front end re-anchored."""
         held = pose is None
         own = mode in (TrackingMode.MAP, TrackingMode.TWO_VIEW) and Reason.TWO_VIEW_OUTVOTED not in warnings
         self._chain.extend(vo.position, vo.keyframe_position,  # a rotation not the front end's starts a new chain
-                           vo.T_key_cur[:3, :3] if not held and own and vo.T_key_cur is not None else None)
+                           vo.T_key_cur[:3, :3] if not held and own and vo.T_key_cur is not None else None,
+                           vo.rotation_covariance)
         reference = self.mapping.map.keyframes[self._reference].position if self._reference >= 0 else vo.position
         self._chain.forget_before(min(vo.keyframe_position, reference))
         if pose is None:
