@@ -194,9 +194,12 @@ class MapConfig:
     # sigma of the front end's chained rotation between keyframes with a scale source (0: none): at 0.05 deg
     # bundle adjustment let the keyframes' yaw drift 0.45 deg in KITTI 05's turn (docs/map-backend-history.md)
     rotation_prior_deg: float = 0.01
-    # ... plus the chained two-view rotation's own covariance (`RotationChain`) times this factor squared (0: off):
-    # loose along the direction the two views could not tell from a step sideways (a hand-held camera's pitch)
+    # ... plus, where the chained two-view rotation's own covariance (`RotationChain`) exceeds the square of
+    # rotation_prior_floor_deg, that excess times this factor squared (0: off): loose along the direction the two
+    # views could not tell from a step sideways (a hand-held camera's pitch), as tight as before elsewhere
     rotation_prior_inflation: float = 0.0
+    rotation_prior_floor_deg: float = 0.02
+    rotation_prior_cap_deg: float = 0.5  # ... and never looser than this
     # m: keyframe-to-keyframe distance prior with --scale gt (vo takes each step's length exactly; at 1 cm BA let
     # the steps drift: mean ATE after Sim(3) over 36 KITTI runs 0.119 m, at 1-5 mm 0.109-0.110, at 3 cm 0.187)
     scale_sigma_gt: float = 0.003

@@ -309,10 +309,11 @@ def relative_pose_covariance(
     rotation: np.ndarray, translation: np.ndarray, x_cur: np.ndarray, x_prev: np.ndarray, robust_scale: float
 ) -> np.ndarray | None:
     """(5, 5) covariance of the relative pose that minimises the robust Sampson cost (`refine_relative_pose`),
-    in its parameters (ω, β): R·exp([ω]ₓ), t + B·β. The Gauss–Newton estimate σ²·(JᵀWJ)⁻¹ at the minimum,
-    with the Cauchy IRLS weights W and σ² the weighted residual variance (Hartley & Zisserman sec. 5.2.3,
-    eq. 5.12). Where the views cannot tell a rotation from a step sideways (low parallax, a narrow view) the
-    rotation block is large along that direction. None with fewer than 6 correspondences."""
+    in its parameters (ω, β): R·exp([ω]ₓ), t + B·β. The M-estimator's K·mean(ψ²)/mean(ψ')²·(JᵀJ)⁻¹ at the
+    minimum, ψ the Cauchy loss's derivative, K = N/(N−5) for the fitted parameters (Huber 1981, eq. 7.6.9; with
+    ψ(r) = r it is Hartley & Zisserman's σ²·(JᵀJ)⁻¹, eq. 5.12). Where the views cannot tell a rotation from a
+    step sideways (low parallax, a narrow view) the rotation block is large along that direction. None with fewer
+    than 6 correspondences, or when most are outliers."""
     if len(x_cur) < 6:
         return None
     translation = np.asarray(translation, np.float64).reshape(3)
@@ -321,12 +322,17 @@ def relative_pose_covariance(
     residuals = _sampson(essential_from_pose(rotation, translation), h_cur, h_prev)
     jacobian = sampson_jacobian(rotation, translation, _tangent_basis(translation), h_cur, h_prev)
     weights = 1.0 / (1.0 + residuals**2 / robust_scale**2)
-    information = (jacobian.T * weights) @ jacobian
-    variance = float(np.sum(weights * residuals**2) / max(float(np.sum(weights)) - 5.0, 1.0))
+    psi = weights * residuals  # the Cauchy loss's ψ(r) = r / (1 + r²/c²) and its slope ψ'(r)
+    slope = weights**2 * (1.0 - residuals**2 / robust_scale**2)
+    mean_slope = float(np.mean(slope))
     try:
-        return np.asarray(variance * np.linalg.inv(information))
+        inverse = np.linalg.inv(jacobian.T @ jacobian)
     except np.linalg.LinAlgError:
         return None
+    if mean_slope <= 0.0:  # mostly outliers: no estimate
+        return None
+    dof = len(residuals) / max(len(residuals) - 5.0, 1.0)
+    return np.asarray(dof * float(np.mean(psi**2)) / mean_slope**2 * inverse)
 
 
 def refine_relative_pose(

@@ -395,9 +395,13 @@ def rotation_priors(map_: Map, index: dict[int, int], config: MapConfig) -> dict
     sigma = float(np.radians(config.rotation_prior_deg))
     covariances = None
     if config.rotation_prior_inflation > 0:
-        chained = [map_.keyframes[k].chained_covariance for k in keyframes]
-        covariances = np.array([sigma**2 * np.eye(3) + config.rotation_prior_inflation**2
-                                * (c if c is not None else np.zeros((3, 3))) for c in chained]).reshape(-1, 3, 3)
+        chained = np.array([c if (c := map_.keyframes[k].chained_covariance) is not None else np.zeros((3, 3))
+                            for k in keyframes]).reshape(-1, 3, 3)
+        variances, axes = np.linalg.eigh(chained)
+        excess = np.clip(variances - np.radians(config.rotation_prior_floor_deg) ** 2, 0.0,
+                         np.radians(config.rotation_prior_cap_deg) ** 2 / config.rotation_prior_inflation**2)
+        covariances = sigma**2 * np.eye(3) + config.rotation_prior_inflation**2 * np.einsum(
+            "qij,qj,qkj->qik", axes, excess, axes)
     return {"rotations": np.array([(index[k - 1], index[k]) for k in keyframes], np.int64).reshape(-1, 2),
             "rotation_measurements": np.array([map_.keyframes[k].chained_rotation for k in keyframes],
                                               np.float64).reshape(-1, 3, 3),
