@@ -78,6 +78,8 @@ class PoseConfig:
     ransac_max_iterations: int = 1000
     seed: int = 0  # seeds RANSAC through a fixed shuffle of the correspondences
     refine: bool = True  # Gauss–Newton on the Sampson error of the inliers after RANSAC
+    # the refined pose's covariance (~0.3 ms a frame), set by the map backend when its rotation prior uses it
+    rotation_covariance: bool = False
     drop_outliers: bool = True  # RANSAC outliers stop being tracked
     chirality_max_depth: float = 50.0  # points nearer than this (in baselines) vote in the chirality check
     # ... and when fewer than min_inliers of them vote, points up to this far: a hand-held camera's step is
@@ -198,7 +200,7 @@ class MapConfig:
     # rotation_prior_floor_deg, that excess times this factor squared (0: off): loose along the direction the two
     # views could not tell from a step sideways (a hand-held camera's pitch), as tight as before elsewhere
     rotation_prior_inflation: float = 0.0
-    rotation_prior_floor_deg: float = 0.02
+    rotation_prior_floor_deg: float = 0.01
     rotation_prior_cap_deg: float = 0.5  # ... and never looser than this
     # m: keyframe-to-keyframe distance prior with --scale gt (vo takes each step's length exactly; at 1 cm BA let
     # the steps drift: mean ATE after Sim(3) over 36 KITTI runs 0.119 m, at 1-5 mm 0.109-0.110, at 3 cm 0.187)
@@ -221,6 +223,7 @@ class MapConfig:
     # ... and the front end's rotations are held more loosely: at 0.01 deg loop closing made two of five
     # --scale none routes worse and the hand-held walk's ATE after Sim(3) grew from 1.0 to 1.4 cm
     none_rotation_prior_deg: float = 0.05
+    none_rotation_prior_inflation: float = 10.0  # rotation_prior_inflation's value with --scale none
     # ... and PnP is used with this inlier ratio. At every 2nd or 3rd KITTI frame, after a turn, half the landmarks
     # a frame matches come from keyframes the two-view motion placed at the map's last speed, and PnP refused 17
     # frames in a row with 20-60 inliers (00 150:300:2 seed 1); 0.35 took KITTI's steps 2-3 from 2.07 / 3.57 to

@@ -172,6 +172,7 @@ RANGES: dict[str, Range] = {
     "map.rotation_prior_deg": closed(0.0, 180.0),
     "map.none_rotation_prior_deg": closed(0.0, 180.0),
     "map.rotation_prior_inflation": closed(0.0, 1e6),
+    "map.none_rotation_prior_inflation": closed(0.0, 1e6),
     "map.rotation_prior_floor_deg": closed(0.0, 180.0),
     "map.rotation_prior_cap_deg": closed(0.0, 180.0),
     "map.scale_sigma_gt": positive(100.0),

@@ -108,8 +108,9 @@ def two_view_motion(
         if prior is not None:
             rotation, translation = _better_of(rotation, translation, prior, x_cur[inlier_mask], x_key[inlier_mask],
                                                cfg.ransac_threshold_px / focal)
-        covariance = relative_pose_covariance(rotation, translation, x_cur[inlier_mask], x_key[inlier_mask],
-                                              cfg.ransac_threshold_px / focal)
+        if cfg.rotation_covariance:
+            covariance = relative_pose_covariance(rotation, translation, x_cur[inlier_mask], x_key[inlier_mask],
+                                                  cfg.ransac_threshold_px / focal)
     derotated = derotated_parallax(rotation, p_cur[inlier_mask], p_key[inlier_mask], K)
     points = triangulate(rotation, translation, x_cur, x_key)
     # A track fails chirality only if it lands behind a camera; far points are fine, just not shown.

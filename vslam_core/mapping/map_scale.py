@@ -88,10 +88,19 @@ def for_scale(config: MapConfig, scale: ScaleSource) -> MapConfig:
         return config
     return replace(config, min_triangulation_deg=config.none_min_triangulation_deg,
                    ba_iterations=config.none_ba_iterations, rotation_prior_deg=config.none_rotation_prior_deg,
+                   rotation_prior_inflation=config.none_rotation_prior_inflation,
                    pnp_min_inlier_ratio=config.none_pnp_min_inlier_ratio,
                    low_ratio_pnp_min_ratio=config.none_low_ratio_pnp_min_ratio,
                    starving_keyframes=config.none_starving_keyframes, cull_revisits=config.none_cull_revisits,
                    map_search=config.map_search or config.none_map_search)
+
+
+def front_end_config(config: EngineConfig, map_config: MapConfig) -> EngineConfig:
+    """The front end's settings under the map (`map_config`, `for_scale`'s): each frame's refined two-view
+    rotation comes with its covariance when bundle adjustment's rotation prior uses it."""
+    if map_config.rotation_prior_inflation <= 0:
+        return config
+    return replace(config, pose=replace(config.pose, rotation_covariance=True))
 
 
 def translation_parallax(T_world_key: np.ndarray, T_world_cur: np.ndarray, pixels_cur: np.ndarray,  # noqa: N803

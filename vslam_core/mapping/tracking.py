@@ -30,6 +30,7 @@ from vslam_core.mapping.map_scale import (
     FramesBeforeMap,
     MapSpeed,
     for_scale,
+    front_end_config,
     initialisation,
     initialised,
     landmark_settings,
@@ -74,15 +75,14 @@ class MapTracking:
 
     def __init__(self, intrinsics: CameraIntrinsics, config: EngineConfig, scale: ScaleProvider) -> None:
         self._lens = intrinsics  # tracks are on raw pixels; the map's geometry on ideal ones (vslam_core/lens.py)
-        self.config = config
-        self._cfg = for_scale(config.map, config.scale)
-        self._K = intrinsics.K
+        self.config, self._cfg, self._K = config, for_scale(config.map, config.scale), intrinsics.K
         # --scale none: steps the map cannot place take their length from the map's speed, never unit steps
         self._speed = MapSpeed() if config.scale == "none" else None
         self._slow = False  # --scale none: a slow camera (map_scale.slow_camera), its landmarks at a smaller angle
         self._scale: ScaleProvider = self._speed if self._speed is not None else scale
-        self._odometry = Odometry(intrinsics, config, self._scale, coast=False)  # coasting is done here, with the map
-        # bundle adjustment and the loop search run in one worker process beside tracking (with 2 threads)
+        # coasting is done here, with the map; bundle adjustment and the loop search run in one worker process
+        # beside tracking (with 2 threads)
+        self._odometry = Odometry(intrinsics, front_end_config(config, self._cfg), self._scale, coast=False)
         self._worker = BackendWorker() if config.threads > 1 else None
         self.mapping = LocalMapping(intrinsics, self._cfg, config.scale, self._worker)
         self._links: dict[int, int] = {}  # live track id -> landmark id
