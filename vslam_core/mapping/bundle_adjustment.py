@@ -121,7 +121,8 @@ def solve(problem: Problem) -> Solution:
         graph.add(gtsam.RangeFactorPose3(X(int(a)), X(int(b)), float(distance),
                                          gtsam.noiseModel.Isotropic.Sigma(1, float(sigma))))
     if len(problem.rotations):
-        rotation_noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([problem.rotation_sigma] * 3 + [1e6] * 3))
+        rotation_noise: gtsam.noiseModel.Base = gtsam.noiseModel.Diagonal.Sigmas(
+            np.array([problem.rotation_sigma] * 3 + [1e6] * 3))
         for q, ((a, b), rotation) in enumerate(zip(problem.rotations.tolist(), problem.rotation_measurements,
                                                    strict=True)):
             if problem.rotation_covariances is not None:  # Pose3's tangent: rotation first, translation free
