@@ -133,7 +133,7 @@ def two_view_motion(
         points_cur=points[inlier_mask & near],
         pixels_cur=p_cur[inlier_mask & near],
         derotated_parallax=derotated,
-        rotation_covariance=covariance[:3, :3] if cfg.refine and covariance is not None else None,
+        rotation_covariance=covariance[:3, :3] if covariance is not None else None,
     )
 
 
@@ -219,7 +219,8 @@ class RotationChain:
 
     def between(self, before: int, after: int) -> tuple[np.ndarray, np.ndarray] | None:
         """(3, 3) R_before_after and its (3, 3) covariance if one chain links the two frames, else None. The
-        covariance is that of the links from the last frame both were measured through."""
+        covariance is that of the links from the last frame both were measured through (zero when that frame was
+        forgotten: the prior's own sigma alone)."""
         first, second = self._chain.get(before), self._chain.get(after)
         if first is None or second is None or first[0] != second[0]:
             return None
@@ -252,8 +253,8 @@ class RotationChain:
     def forget_before(self, position: int) -> None:
         """Drop the frames before `position`, but not the one `position` was measured from (a later frame's
         rotation relative to `position` runs through it)."""
-        kept = self._chain[position][3] if position in self._chain and self._chain[position][3] >= 0 else position
-        for old in [p for p in self._chain if p < min(position, kept)]:
+        parent = self._chain[position][3] if position in self._chain else -1
+        for old in [p for p in self._chain if p < (parent if parent >= 0 else position)]:
             del self._chain[old]
 
 
