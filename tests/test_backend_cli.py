@@ -95,20 +95,20 @@ def test_backend_option_overrides_the_config_file(kitti_root: Path, tmp_path: Pa
 
 def test_eval_reports_the_backend_next_to_the_scale(tmp_path: Path) -> None:
     report = tmp_path / "report"
-    result = vslam("eval", "synthetic", "--frames", "0:20", "--backend", "map", "--json", "--report", report,
+    result = vslam("eval", "synthetic", "--frames", "0:20", "--backend", "vo", "--json", "--report", report,
                    "--detail", "off")
     assert result.returncode == 0, result.stderr
     data = json.loads(result.stdout)
-    assert data["scale"] == "gt" and data["backend"] == "map"
-    assert [row["backend"] for row in [*data["sequences"], data["mean"]]] == ["map", "map"]
+    assert data["scale"] == "gt" and data["backend"] == "vo"
+    assert [row["backend"] for row in [*data["sequences"], data["mean"]]] == ["vo", "vo"]
     table = pl.read_csv(report / "metrics.csv")
-    assert table.columns[1:3] == ["scale", "backend"] and table["backend"].to_list() == ["map", "map"]
-    assert "backend `map`" in (report / "report.md").read_text()
+    assert table.columns[1:3] == ["scale", "backend"] and table["backend"].to_list() == ["vo", "vo"]
+    assert "backend `vo`" in (report / "report.md").read_text()
 
-    printed = vslam("eval", "synthetic", "--frames", "0:10")
+    printed = vslam("eval", "synthetic", "--frames", "0:10")  # the default backend: the map
     assert printed.returncode == 0, printed.stderr
     header, _, row = [line for line in printed.stdout.splitlines() if line.startswith("|")][:3]
-    assert "| scale | backend |" in header and "| gt | vo |" in row
+    assert "| scale | backend |" in header and "| gt | map |" in row
 
 
 def test_backend_does_not_apply_to_trajectory_files(tmp_path: Path) -> None:

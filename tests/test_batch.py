@@ -43,12 +43,12 @@ def manifest(kitti_root: Path, tmp_path_factory: pytest.TempPathFactory) -> Path
     broken_log(kitti_root, folder / "broken")
     path = folder / "logs.csv"
     path.write_text(
-        "name,source,sequence,frames,calib,gt\n"
-        f"kitti-00-a,{kitti_root},00,0:20,,\n"
-        f"kitti-00-b,{kitti_root},00,20:40,,\n"
-        "broken,broken/images,,,broken/calib.txt,broken/gt.txt\n"  # relative to the manifest
-        f"kitti-05-a,{kitti_root},05,0:20,,\n"
-        f"kitti-05-b,{kitti_root},05,20:40,,\n"
+        "name,source,sequence,frames,calib,gt,backend\n"
+        f"kitti-00-a,{kitti_root},00,0:20,,,vo\n"
+        f"kitti-00-b,{kitti_root},00,20:40,,,vo\n"
+        "broken,broken/images,,,broken/calib.txt,broken/gt.txt,vo\n"  # relative to the manifest
+        f"kitti-05-a,{kitti_root},05,0:20,,,vo\n"
+        f"kitti-05-b,{kitti_root},05,20:40,,,vo\n"
     )
     return path
 

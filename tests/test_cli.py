@@ -10,7 +10,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from cli_helpers import InterruptedRun, interrupt_kitti_run, vslam, vslam_here
+from cli_helpers import VO, InterruptedRun, interrupt_kitti_run, vslam, vslam_here
 
 from vslam.recording import HALF_SIZE_JPEG_QUALITY
 from vslam.rrd.provenance import PROPERTIES, read_properties
@@ -106,11 +106,11 @@ def test_run_on_kitti_writes_a_valid_recording_and_one_pose_per_frame(
 def test_existing_output_is_never_replaced_without_force(kitti_run: tuple[Path, Path, str], kitti_root: Path) -> None:
     rrd, trajectory, _ = kitti_run
     before = rrd.read_bytes()
-    result = vslam("run", kitti_root, "--sequence", "00", "--frames", "0:5", "-o", rrd)
+    result = vslam("run", *VO, kitti_root, "--sequence", "00", "--frames", "0:5", "-o", rrd)
     assert_clean_error(result, str(rrd), "--force")
     assert rrd.read_bytes() == before
     other = rrd.with_name("other.rrd")
-    result = vslam("run", kitti_root, "--sequence", "00", "--frames", "0:5", "-o", other, "--trajectory-out",
+    result = vslam("run", *VO, kitti_root, "--sequence", "00", "--frames", "0:5", "-o", other, "--trajectory-out",
                    trajectory)
     assert_clean_error(result, str(trajectory), "--force")
     assert not other.exists()  # nothing is started when an output would be refused
@@ -120,7 +120,7 @@ def test_existing_output_is_never_replaced_without_force(kitti_run: tuple[Path, 
 def test_force_replaces_and_tum_output_carries_timestamps(kitti_root: Path, tmp_path: Path) -> None:
     trajectory = tmp_path / "t.tum"
     trajectory.write_text("old\n")
-    result = vslam("run", kitti_root, "--sequence", "05", "--frames", "10:20", "--detail", "off",
+    result = vslam("run", *VO, kitti_root, "--sequence", "05", "--frames", "10:20", "--detail", "off",
                    "--trajectory-out", trajectory, "--trajectory-format", "tum", "--force")
     assert result.returncode == 0, result.stderr
     stamps, poses = read_tum_poses(trajectory)
@@ -140,7 +140,7 @@ def test_force_replaces_and_tum_output_carries_timestamps(kitti_root: Path, tmp_
 )
 def test_bad_kitti_arguments_give_one_line_errors(kitti_root: Path, tmp_path: Path, args: list[str],
                                                   fragments: list[str]) -> None:
-    full = ["run", kitti_root, *(["--sequence", "00"] if "--sequence" not in args else []), *args,
+    full = ["run", *VO, kitti_root, *(["--sequence", "00"] if "--sequence" not in args else []), *args,
             "-o", tmp_path / "x.rrd"]
     assert_clean_error(vslam_here(*full), *fragments)
     assert not (tmp_path / "x.rrd").exists()
@@ -214,7 +214,7 @@ def test_compare_command_prints_the_differences(kitti_run: tuple[Path, Path, str
     config = tmp_path / "b.toml"
     config.write_text("[detector]\nfast_threshold = 40\n")
     other = tmp_path / "b.rrd"
-    assert vslam("run", kitti_root, "--sequence", "00", "--frames", "0:40", "--config", config, "-o",
+    assert vslam("run", *VO, kitti_root, "--sequence", "00", "--frames", "0:40", "--config", config, "-o",
                  other).returncode == 0
     both = tmp_path / "ab.rrd"
     result = vslam("compare", rrd, other, "-o", both, "--labels", "before,after")

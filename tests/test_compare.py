@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 import pytest
 import rerun as rr
-from cli_helpers import need_vulkan, vslam, vslam_here
+from cli_helpers import VO, need_vulkan, vslam, vslam_here
 from rerun.chunk import RrdReader
 
 from vslam.compare.blueprint import DIFFERENCE_TITLES
@@ -368,7 +368,7 @@ def kitti_runs(kitti_root: Path, tmp_path_factory: pytest.TempPathFactory) -> li
     half.write_text("[detector]\ntarget_tracks = 400\nredetect_below = 300\n")
     paths = [folder / f"{name}.rrd" for name in KITTI_RUNS]
     for path, args in zip(paths, KITTI_RUNS.values(), strict=True):  # CLI runs in this process, one by one
-        result = vslam("run", kitti_root, "--sequence", "00", *(a.format(half=half) for a in args),
+        result = vslam("run", *VO, kitti_root, "--sequence", "00", *(a.format(half=half) for a in args),
                        "--detail", "standard", "-o", path)
         assert result.returncode == 0, result.stderr
     return paths

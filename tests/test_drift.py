@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_helpers import vslam
+from cli_helpers import VO, vslam
 from kitti_runs import link_images
 
 from vslam.recording.columns import EVENTS, EVENTS_AT_END
@@ -97,7 +97,7 @@ def test_worst_frames_skips_nan_and_names_source_frames() -> None:
 def kitti_run(kitti_root: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     out = tmp_path_factory.mktemp("drift")
     rrd, trajectory = out / "run.rrd", out / "run.txt"
-    result = vslam("run", kitti_root, "--sequence", "00", "--frames", "10:50", "--detail", "summary", "-o", rrd,
+    result = vslam("run", *VO, kitti_root, "--sequence", "00", "--frames", "10:50", "--detail", "summary", "-o", rrd,
                    "--trajectory-out", trajectory)
     assert result.returncode == 0, result.stderr
     return rrd, trajectory
@@ -165,7 +165,7 @@ def test_recording_holds_drift_series_trajectory_links_and_events(kitti_run: tup
 def test_no_ground_truth_no_drift(kitti_root: Path, tmp_path: Path) -> None:
     images = link_images(kitti_root, tmp_path / "images", range(6), sequence="00")
     rrd = tmp_path / "folder.rrd"
-    result = vslam("run", images, "--intrinsics", KITTI_K, "--detail", "summary", "-o", rrd)
+    result = vslam("run", *VO, images, "--intrinsics", KITTI_K, "--detail", "summary", "-o", rrd)
     assert result.returncode == 0, result.stderr
     report = json.loads(vslam("inspect", rrd, "--json").stdout)
     assert report["drift"] is None
@@ -176,8 +176,8 @@ def test_no_ground_truth_no_drift(kitti_root: Path, tmp_path: Path) -> None:
 @pytest.mark.kitti
 def test_scale_none_attributes_the_aligned_estimate(kitti_root: Path, tmp_path: Path) -> None:
     rrd, trajectory = tmp_path / "none.rrd", tmp_path / "none.txt"
-    result = vslam("run", kitti_root, "--sequence", "00", "--frames", "0:25", "--scale", "none", "--detail", "summary",
-                   "-o", rrd, "--trajectory-out", trajectory)
+    result = vslam("run", *VO, kitti_root, "--sequence", "00", "--frames", "0:25", "--scale", "none",
+                   "--detail", "summary", "-o", rrd, "--trajectory-out", trajectory)
     assert result.returncode == 0, result.stderr
     gt = rebase_poses(read_kitti_poses(kitti_root / "poses" / "00.txt", max_rows=25))
     errors = frame_errors(gt, sim3_aligned(gt, read_kitti_poses(trajectory)))  # unit steps: aligned first

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import polars as pl
 import pytest
-from cli_helpers import vslam
+from cli_helpers import VO, vslam
 
 from vslam.rrd.read import read_entity
 from vslam_core.sources.base import rebase_poses
@@ -23,7 +23,7 @@ JSON_KEYS = {"t_err", "r_err", "ate_se3", "ate_sim3", "rpe_trans", "rpe_rot", "p
 @pytest.fixture(scope="module")
 def report(kitti_root: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
     folder = tmp_path_factory.mktemp("eval") / "report"
-    result = vslam("eval", kitti_root, "--sequences", "00,05", "--frames", "0:150", "--report", folder, "--json",
+    result = vslam("eval", *VO, kitti_root, "--sequences", "00,05", "--frames", "0:150", "--report", folder, "--json",
                    "--detail", "summary")
     assert result.returncode == 0, result.stderr
     return folder, json.loads(result.stdout)

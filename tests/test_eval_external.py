@@ -10,7 +10,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from cli_helpers import need_vulkan, vslam
+from cli_helpers import VO, need_vulkan, vslam
 from kitti_runs import link_images
 
 from vslam.common.trajectory_images import stamps_from_names
@@ -63,7 +63,8 @@ def external(kitti_root: Path, tmp_path_factory: pytest.TempPathFactory) -> dict
                    "--detail", "standard", "--json")
     assert result.returncode == 0, result.stderr
     run = folder / "run.rrd"
-    done = vslam("run", kitti_root, "--sequence", "00", "--frames", f"0:{FRAMES}", "--detail", "summary", "-o", run)
+    done = vslam("run", *VO, kitti_root, "--sequence", "00", "--frames", f"0:{FRAMES}", "--detail", "summary",
+                 "-o", run)
     assert done.returncode == 0, done.stderr
     return {"estimate": estimate, "report": report, "rrd": report / "other.rrd", "run": run, "folder": folder}
 

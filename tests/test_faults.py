@@ -40,7 +40,7 @@ EXPECTED = {
 def run(kitti_root: Path, inject: str | None) -> tuple[list[FrameResult], np.ndarray]:
     source = open_source(str(kitti_root), sequence="00", frames=FRAMES, inject=inject)
     results: list[FrameResult] = []
-    run_odometry(source, EngineConfig(), sinks=(lambda _f, r: results.append(r),))
+    run_odometry(source, EngineConfig(backend="vo"), sinks=(lambda _f, r: results.append(r),))
     assert source.ground_truth is not None
     return results, source.ground_truth
 
@@ -100,7 +100,7 @@ def test_a_turn_taken_while_blind_is_not_lost(kitti_root: Path) -> None:
     cost time.)"""
     source = open_source(str(kitti_root), sequence="00", frames=FrameRange(100, 300), inject="blur@200:210")
     results: list[FrameResult] = []
-    run = run_odometry(source, EngineConfig(), sinks=(lambda _f, r: results.append(r),))
+    run = run_odometry(source, EngineConfig(backend="vo"), sinks=(lambda _f, r: results.append(r),))
     gt = source.ground_truth
     assert gt is not None
     coasted = [r.index for r in results if Reason.COASTED in r.health.reasons]

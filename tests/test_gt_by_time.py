@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_helpers import vslam, vslam_here
+from cli_helpers import VO, vslam, vslam_here
 from scipy.spatial.transform import Rotation, Slerp
 
 from vslam_core.sources.base import rebase_poses
@@ -55,7 +55,7 @@ def timed_folder(kitti_root: Path, tmp_path_factory: pytest.TempPathFactory) -> 
 def test_tum_ground_truth_at_twice_the_rate_is_matched_by_time(timed_folder: dict[str, Path],
                                                                kitti_root: Path) -> None:
     trajectory = timed_folder["base"] / "estimate.txt"
-    result = vslam("run", timed_folder["folder"], "--calib", timed_folder["calib"], "--gt", timed_folder["tum"],
+    result = vslam("run", *VO, timed_folder["folder"], "--calib", timed_folder["calib"], "--gt", timed_folder["tum"],
                    "--detail", "off", "--trajectory-out", trajectory)
     assert result.returncode == 0, result.stderr
     truth = rebase_poses(read_kitti_poses(kitti_root / "poses" / "05.txt", max_rows=FRAMES))
@@ -102,7 +102,7 @@ def test_gt_tolerance_is_refused_where_nothing_is_matched_by_time(timed_folder: 
 
 @pytest.mark.kitti
 def test_row_by_row_is_said_in_the_summary(timed_folder: dict[str, Path]) -> None:
-    result = vslam("run", timed_folder["folder"], "--calib", timed_folder["calib"], "--gt", timed_folder["kitti"],
+    result = vslam("run", *VO, timed_folder["folder"], "--calib", timed_folder["calib"], "--gt", timed_folder["kitti"],
                    "--frames", "0:10", "--detail", "off")
     assert result.returncode == 0, result.stderr
     assert "ground truth row by row" in result.stdout

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from cli_helpers import vslam
+from cli_helpers import VO, vslam
 from kitti_runs import link_images
 
 from vslam.rrd.read import read_entity
@@ -50,7 +50,7 @@ def _results(source: FrameSource, scale: str) -> list[FrameResult]:
     def keep(_frame: Frame, result: FrameResult) -> None:
         results.append(result)
 
-    run_odometry(source, EngineConfig().with_scale(scale), (keep,))  # type: ignore[arg-type]
+    run_odometry(source, EngineConfig(backend="vo").with_scale(scale), (keep,))  # type: ignore[arg-type]
     return results
 
 
@@ -162,13 +162,13 @@ def renumbered(kitti_root: Path, tmp_path: Path) -> Path:
 
 def test_a_longer_ground_truth_without_times_is_refused(renumbered: Path, kitti_root: Path, tmp_path: Path) -> None:
     gt = kitti_root / "poses" / "05.txt"
-    refused = vslam("run", renumbered, "--gt", gt, "--detail", "off")
+    refused = vslam("run", *VO, renumbered, "--gt", gt, "--detail", "off")
     assert refused.returncode == 2 and refused.stdout == ""
     [line] = refused.stderr.strip().splitlines()
     assert "2761 poses for 60 frames and nothing pairs them by time" in line and "--gt-rows A:B" in line
     assert "--frames" in line
     trajectory = tmp_path / "run.txt"
-    paired = vslam("run", renumbered, "--gt", gt, "--gt-rows", "100:160", "--detail", "off", "--trajectory-out",
+    paired = vslam("run", *VO, renumbered, "--gt", gt, "--gt-rows", "100:160", "--detail", "off", "--trajectory-out",
                    trajectory)
     assert paired.returncode == 0, paired.stderr
     assert "ground truth row by row from row 100 (--gt-rows 100:160" in paired.stdout
@@ -188,15 +188,15 @@ def test_a_longer_ground_truth_without_times_is_refused(renumbered: Path, kitti_
 ])
 def test_pairing_options_that_cannot_apply_are_refused(renumbered: Path, kitti_root: Path, args: tuple[str, ...],
                                                        message: str) -> None:
-    result = vslam("run", renumbered, "--gt", kitti_root / "poses" / "05.txt", *args, "--detail", "off")
+    result = vslam("run", *VO, renumbered, "--gt", kitti_root / "poses" / "05.txt", *args, "--detail", "off")
     assert result.returncode == 2 and message in result.stderr and len(result.stderr.strip().splitlines()) == 1
 
 
 def test_kitti_and_time_matched_sources_refuse_what_does_not_apply(kitti_root: Path, tum_xyz: Path) -> None:
-    kitti = vslam("run", kitti_root, "--sequence", "05", "--frames", "0:5", "--gt-time-offset", "0.1",
+    kitti = vslam("run", *VO, kitti_root, "--sequence", "05", "--frames", "0:5", "--gt-time-offset", "0.1",
                   "--detail", "off")
     assert kitti.returncode == 2 and "--gt-time-offset does not apply here" in kitti.stderr
-    tum = vslam("run", tum_xyz, "--gt", tum_xyz / "groundtruth.txt", "--gt-rows", "0:200", "--detail", "off")
+    tum = vslam("run", *VO, tum_xyz, "--gt", tum_xyz / "groundtruth.txt", "--gt-rows", "0:200", "--detail", "off")
     assert tum.returncode == 2 and "--gt-rows does not apply here" in tum.stderr
 
 
@@ -206,7 +206,7 @@ def _run(tum_xyz: Path, tmp_path: Path, gt: Path, *extra: str) -> tuple[str, str
     of `tum_run`: the check's figures on 0:120 are tested above, here what the CLI says and records (60 frames: two
     windows, the wrong order and the 0.1 s shift found as on 120; ~7 CPU-s less over the three runs)."""
     rrd = tmp_path / f"{gt.stem}{len(extra)}.rrd"
-    result = vslam("run", tum_xyz, "--gt", gt, "--frames", "0:60", "--detail", "summary", "-o", rrd, *extra)
+    result = vslam("run", *VO, tum_xyz, "--gt", gt, "--frames", "0:60", "--detail", "summary", "-o", rrd, *extra)
     assert result.returncode == 0, result.stderr
     report = vslam("inspect", rrd, "--json")
     assert report.returncode == 0, report.stderr

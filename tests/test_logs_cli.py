@@ -12,6 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from cli_helpers import VO
 from kitti_runs import MapRun
 from ros_logs import LOGS, LensLog, LogWriter, camera_info_yaml, kitti_clip, make_reimager, write_lens_log
 from test_cli_inputs import assert_one_line_error, vslam
@@ -44,16 +45,16 @@ def logs(kitti_root: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[str
 
 
 def errors(source: FrameSource) -> tuple[float, float]:
-    """KITTI t_err (%) and r_err (°/100 m) of the default engine on `source` (scale from ground truth)."""
+    """KITTI t_err (%) and r_err (°/100 m) of `vo` on `source` (scale from ground truth)."""
     result = RunResult([], [], [])
-    run_odometry(source, EngineConfig(), (), result)
+    run_odometry(source, EngineConfig(backend="vo"), (), result)
     assert source.ground_truth is not None
     return kitti_errors(source.ground_truth, result.pose_array())
 
 
 @pytest.fixture(scope="module")
 def log_errors(logs: dict[str, LensLog]) -> Callable[[str], tuple[float, float]]:
-    """`errors` of the default engine on a log of `logs` (read with its lens), each log run once per module."""
+    """`errors` of `vo` on a log of `logs` (read with its lens), each log run once per module."""
     runs: dict[str, tuple[float, float]] = {}
 
     def of(name: str) -> tuple[float, float]:
@@ -96,7 +97,7 @@ def test_ignoring_the_lens_is_clearly_worse(logs: dict[str, LensLog],
 def test_run_records_the_raw_frame_the_lens_and_the_log(logs: dict[str, LensLog], tmp_path: Path) -> None:
     log = logs["mcap-plumb_bob"]
     rrd = tmp_path / "log.rrd"
-    result = vslam("run", log.path, "--gt", log.gt_path, "--frames", "0:30", "--detail", "full", "-o", rrd)
+    result = vslam("run", *VO, log.path, "--gt", log.gt_path, "--frames", "0:30", "--detail", "full", "-o", rrd)
     assert result.returncode == 0, result.stderr
     run = read_properties(rrd, f"{PROPERTIES}/run")
     assert run["calibration_model"] == "plumb_bob"
@@ -127,7 +128,7 @@ def test_run_records_the_raw_frame_the_lens_and_the_log(logs: dict[str, LensLog]
 def test_eval_scores_a_log_against_tum_ground_truth(logs: dict[str, LensLog],
                                                    log_errors: Callable[[str], tuple[float, float]]) -> None:
     log = logs["ros1-equidistant"]
-    result = vslam("eval", log.path, "--gt", log.gt_path, "--json")
+    result = vslam("eval", *VO, log.path, "--gt", log.gt_path, "--json")
     assert result.returncode == 0, result.stderr
     (row,) = json.loads(result.stdout)["sequences"]
     t_err, r_err = log_errors("ros1-equidistant")
@@ -248,9 +249,9 @@ def test_calib_yaml_gives_an_image_folder_its_lens(logs: dict[str, LensLog], tmp
     kitti_gt = tmp_path / "gt.txt"
     shutil.copy(log.gt_path, kitti_gt)
     trajectory_folder, trajectory_log = tmp_path / "folder.txt", tmp_path / "log.txt"
-    first = vslam("run", folder, "--calib", calib, "--detail", "off", "--scale", "none", "--trajectory-out",
+    first = vslam("run", *VO, folder, "--calib", calib, "--detail", "off", "--scale", "none", "--trajectory-out",
                   trajectory_folder)
-    second = vslam("run", log.path, "--frames", "0:30", "--detail", "off", "--scale", "none", "--trajectory-out",
+    second = vslam("run", *VO, log.path, "--frames", "0:30", "--detail", "off", "--scale", "none", "--trajectory-out",
                    trajectory_log)
     assert first.returncode == 0 and second.returncode == 0, first.stderr + second.stderr
     # lossless frames, the same lens: the same trajectory (deterministic engine)

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_helpers import need_vulkan, vslam
+from cli_helpers import VO, need_vulkan, vslam
 
 from vslam.common import RecordingError, outputs
 from vslam.common.outputs import OutputError, claim, default_recording
@@ -404,7 +404,7 @@ def _limit_file_size() -> None:
 def test_file_size_limit_stops_the_run_in_one_line(kitti_root: Path, tmp_path: Path) -> None:
     """The same path without root: `ulimit -f` makes Rerun's writer fail (EFBIG rather than ENOSPC)."""
     rrd = tmp_path / "x.rrd"
-    result = vslam("run", kitti_root, "--sequence", "00", "-o", rrd, preexec_fn=_limit_file_size)
+    result = vslam("run", *VO, kitti_root, "--sequence", "00", "-o", rrd, preexec_fn=_limit_file_size)
     assert result.returncode == 2, result.stderr
     line = one_error_line(result.stderr)
     assert line.startswith(f"error: {rrd}: file size limit reached (ulimit -f); the run stopped at frame "), line

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_helpers import vslam
+from cli_helpers import VO, vslam
 
 from vslam.evaluation import evaluate as evaluation
 from vslam.rrd.read import read_entity
@@ -25,7 +25,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def unit_run(kitti_root: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, str, np.ndarray]:
     out = tmp_path_factory.mktemp("none")
     rrd, trajectory = out / "none.rrd", out / "none.txt"
-    result = vslam("run", kitti_root, "--sequence", "00", "--frames", "0:150", "--scale", "none", "--detail",
+    result = vslam("run", *VO, kitti_root, "--sequence", "00", "--frames", "0:150", "--scale", "none", "--detail",
                    "summary", "-o", rrd, "--trajectory-out", trajectory)
     assert result.returncode == 0, result.stderr
     gt = rebase_poses(read_kitti_poses(kitti_root / "poses" / "00.txt", max_rows=150))

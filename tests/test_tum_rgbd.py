@@ -8,7 +8,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from cli_helpers import vslam
+from cli_helpers import VO, vslam
 
 from vslam_core.errors import SourceError
 from vslam_core.sources.base import FrameRange, rebase_poses
@@ -143,8 +143,8 @@ def test_refusals_are_one_line(tmp_path: Path, kitti_root: Path) -> None:
 def test_cli_run_on_a_tum_rgbd_folder(tmp_path: Path, kitti_root: Path) -> None:
     root = make_tum_rgbd(tmp_path / "walk", kitti_root)
     trajectory = tmp_path / "walk.txt"
-    result = vslam("run", root, "--calib", kitti_calib(kitti_root), "-o", tmp_path / "walk.rrd", "--trajectory-out",
-                   trajectory)
+    result = vslam("run", *VO, root, "--calib", kitti_calib(kitti_root), "-o", tmp_path / "walk.rrd",
+                   "--trajectory-out", trajectory)
     assert result.returncode == 0, result.stderr
     assert "matched by time, interpolated (translation linear, rotation slerp)" in result.stdout
     assert "60 of 60 frames" in result.stdout

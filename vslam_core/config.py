@@ -336,7 +336,7 @@ class EngineConfig:
     """Everything that decides the trajectory. Same config + same input = same trajectory."""
 
     scale: ScaleSource = "gt"
-    backend: Backend = "vo"  # vo: frame-to-keyframe odometry; map: keyframes, landmarks, PnP, windowed BA
+    backend: Backend = "map"  # vo: frame-to-keyframe odometry; map: keyframes, landmarks, PnP, windowed BA
     threads: int = 2  # CPU threads: ≥ 2 decodes the next frame in the background and lets OpenCV use
     # that many; results are identical for any value (tested)
     detector: DetectorConfig = field(default_factory=DetectorConfig)

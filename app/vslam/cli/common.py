@@ -66,7 +66,7 @@ class Backend(StrEnum):
 
 
 BACKEND_HELP = ("vo = frame-to-keyframe odometry; map = keyframes and landmarks, tracking against the map, windowed "
-                "bundle adjustment, relocalisation [default: the config's backend, vo unless --config says otherwise]")
+                "bundle adjustment, relocalisation [default: the config's backend, map unless --config says otherwise]")
 CAMERA_HEIGHT_HELP = ("metres from the camera to the road, for --scale height [default: the source's own: KITTI "
                       "1.65 m, the synthetic street's]")
 
