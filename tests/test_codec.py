@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_helpers import need_vulkan, vslam
+from cli_helpers import VO, need_vulkan, vslam
 from PIL import Image
 from rerun.chunk import RrdReader
 
@@ -26,7 +26,7 @@ CROP = (25, 35)  # starts mid-GOP: key frames at 0, 20
 
 
 def _run(path: Path, codec: str, frames: int = FRAMES) -> Path:
-    done = vslam("run", "--frames", f"0:{frames}", "--image-codec", codec, "-o", path, env={"RERUN_STRICT": "1"})
+    done = vslam("run", *VO, "--frames", f"0:{frames}", "--image-codec", codec, "-o", path, env={"RERUN_STRICT": "1"})
     assert done.returncode == 0, done.stderr
     return path
 

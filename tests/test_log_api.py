@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 import pytest
 from cli_helpers import vslam
+from rerun.chunk import RrdReader
 
 from vslam.log import CameraIntrinsics, FrameLog
 from vslam.rrd import read_entity, rerun_binary
@@ -112,6 +113,9 @@ def test_entities_hold_what_was_logged(logged: dict[str, object]) -> None:
     flow = read_entity(path, "/world/camera/image/flow")
     classes = np.concatenate([np.array(c) for c in flow["Arrows2D:class_ids"].to_list()])
     assert set(classes.tolist()) == {3, 5}  # RANSAC outlier, inlier
+    reader = RrdReader(path)
+    entities = reader.store(store=reader.recordings()[0]).schema().entity_paths()
+    assert not [e for e in entities if e.startswith(("/world/map", "/metrics/ba", "/loops"))]  # no map of its own
     corners = read_entity(path, "/metrics/custom/corners")
     assert corners["frame"].to_list() == list(FRAMES)
     position = read_entity(path, "/metrics/error/position_m")

@@ -299,7 +299,8 @@ class FrameLog:
                                  f"had {'some' if self._with_gt else 'none'})")
             return self._recorder
         self._with_gt, self._plots = with_gt, plots
-        config = EngineConfig().with_scale("gt" if self._scale == "metric" else "none")
+        # the odometry's layout: a pipeline of one's own has no map (the default engine's entities would be empty)
+        config = EngineConfig(backend="vo").with_scale("gt" if self._scale == "metric" else "none")
         source = _Source(self._source, self._camera, np.zeros((0, 4, 4)) if with_gt else None, {})
         self._recorder = Recorder(self.path, source, config, self._properties, self._detail, self._jpeg_quality,
                                   external=True, own_plots=plots)
