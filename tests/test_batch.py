@@ -48,7 +48,7 @@ def manifest(kitti_root: Path, tmp_path_factory: pytest.TempPathFactory) -> Path
         f"kitti-00-b,{kitti_root},00,20:40,,,vo\n"
         "broken,broken/images,,,broken/calib.txt,broken/gt.txt,vo\n"  # relative to the manifest
         f"kitti-05-a,{kitti_root},05,0:20,,,vo\n"
-        f"kitti-05-b,{kitti_root},05,20:40,,,vo\n"
+        f"kitti-05-b,{kitti_root},05,20:40,,,map\n"  # the default engine, in every way of running a batch
     )
     return path
 
