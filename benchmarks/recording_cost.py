@@ -90,7 +90,7 @@ def _measure(args: tuple[str, str, str, str, str, str, int, float, str]) -> dict
         "cpu_ms_per_frame": 1000 * cpu / run.frames,
         "record_ms_per_frame": sum(record_ms) / run.frames if record_ms else 0.0,
         # the rest of the run, the recording's closing flush included: without the first frames' one-off costs
-        # (Rerun's archetypes built on first use, ~0.3-0.5 s), as an hour's drive would see it
+        # (first use of each entity), as an hour's drive would see it
         "steady_ms_per_frame": 1000 * (end - third[0]) / (run.frames - len(source) // 3 - 1),
         "steady_cpu_ms_per_frame": 1000 * (end_cpu - third[1]) / (run.frames - len(source) // 3 - 1),
         "kb_per_frame": size / 1024 / run.frames,
