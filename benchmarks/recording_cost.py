@@ -12,8 +12,9 @@ Each (backend, level) runs in its own process, one after the other so they do no
 wall time per frame with decoding and the recording's closing flush; CPU time per frame of the process (all
 its threads: less sensitive to other work on the machine than wall time, but blind to work moved beside the
 engine); the same two over the last two thirds of the run only ("after 1/3": the per-frame cost without the
-first frames' set-up); the recorder's own time per frame on the calling thread; the file's KB per frame; peak RSS, and RSS
-after the first third and at the end of the run (flat memory = the recording does not accumulate in memory).
+first frames' set-up); the recorder's own time per frame on the calling thread; the file's KB per frame; peak
+RSS, and RSS after the first third and at the end of the run (flat memory = the recording does not accumulate in
+memory).
 Timings on a shared machine are noisy: the table keeps the fastest repeat of each (`added` compares fastest
 with fastest). `--pace HZ` feeds the frames no faster than HZ a second, as a live drive does: the file's size
 then is a live recording's (rows are written every 1.5 s, so KB per frame follow the frame rate); its times
