@@ -145,8 +145,8 @@ def run(
                                               "hand-held camera carried down the street, 30 Hz, 450 frames) or "
                                               "drive (lap after lap round two blocks at changing speeds, "
                                               "4541 frames)")] = None,
-    save_map: Annotated[Path | None, typer.Option(help="--backend map: save the map into this new folder after "
-                                                  "the run (Parquet tables + header.json)")] = None,
+    save_map: Annotated[Path | None, typer.Option(help="save the map (the default backend's) into this new folder "
+                                                  "after the run (Parquet tables + header.json)")] = None,
     prior_map: Annotated[Path | None, typer.Option("--map", help="localise each frame in this saved map (poses in "
                                                    "the map's frame; the map is not changed)")] = None,
     live: Annotated[Live | None, typer.Option(help="also show the run in a viewer while it goes on: native (a "
