@@ -31,7 +31,7 @@ def placed(stdout: str) -> tuple[dict[str, int], str]:
 
 
 @pytest.mark.kitti
-def test_run_with_the_map_backend(kitti_root: Path, tmp_path: Path) -> None:
+def test_run_with_the_map_backend_which_is_the_default(kitti_root: Path, tmp_path: Path) -> None:
     trajectory = tmp_path / "x.txt"
     result = vslam("run", kitti_root, "--sequence", "00", "--frames", "0:30", "--backend", "map", "--detail", "off",
                    "--trajectory-out", trajectory)
@@ -41,6 +41,12 @@ def test_run_with_the_map_backend(kitti_root: Path, tmp_path: Path) -> None:
     counts, line = placed(result.stdout)  # where each frame's pose came from
     assert sum(counts.values()) == 30 and counts["by PnP against the map"] >= 20, line
     assert "scale can drift" not in line  # ground-truth scale: two-view steps have their true length
+
+    default = tmp_path / "default.txt"  # no --backend, no --config: the default engine is the map
+    result = vslam("run", kitti_root, "--sequence", "00", "--frames", "0:30", "--detail", "off", "--trajectory-out",
+                   default)
+    assert result.returncode == 0, result.stderr
+    assert backend_line(result.stdout) == "backend map" and default.read_bytes() == trajectory.read_bytes()
 
 
 @pytest.mark.kitti
