@@ -81,6 +81,7 @@ def _measure(args: tuple[str, str, str, str, str, str, int, float, str]) -> dict
             recorder.close()
         end, end_cpu = time.perf_counter(), time.process_time()
         seconds, cpu = end - start, end_cpu - cpu
+        after_third = run.frames - len(source) // 3 - 1  # frames timed by the `third` clocks
         size = path.stat().st_size if path.exists() else 0
         if keep and path.exists():  # for `benchmarks.recording_entities`
             shutil.copyfile(path, Path(keep) / f"{backend}_{level}_{codec}.rrd")
@@ -93,8 +94,8 @@ def _measure(args: tuple[str, str, str, str, str, str, int, float, str]) -> dict
         "record_ms_per_frame": sum(record_ms) / run.frames if record_ms else 0.0,
         # the rest of the run, the recording's closing flush included: without the first frames' one-off costs
         # (first use of each entity), as an hour's drive would see it
-        "steady_ms_per_frame": 1000 * (end - third[0]) / (run.frames - len(source) // 3 - 1),
-        "steady_cpu_ms_per_frame": 1000 * (end_cpu - third[1]) / (run.frames - len(source) // 3 - 1),
+        "steady_ms_per_frame": 1000 * (end - third[0]) / after_third,
+        "steady_cpu_ms_per_frame": 1000 * (end_cpu - third[1]) / after_third,
         "kb_per_frame": size / 1024 / run.frames,
         "rss_third_mb": rss[0],
         "rss_end_mb": rss[-1],

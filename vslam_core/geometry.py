@@ -325,11 +325,11 @@ def relative_pose_covariance(
     psi = weights * residuals  # the Cauchy loss's ψ(r) = r / (1 + r²/c²) and its slope ψ'(r)
     slope = weights**2 * (1.0 - residuals**2 / robust_scale**2)
     mean_slope = float(np.mean(slope))
+    if mean_slope <= 0.0:  # mostly outliers: no estimate
+        return None
     try:
         inverse = np.linalg.inv(jacobian.T @ jacobian)
     except np.linalg.LinAlgError:
-        return None
-    if mean_slope <= 0.0:  # mostly outliers: no estimate
         return None
     dof = len(residuals) / max(len(residuals) - 5.0, 1.0)
     return np.asarray(dof * float(np.mean(psi**2)) / mean_slope**2 * inverse)
