@@ -112,18 +112,19 @@ def pytest_configure(config: pytest.Config) -> None:
         config.stash[_FRAME_CACHE_MADE] = os.environ[FRAME_CACHE]
 
 
-#: Test files by cost, most expensive first (seconds in a full run; refresh from `--durations=0` when they change).
+#: Test files by cost, the costliest `SAME_WORKER` group or file first, a group's files together (seconds in a full
+#: run; refresh from `--durations=0` when they change).
 #: Files are handed to the xdist workers whole in this order (`--no-loadscope-reorder`; xdist's own order is by
 #: number of tests): the longest jobs first, so the two workers finish together.
 SLOWEST_FILES = (
-    "test_mapping.py", "test_logs_cli.py", "test_scale.py", "test_engine.py", "test_outputs.py", "test_map_scale.py",
-    "test_batch.py", "test_batch_ray.py", "test_faults.py", "test_viewer.py", "test_compare.py", "test_cli.py",
-    "test_provenance.py", "test_types.py", "test_gt_check.py", "test_planted_bugs.py", "test_local_map.py",
-    "test_contract.py", "test_tum_real.py", "test_batch_workflow.py", "test_loop_recording.py",
-    "test_eval_external.py", "test_coasting.py", "test_map_storage.py", "test_eval.py", "test_live.py",
-    "test_synthetic.py", "test_recording_map.py", "test_example_orb_vo.py", "test_codec.py",
-    "test_keyframe_culling.py", "test_reversing.py", "test_overview.py", "test_rosbag_source.py", "test_tum_rgbd.py",
-    "test_recording.py", "test_scale_none.py", "test_cli_inputs.py", "test_backend_cli.py",
+    "test_logs_cli.py", "test_mapping.py", "test_scale.py", "test_engine.py", "test_outputs.py", "test_map_scale.py",
+    "test_batch.py", "test_batch_ray.py", "test_viewer.py", "test_faults.py", "test_cli.py", "test_provenance.py",
+    "test_compare.py", "test_gt_check.py", "test_planted_bugs.py", "test_tum_real.py", "test_contract.py",
+    "test_local_map.py", "test_types.py", "test_batch_workflow.py", "test_loop_recording.py", "test_eval_external.py",
+    "test_map_storage.py", "test_live.py", "test_rosbag_source.py", "test_keyframe_culling.py",
+    "test_example_orb_vo.py", "test_eval.py", "test_recording.py", "test_recording_map.py", "test_codec.py",
+    "test_coasting.py", "test_tum_rgbd.py", "test_backend_cli.py", "test_synthetic.py", "test_properties.py",
+    "test_two_view.py", "test_overview.py", "test_map_steps.py", "test_reversing.py",
 )
 
 
