@@ -44,7 +44,7 @@ def test_a_plain_sdk_recording_conforms_and_inspect_reads_it(tmp_path: Path) -> 
     path = sdk_recording(tmp_path / "sdk.rrd")
     result = vslam("check", path)
     assert result.returncode == 0, result.stdout + result.stderr
-    assert result.stdout.strip() == f"{path}: conforms to recording schema 1 (6 entities, {FRAMES} frames 0..11)"
+    assert result.stdout.strip() == f"{path}: conforms to recording schema 2 (6 entities, {FRAMES} frames 0..11)"
     report = json.loads(vslam("inspect", path, "--json").stdout)
     assert report["frames"]["count"] == FRAMES
     assert report["flagged"] == []  # status ok everywhere
@@ -58,9 +58,9 @@ def test_a_misnamed_camera_fails_naming_both(tmp_path: Path) -> None:
     lines = result.stdout.splitlines()
     assert f"{path}: /world/camera: missing (required: T_world_cam per frame (world = camera frame of the first " \
            "frame, RDF, metres)) (affects inspect, compare, crop, repair, snapshot, open)" in lines
-    assert any(line.startswith(f"{path}: /world/cam: not in recording schema 1: misnamed /world/camera?")
+    assert any(line.startswith(f"{path}: /world/cam: not in recording schema 2: misnamed /world/camera?")
                for line in lines)
-    assert lines[-1] == f"{path}: does not conform to recording schema 1: 2 problems"
+    assert lines[-1] == f"{path}: does not conform to recording schema 2: 2 problems"
 
 
 def test_missing_version_clashing_component_and_bad_health_are_named(tmp_path: Path) -> None:
@@ -74,7 +74,7 @@ def test_missing_version_clashing_component_and_bad_health_are_named(tmp_path: P
     assert "/world/trajectory/gt_links: malformed: no frame_index" in text
     assert "/health:status: 'broken' is not a health level (ok, warn, fail) (affects inspect, compare)" in text
     newer = sdk_recording(tmp_path / "newer.rrd", schema_version="7")
-    assert "schema_version: 7: newer than this vslam knows (1)" in vslam("check", newer).stdout
+    assert "schema_version: 7: newer than this vslam knows (2)" in vslam("check", newer).stdout
 
 
 @pytest.mark.kitti

@@ -86,7 +86,7 @@ def test_inspect_reads_health_tracks_and_drift(logged: dict[str, object]) -> Non
     assert result.returncode == 0, result.stderr
     report = json.loads(result.stdout)
     assert report["frames"] == {"count": 30, "first": 100, "last": 129}
-    assert report["properties"]["pipeline"] == "test-vo" and report["properties"]["schema_version"] == "1"
+    assert report["properties"]["pipeline"] == "test-vo" and report["properties"]["schema_version"] == "2"
     assert report["properties"]["frames"] == "100:130" and report["recording_name"] == "test-vo kitti-05 frames 100:130"
     assert report["flagged"] == [{"start": KINK_FRAME, "end": KINK_FRAME, "status": "warn", "reasons": ["sharp_turn"]}]
     assert report["config"] == {}  # not run by vslam's engine: no engine config is claimed
@@ -131,7 +131,7 @@ def test_check_crop_and_compare_work_on_it(logged: dict[str, object], tmp_path: 
     assert isinstance(path, Path)
     check = vslam("check", path)
     assert check.returncode == 0, check.stdout + check.stderr
-    assert "conforms to recording schema 1" in check.stdout
+    assert "conforms to recording schema 2" in check.stdout
     cropped = tmp_path / "cropped.rrd"
     result = vslam("crop", path, "--frames", "110:120", "-o", cropped)
     assert result.returncode == 0, result.stderr

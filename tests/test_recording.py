@@ -12,10 +12,12 @@ import numpy as np
 import pytest
 import rerun as rr
 
+from vslam.common import config_columns, config_from_columns, flatten
 from vslam.recording import STAGES, Detail, Recorder
 from vslam.recording import recorder as recorder_module
 from vslam.recording.columns import NO_IMAGE, ColumnBuffer
 from vslam.rrd.inspect import flagged_ranges, inspect_recording
+from vslam.rrd.provenance import read_properties
 from vslam.rrd.read import RecordingError, read_entity, read_events
 from vslam_core.config import EngineConfig
 from vslam_core.pipeline import run_odometry
@@ -109,8 +111,12 @@ def test_recording_carries_properties_static_conventions_and_blueprint(full: tup
     path, _ = full
     run = read_entity(path, "/__properties/run", static=True)
     assert run["name"][0].to_list() == ["test run"] and run["detail"][0].to_list() == ["full"]
+    # the whole config in two components (schema 2: a component per key cost every chunk a cell of Rerun's index)
     config = read_entity(path, "/__properties/config", static=True)
-    assert config["pose.ransac_threshold_px"][0].to_list() == [EngineConfig().pose.ransac_threshold_px]
+    assert {c for c in config.columns if not c.startswith("rerun.")} == {"key", "value"}
+    stored = config_from_columns(read_properties(path, "/__properties/config"))
+    assert stored == flatten(EngineConfig(backend="vo").to_dict())  # every key, with its type (JSON)
+    assert stored["pose.ransac_threshold_px"] == EngineConfig().pose.ransac_threshold_px
     name = read_entity(path, "/__properties", static=True)
     assert name["RecordingInfo:name"][0].to_list() == ["test run"]
     pinhole = read_entity(path, "/world/camera/image", static=True)
@@ -280,3 +286,13 @@ def test_a_send_that_fails_in_the_background_stops_the_next_flush() -> None:
     with pytest.raises(RuntimeError, match="disk full"):
         columns.flush()
     columns.close()
+
+
+def test_the_config_is_stored_as_keys_and_json_values_and_read_back_from_either_schema() -> None:
+    """Schema 2 stores the engine config as two components (`config_columns`); a schema-1 row (a component per
+    key) is read as it is."""
+    config = EngineConfig().with_scale("height").to_dict()
+    columns = config_columns(config)
+    assert set(columns) == {"key", "value"} and len(columns["key"]) == len(flatten(config)) > 100
+    assert config_from_columns(columns) == flatten(config)
+    assert config_from_columns({"scale": "height", "pose.seed": 0}) == {"scale": "height", "pose.seed": 0}

@@ -25,6 +25,8 @@ _HOMES = {
     "TrajectoryImages": "trajectory_images",
     "claim": "outputs",
     "claimed": "outputs",
+    "config_columns": "rrd_file",
+    "config_from_columns": "rrd_file",
     "default_recording": "outputs",
     "ensure_folder": "outputs",
     "first_line": "rrd_file",
@@ -71,6 +73,8 @@ if TYPE_CHECKING:
     )
     from vslam.common.rrd_file import (
         RecordingError,
+        config_columns,
+        config_from_columns,
         first_line,
         flatten,
         has_footer,
@@ -96,6 +100,8 @@ __all__ = [
     "TrajectoryImages",
     "claim",
     "claimed",
+    "config_columns",
+    "config_from_columns",
     "default_recording",
     "ensure_folder",
     "first_line",

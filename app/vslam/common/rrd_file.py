@@ -1,9 +1,10 @@
-"""What writing and reading a `.rrd` both need: its error, whether a file is finalised, and how run
-properties are flattened. Beneath `recording` (writing) and `rrd` (reading), so that neither imports the other
-for these."""
+"""What writing and reading a `.rrd` both need: its error, whether a file is finalised, how run properties are
+flattened and how the engine config is stored. Beneath `recording` (writing) and `rrd` (reading), so that neither
+imports the other for these."""
 
 from __future__ import annotations
 
+import json
 import warnings
 from pathlib import Path
 from typing import Any
@@ -47,3 +48,25 @@ def flatten(data: dict[str, Any], prefix: str = "") -> dict[str, Any]:
         else:
             flat[f"{prefix}{key}"] = value
     return flat
+
+
+#: The engine config in a recording (``/__properties/config``): two components, the flattened keys and their
+#: values as JSON, rather than one component per key. Rerun's file writer keeps, until the file is closed, a
+#: row per chunk with a cell per component the recording has ever used (~65 bytes each); the config's ~150 keys
+#: as components made that ~17 KB a chunk on the map's recordings, ~30 KB a frame (docs/long-drive.md).
+CONFIG_KEY, CONFIG_VALUE = "key", "value"
+
+
+def config_columns(config: dict[str, Any]) -> dict[str, list[str]]:
+    """The nested engine config (`EngineConfig.to_dict`) as the two components it is recorded as."""
+    flat = flatten(config)
+    return {CONFIG_KEY: list(flat), CONFIG_VALUE: [json.dumps(value) for value in flat.values()]}
+
+
+def config_from_columns(row: dict[str, Any]) -> dict[str, Any]:
+    """The flattened config back from a recorded row: {key: value}. A recording of schema 1 (a component per
+    key) is returned as it is."""
+    keys, values = row.get(CONFIG_KEY), row.get(CONFIG_VALUE)
+    if not isinstance(keys, list) or not isinstance(values, list) or len(row) != 2:
+        return row
+    return {str(key): json.loads(value) for key, value in zip(keys, values, strict=True)}

@@ -5,7 +5,9 @@ it; the `Recorder`, `record_external` and the logging API (`vslam.log`) write it
 properties (``schema_version``).
 
 Versions: 1 = the first documented schema (the drift trajectory's and ground-truth links' hover component is
-``frame_index``, never ``frame``: no component may share a timeline's name).
+``frame_index``, never ``frame``: no component may share a timeline's name); 2 = the engine config
+(``/__properties/config``) as two components, ``key`` and ``value`` (JSON), instead of one per key
+(`vslam.common.config_columns`; readers take both).
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 #: The schema these recordings follow (run property ``schema_version``).
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 
 #: The timelines: ``frame`` (the source's frame index, a sequence) is required, ``time`` (seconds: a duration
 #: since the start, or a date and time for Unix stamps) optional.

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from vslam.common import COLUMNS
+from vslam.common import COLUMNS, config_from_columns
 from vslam.common import METRICS as REPORT_METRICS
 from vslam.recording import HEALTH_STATUSES, METRICS, STAGES
 from vslam.recording import WORST as DRIFT_TOP
@@ -294,7 +294,7 @@ def _run_report(path: Path, prefix: str = "") -> dict[str, Any]:
     timing = _scalars(path, "timing_ms", prefix)
     tracks, ransac = _scalars(path, "tracks", prefix), _scalars(path, "ransac", prefix)
     ratio = _scalars(path, "ratio", prefix)
-    config = read_properties(path, f"{PROPERTIES}{prefix}/config")
+    config = config_from_columns(read_properties(path, f"{PROPERTIES}{prefix}/config"))
     properties = read_properties(path, f"{PROPERTIES}{prefix}/run")
     entities = entity_paths(path)  # a pipeline's own series and stages are found by name (`vslam.log`)
     return {
