@@ -156,7 +156,7 @@ class Recorder:
         self._properties = {k: shown_path(v) if isinstance(v, str) else v for k, v in self._properties.items()}
         self._rec.send_property("run", rr.AnyValues(**self._properties))  # type: ignore[arg-type]
         if not external:
-            self._rec.send_property("config", rr.AnyValues(**config_columns(config.to_dict())))
+            self._rec.send_property("config", rr.AnyValues(**config_columns(config.to_dict())))  # type: ignore[arg-type]
         self._intrinsics = source.intrinsics
         self._gravity = frame_gravity(source)  # source frame index -> (3,) m/s² in the camera frame
         # a distorted lens at full detail: also the frame as the pinhole sees it (the 3-D view's geometry)
