@@ -16,7 +16,6 @@ import rerun as rr
 from cli_helpers import VO, need_vulkan, vslam, vslam_here
 from rerun.chunk import RrdReader
 
-from vslam.common import config_from_columns
 from vslam.compare.blueprint import DIFFERENCE_TITLES
 from vslam.compare.comparison import (
     LIGHTEN_B,
@@ -30,7 +29,7 @@ from vslam.compare.frames import DIFFERENCE_SERIES
 from vslam.recording import METRICS
 from vslam.rrd.crop import crop_recording
 from vslam.rrd.inspect import inspect_recording
-from vslam.rrd.provenance import read_properties
+from vslam.rrd.provenance import read_config
 from vslam.rrd.read import RecordingError, read_entity
 from vslam.viewer.headless import snapshot, view_file_name
 from vslam.viewer.processes import rerun_executable
@@ -136,7 +135,7 @@ def test_metrics_of_both_runs_with_labelled_legends(runs: tuple[Path, Path], com
 def test_properties_of_both_runs_and_the_comparison_name(compared: ComparisonResult) -> None:
     out = compared.output
     for prefix, tracks in (("a", 800), ("b", 400)):
-        config = config_from_columns(read_properties(out, f"/__properties/{prefix}/config"))
+        config = read_config(out, f"/{prefix}")
         assert config["detector.target_tracks"] == tracks
     for prefix in "ab":
         run = read_entity(out, f"/__properties/{prefix}/run", static=True).row(0, named=True)
@@ -403,7 +402,7 @@ def test_three_real_runs_in_one_valid_recording(kitti_runs: list[Path],
     compare = read_entity(output, "/__properties/compare", static=True).row(0, named=True)
     assert [compare[f"label_{p}"] for p in "abc"] == [[label] for label in labels]
     assert [compare[f"file_{p}"] for p in "abc"] == [[str(run.resolve())] for run in kitti_runs]
-    assert config_from_columns(read_properties(output, "/__properties/b/config"))["detector.target_tracks"] == 400
+    assert read_config(output, "/b")["detector.target_tracks"] == 400
 
     summary = read_entity(output, "/report", static=True)["TextDocument:text"].to_list()[0][0]
     assert all(f"| {label} | /{p} | {run.resolve()} |" in summary

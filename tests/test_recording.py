@@ -17,7 +17,7 @@ from vslam.recording import STAGES, Detail, Recorder
 from vslam.recording import recorder as recorder_module
 from vslam.recording.columns import NO_IMAGE, ColumnBuffer
 from vslam.rrd.inspect import flagged_ranges, inspect_recording
-from vslam.rrd.provenance import read_properties
+from vslam.rrd.provenance import read_config
 from vslam.rrd.read import RecordingError, read_entity, read_events
 from vslam_core.config import EngineConfig
 from vslam_core.pipeline import run_odometry
@@ -114,7 +114,7 @@ def test_recording_carries_properties_static_conventions_and_blueprint(full: tup
     # the whole config in two components (schema 2: a component per key cost every chunk a cell of Rerun's index)
     config = read_entity(path, "/__properties/config", static=True)
     assert {c for c in config.columns if not c.startswith("rerun.")} == {"key", "value"}
-    stored = config_from_columns(read_properties(path, "/__properties/config"))
+    stored = read_config(path)
     assert stored == flatten(EngineConfig(backend="vo").to_dict())  # every key, with its type (JSON)
     assert stored["pose.ransac_threshold_px"] == EngineConfig().pose.ransac_threshold_px
     name = read_entity(path, "/__properties", static=True)
@@ -296,3 +296,6 @@ def test_the_config_is_stored_as_keys_and_json_values_and_read_back_from_either_
     assert set(columns) == {"key", "value"} and len(columns["key"]) == len(flatten(config)) > 100
     assert config_from_columns(columns) == flatten(config)
     assert config_from_columns({"scale": "height", "pose.seed": 0}) == {"scale": "height", "pose.seed": 0}
+    # another writer's row: not JSON, or keys and values that do not pair up, read without a traceback
+    assert config_from_columns({"key": ["a", "b"], "value": ["not json", "1"]}) == {"a": "not json", "b": 1}
+    assert config_from_columns({"key": ["a", "b"], "value": ["1"]}) == {"key": ["a", "b"], "value": ["1"]}

@@ -10,10 +10,9 @@ import pytest
 from cli_helpers import vslam
 from kitti_runs import link_images
 
-from vslam.common import config_from_columns
 from vslam.rrd.health import read_health
 from vslam.rrd.inspect import inspect_recording
-from vslam.rrd.provenance import read_properties
+from vslam.rrd.provenance import read_config
 from vslam.rrd.read import read_entity
 from vslam_core.config import EngineConfig, HeightScaleConfig
 from vslam_core.errors import ConfigError
@@ -208,7 +207,7 @@ def test_cli_records_the_road_plane_and_reports_the_scale_source(kitti_root: Pat
         assert len(read_entity(rrd, entity)) == 60, entity
     points = read_entity(rrd, "/world/road/points")["Points3D:positions"].to_list()
     assert np.median([len(p) for p in points]) >= CONFIG.min_road_points
-    assert config_from_columns(read_properties(rrd, "/__properties/config"))["scale"] == "height"
+    assert read_config(rrd)["scale"] == "height"
 
     evaluated = vslam("eval", kitti_root, "--sequences", "05", "--frames", "0:60", "--scale", "height",
                       "--camera-height", "1.65", "--json")

@@ -65,8 +65,16 @@ def config_columns(config: dict[str, Any]) -> dict[str, list[str]]:
 
 def config_from_columns(row: dict[str, Any]) -> dict[str, Any]:
     """The flattened config back from a recorded row: {key: value}. A recording of schema 1 (a component per
-    key) is returned as it is."""
+    key), or a row whose keys and values do not pair up, is returned as it is; a value that is not JSON (another
+    writer's) stays its text."""
     keys, values = row.get(CONFIG_KEY), row.get(CONFIG_VALUE)
-    if not isinstance(keys, list) or not isinstance(values, list) or len(row) != 2:
+    if not isinstance(keys, list) or not isinstance(values, list) or len(keys) != len(values) or len(row) != 2:
         return row
-    return {str(key): json.loads(value) for key, value in zip(keys, values, strict=True)}
+    return {str(key): _json_or_text(value) for key, value in zip(keys, values, strict=True)}
+
+
+def _json_or_text(value: Any) -> Any:
+    try:
+        return json.loads(value)
+    except (TypeError, ValueError):
+        return value

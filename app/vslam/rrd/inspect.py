@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from vslam.common import COLUMNS, config_from_columns
+from vslam.common import COLUMNS
 from vslam.common import METRICS as REPORT_METRICS
 from vslam.recording import HEALTH_STATUSES, METRICS, STAGES
 from vslam.recording import WORST as DRIFT_TOP
@@ -24,6 +24,7 @@ from vslam.rrd.provenance import (
     config_lines,
     latest_static_row,
     non_default,
+    read_config,
     read_properties,
 )
 from vslam.rrd.read import RecordingError, no_frames, read_entity, readable
@@ -294,7 +295,7 @@ def _run_report(path: Path, prefix: str = "") -> dict[str, Any]:
     timing = _scalars(path, "timing_ms", prefix)
     tracks, ransac = _scalars(path, "tracks", prefix), _scalars(path, "ransac", prefix)
     ratio = _scalars(path, "ratio", prefix)
-    config = config_from_columns(read_properties(path, f"{PROPERTIES}{prefix}/config"))
+    config = read_config(path, prefix)
     properties = read_properties(path, f"{PROPERTIES}{prefix}/run")
     entities = entity_paths(path)  # a pipeline's own series and stages are found by name (`vslam.log`)
     return {

@@ -15,7 +15,7 @@ import rerun as rr
 import rerun.archetypes as rra
 from rerun.chunk import Chunk
 
-from vslam.common import flatten
+from vslam.common import config_from_columns, flatten
 from vslam.rrd.read import read_entity
 from vslam_core.config import EngineConfig
 from vslam_core.sources.base import describe_indices
@@ -89,6 +89,12 @@ def read_properties(path: Path, entity: str) -> dict[str, Any]:
         k: (v[0] if isinstance(v, list) and len(v) == 1 else v)
         for k, v in row.items() if not k.startswith("rerun.") and v is not None
     }
+
+
+def read_config(path: Path, prefix: str = "") -> dict[str, Any]:
+    """The engine config a run of `path` was made with (``/__properties[/<prefix>]/config``), flattened
+    (``pose.seed`` …), from either recording schema; {} when absent (another system's run)."""
+    return config_from_columns(read_properties(path, f"{PROPERTIES}{prefix}/config"))
 
 
 def latest_static_row(path: Path, entity: str) -> dict[str, Any]:
