@@ -124,3 +124,19 @@ def test_eval_report_recordings_take_the_codec(tmp_path: Path) -> None:
     frames, blobs, keys = samples(recording)
     assert frames == list(range(25)) and keys == [i % GOP_FRAMES == 0 for i in range(25)]
     assert blobs[0].startswith(b"\0\0\0\1")  # Annex B: H.264, not AV1's OBUs
+
+
+def test_the_half_size_resize_runs_in_bands_and_equals_opencvs_bit_for_bit(kitti_root: Path, tum_root: Path) -> None:
+    """`resize_area` keeps OpenCV's thread pool out of the recording (its threads spin on the engine's cores):
+    bands of a whole-factor shrink average the same source rows as one `cv2.resize`; other sizes are one call."""
+    import cv2
+
+    from vslam.recording.video import INLINE_RESIZE_PIXELS, resize_area
+
+    grey = cv2.imread(str(kitti_root / "sequences" / "05" / "image_0" / "000010.png"), cv2.IMREAD_UNCHANGED)
+    colour = cv2.imread(str(sorted((tum_root / "rgbd_dataset_freiburg1_desk" / "rgb").glob("*.png"))[0]))
+    cases = [(grey, (613, 185)), (colour, (320, 240)), (grey[:369], (613, 185)), (colour, (427, 320))]
+    for image, size in cases:
+        assert size[0] * size[1] > INLINE_RESIZE_PIXELS  # one call would go to the pool
+        expected = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+        np.testing.assert_array_equal(resize_area(image, size), expected)

@@ -15,7 +15,6 @@ import rerun as rr
 
 from vslam.common import (
     OutputError,
-    RecordingError,
     config_columns,
     has_footer,
     markdown_table,
@@ -26,7 +25,7 @@ from vslam.recording.columns import FLUSH_FRAMES, FLUSH_SECONDS, NO_IMAGE, Colum
 from vslam.recording.drift import DriftRecording, FrameTrail
 from vslam.recording.front_end import log_candidates, log_events, log_road, log_tracks
 from vslam.recording.layout import UNDISTORTED, blueprint
-from vslam.recording.levels import DEFAULT_DETAIL, IMAGE_SCALE, Detail, ImageCodec, default_jpeg_quality, scaled_size
+from vslam.recording.levels import DEFAULT_DETAIL, IMAGE_SCALE, Detail, ImageCodec, default_jpeg_quality
 from vslam.recording.map_backend import MapRecording
 from vslam.recording.metrics import (
     METRICS,
@@ -57,6 +56,7 @@ from vslam.recording.styles import (
     ROAD_COLOUR,
     overlay_legend,
 )
+from vslam.recording.video import encode_jpeg
 from vslam_core.config import EngineConfig
 from vslam_core.lens import undistortion_maps
 from vslam_core.pipeline import RunResult
@@ -446,19 +446,11 @@ class Recorder:
             if self._videos:
                 self._videos[entity].add(frame, image)
                 continue
-            jpeg: bytes | Future[bytes] = (self._encoder.submit(self._encode, image) if self._encoder is not None
-                                           else self._encode(image))
+            encoding = (image, self._image_scale, self._jpeg_quality)
+            jpeg: bytes | Future[bytes] = (self._encoder.submit(encode_jpeg, *encoding) if self._encoder is not None
+                                           else encode_jpeg(*encoding))
             columns.add(entity, frame, (rr.EncodedImage.columns, {"blob": jpeg, "media_type": "image/jpeg"}))
         log_tracks(columns, frame, result, full=self.detail == Detail.FULL)
-
-    def _encode(self, image: np.ndarray) -> bytes:
-        if self._image_scale != 1.0:
-            image = cv2.resize(image, scaled_size(image.shape[1], image.shape[0], self._image_scale),
-                               interpolation=cv2.INTER_AREA)
-        ok, jpeg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, self._jpeg_quality])
-        if not ok:
-            raise RecordingError("JPEG encoding of a frame failed")
-        return bytes(jpeg.tobytes())
 
     def _log_trajectories(self, frame: Frame, result: FrameResult) -> None:
         """One segment per frame for the estimate and the ground truth (never the whole path again)."""

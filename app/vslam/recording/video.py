@@ -1,5 +1,5 @@
-"""`--image-codec`: the recorded camera frames as JPEG images or as a Rerun `VideoStream` (AV1 or H.264,
-encoded with PyAV).
+"""`--image-codec`: the recorded camera frames as JPEG images (`encode_jpeg`) or as a Rerun `VideoStream` (AV1
+or H.264, encoded with PyAV).
 
 A video stream is one static `VideoStream(codec=...)` and one `sample` per frame on the `frame` and `time`
 timelines. AV1 samples are in the low-overhead OBU format with a sequence header before every key frame,
@@ -17,12 +17,47 @@ from dataclasses import dataclass, field
 from fractions import Fraction
 from typing import Any
 
+import cv2
 import numpy as np
 import rerun as rr
 
 from vslam.common import RecordingError
-from vslam.recording.levels import ImageCodec
+from vslam.recording.levels import ImageCodec, scaled_size
 from vslam_core.sources.base import Frame
+
+#: OpenCV hands a resize of more output pixels than this to its thread pool, whose threads then spin on the
+#: engine's cores after each frame (~0.5 ms of CPU a frame beside `vo`, measured); a smaller one runs on the
+#: calling thread.
+INLINE_RESIZE_PIXELS = 1 << 16
+
+
+def encode_jpeg(image: np.ndarray, scale: float, quality: int) -> bytes:
+    """A camera frame, (H, W) or (H, W, 3) uint8, as JPEG at `quality`, at `scale` of its size (area-averaged)."""
+    if scale != 1.0:
+        image = resize_area(image, scaled_size(image.shape[1], image.shape[0], scale))
+    ok, jpeg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, quality])
+    if not ok:
+        raise RecordingError("JPEG encoding of a frame failed")
+    return bytes(jpeg.tobytes())
+
+
+def resize_area(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """`cv2.resize(image, size, interpolation=cv2.INTER_AREA)` bit for bit, on the calling thread: in bands of
+    fewer than `INLINE_RESIZE_PIXELS` output pixels when the height shrinks by a whole factor (each band's rows
+    then average the same source rows as in one call; checked on KITTI's and TUM's frames in
+    tests/test_recording.py), else in one call."""
+    width, height = size
+    factor, rest = divmod(image.shape[0], height)
+    rows = max(1, (INLINE_RESIZE_PIXELS - 1) // width)
+    if rest or rows >= height:
+        return cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+    resized = np.empty((height, width, *image.shape[2:]), image.dtype)
+    for top in range(0, height, rows):
+        bottom = min(height, top + rows)
+        resized[top:bottom] = cv2.resize(image[top * factor : bottom * factor], (width, bottom - top),
+                                         interpolation=cv2.INTER_AREA)
+    return resized
+
 
 #: Frames between key frames: 2 s at KITTI's 10 Hz.
 GOP_FRAMES = 20
