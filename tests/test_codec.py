@@ -6,13 +6,14 @@ from __future__ import annotations
 import subprocess
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from cli_helpers import VO, need_vulkan, vslam
 from PIL import Image
 from rerun.chunk import RrdReader
 
-from vslam.recording.video import GOP_FRAMES, ImageCodec
+from vslam.recording.video import GOP_FRAMES, INLINE_RESIZE_PIXELS, ImageCodec, resize_area
 from vslam.rrd.crop import crop_recording
 from vslam.rrd.crop_video import _decode
 from vslam.rrd.read import rerun_binary
@@ -126,17 +127,30 @@ def test_eval_report_recordings_take_the_codec(tmp_path: Path) -> None:
     assert blobs[0].startswith(b"\0\0\0\1")  # Annex B: H.264, not AV1's OBUs
 
 
-def test_the_half_size_resize_runs_in_bands_and_equals_opencvs_bit_for_bit(kitti_root: Path, tum_root: Path) -> None:
+def test_the_half_size_resize_runs_in_bands_and_equals_opencvs_bit_for_bit(kitti_root: Path, tum_root: Path,
+                                                                           monkeypatch: pytest.MonkeyPatch) -> None:
     """`resize_area` keeps OpenCV's thread pool out of the recording (its threads spin on the engine's cores):
     bands of a whole-factor shrink average the same source rows as one `cv2.resize`; other sizes are one call."""
-    import cv2
+    def grey(sequence: str) -> np.ndarray:
+        return cv2.imread(str(kitti_root / "sequences" / sequence / "image_0" / "000010.png"), cv2.IMREAD_UNCHANGED)
 
-    from vslam.recording.video import INLINE_RESIZE_PIXELS, resize_area
-
-    grey = cv2.imread(str(kitti_root / "sequences" / "05" / "image_0" / "000010.png"), cv2.IMREAD_UNCHANGED)
     colour = cv2.imread(str(sorted((tum_root / "rgbd_dataset_freiburg1_desk" / "rgb").glob("*.png"))[0]))
-    cases = [(grey, (613, 185)), (colour, (320, 240)), (grey[:369], (613, 185)), (colour, (427, 320))]
-    for image, size in cases:
+    # KITTI 05 halves exactly, 00 (1241 wide) by a width factor that is not whole, TUM in colour; then two
+    # shrinks whose height factor is not whole (one call)
+    cases = [(grey("05"), (613, 185)), (grey("00"), (620, 188)), (colour, (320, 240)),
+             (grey("05")[:369], (613, 185)), (colour, (427, 320))]
+    resize, outputs = cv2.resize, []
+
+    def spy(image: np.ndarray, size: tuple[int, int], **kwargs: object) -> np.ndarray:
+        outputs.append(size[0] * size[1])
+        return resize(image, size, **kwargs)
+
+    for index, (image, size) in enumerate(cases):
         assert size[0] * size[1] > INLINE_RESIZE_PIXELS  # one call would go to the pool
-        expected = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
-        np.testing.assert_array_equal(resize_area(image, size), expected)
+        expected = resize(image, size, interpolation=cv2.INTER_AREA)
+        outputs.clear()
+        with monkeypatch.context() as patch:
+            patch.setattr(cv2, "resize", spy)
+            np.testing.assert_array_equal(resize_area(image, size), expected)
+        whole_factor = index < 3
+        assert (max(outputs) < INLINE_RESIZE_PIXELS) == whole_factor and (len(outputs) > 1) == whole_factor

@@ -26,8 +26,7 @@ from vslam.recording.levels import ImageCodec, scaled_size
 from vslam_core.sources.base import Frame
 
 #: OpenCV hands a resize of more output pixels than this to its thread pool, whose threads then spin on the
-#: engine's cores after each frame (~0.5 ms of CPU a frame beside `vo`, measured); a smaller one runs on the
-#: calling thread.
+#: engine's cores (~0.6 ms of CPU a KITTI frame, docs/recordings.md); a smaller one runs on the calling thread.
 INLINE_RESIZE_PIXELS = 1 << 16
 
 
@@ -45,7 +44,7 @@ def resize_area(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     """`cv2.resize(image, size, interpolation=cv2.INTER_AREA)` bit for bit, on the calling thread: in bands of
     fewer than `INLINE_RESIZE_PIXELS` output pixels when the height shrinks by a whole factor (each band's rows
     then average the same source rows as in one call; checked on KITTI's and TUM's frames in
-    tests/test_recording.py), else in one call."""
+    tests/test_codec.py), else in one call."""
     width, height = size
     factor, rest = divmod(image.shape[0], height)
     rows = max(1, (INLINE_RESIZE_PIXELS - 1) // width)
