@@ -12,9 +12,11 @@ Each (backend, level) runs in its own process, one after the other so they do no
 wall time per frame with decoding and the recording's closing flush; CPU time per frame of the process (all
 its threads: less sensitive to other work on the machine than wall time, but blind to work moved beside the
 engine); the same two over the last two thirds of the run only ("after 1/3": the per-frame cost without the
-first frames' set-up); the recorder's own time per frame on the calling thread; the file's KB per frame; peak
-RSS, and RSS after the first third and at the end of the run (flat memory = the recording does not accumulate in
-memory).
+first frames' set-up); the recorder's own time per frame on the calling thread; the time per frame the tracking
+thread spends waiting rather than computing (wall time less its own CPU time, the median of the repeats; a
+recording adds to it what it holds the tracking thread back by: the GIL, the cores; docs/recordings.md); the
+file's KB per frame; peak RSS, and RSS after the first third and at the end of the run (flat memory = the
+recording does not accumulate in memory).
 Timings on a shared machine are noisy: the table keeps the fastest repeat of each (`added` compares fastest
 with fastest). `--pace HZ` feeds the frames no faster than HZ a second, as a live drive does: the file's size
 then is a live recording's (rows are written every 1.5 s, so KB per frame follow the frame rate); its times
@@ -74,9 +76,11 @@ def _measure(args: tuple[str, str, str, str, str, str, int, float, str]) -> dict
             if pace and (wait := begun[0] + (result.position + 1) / pace - time.perf_counter()) > 0:
                 time.sleep(wait)  # not before this frame's time of a live camera at `pace` Hz
 
-        start, cpu = time.perf_counter(), time.process_time()
+        start, cpu, tracking_cpu = time.perf_counter(), time.process_time(), time.thread_time()
         begun[0] = start
         run: RunResult = run_odometry(source, config, sinks=(sink,))
+        # the tracking thread's time not spent computing: waiting for the GIL, its OpenCV pool, the map's jobs
+        tracking_wait = time.perf_counter() - start - (time.thread_time() - tracking_cpu)
         if recorder is not None:
             recorder.close()
         end, end_cpu = time.perf_counter(), time.process_time()
@@ -92,6 +96,7 @@ def _measure(args: tuple[str, str, str, str, str, str, int, float, str]) -> dict
         "ms_per_frame": 1000 * seconds / run.frames,
         "cpu_ms_per_frame": 1000 * cpu / run.frames,
         "record_ms_per_frame": sum(record_ms) / run.frames if record_ms else 0.0,
+        "wait_ms_per_frame": 1000 * tracking_wait / run.frames,
         # the rest of the run, the recording's closing flush included: without the first frames' one-off costs
         # (first use of each entity), as an hour's drive would see it
         "steady_ms_per_frame": 1000 * (end - third[0]) / after_third,
@@ -135,7 +140,7 @@ def main() -> None:
     table = every.group_by("backend", "detail", maintain_order=True).agg(
         pl.col("ms_per_frame").min(), pl.col("ms_per_frame").max().alias("ms_max"), pl.col("cpu_ms_per_frame").min(),
         pl.col("record_ms_per_frame").min(), pl.col("kb_per_frame").mean(), pl.col("steady_ms_per_frame").min(),
-        pl.col("steady_cpu_ms_per_frame").min(),
+        pl.col("steady_cpu_ms_per_frame").min(), pl.col("wait_ms_per_frame").median(),
         pl.col("rss_third_mb").max(), pl.col("rss_end_mb").max(), pl.col("peak_rss_mb").max())
     base = table.filter(pl.col("detail") == "off").select(
         "backend", pl.col("ms_per_frame").alias("off_ms"), pl.col("cpu_ms_per_frame").alias("off_cpu"),
@@ -154,13 +159,14 @@ def main() -> None:
              if args.image_codec == "jpeg" else "") + f", fastest of {args.repeats}"
           + (f", paced at {args.pace:g} Hz" if args.pace else ""))
     print("| backend | detail | ms/frame (slowest) | added vs off | CPU ms/frame | CPU added | after 1/3: ms/frame "
-          "| added | CPU added | recorder ms/frame (caller thread) | KB/frame | RSS at 1/3 → end MB | peak RSS MB |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "| added | CPU added | recorder ms/frame (caller thread) | tracking thread waits ms/frame (median) "
+          "| KB/frame | RSS at 1/3 → end MB | peak RSS MB |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in table.iter_rows(named=True):
         print(f"| {r['backend']} | {r['detail']} | {r['ms_per_frame']:.1f} ({r['ms_max']:.1f}) "
               f"| {r['added_pct']:+.1f} % | {r['cpu_ms_per_frame']:.1f} | {r['added_cpu_pct']:+.1f} % "
               f"| {r['steady_ms_per_frame']:.1f} | {r['steady_added_pct']:+.1f} % | {r['steady_added_cpu_pct']:+.1f} % "
-              f"| {r['record_ms_per_frame']:.2f} | {r['kb_per_frame']:.1f} "
+              f"| {r['record_ms_per_frame']:.2f} | {r['wait_ms_per_frame']:.2f} | {r['kb_per_frame']:.1f} "
               f"| {r['rss_third_mb']:.0f} → "
               f"{r['rss_end_mb']:.0f} | {r['peak_rss_mb']:.0f} |")
 
