@@ -17,11 +17,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 import rerun as rr
 
-from vslam.common import OutputError, RecordingError, TrajectoryImages, has_footer, write_failure
+from vslam.common import OutputError, TrajectoryImages, has_footer, write_failure
 from vslam.recording.columns import FLUSH_FRAMES, NO_IMAGE, ColumnBuffer
 from vslam.recording.drift import DriftRecording, FrameTrail
 from vslam.recording.layout import blueprint
@@ -29,6 +28,7 @@ from vslam.recording.levels import JPEG_QUALITY, Detail
 from vslam.recording.metrics import METRICS
 from vslam.recording.schema import SCHEMA_VERSION
 from vslam.recording.stream import StreamStopped, close_stream, flush_or_stop, log_world, open_stream
+from vslam.recording.video import encode_jpeg
 from vslam_core.geometry import rotation_angle
 from vslam_core.sources.base import Frame
 
@@ -132,11 +132,8 @@ def _log_row(columns: ColumnBuffer, drift: DriftRecording, run: ExternalRun, fra
 
 def _log_image(columns: ColumnBuffer, frames: RunFrames, frame: Frame, index: int) -> None:
     """The row's image as JPEG, with its image number and file name on hover."""
-    ok, jpeg = cv2.imencode(".jpg", frames.images.read(index), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
-    if not ok:
-        raise RecordingError(f"{frames.images.files[index]}: JPEG encoding failed")
-    columns.add("/world/camera/image", frame,
-                (rr.EncodedImage.columns, {"blob": bytes(jpeg.tobytes()), "media_type": "image/jpeg"}),
+    jpeg = encode_jpeg(frames.images.read(index), 1.0, JPEG_QUALITY, what=str(frames.images.files[index]))
+    columns.add("/world/camera/image", frame, (rr.EncodedImage.columns, {"blob": jpeg, "media_type": "image/jpeg"}),
                 (rr.AnyValues.columns, {"image_index": index, "image_file": frames.images.files[index].name}))
 
 

@@ -30,13 +30,14 @@ from vslam_core.sources.base import Frame
 INLINE_RESIZE_PIXELS = 1 << 16
 
 
-def encode_jpeg(image: np.ndarray, scale: float, quality: int) -> bytes:
-    """A camera frame, (H, W) or (H, W, 3) uint8, as JPEG at `quality`, at `scale` of its size (area-averaged)."""
+def encode_jpeg(image: np.ndarray, scale: float, quality: int, what: str = "a frame") -> bytes:
+    """An image, (H, W) or (H, W, 3) uint8, as JPEG at `quality`, at `scale` of its size (area-averaged);
+    `what` it is names it in the error."""
     if scale != 1.0:
         image = resize_area(image, scaled_size(image.shape[1], image.shape[0], scale))
     ok, jpeg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, quality])
     if not ok:
-        raise RecordingError("JPEG encoding of a frame failed")
+        raise RecordingError(f"JPEG encoding of {what} failed")
     return bytes(jpeg.tobytes())
 
 

@@ -21,13 +21,12 @@ and at the last frame for the searches collected when the run ended (`RunResult.
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 import rerun as rr
 
-from vslam.common import RecordingError
 from vslam.recording.columns import EVENTS, EVENTS_AT_END, UNIX_STAMPS_AFTER_S, ColumnBuffer, add_event
 from vslam.recording.levels import JPEG_QUALITY, Detail
+from vslam.recording.video import encode_jpeg
 from vslam_core.results import LoopCandidate, LoopStep
 from vslam_core.sources.base import Frame
 
@@ -127,11 +126,8 @@ class LoopRecording:
                           + np.array([left.shape[1], 0], np.float32))
         # JPEG, not raw pixels: ~15 KB instead of ~70 KB (LZ4 of 2 x 620 x 188 grey) at each keyframe that
         # searched, a map run's largest entity after the camera frames and the flow arrows
-        ok, jpeg = cv2.imencode(".jpg", side, [cv2.IMWRITE_JPEG_QUALITY, self._jpeg_quality])
-        if not ok:
-            raise RecordingError("JPEG encoding of a loop candidate image failed")
-        self._rec.log("/loops/candidate/image", rr.EncodedImage(contents=bytes(jpeg.tobytes()),
-                                                                media_type=rr.MediaType.JPEG))
+        jpeg = encode_jpeg(side, 1.0, self._jpeg_quality, what="a loop candidate image")
+        self._rec.log("/loops/candidate/image", rr.EncodedImage(contents=jpeg, media_type=rr.MediaType.JPEG))
         self._rec.log("/loops/candidate/image/matches", rr.LineStrips2D(
             list(np.stack([half_query, half_candidate], axis=1)), radii=0.6,
             class_ids=np.where(best.inlier_mask[shown], INLIER, OUTLIER).astype(np.uint16)))
