@@ -160,8 +160,10 @@ class ColumnBuffer:
         for make, values, lengths in zip(rows.columns, rows.values, rows.lengths, strict=True):
             if rows.batch:
                 columns += make(**{name: _concatenate(v) for name, v in values.items()}).partition(lengths)
-            else:
+            elif make is rr.AnyValues.columns:  # its own typing of arrays: rows kept as they were given
                 columns += make(**values)
+            else:
+                columns += make(**{name: _stacked(v) for name, v in values.items()})
         self._rec.send_columns(entity, indexes=indexes, columns=columns)
 
 
@@ -172,6 +174,17 @@ def _size(value: Any) -> int:
     if isinstance(value, Future):
         return PENDING_JPEG_BYTES
     return len(value) if isinstance(value, bytes | str | list) else 8
+
+
+def _stacked(rows: list[Any]) -> Any:
+    """Rows that are arrays of one shape and type as one array, (n, *shape): the same Arrow column, built
+    ~100x faster for line strips (a list of (2, 3) segments costs ~2 ms a flush, converted strip by strip)."""
+    first = rows[0]
+    if not isinstance(first, np.ndarray) or first.ndim == 0:
+        return rows
+    if all(isinstance(r, np.ndarray) and r.shape == first.shape and r.dtype == first.dtype for r in rows):
+        return np.stack(rows)
+    return rows
 
 
 def _concatenate(batches: list[Any]) -> Any:
