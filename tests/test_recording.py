@@ -6,9 +6,11 @@ import json
 import subprocess
 import time
 from pathlib import Path
+from typing import Any
 
 import cli_helpers
 import numpy as np
+import pyarrow as pa
 import pytest
 import rerun as rr
 
@@ -250,12 +252,14 @@ class _Sent:
 
     def __init__(self, fail_after: int | None = None) -> None:
         self.entities: list[str] = []
+        self.columns: dict[str, list[pa.Array]] = {}
         self._fail_after = fail_after
 
-    def send_columns(self, entity: str, indexes: object, columns: object) -> None:
+    def send_columns(self, entity: str, indexes: object, columns: list[Any]) -> None:
         if self._fail_after is not None and len(self.entities) >= self._fail_after:
             raise RuntimeError("disk full")
         self.entities.append(entity)
+        self.columns[entity] = [column.as_arrow_array() for column in columns]
 
 
 @pytest.mark.parametrize("background", [False, True])
@@ -275,6 +279,34 @@ def test_the_camera_pose_is_sent_after_the_rest_of_its_frame(background: bool) -
     columns.close()
     assert sent.entities == ["/world/camera/image/corners", "/metrics/tracks/alive", "/world/camera"]
     assert written == ["checked"]  # the write check runs after the rows were sent
+
+
+def test_rows_of_arrays_are_sent_as_the_columns_rerun_builds_from_them_one_by_one() -> None:
+    """Rows that are arrays of one shape go to Rerun stacked, (n, *shape) (~100x faster for line strips): the
+    Arrow columns are those of the rows handed over as a list; rows of other shapes, and `AnyValues`, stay lists."""
+    rng = np.random.default_rng(0)
+    segments = [rng.normal(size=(2, 3)) for _ in range(5)]
+    translations = [rng.normal(size=3) for _ in range(5)]
+    paths = [rng.normal(size=(2 + i % 2, 3)) for i in range(5)]  # strips of 2 and 3 points: not one shape
+    labels = [rng.normal(size=2) for _ in range(5)]
+    sent = _Sent()
+    columns = ColumnBuffer(sent)  # type: ignore[arg-type]
+    for index in range(5):
+        frame = Frame(index, None, NO_IMAGE)
+        columns.add("/segments", frame, (rr.LineStrips3D.columns, {"strips": segments[index]}))
+        columns.add("/camera", frame, (rr.Transform3D.columns, {"translation": translations[index]}))
+        columns.add("/paths", frame, (rr.LineStrips3D.columns, {"strips": paths[index]}))
+        columns.add("/values", frame, (rr.AnyValues.columns, {"pair": labels[index]}))
+    columns.flush()
+    expected = {"/segments": rr.LineStrips3D.columns(strips=segments),
+                "/camera": rr.Transform3D.columns(translation=translations),
+                "/paths": rr.LineStrips3D.columns(strips=paths), "/values": rr.AnyValues.columns(pair=labels)}
+    for entity, built in expected.items():
+        arrays = [column.as_arrow_array() for column in built]
+        assert len(sent.columns[entity]) == len(arrays), entity
+        assert all(a.equals(b) for a, b in zip(sent.columns[entity], arrays, strict=True)), entity
+    rows = sent.columns["/segments"][0].to_pylist()  # a row a frame, each one strip of two points
+    assert len(rows) == 5 and np.allclose(rows[4][0], segments[4].astype(np.float32))
 
 
 def test_a_send_that_fails_in_the_background_stops_the_next_flush() -> None:

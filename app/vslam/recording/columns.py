@@ -160,7 +160,7 @@ class ColumnBuffer:
         for make, values, lengths in zip(rows.columns, rows.values, rows.lengths, strict=True):
             if rows.batch:
                 columns += make(**{name: _concatenate(v) for name, v in values.items()}).partition(lengths)
-            elif make is rr.AnyValues.columns:  # its own typing of arrays: rows kept as they were given
+            elif make == rr.AnyValues.columns:  # its own typing of arrays: rows kept as they were given
                 columns += make(**values)
             else:
                 columns += make(**{name: _stacked(v) for name, v in values.items()})
