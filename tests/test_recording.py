@@ -287,6 +287,7 @@ def test_rows_of_arrays_are_sent_as_the_columns_rerun_builds_from_them_one_by_on
     rng = np.random.default_rng(0)
     segments = [rng.normal(size=(2, 3)) for _ in range(5)]
     translations = [rng.normal(size=3) for _ in range(5)]
+    rotations = [rng.normal(size=(3, 3)) for _ in range(5)]
     paths = [rng.normal(size=(2 + i % 2, 3)) for i in range(5)]  # strips of 2 and 3 points: not one shape
     labels = [rng.normal(size=2) for _ in range(5)]
     sent = _Sent()
@@ -294,12 +295,13 @@ def test_rows_of_arrays_are_sent_as_the_columns_rerun_builds_from_them_one_by_on
     for index in range(5):
         frame = Frame(index, None, NO_IMAGE)
         columns.add("/segments", frame, (rr.LineStrips3D.columns, {"strips": segments[index]}))
-        columns.add("/camera", frame, (rr.Transform3D.columns, {"translation": translations[index]}))
+        columns.add("/camera", frame, (rr.Transform3D.columns, {"translation": translations[index],
+                                                                "mat3x3": rotations[index]}))
         columns.add("/paths", frame, (rr.LineStrips3D.columns, {"strips": paths[index]}))
         columns.add("/values", frame, (rr.AnyValues.columns, {"pair": labels[index]}))
     columns.flush()
     expected = {"/segments": rr.LineStrips3D.columns(strips=segments),
-                "/camera": rr.Transform3D.columns(translation=translations),
+                "/camera": rr.Transform3D.columns(translation=translations, mat3x3=rotations),
                 "/paths": rr.LineStrips3D.columns(strips=paths), "/values": rr.AnyValues.columns(pair=labels)}
     for entity, built in expected.items():
         arrays = [column.as_arrow_array() for column in built]
