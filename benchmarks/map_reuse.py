@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -89,7 +90,8 @@ def measure(root: Path, sequence: str, start: int, stop: int, config: EngineConf
     even = KittiSource(root, sequence=sequence, frames=FrameRange(start, stop, 2))
     odd = KittiSource(root, sequence=sequence, frames=FrameRange(start + 1, stop, 2))
     path = folder / f"{sequence}-even"
-    mapping = run_odometry(even, config, finish=map_saver(path, even, config, adjust))
+    mapping_config = config if adjust else replace(config, map=replace(config.map, adjust_at_end=False))
+    mapping = run_odometry(even, mapping_config, finish=map_saver(path, even, mapping_config, adjust))
     mapped = mapping.pose_array()
     prior = load_map(path, odd.intrinsics)
     statuses: list[FrameStatus] = []

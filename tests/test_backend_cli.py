@@ -41,6 +41,9 @@ def test_run_with_the_map_backend_which_is_the_default(kitti_root: Path, tmp_pat
     counts, line = placed(result.stdout)  # where each frame's pose came from
     assert sum(counts.values()) == 30 and counts["by PnP against the map"] >= 20, line
     assert "scale can drift" not in line  # ground-truth scale: two-view steps have their true length
+    adjusted = [line for line in result.stdout.splitlines() if line.startswith("adjusted")]
+    assert len(adjusted) == 1 and re.search(r"the whole map once the run ended: \d+ keyframes \(\d+ free\)",
+                                            adjusted[0]), result.stdout
 
     default = tmp_path / "default.txt"  # no --backend, no --config: the default engine is the map
     result = vslam("run", kitti_root, "--sequence", "00", "--frames", "0:30", "--detail", "off", "--trajectory-out",

@@ -32,6 +32,10 @@ def _true_poses(count: int) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def scene() -> tuple[Map, np.ndarray, np.ndarray, dict[int, int]]:
+    return _drifted_map()
+
+
+def _drifted_map() -> tuple[Map, np.ndarray, np.ndarray, dict[int, int]]:
     """A map of 8 keyframes whose poses and landmarks were perturbed (drift), its observations exact (0.3 px
     noise); returns the map, the true poses and points, and landmark id -> true point row."""
     rng = np.random.default_rng(3)
@@ -73,6 +77,22 @@ def test_global_adjustment_brings_the_map_back_to_the_truth(
     np.testing.assert_allclose(steps, np.linalg.norm(np.diff(truth[:, :3, 3], axis=0), axis=1), atol=0.01)
     landmark_error = [np.linalg.norm(map_.landmarks[i].position - points[rows[i]]) for i in map_.landmarks]
     assert np.median(landmark_error) < 0.1  # from 0.3 m (far points seen over short baselines stay vaguer)
+
+
+def test_global_adjustment_frees_only_the_newest_keyframes_that_see_enough() -> None:
+    """A run's adjustment at the end (`map.adjust_at_end_keyframes`): beyond the limit the oldest keyframes are
+    held, and a keyframe whose landmarks were all forgotten (a long drive) is left out, not left unconstrained."""
+    map_, truth, _, rows = _drifted_map()
+    map_.add_keyframe(8, 0, truth[7] @ pose_matrix(np.eye(3), np.array([0.0, 0.0, 1.2])), np.zeros(0, np.int64),
+                      np.zeros((0, 2)), 1.2)  # sees nothing
+    before = {k: keyframe.T_world_cam.copy() for k, keyframe in map_.keyframes.items()}
+    seen_by_free = sum(1 for i in rows if set(map_.landmarks[i].observations) & {4, 5, 6, 7})
+    adjusted = adjust_map(map_, K, MapConfig(), "gt", max_keyframes=4)
+    assert adjusted is not None
+    assert (adjusted.keyframes, adjusted.free, adjusted.landmarks) == (8, 4, seen_by_free) and seen_by_free < len(rows)
+    moved = {k for k, keyframe in map_.keyframes.items() if not np.array_equal(keyframe.T_world_cam, before[k])}
+    assert moved == {4, 5, 6, 7}
+    assert adjusted.mean_error_after < adjusted.mean_error_before / 2
 
 
 def test_global_adjustment_needs_two_keyframes() -> None:

@@ -193,6 +193,10 @@ class MapConfig:
     ba_iterations: int = 3
     ba_huber_px: float = 1.5  # Huber threshold of the reprojection error (sigma 1 px)
     ba_max_landmarks: int = 400  # the window's landmarks with the most observations
+    # when a run completes, every keyframe and landmark adjusted together once (global_adjustment.py), the
+    # newest adjust_at_end_keyframes of them free: the windows leave each keyframe once it is behind them
+    adjust_at_end: bool = True
+    adjust_at_end_keyframes: int = 300
     # sigma of the front end's chained rotation between keyframes with a scale source (0: none): at 0.05 deg
     # bundle adjustment let the keyframes' yaw drift 0.45 deg in KITTI 05's turn (docs/map-backend-history.md)
     rotation_prior_deg: float = 0.01

@@ -169,6 +169,7 @@ RANGES: dict[str, Range] = {
     "map.none_ba_iterations": closed(1, 1000),
     "map.none_step_sigma": closed(0.0, 10.0),
     "map.ba_max_landmarks": closed(1, 10_000_000),
+    "map.adjust_at_end_keyframes": closed(1, 10_000_000),
     "map.rotation_prior_deg": closed(0.0, 180.0),
     "map.none_rotation_prior_deg": closed(0.0, 180.0),
     "map.rotation_prior_inflation": closed(0.0, 1e6),

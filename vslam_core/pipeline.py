@@ -16,6 +16,7 @@ import numpy as np
 
 from vslam_core.config import EngineConfig, ScaleSource
 from vslam_core.engine import Odometry
+from vslam_core.mapping.global_adjustment import GlobalAdjusted
 from vslam_core.mapping.localisation import MapLocalisation
 from vslam_core.mapping.tracking import MapTracking
 from vslam_core.results import FrameResult, FrameStatus, LoopStep, Reason, TrackingMode
@@ -54,6 +55,7 @@ class RunResult:
     modes: dict[TrackingMode, int] = field(default_factory=dict)  # map backend: frames per tracking mode
     loops_at_end: list[LoopStep] = field(default_factory=list)  # map backend: the loop searches collected when
     # the run ended (vslam_core/loop/closing.py `finish`); a loop they closed corrected `poses`
+    adjusted_at_end: GlobalAdjusted | None = None  # map backend: the whole map's adjustment once the run completed
 
     @property
     def frames(self) -> int:
@@ -64,6 +66,17 @@ class RunResult:
         """Which poses `poses` (and so every score of the run) are: ``refined`` (the map's, after bundle
         adjustment and loop closing) or ``as tracked``."""
         return "refined" if self.tracked_poses else "as tracked"
+
+    @property
+    def adjusted_summary(self) -> str | None:
+        """What the whole map's adjustment at the end did, e.g. ``the whole map once the run ended: 70 keyframes
+        (70 free), 6306 landmarks, reprojection 0.48 -> 0.42 px, 1.1 s``; None with `vo` or an interrupted run."""
+        done = self.adjusted_at_end
+        if done is None:
+            return None
+        return (f"the whole map once the run ended: {done.keyframes} keyframes ({done.free} free), {done.landmarks} "
+                f"landmarks, reprojection {done.mean_error_before:.2f} -> {done.mean_error_after:.2f} px, "
+                f"{done.milliseconds / 1000:.1f} s")
 
     def placed_summary(self, scale: ScaleSource) -> str | None:
         """Where the map backend's poses came from, e.g. ``281 by PnP against the map, 18 by two-view motion, 1
@@ -193,8 +206,9 @@ def run_odometry(
     finally:
         if isinstance(engine, MapTracking):  # the map's refined poses replace the tracking-time ones (kept)
             run.tracked_poses[:] = run.poses
-            run.poses[:] = engine.refined_poses(len(run.poses))
+            run.poses[:] = engine.refined_poses(len(run.poses), adjust=completed)
             run.loops_at_end[:] = engine.loops_at_end
+            run.adjusted_at_end = engine.adjusted_at_end
         if completed and finish is not None:
             finish(engine)
         engine.close()

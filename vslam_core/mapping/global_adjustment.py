@@ -12,6 +12,7 @@ scale, which also fix the scale). Afterwards observations that reproject worse t
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,13 +24,15 @@ from vslam_core.mapping.local_mapping import rotation_priors
 from vslam_core.mapping.map import Map
 
 GLOBAL_ITERATIONS = 20  # Levenberg–Marquardt iterations
+MIN_KEYFRAME_OBSERVATIONS = 10  # a keyframe seeing fewer landmarks is held (a pose needs well over PnP's 3)
 
 
 @dataclass(frozen=True)
 class GlobalAdjusted:
     """What the global adjustment did."""
 
-    keyframes: int
+    keyframes: int  # in the problem
+    free: int  # of them, adjusted (the others held)
     landmarks: int
     observations: int
     mean_error_before: float  # px, over the finite reprojection errors
@@ -40,19 +43,26 @@ class GlobalAdjusted:
 
 
 def adjust_map(map_: Map, K: np.ndarray, config: MapConfig, scale: ScaleSource,  # noqa: N803
-               iterations: int = GLOBAL_ITERATIONS) -> GlobalAdjusted | None:
+               iterations: int = GLOBAL_ITERATIONS, max_keyframes: int | None = None) -> GlobalAdjusted | None:
     """Refine every keyframe pose and landmark position of `map_` in place; None if there is nothing to adjust
-    (fewer than two keyframes, or no landmark seen twice)."""
+    (fewer than two keyframes, or no landmark seen twice). A keyframe that sees fewer than
+    `MIN_KEYFRAME_OBSERVATIONS` of the landmarks seen twice (its own forgotten with age, `map_keyframes`) is held,
+    and so are all but the newest `max_keyframes` of the others (None: no limit), which bounds a long drive's cost."""
     gauge = 2 if scale == "none" else 1
-    by_segment: dict[int, list[int]] = {}
+    landmark_ids = [i for i, landmark in map_.landmarks.items() if landmark.observation_count >= 2]
+    seen = Counter(k for i in landmark_ids for k in map_.landmarks[i].observations)
+    by_segment: dict[int, list[int]] = {}  # the keyframes that see any of them, by segment
     for keyframe in map_.keyframes.values():
-        by_segment.setdefault(keyframe.segment, []).append(keyframe.id)
-    free = [k for ids in by_segment.values() for k in ids[gauge:]]
-    fixed = [k for ids in by_segment.values() for k in ids[:gauge]]
+        if seen[keyframe.id]:
+            by_segment.setdefault(keyframe.segment, []).append(keyframe.id)
+    movable = [k for ids in by_segment.values() for k in ids[gauge:] if seen[k] >= MIN_KEYFRAME_OBSERVATIONS]
+    free = sorted(movable)[-max_keyframes:] if max_keyframes is not None and len(movable) > max_keyframes \
+        else movable
+    free_set = set(free)
+    fixed = [k for ids in by_segment.values() for k in ids if k not in free_set]
     keyframe_ids = free + fixed  # the problem's first `len(free)` poses are variables, the rest held
     index = {k: n for n, k in enumerate(keyframe_ids)}
-    landmark_ids = [i for i, landmark in map_.landmarks.items()
-                    if sum(k in index for k in landmark.observations) >= 2]
+    landmark_ids = [i for i in landmark_ids if any(k in free_set for k in map_.landmarks[i].observations)]
     if not free or not landmark_ids:
         return None
     pose_index, point_index, pixels = [], [], []
@@ -66,7 +76,7 @@ def adjust_map(map_: Map, K: np.ndarray, config: MapConfig, scale: ScaleSource, 
         points=map_.positions(landmark_ids), observation_pose=np.array(pose_index, np.int64),
         observation_point=np.array(point_index, np.int64),
         observation_pixels=np.array(pixels, np.float64).reshape(-1, 2),
-        ranges=_ranges(map_, by_segment, index, config, scale), fix_first=0, iterations=iterations,
+        ranges=_ranges(map_, index, config, scale), fix_first=0, iterations=iterations,
         huber_px=config.ba_huber_px, **rotation_priors(map_, index, config))
     solution = solve(problem)
     for keyframe_id, pose in zip(free, solution.poses, strict=True):
@@ -86,23 +96,25 @@ def adjust_map(map_: Map, K: np.ndarray, config: MapConfig, scale: ScaleSource, 
             culled_landmarks += 1
     before, after = solution.errors_before, solution.errors_after
     return GlobalAdjusted(
-        keyframes=len(keyframe_ids), landmarks=len(landmark_ids), observations=len(pose_index),
+        keyframes=len(keyframe_ids), free=len(free), landmarks=len(landmark_ids), observations=len(pose_index),
         mean_error_before=float(before[np.isfinite(before)].mean()),
         mean_error_after=float(after[np.isfinite(after)].mean()),
         culled_observations=culled_observations, culled_landmarks=culled_landmarks,
         milliseconds=solution.milliseconds)
 
 
-def _ranges(map_: Map, by_segment: dict[int, list[int]], index: dict[int, int], config: MapConfig,
-            scale: ScaleSource) -> np.ndarray:
+def _ranges(map_: Map, index: dict[int, int], config: MapConfig, scale: ScaleSource) -> np.ndarray:
     """(R, 4) rows (pose a, pose b, distance, sigma): the scale source's step between consecutive keyframes of a
-    segment, as the windowed BA has them (none with unit scale)."""
+    segment, both in the problem (`index`), as the windowed BA has them (none with unit scale)."""
+    by_segment: dict[int, list[int]] = {}
+    for keyframe in map_.keyframes.values():
+        by_segment.setdefault(keyframe.segment, []).append(keyframe.id)
     rows = []
     if scale != "none":
         for ids in by_segment.values():
             for previous, current in zip(ids, ids[1:], strict=False):
                 step = map_.keyframes[current].metric_step
-                if step is None:
+                if step is None or previous not in index or current not in index:
                     continue
                 sigma = config.scale_sigma_gt if scale == "gt" else max(config.scale_sigma_height * step, 1e-3)
                 rows.append((index[previous], index[current], step, sigma))

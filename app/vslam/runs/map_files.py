@@ -32,8 +32,8 @@ def save_map_problem(path: Path | None, prior: Path | None, config: EngineConfig
 def map_saver(path: Path, source: FrameSource, config: EngineConfig,
               adjust: bool = True) -> Callable[[Engine], None]:
     """The run's `finish` step that writes the map to `path`, after a global bundle adjustment of every keyframe
-    and landmark (vslam_core/mapping/global_adjustment.py) unless `adjust` is False. The run's own trajectory
-    output was taken before it."""
+    and landmark (vslam_core/mapping/global_adjustment.py): the run's own (`map.adjust_at_end`, so the trajectory
+    output and the map agree), else one here unless `adjust` is False."""
     from vslam_core import __version__
     from vslam_core.mapping.global_adjustment import adjust_map
     from vslam_core.mapping.map_scale import for_scale
@@ -49,8 +49,10 @@ def map_saver(path: Path, source: FrameSource, config: EngineConfig,
         header: dict[str, Any] = {"vslam_version": __version__, "camera": camera_dict(source.intrinsics),
                                   "scale": config.scale, "source": source.name,
                                   "frames": describe_indices(source.indices)}
-        adjusted = (adjust_map(engine.mapping.map, source.intrinsics.K, for_scale(config.map, config.scale),
-                               config.scale) if adjust else None)
+        adjusted = engine.adjusted_at_end  # the run's own, when it adjusted the map as it ended
+        if adjusted is None and adjust:
+            adjusted = adjust_map(engine.mapping.map, source.intrinsics.K, for_scale(config.map, config.scale),
+                                  config.scale)
         if adjusted is not None:
             header["global_adjustment"] = {
                 "keyframes": adjusted.keyframes, "landmarks": adjusted.landmarks,
