@@ -19,7 +19,9 @@ frames, and bundle-adjustment solver ms per keyframe
 (gtsam's time as reported in `FrameResult.mapping.bundle_adjustment`, summed over the run and divided by
 its keyframes; the adjustment still pending at the end is applied to the output poses but reported by no
 frame, so it is not counted; with 2 threads it runs in the worker process beside tracking, with 1 thread
-inside `mapping`). Relocalisation time (`relocalise_ms`) is in the CSV only. Peak RSS is the measuring
+inside `mapping`), and the whole map's adjustment once the run ended (`map.adjust_at_end`; in the tracking
+thread, counted in fps) per keyframe of the run. Relocalisation time (`relocalise_ms`) is in the CSV only.
+Peak RSS is the measuring
 process's; the map backend's worker's (bundle adjustment and loop search; 2 threads; 0 with 1 thread) is in the
 CSV as `worker_peak_rss_mb`.
 
@@ -92,7 +94,7 @@ def _measure(label: str, root: str, sequence: str, frames: str) -> dict[str, obj
     assert gt is not None
     stage_ms = dict.fromkeys(CSV_STAGES, 0.0)
     size = 0
-    keyframes, ba_ms = 0, 0.0
+    keyframes, ba_ms, end_ms = 0, 0.0, 0.0
     loop_ms: dict[str, float] = {}
     cpu_before = resource.getrusage(resource.RUSAGE_SELF)
     if system == "paper":
@@ -125,6 +127,8 @@ def _measure(label: str, root: str, sequence: str, frames: str) -> dict[str, obj
                     stage_ms[stage] = stage_ms.get(stage, 0.0) + ms
 
             run = run_odometry(source, config, sinks=(sink,))
+            end = run.adjusted_at_end  # the whole map's adjustment as the run ended (--scale none), or why not
+            end_ms = end.milliseconds if end is not None and not isinstance(end, str) else 0.0
             if recorder is not None:
                 recorder.close()
                 size = path.stat().st_size
@@ -145,6 +149,8 @@ def _measure(label: str, root: str, sequence: str, frames: str) -> dict[str, obj
             "worker_peak_rss_mb": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024 if is_map else None,
             "keyframes_per_100": 100 * keyframes / n if is_map else None,
             "ba_ms_per_keyframe": (ba_ms / keyframes if keyframes else 0.0) if is_map else None,
+            # the whole map's adjustment once the run ended (map.adjust_at_end), per keyframe of the run
+            "end_ba_ms_per_keyframe": (end_ms / keyframes if keyframes else 0.0) if is_map else None,
             **{f"{stage}_ms": stage_ms.get(stage, 0.0) / n for stage in CSV_STAGES},
             **{f"loop_{part}_ms_per_keyframe": loop_ms.get(part, 0.0) / max(keyframes, 1) for part in LOOP_PARTS}}
 
@@ -235,15 +241,16 @@ def main() -> None:
           "round by round); × paper: the median over rounds of the ratio within each round; ms per frame per stage"
           + pinned)
     print(f"| system | seq | fps | × paper | CPU ms/frame | recording cost | t_err % | r_err °/100 m | {stages} | "
-          "keyframes/100 frames | BA ms/keyframe | peak RSS MB | KB/frame |")
-    print("|---|---|---|---|---|---|---|---|" + "---|" * len(STAGES) + "---|---|---|---|")
+          "keyframes/100 frames | BA ms/keyframe | end BA ms/keyframe | peak RSS MB | KB/frame |")
+    print("|---|---|---|---|---|---|---|---|" + "---|" * len(STAGES) + "---|---|---|---|---|")
     for r in table.iter_rows(named=True):
         cells = " | ".join(f"{r[f'{stage}_ms']:.1f}" for stage in STAGES)
         cost = "—" if r["detail"] == str(Detail.OFF) else f"{r['recording_cost_pct']:+.1f} %"
         print(f"| {r['system']} | {r['sequence']} | {r['fps']:.1f} | {r['x_paper']:.2f} | {r['cpu_ms']:.1f} | {cost} "
               f"| {r['t_err']:.2f} "
               f"| {r['r_err']:.2f} | {cells} | {_optional(r['keyframes_per_100'], '{:.1f}')} "
-              f"| {_optional(r['ba_ms_per_keyframe'], '{:.1f}')} | {r['peak_rss_mb']:.0f} | {r['kb_per_frame']:.1f} |")
+              f"| {_optional(r['ba_ms_per_keyframe'], '{:.1f}')} | {_optional(r['end_ba_ms_per_keyframe'], '{:.1f}')} "
+              f"| {r['peak_rss_mb']:.0f} | {r['kb_per_frame']:.1f} |")
     _loop_table(table)
     if args.skip_memory:
         return

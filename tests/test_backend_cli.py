@@ -41,9 +41,7 @@ def test_run_with_the_map_backend_which_is_the_default(kitti_root: Path, tmp_pat
     counts, line = placed(result.stdout)  # where each frame's pose came from
     assert sum(counts.values()) == 30 and counts["by PnP against the map"] >= 20, line
     assert "scale can drift" not in line  # ground-truth scale: two-view steps have their true length
-    adjusted = [line for line in result.stdout.splitlines() if line.startswith("adjusted")]
-    assert len(adjusted) == 1 and re.search(r"the whole map once the run ended: \d+ keyframes \(\d+ free\)",
-                                            adjusted[0]), result.stdout
+    assert "\nadjusted" not in result.stdout  # with a scale source the map is not adjusted again at the end
 
     default = tmp_path / "default.txt"  # no --backend, no --config: the default engine is the map
     result = vslam("run", kitti_root, "--sequence", "00", "--frames", "0:30", "--detail", "off", "--trajectory-out",
@@ -53,14 +51,21 @@ def test_run_with_the_map_backend_which_is_the_default(kitti_root: Path, tmp_pat
 
 
 @pytest.mark.kitti
-def test_without_a_scale_source_the_summary_says_which_steps_took_the_maps_speed(kitti_root: Path) -> None:
+def test_without_a_scale_source_the_summary_says_which_steps_took_the_maps_speed(kitti_root: Path,
+                                                                                 tmp_path: Path) -> None:
+    rrd = tmp_path / "none.rrd"
     result = vslam("run", kitti_root, "--sequence", "05", "--frames", "0:20", "--backend", "map", "--scale", "none",
-                   "--detail", "off")
+                   "--detail", "summary", "-o", rrd)
     assert result.returncode == 0, result.stderr
     counts, line = placed(result.stdout)
     assert sum(counts.values()) == 20 and counts["by two-view motion"] > 0, line
     assert line.endswith("(--scale none: a two-view step's length is the map's recent speed; the scale can drift "
                          "there)"), line
+    adjusted = [line for line in result.stdout.splitlines() if line.startswith("adjusted")]
+    assert len(adjusted) == 1 and re.search(r"the whole map once the run ended: \d+ keyframes \(\d+ free\), \d+ "
+                                            r"landmarks, reprojection [\d.]+ -> [\d.]+ px", adjusted[0]), adjusted
+    report = read_entity(rrd, "/report", static=True)["TextDocument:text"].to_list()[-1][0]
+    assert f"Adjusted: {adjusted[0].removeprefix('adjusted').strip()}." in report, report  # the recording says so
 
 
 def test_unknown_backend_is_a_usage_error() -> None:

@@ -55,7 +55,8 @@ class RunResult:
     modes: dict[TrackingMode, int] = field(default_factory=dict)  # map backend: frames per tracking mode
     loops_at_end: list[LoopStep] = field(default_factory=list)  # map backend: the loop searches collected when
     # the run ended (vslam_core/loop/closing.py `finish`); a loop they closed corrected `poses`
-    adjusted_at_end: GlobalAdjusted | None = None  # map backend: the whole map's adjustment once the run completed
+    # map backend: the whole map's adjustment once the run completed (`map.adjust_at_end`), or why it was not run
+    adjusted_at_end: GlobalAdjusted | str | None = None
 
     @property
     def frames(self) -> int:
@@ -70,10 +71,11 @@ class RunResult:
     @property
     def adjusted_summary(self) -> str | None:
         """What the whole map's adjustment at the end did, e.g. ``the whole map once the run ended: 70 keyframes
-        (70 free), 6306 landmarks, reprojection 0.48 -> 0.42 px, 1.1 s``; None with `vo` or an interrupted run."""
+        (70 free), 6306 landmarks, reprojection 0.48 -> 0.42 px, 1.1 s``, or why it was not run; None when it is
+        off (`vo`, a scale source) or the run was interrupted."""
         done = self.adjusted_at_end
-        if done is None:
-            return None
+        if done is None or isinstance(done, str):
+            return done
         return (f"the whole map once the run ended: {done.keyframes} keyframes ({done.free} free), {done.landmarks} "
                 f"landmarks, reprojection {done.mean_error_before:.2f} -> {done.mean_error_after:.2f} px, "
                 f"{done.milliseconds / 1000:.1f} s")

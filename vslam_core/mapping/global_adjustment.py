@@ -119,3 +119,4 @@ def _ranges(map_: Map, index: dict[int, int], config: MapConfig, scale: ScaleSou
                 sigma = config.scale_sigma_gt if scale == "gt" else max(config.scale_sigma_height * step, 1e-3)
                 rows.append((index[previous], index[current], step, sigma))
     return np.array(rows, np.float64).reshape(-1, 4)
+

@@ -83,7 +83,7 @@ def for_scale(config: MapConfig, scale: ScaleSource) -> MapConfig:
     from 8.6 % to 6.7 % and 7.0 % (6.4 % together with keyframes spaced by translation parallax). The front
     end's rotations are held more loosely (`none_rotation_prior_deg`: at the metric sources' 0.01° loop closing
     made two of five routes worse, docs/map-backend-history.md); a revisit's keyframes are not culled
-    (`none_cull_revisits`)."""
+    (`none_cull_revisits`). The whole map is adjusted when the run ends (`none_adjust_at_end`)."""
     if scale != "none":
         return config
     return replace(config, min_triangulation_deg=config.none_min_triangulation_deg,
@@ -92,7 +92,8 @@ def for_scale(config: MapConfig, scale: ScaleSource) -> MapConfig:
                    pnp_min_inlier_ratio=config.none_pnp_min_inlier_ratio,
                    low_ratio_pnp_min_ratio=config.none_low_ratio_pnp_min_ratio,
                    starving_keyframes=config.none_starving_keyframes, cull_revisits=config.none_cull_revisits,
-                   map_search=config.map_search or config.none_map_search)
+                   map_search=config.map_search or config.none_map_search,
+                   adjust_at_end=config.none_adjust_at_end)
 
 
 def front_end_config(config: EngineConfig, map_config: MapConfig) -> EngineConfig:

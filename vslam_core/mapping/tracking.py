@@ -102,7 +102,8 @@ class MapTracking:
         self._before_map = FramesBeforeMap()  # --scale none: the frames tracked while it waits for that
         self.loop = LoopClosing(intrinsics, config, self._worker) if config.loop.enabled else None
         self.loops_at_end: list[LoopStep] = []  # what the loop searches collected when the run ended did
-        self.adjusted_at_end: GlobalAdjusted | None = None  # the whole map's adjustment when the run completed
+        # the whole map's adjustment once the run completed, or why it was not run
+        self.adjusted_at_end: GlobalAdjusted | str | None = None
         self._refound: dict[int, np.ndarray] = {}  # landmark id -> ideal pixel: re-found, for a keyframe now
         self._chain = RotationChain()  # the front end's rotations, a prior between keyframes in BA
         self._step_measured = False  # --scale none: this two-view step's length was measured on landmarks
@@ -115,10 +116,9 @@ class MapTracking:
     def refined_poses(self, count: int, adjust: bool = False) -> list[np.ndarray]:
         """(4, 4) poses of the first `count` frames after the last bundle adjustment: each frame moved with
         its keyframe by every refinement since it was tracked (the pending adjustment is applied first; with
-        `adjust`, a run that completed, then the whole map's, once: `map.adjust_at_end`, `adjusted_at_end`). A
-        gap of held frames between two frames with a pose is filled by interpolating between them: once
-        the motion across the gap is known, that is the best estimate of where the car was (the frames stay
-        flagged in their results)."""
+        `adjust`, a run that completed, then the whole map's once, `map.adjust_at_end`). A gap of held frames
+        between two frames with a pose is filled by interpolating between them: once the motion across the gap
+        is known, that is the best estimate of where the car was (the frames stay flagged in their results)."""
         if self.mapping.collect_bundle_adjustment() is not None:
             self._odometry.set_keyframe_pose(self.pose_of(self._odometry.key_position))
         if self.loop is not None:
@@ -127,8 +127,12 @@ class MapTracking:
             for step, correction in finished:  # the last loop searches' loops, if any, move the keyframes too
                 self._follow_loop(step, correction)
         if adjust and self._cfg.adjust_at_end and self.adjusted_at_end is None:
-            self.adjusted_at_end = adjust_map(self.mapping.map, self._K, self._cfg, self.config.scale,
-                                              max_keyframes=self._cfg.adjust_at_end_keyframes)
+            if self.mapping.map.loop_keyframes:  # no landmark links a loop's two ends: it would bend it open
+                self.adjusted_at_end = ("not run: a loop was closed (no landmark links its two ends; the adjustment "
+                                        "would bend it open again)")
+            else:
+                self.adjusted_at_end = adjust_map(self.mapping.map, self._K, self._cfg, self.config.scale,
+                                                  max_keyframes=self._cfg.adjust_at_end_keyframes)
         return interpolate_gaps([self.pose_of(position) for position in range(count)], self._held)
 
     def _follow_loop(self, step: LoopStep, correction: np.ndarray | None) -> None:

@@ -231,6 +231,8 @@ class Recorder:
                      + (f" — {stopped}" if stopped else "")]
             if (placed := run.placed_summary(self._scale)) is not None:
                 lines += ["", f"Placed: {placed}."]
+            if (adjusted := run.adjusted_summary) is not None:
+                lines += ["", f"Adjusted: {adjusted}."]
             if self._gt is not None and run.frames > 2:
                 row = metrics_row(self._source_name, self._gt[: run.frames], run.pose_array(), self._scale)
                 lines += ["", markdown_table([row]), "", scored_line(run, self._scale)]

@@ -35,7 +35,7 @@ def map_saver(path: Path, source: FrameSource, config: EngineConfig,
     and landmark (vslam_core/mapping/global_adjustment.py): the run's own (`map.adjust_at_end`, so the trajectory
     output and the map agree), else one here unless `adjust` is False."""
     from vslam_core import __version__
-    from vslam_core.mapping.global_adjustment import adjust_map
+    from vslam_core.mapping.global_adjustment import GlobalAdjusted, adjust_map
     from vslam_core.mapping.map_scale import for_scale
     from vslam_core.mapping.storage import camera_dict, save_map, snapshot
     from vslam_core.mapping.tracking import MapTracking
@@ -49,8 +49,8 @@ def map_saver(path: Path, source: FrameSource, config: EngineConfig,
         header: dict[str, Any] = {"vslam_version": __version__, "camera": camera_dict(source.intrinsics),
                                   "scale": config.scale, "source": source.name,
                                   "frames": describe_indices(source.indices)}
-        adjusted = engine.adjusted_at_end  # the run's own, when it adjusted the map as it ended
-        if adjusted is None and adjust:
+        adjusted = engine.adjusted_at_end if isinstance(engine.adjusted_at_end, GlobalAdjusted) else None
+        if adjusted is None and adjust:  # the run's own adjustment, when it made one as it ended, else one here
             adjusted = adjust_map(engine.mapping.map, source.intrinsics.K, for_scale(config.map, config.scale),
                                   config.scale)
         if adjusted is not None:
