@@ -202,6 +202,8 @@ class MapConfig:
     adjust_at_end: bool = False
     none_adjust_at_end: bool = True
     adjust_at_end_keyframes: int = 300
+    # ... holding the front end's rotations at this sigma (0: rotation_prior_deg's), inflated where ambiguous as in BA
+    adjust_at_end_rotation_prior_deg: float = 0.01
     # sigma of the front end's chained rotation between keyframes with a scale source (0: none): at 0.05 deg
     # bundle adjustment let the keyframes' yaw drift 0.45 deg in KITTI 05's turn (docs/map-backend-history.md)
     rotation_prior_deg: float = 0.01

@@ -131,8 +131,9 @@ class MapTracking:
                 self.adjusted_at_end = ("not run: a loop was closed (no landmark links its two ends; the adjustment "
                                         "would bend it open again)")
             else:
-                self.adjusted_at_end = adjust_map(self.mapping.map, self._K, self._cfg, self.config.scale,
-                                                  max_keyframes=self._cfg.adjust_at_end_keyframes)
+                held = self._cfg.adjust_at_end_rotation_prior_deg or self._cfg.rotation_prior_deg
+                self.adjusted_at_end = adjust_map(self.mapping.map, self._K, replace(self._cfg, rotation_prior_deg=held),
+                                                  self.config.scale, max_keyframes=self._cfg.adjust_at_end_keyframes)
         return interpolate_gaps([self.pose_of(position) for position in range(count)], self._held)
 
     def _follow_loop(self, step: LoopStep, correction: np.ndarray | None) -> None:
