@@ -19,7 +19,7 @@ frames, and bundle-adjustment solver ms per keyframe
 (gtsam's time as reported in `FrameResult.mapping.bundle_adjustment`, summed over the run and divided by
 its keyframes; the adjustment still pending at the end is applied to the output poses but reported by no
 frame, so it is not counted; with 2 threads it runs in the worker process beside tracking, with 1 thread
-inside `mapping`), and the whole map's adjustment once the run ended (`map.adjust_at_end`; in the tracking
+inside `mapping`), and the map's adjustment as a whole once the run ended (`map.adjust_at_end`; in the tracking
 thread, counted in fps) per keyframe of the run. Relocalisation time (`relocalise_ms`) is in the CSV only.
 Peak RSS is the measuring
 process's; the map backend's worker's (bundle adjustment and loop search; 2 threads; 0 with 1 thread) is in the
@@ -127,7 +127,7 @@ def _measure(label: str, root: str, sequence: str, frames: str) -> dict[str, obj
                     stage_ms[stage] = stage_ms.get(stage, 0.0) + ms
 
             run = run_odometry(source, config, sinks=(sink,))
-            end = run.adjusted_at_end  # the whole map's adjustment as the run ended (--scale none), or why not
+            end = run.adjusted_at_end  # the map's adjustment as a whole as the run ended (--scale none), or why not
             end_ms = end.milliseconds if end is not None and not isinstance(end, str) else 0.0
             if recorder is not None:
                 recorder.close()
@@ -149,7 +149,7 @@ def _measure(label: str, root: str, sequence: str, frames: str) -> dict[str, obj
             "worker_peak_rss_mb": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024 if is_map else None,
             "keyframes_per_100": 100 * keyframes / n if is_map else None,
             "ba_ms_per_keyframe": (ba_ms / keyframes if keyframes else 0.0) if is_map else None,
-            # the whole map's adjustment once the run ended (map.adjust_at_end), per keyframe of the run
+            # the map's adjustment as a whole once the run ended (map.adjust_at_end), per keyframe of the run
             "end_ba_ms_per_keyframe": (end_ms / keyframes if keyframes else 0.0) if is_map else None,
             **{f"{stage}_ms": stage_ms.get(stage, 0.0) / n for stage in CSV_STAGES},
             **{f"loop_{part}_ms_per_keyframe": loop_ms.get(part, 0.0) / max(keyframes, 1) for part in LOOP_PARTS}}

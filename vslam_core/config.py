@@ -193,17 +193,19 @@ class MapConfig:
     ba_iterations: int = 3
     ba_huber_px: float = 1.5  # Huber threshold of the reprojection error (sigma 1 px)
     ba_max_landmarks: int = 400  # the window's landmarks with the most observations
-    # when a run completes, every keyframe and landmark adjusted together once (global_adjustment.py), the
-    # newest adjust_at_end_keyframes of them free (the windows leave each keyframe once it is behind them), unless
-    # the run closed a loop. Off with a scale source, on with --scale none (none_adjust_at_end): on the matrix
-    # (docs/matrix.md) it took the map's --scale none rows' ATE after Sim(3) from 0.54 to 0.29 m on KITTI and
-    # 3.8 to 1.8 cm on TUM; with gt it changed KITTI by -0.003..0 m, with height it moved the metric scale
-    # (KITTI step 1 t_err +1.4 %); after a loop it bent the loop open again (synthetic loop 0.04 -> 0.17 m)
+    # when a run completes, the map's newest adjust_at_end_keyframes keyframes and their landmarks adjusted together
+    # once (global_adjustment.py), unless the run closed a loop. Off with a scale source, on with --scale none
+    # (none_adjust_at_end): on the matrix (docs/matrix.md) it took the map's --scale none rows' ATE after Sim(3)
+    # from 0.54 to 0.31 m on KITTI and 3.8 to 1.9 cm on TUM; with gt it changed KITTI by -0.003..0 m, with height
+    # it moved the metric scale (KITTI step 1 t_err +1.4 %); after a loop it bent the loop open again (synthetic
+    # loop 0.04 -> 0.17 m). Every keyframe free: KITTI 05 0:300 1.4-1.7 -> 3.1-3.3 m (the steps lengthen together)
     adjust_at_end: bool = False
     none_adjust_at_end: bool = True
-    adjust_at_end_keyframes: int = 300
+    adjust_at_end_keyframes: int = 60
     # ... holding the front end's rotations at this sigma (0: rotation_prior_deg's), inflated where ambiguous as in BA
     adjust_at_end_rotation_prior_deg: float = 0.01
+    # ... and with --scale none the steps' lengths at this fraction (0: free; none_step_sigma's 0.003 lost TUM's gain)
+    adjust_at_end_step_sigma: float = 0.0
     # sigma of the front end's chained rotation between keyframes with a scale source (0: none): at 0.05 deg
     # bundle adjustment let the keyframes' yaw drift 0.45 deg in KITTI 05's turn (docs/map-backend-history.md)
     rotation_prior_deg: float = 0.01

@@ -55,7 +55,7 @@ class RunResult:
     modes: dict[TrackingMode, int] = field(default_factory=dict)  # map backend: frames per tracking mode
     loops_at_end: list[LoopStep] = field(default_factory=list)  # map backend: the loop searches collected when
     # the run ended (vslam_core/loop/closing.py `finish`); a loop they closed corrected `poses`
-    # map backend: the whole map's adjustment once the run completed (`map.adjust_at_end`), or why it was not run
+    # map backend: the map's adjustment as a whole once the run completed (`map.adjust_at_end`), or why it was not run
     adjusted_at_end: GlobalAdjusted | str | None = None
 
     @property
@@ -70,13 +70,13 @@ class RunResult:
 
     @property
     def adjusted_summary(self) -> str | None:
-        """What the whole map's adjustment at the end did, e.g. ``the whole map once the run ended: 70 keyframes
-        (70 free), 6306 landmarks, reprojection 0.48 -> 0.42 px, 1.1 s``, or why it was not run; None when it is
-        off (`vo`, a scale source) or the run was interrupted."""
+        """What the map's adjustment at the end did, e.g. ``the newest keyframes once the run ended: 60 of 71 free,
+        6306 landmarks, reprojection 0.48 -> 0.42 px, 1.1 s``, or why it was not run; None when it is off (`vo`, a
+        scale source) or the run was interrupted."""
         done = self.adjusted_at_end
         if done is None or isinstance(done, str):
             return done
-        return (f"the whole map once the run ended: {done.keyframes} keyframes ({done.free} free), {done.landmarks} "
+        return (f"the newest keyframes once the run ended: {done.free} of {done.keyframes} free, {done.landmarks} "
                 f"landmarks, reprojection {done.mean_error_before:.2f} -> {done.mean_error_after:.2f} px, "
                 f"{done.milliseconds / 1000:.1f} s")
 

@@ -13,14 +13,14 @@ scale, which also fix the scale). Afterwards observations that reproject worse t
 from __future__ import annotations
 
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from vslam_core.config import MapConfig, ScaleSource
 from vslam_core.geometry import orthonormalise
 from vslam_core.mapping.bundle_adjustment import Problem, solve
-from vslam_core.mapping.local_mapping import rotation_priors
+from vslam_core.mapping.local_mapping import distance_prior, rotation_priors
 from vslam_core.mapping.map import Map
 
 GLOBAL_ITERATIONS = 20  # Levenberg–Marquardt iterations
@@ -103,20 +103,32 @@ def adjust_map(map_: Map, K: np.ndarray, config: MapConfig, scale: ScaleSource, 
         milliseconds=solution.milliseconds)
 
 
+def adjust_at_end(map_: Map, K: np.ndarray, config: MapConfig, scale: ScaleSource,  # noqa: N803
+                  ) -> GlobalAdjusted | str | None:
+    """A run's adjustment once it completed (`config.adjust_at_end`, `for_scale`'s: on with --scale none): the
+    newest `adjust_at_end_keyframes` keyframes free, the front end's rotations at `adjust_at_end_rotation_prior_deg`,
+    the steps at `adjust_at_end_step_sigma` (docs/map-backend.md). None when off; why, when not run."""
+    if not config.adjust_at_end:
+        return None
+    if map_.loop_keyframes:  # no landmark links a loop's two ends: the reprojections would bend it open again
+        return "not run: a loop was closed (no landmark links its two ends; the adjustment would bend it open again)"
+    held = replace(config, rotation_prior_deg=config.adjust_at_end_rotation_prior_deg or config.rotation_prior_deg,
+                   none_step_sigma=config.adjust_at_end_step_sigma)
+    return adjust_map(map_, K, held, scale, max_keyframes=config.adjust_at_end_keyframes)
+
+
 def _ranges(map_: Map, index: dict[int, int], config: MapConfig, scale: ScaleSource) -> np.ndarray:
-    """(R, 4) rows (pose a, pose b, distance, sigma): the scale source's step between consecutive keyframes of a
-    segment, both in the problem (`index`), as the windowed BA has them (none with unit scale)."""
+    """(R, 4) rows (pose a, pose b, distance, sigma): each pair of consecutive keyframes of a segment, both in the
+    problem (`index`), held to its distance as the windowed BA holds it (`local_mapping.distance_prior`: the scale
+    source's step, or with --scale none the distance before this adjustment at `none_step_sigma` of it; the run's
+    own adjustment at the end passes `adjust_at_end_step_sigma`, 0: free)."""
     by_segment: dict[int, list[int]] = {}
     for keyframe in map_.keyframes.values():
         by_segment.setdefault(keyframe.segment, []).append(keyframe.id)
     rows = []
-    if scale != "none":
-        for ids in by_segment.values():
-            for previous, current in zip(ids, ids[1:], strict=False):
-                step = map_.keyframes[current].metric_step
-                if step is None or previous not in index or current not in index:
-                    continue
-                sigma = config.scale_sigma_gt if scale == "gt" else max(config.scale_sigma_height * step, 1e-3)
-                rows.append((index[previous], index[current], step, sigma))
+    for ids in by_segment.values():
+        for previous, current in zip(ids, ids[1:], strict=False):
+            if previous in index and current in index \
+                    and (prior := distance_prior(map_, current, previous, config, scale)) is not None:
+                rows.append((index[previous], index[current], *prior))
     return np.array(rows, np.float64).reshape(-1, 4)
-

@@ -172,19 +172,7 @@ class LocalMapping:
         self._adjuster.submit(problem)
 
     def _distance_prior(self, keyframe: Keyframe, previous: int) -> tuple[float, float] | None:
-        """(distance, sigma) between a window keyframe and the one before it for BA: the scale source's length,
-        or with --scale none their distance before this adjustment (σ `none_step_sigma` of it: BA left free
-        lengthened the map's steps); None: no prior."""
-        cfg = self._config
-        if self._scale == "none":
-            if cfg.none_step_sigma <= 0:
-                return None
-            step = float(np.linalg.norm(keyframe.T_world_cam[:3, 3] - self.map.keyframes[previous].T_world_cam[:3, 3]))
-            return step, max(cfg.none_step_sigma * step, 1e-9)
-        if keyframe.metric_step is None:
-            return None
-        step = keyframe.metric_step
-        return step, cfg.scale_sigma_gt if self._scale == "gt" else max(cfg.scale_sigma_height * step, 1e-3)
+        return distance_prior(self.map, keyframe.id, previous, self._config, self._scale)
 
     # -- keyframes and landmarks ---------------------------------------------------------------------------
 
@@ -380,6 +368,23 @@ class LocalMapping:
             keyframe_path_ids=np.array([k.id for k in path], np.int64),
             landmarks_total=len(self.map.landmarks),
         )
+
+
+def distance_prior(map_: Map, keyframe_id: int, previous: int, config: MapConfig, scale: ScaleSource,
+                   ) -> tuple[float, float] | None:
+    """(distance, sigma) between a keyframe and the one before it for BA (windowed or global): the scale source's
+    length, or with --scale none their distance before this adjustment (σ `none_step_sigma` of it: BA left free
+    lengthened the map's steps); None: no prior."""
+    keyframe = map_.keyframes[keyframe_id]
+    if scale == "none":
+        if config.none_step_sigma <= 0:
+            return None
+        step = float(np.linalg.norm(keyframe.T_world_cam[:3, 3] - map_.keyframes[previous].T_world_cam[:3, 3]))
+        return step, max(config.none_step_sigma * step, 1e-9)
+    if keyframe.metric_step is None:
+        return None
+    step = keyframe.metric_step
+    return step, config.scale_sigma_gt if scale == "gt" else max(config.scale_sigma_height * step, 1e-3)
 
 
 def rotation_priors(map_: Map, index: dict[int, int], config: MapConfig) -> dict[str, Any]:

@@ -83,7 +83,7 @@ def for_scale(config: MapConfig, scale: ScaleSource) -> MapConfig:
     from 8.6 % to 6.7 % and 7.0 % (6.4 % together with keyframes spaced by translation parallax). The front
     end's rotations are held more loosely (`none_rotation_prior_deg`: at the metric sources' 0.01° loop closing
     made two of five routes worse, docs/map-backend-history.md); a revisit's keyframes are not culled
-    (`none_cull_revisits`). The whole map is adjusted when the run ends (`none_adjust_at_end`)."""
+    (`none_cull_revisits`). The map is adjusted as a whole when the run ends (`none_adjust_at_end`)."""
     if scale != "none":
         return config
     return replace(config, min_triangulation_deg=config.none_min_triangulation_deg,

@@ -24,7 +24,7 @@ from vslam_core.engine import Odometry
 from vslam_core.geometry import interpolate_gaps, invert_pose, orthonormalise, pose_matrix
 from vslam_core.lens import distort_pixels, undistort_pixels
 from vslam_core.loop.closing import LoopClosing, rescale_relative
-from vslam_core.mapping.global_adjustment import GlobalAdjusted, adjust_map
+from vslam_core.mapping.global_adjustment import GlobalAdjusted, adjust_at_end
 from vslam_core.mapping.local_map import LocalMapSearcher
 from vslam_core.mapping.local_mapping import LocalMapping, reanchor
 from vslam_core.mapping.map_scale import (
@@ -102,7 +102,7 @@ class MapTracking:
         self._before_map = FramesBeforeMap()  # --scale none: the frames tracked while it waits for that
         self.loop = LoopClosing(intrinsics, config, self._worker) if config.loop.enabled else None
         self.loops_at_end: list[LoopStep] = []  # what the loop searches collected when the run ended did
-        # the whole map's adjustment once the run completed, or why it was not run
+        # the map's adjustment as a whole once the run completed, or why it was not run
         self.adjusted_at_end: GlobalAdjusted | str | None = None
         self._refound: dict[int, np.ndarray] = {}  # landmark id -> ideal pixel: re-found, for a keyframe now
         self._chain = RotationChain()  # the front end's rotations, a prior between keyframes in BA
@@ -116,9 +116,9 @@ class MapTracking:
     def refined_poses(self, count: int, adjust: bool = False) -> list[np.ndarray]:
         """(4, 4) poses of the first `count` frames after the last bundle adjustment: each frame moved with
         its keyframe by every refinement since it was tracked (the pending adjustment is applied first; with
-        `adjust`, a run that completed, then the whole map's once, `map.adjust_at_end`). A gap of held frames
-        between two frames with a pose is filled by interpolating between them: once the motion across the gap
-        is known, that is the best estimate of where the car was (the frames stay flagged in their results)."""
+        `adjust`, a run that completed, then the newest keyframes' together once: `map.adjust_at_end`). A gap of
+        held frames between two frames with a pose is filled by interpolating between them: once the motion
+        across the gap is known, that is the best estimate of where the car was (the frames stay flagged)."""
         if self.mapping.collect_bundle_adjustment() is not None:
             self._odometry.set_keyframe_pose(self.pose_of(self._odometry.key_position))
         if self.loop is not None:
@@ -126,14 +126,8 @@ class MapTracking:
             self.loops_at_end += [step for step, _ in finished]
             for step, correction in finished:  # the last loop searches' loops, if any, move the keyframes too
                 self._follow_loop(step, correction)
-        if adjust and self._cfg.adjust_at_end and self.adjusted_at_end is None:
-            if self.mapping.map.loop_keyframes:  # no landmark links a loop's two ends: it would bend it open
-                self.adjusted_at_end = ("not run: a loop was closed (no landmark links its two ends; the adjustment "
-                                        "would bend it open again)")
-            else:
-                held = self._cfg.adjust_at_end_rotation_prior_deg or self._cfg.rotation_prior_deg
-                self.adjusted_at_end = adjust_map(self.mapping.map, self._K, replace(self._cfg, rotation_prior_deg=held),
-                                                  self.config.scale, max_keyframes=self._cfg.adjust_at_end_keyframes)
+        if adjust and self.adjusted_at_end is None:
+            self.adjusted_at_end = adjust_at_end(self.mapping.map, self._K, self._cfg, self.config.scale)
         return interpolate_gaps([self.pose_of(position) for position in range(count)], self._held)
 
     def _follow_loop(self, step: LoopStep, correction: np.ndarray | None) -> None:
