@@ -201,11 +201,14 @@ class MapConfig:
     # loop 0.04 -> 0.17 m). Every keyframe free: KITTI 05 0:300 1.4-1.7 -> 3.1-3.3 m (the steps lengthen together)
     adjust_at_end: bool = False
     none_adjust_at_end: bool = True
-    adjust_at_end_keyframes: int = 60
+    adjust_at_end_keyframes: int = 300
     # ... holding the front end's rotations at this sigma (0: rotation_prior_deg's), inflated where ambiguous as in BA
     adjust_at_end_rotation_prior_deg: float = 0.01
     # ... and with --scale none the steps' lengths at this fraction (0: free; none_step_sigma's 0.003 lost TUM's gain)
+    # for a camera moving sideways; one moving along its axis more than this (median |cos|, a car: ~1, TUM 0.25-0.36)
+    # keeps none_step_sigma (free, KITTI 05 0:200 / 0:300 went from 0.6-0.7 / 1.4-1.7 to 1.4-1.5 / 3.1-3.3 m)
     adjust_at_end_step_sigma: float = 0.0
+    adjust_at_end_forward_share: float = 0.7
     # sigma of the front end's chained rotation between keyframes with a scale source (0: none): at 0.05 deg
     # bundle adjustment let the keyframes' yaw drift 0.45 deg in KITTI 05's turn (docs/map-backend-history.md)
     rotation_prior_deg: float = 0.01

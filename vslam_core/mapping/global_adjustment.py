@@ -106,15 +106,30 @@ def adjust_map(map_: Map, K: np.ndarray, config: MapConfig, scale: ScaleSource, 
 def adjust_at_end(map_: Map, K: np.ndarray, config: MapConfig, scale: ScaleSource,  # noqa: N803
                   ) -> GlobalAdjusted | str | None:
     """A run's adjustment once it completed (`config.adjust_at_end`, `for_scale`'s: on with --scale none): the
-    newest `adjust_at_end_keyframes` keyframes free, the front end's rotations at `adjust_at_end_rotation_prior_deg`,
-    the steps at `adjust_at_end_step_sigma` (docs/map-backend.md). None when off; why, when not run."""
+    newest `adjust_at_end_keyframes` keyframes free, the front end's rotations at `adjust_at_end_rotation_prior_deg`.
+    The steps' lengths are free (`adjust_at_end_step_sigma`) for a camera moving sideways, held as the windows hold
+    them (`none_step_sigma`) for one moving along its axis (`forward_share` over `adjust_at_end_forward_share`):
+    there a step's length and its landmarks' depths trade off, and free they lengthened together (docs/map-backend.md).
+    None when off; why, when not run."""
     if not config.adjust_at_end:
         return None
     if map_.loop_keyframes:  # no landmark links a loop's two ends: the reprojections would bend it open again
         return "not run: a loop was closed (no landmark links its two ends; the adjustment would bend it open again)"
+    forward = forward_share(map_) > config.adjust_at_end_forward_share
     held = replace(config, rotation_prior_deg=config.adjust_at_end_rotation_prior_deg or config.rotation_prior_deg,
-                   none_step_sigma=config.adjust_at_end_step_sigma)
+                   none_step_sigma=config.none_step_sigma if forward else config.adjust_at_end_step_sigma)
     return adjust_map(map_, K, held, scale, max_keyframes=config.adjust_at_end_keyframes)
+
+
+def forward_share(map_: Map) -> float:
+    """Median over consecutive keyframes of |cos| between the step and the earlier keyframe's optical axis (z): ~1
+    for a car or a walk ahead, 0.25-0.36 for the hand-held TUM frames (measured on their ground truth); 0 with
+    fewer than two keyframes."""
+    poses = np.array([keyframe.T_world_cam for keyframe in map_.keyframes.values()]).reshape(-1, 4, 4)
+    steps = np.einsum("kji,kj->ki", poses[:-1, :3, :3], poses[1:, :3, 3] - poses[:-1, :3, 3])  # in the earlier camera
+    lengths = np.linalg.norm(steps, axis=1)
+    moving = lengths > 1e-9
+    return float(np.median(np.abs(steps[moving, 2]) / lengths[moving])) if moving.any() else 0.0
 
 
 def _ranges(map_: Map, index: dict[int, int], config: MapConfig, scale: ScaleSource) -> np.ndarray:
