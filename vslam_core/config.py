@@ -195,10 +195,9 @@ class MapConfig:
     ba_max_landmarks: int = 400  # the window's landmarks with the most observations
     # when a run completes, the map's newest adjust_at_end_keyframes keyframes and their landmarks adjusted together
     # once (global_adjustment.py), unless the run closed a loop. Off with a scale source, on with --scale none
-    # (none_adjust_at_end): on the matrix (docs/matrix.md) it took the map's --scale none rows' ATE after Sim(3)
-    # from 0.54 to 0.31 m on KITTI and 3.8 to 1.9 cm on TUM; with gt it changed KITTI by -0.003..0 m, with height
-    # it moved the metric scale (KITTI step 1 t_err +1.4 %); after a loop it bent the loop open again (synthetic
-    # loop 0.04 -> 0.17 m). Every keyframe free: KITTI 05 0:300 1.4-1.7 -> 3.1-3.3 m (the steps lengthen together)
+    # (none_adjust_at_end): on the matrix (docs/matrix.md) the map's --scale none rows' ATE after Sim(3) -7.2 %
+    # (TUM 3.8 -> 1.9 cm, KITTI 0.54 -> 0.53 m); with gt it changed KITTI by -0.003..0 m, with height it moved the
+    # metric scale (KITTI step 1 t_err +1.4 %); after a loop it bent the loop open again (synthetic loop 0.04 -> 0.17 m)
     adjust_at_end: bool = False
     none_adjust_at_end: bool = True
     adjust_at_end_keyframes: int = 300

@@ -8,8 +8,7 @@ projection (map_search.py; why it failed: `PnPEstimate.failure`) → else the tw
 lost: relocalisation against recent keyframes (`RELOCALISED`), failing that a new map segment. Tracks live on
 raw pixels; PnP, landmarks and BA on ideal pinhole pixels (vslam_core/lens.py). A frame the health checks
 refuse is dead-reckoned (`COASTED`, vslam_core/coasting.py); one nothing can place keeps the last pose (`LOST`).
-Keyframes go to local mapping; the pending bundle adjustment and loop search are applied then (deterministic).
-"""
+Keyframes go to local mapping; the pending bundle adjustment and loop search are applied then (deterministic)."""
 
 from __future__ import annotations
 
@@ -81,8 +80,7 @@ class MapTracking:
         self._speed = MapSpeed() if config.scale == "none" else None
         self._slow = False  # --scale none: a slow camera (map_scale.slow_camera), its landmarks at a smaller angle
         self._scale: ScaleProvider = self._speed if self._speed is not None else scale
-        # coasting is done here, with the map; bundle adjustment and the loop search run in one worker process
-        # beside tracking (with 2 threads)
+        # coasting is done here, with the map; BA and the loop search in one worker process beside (2 threads)
         self._odometry = Odometry(intrinsics, front_end_config(config, self._cfg), self._scale, coast=False)
         self._worker = BackendWorker() if config.threads > 1 else None
         self.mapping = LocalMapping(intrinsics, self._cfg, config.scale, self._worker)
@@ -102,8 +100,7 @@ class MapTracking:
         self._before_map = FramesBeforeMap()  # --scale none: the frames tracked while it waits for that
         self.loop = LoopClosing(intrinsics, config, self._worker) if config.loop.enabled else None
         self.loops_at_end: list[LoopStep] = []  # what the loop searches collected when the run ended did
-        # the map's adjustment as a whole once the run completed, or why it was not run
-        self.adjusted_at_end: GlobalAdjusted | str | None = None
+        self.adjusted_at_end: GlobalAdjusted | str | None = None  # the adjustment as the run completed, or why not
         self._refound: dict[int, np.ndarray] = {}  # landmark id -> ideal pixel: re-found, for a keyframe now
         self._chain = RotationChain()  # the front end's rotations, a prior between keyframes in BA
         self._step_measured = False  # --scale none: this two-view step's length was measured on landmarks
@@ -114,11 +111,10 @@ class MapTracking:
             self._worker.close()
 
     def refined_poses(self, count: int, adjust: bool = False) -> list[np.ndarray]:
-        """(4, 4) poses of the first `count` frames after the last bundle adjustment: each frame moved with
-        its keyframe by every refinement since it was tracked (the pending adjustment is applied first; with
-        `adjust`, a run that completed, then the newest keyframes' together once: `map.adjust_at_end`). A gap of
-        held frames between two frames with a pose is filled by interpolating between them: once the motion
-        across the gap is known, that is the best estimate of where the car was (the frames stay flagged)."""
+        """(4, 4) poses of the first `count` frames, each moved with its keyframe by every refinement since it was
+        tracked (the pending adjustment first; with `adjust`, a run that completed, then `map.adjust_at_end`'s). A gap
+        of held frames is filled by interpolating across it: once the motion across the gap is known, that is the
+        best estimate of where the car was (the frames stay flagged in their results)."""
         if self.mapping.collect_bundle_adjustment() is not None:
             self._odometry.set_keyframe_pose(self.pose_of(self._odometry.key_position))
         if self.loop is not None:
@@ -142,9 +138,7 @@ class MapTracking:
         """(4, 4) pose of an earlier frame, moved with its keyframe by every refinement since."""
         entry = self._relative.get(position)
         keyframe = self.mapping.map.keyframes.get(entry[0]) if entry is not None else None
-        if entry is None or keyframe is None:
-            return self._last_pose.copy()
-        return keyframe.T_world_cam @ entry[1]
+        return self._last_pose.copy() if entry is None or keyframe is None else keyframe.T_world_cam @ entry[1]
 
     def process(self, frame: Frame) -> FrameResult:
         self.refinding.start_frame(frame)
