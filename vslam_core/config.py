@@ -194,19 +194,20 @@ class MapConfig:
     ba_huber_px: float = 1.5  # Huber threshold of the reprojection error (sigma 1 px)
     ba_max_landmarks: int = 400  # the window's landmarks with the most observations
     # when a run completes, the map's newest adjust_at_end_keyframes keyframes and their landmarks adjusted together
-    # once (global_adjustment.py), unless the run closed a loop. Off with a scale source, on with --scale none
-    # (none_adjust_at_end): on the matrix (docs/matrix.md) the map's --scale none rows' ATE after Sim(3) -7.2 %
-    # (TUM 3.8 -> 1.9 cm, KITTI 0.54 -> 0.53 m); with gt it changed KITTI by -0.003..0 m, with height it moved the
-    # metric scale (KITTI step 1 t_err +1.4 %); after a loop it bent the loop open again (synthetic loop 0.04 -> 0.17 m)
+    # once (global_adjustment.py), for a camera moving sideways and unless the run closed a loop. Off with a scale
+    # source, on with --scale none (none_adjust_at_end): on the matrix (docs/matrix.md) TUM's ATE after Sim(3)
+    # 3.8 -> 1.9 cm; with gt it changed KITTI by -0.003..0 m, with height it moved the metric scale (KITTI step 1
+    # t_err +1.4 %); after a loop it bent the loop open again (synthetic loop 0.04 -> 0.17 m)
     adjust_at_end: bool = False
     none_adjust_at_end: bool = True
     adjust_at_end_keyframes: int = 300
     # ... holding the front end's rotations at this sigma (0: rotation_prior_deg's), inflated where ambiguous as in BA
     adjust_at_end_rotation_prior_deg: float = 0.01
-    # ... and with --scale none the steps' lengths at this fraction (0: free; none_step_sigma's 0.003 lost TUM's gain)
-    # for a camera moving sideways; one moving along its axis more than this (median |cos|, a car: ~1, TUM 0.25-0.36)
-    # keeps none_step_sigma (free, KITTI 05 0:200 / 0:300 went from 0.6-0.7 / 1.4-1.7 to 1.4-1.5 / 3.1-3.3 m)
+    # ... the steps' lengths at this fraction (0: free; at none_step_sigma's 0.003 TUM's gain was lost)
     adjust_at_end_step_sigma: float = 0.0
+    # ... not run for a camera moving along its axis more than this (median |cos| of step and optical axis; a car
+    # ~1, TUM 0.25-0.36): free, KITTI 05 0:200 / 0:300's steps lengthened (0.6-0.7 / 1.4-1.7 -> 1.5 / 3.1-3.3 m
+    # after Sim(3)); held at none_step_sigma, KITTI's t_err +0.07 %
     adjust_at_end_forward_share: float = 0.7
     # sigma of the front end's chained rotation between keyframes with a scale source (0: none): at 0.05 deg
     # bundle adjustment let the keyframes' yaw drift 0.45 deg in KITTI 05's turn (docs/map-backend-history.md)

@@ -106,18 +106,20 @@ def adjust_map(map_: Map, K: np.ndarray, config: MapConfig, scale: ScaleSource, 
 def adjust_at_end(map_: Map, K: np.ndarray, config: MapConfig, scale: ScaleSource,  # noqa: N803
                   ) -> GlobalAdjusted | str | None:
     """A run's adjustment once it completed (`config.adjust_at_end`, `for_scale`'s: on with --scale none): the
-    newest `adjust_at_end_keyframes` keyframes free, the front end's rotations at `adjust_at_end_rotation_prior_deg`.
-    The steps' lengths are free (`adjust_at_end_step_sigma`) for a camera moving sideways, held as the windows hold
-    them (`none_step_sigma`) for one moving along its axis (`forward_share` over `adjust_at_end_forward_share`):
-    there a step's length and its landmarks' depths trade off, and free they lengthened together (docs/map-backend.md).
-    None when off; why, when not run."""
+    newest `adjust_at_end_keyframes` keyframes free, the front end's rotations at `adjust_at_end_rotation_prior_deg`,
+    the steps' lengths at `adjust_at_end_step_sigma` (0: free). Only for a camera moving sideways: along the optical
+    axis (`forward_share` over `adjust_at_end_forward_share`, a car) a step's length and its landmarks' depths trade
+    off, and free the steps lengthened together; held, it changed little (docs/map-backend.md). None when off; why,
+    when not run."""
     if not config.adjust_at_end:
         return None
     if map_.loop_keyframes:  # no landmark links a loop's two ends: the reprojections would bend it open again
         return "not run: a loop was closed (no landmark links its two ends; the adjustment would bend it open again)"
-    forward = forward_share(map_) > config.adjust_at_end_forward_share
+    if (share := forward_share(map_)) > config.adjust_at_end_forward_share:
+        return (f"not run: the camera moves along its optical axis (median |cos| {share:.2f}; its steps would "
+                "lengthen together)")
     held = replace(config, rotation_prior_deg=config.adjust_at_end_rotation_prior_deg or config.rotation_prior_deg,
-                   none_step_sigma=config.none_step_sigma if forward else config.adjust_at_end_step_sigma)
+                   none_step_sigma=config.adjust_at_end_step_sigma)
     return adjust_map(map_, K, held, scale, max_keyframes=config.adjust_at_end_keyframes)
 
 
