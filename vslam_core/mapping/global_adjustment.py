@@ -1,12 +1,13 @@
-"""Global bundle adjustment: every keyframe and landmark of the map refined together, once, before the map is
-saved (`vslam run --save-map`), so a later drive localises against a self-consistent map.
+"""Global bundle adjustment: every keyframe and landmark of the map refined together, once: before the map is
+saved (`vslam run --save-map`), so a later drive localises against a self-consistent map, and with --scale none
+when a hand-held run completes (`adjust_at_end`), so its trajectory is corrected where the windows left it.
 
 The same factor graph as the windowed BA (vslam_core/mapping/bundle_adjustment.py: robust reprojection errors,
-Triggs et al. 2000, eq. 2) over the whole map instead of a window, with the scale source's priors kept: with a
-metric scale, each pair of consecutive keyframes of a segment keeps its `RangeFactorPose3` (the scale source's
-step length; sigma as in the windowed BA), and so do the front end's two-view rotations between consecutive
-keyframes (`rotation_prior_deg`). The gauge: each segment's first keyframe is held fixed (its first two with unit
-scale, which also fix the scale). Afterwards observations that reproject worse than
+Triggs et al. 2000, eq. 2) over the whole map instead of a window, with its priors kept: each pair of consecutive
+keyframes of a segment keeps its `RangeFactorPose3` (the scale source's step length, or with --scale none the
+step's length before the adjustment; sigmas as in the windowed BA), and so do the front end's two-view rotations
+between consecutive keyframes (`rotation_prior_deg`). The gauge: each segment's first keyframe is held fixed (its
+first two with unit scale, which also fix the scale). Afterwards observations that reproject worse than
 `cull_reprojection_px` are dropped, and landmarks left with fewer than two observations.
 """
 
