@@ -150,7 +150,8 @@ class LocalMapping:
         ranges = []
         for keyframe in window:  # consecutive keyframes (ids are consecutive) that are both in the problem
             previous = keyframe.id - 1
-            prior = self._distance_prior(keyframe, previous) if previous in index else None
+            prior = distance_prior(self.map, keyframe.id, previous, self._config, self._scale) \
+                if previous in index else None
             if prior is not None:
                 ranges.append((index[previous], index[keyframe.id], *prior))
         gauge = 2 if self._scale == "none" or not ranges else 1
@@ -170,9 +171,6 @@ class LocalMapping:
         )
         self._submitted = _Submitted(keyframe_ids, len(self._window), np.array(kept_ids, np.int64))
         self._adjuster.submit(problem)
-
-    def _distance_prior(self, keyframe: Keyframe, previous: int) -> tuple[float, float] | None:
-        return distance_prior(self.map, keyframe.id, previous, self._config, self._scale)
 
     # -- keyframes and landmarks ---------------------------------------------------------------------------
 
