@@ -42,6 +42,7 @@ def test_run_with_the_map_backend_which_is_the_default(kitti_root: Path, tmp_pat
     assert sum(counts.values()) == 30 and counts["by PnP against the map"] >= 20, line
     assert "scale can drift" not in line  # ground-truth scale: two-view steps have their true length
     assert "\nadjusted" not in result.stdout  # with a scale source the map is not adjusted again at the end
+    assert "\nsettings" not in result.stdout  # a car moves along its optical axis (|cos| 1.00 over 5 keyframes)
 
     default = tmp_path / "default.txt"  # no --backend, no --config: the default engine is the map
     result = vslam("run", kitti_root, "--sequence", "00", "--frames", "0:30", "--detail", "off", "--trajectory-out",

@@ -8,10 +8,10 @@ import pytest
 
 from vslam_core.config import MapConfig
 from vslam_core.geometry import pose_matrix, rotation_angle, so3_exp
-from vslam_core.mapping.global_adjustment import adjust_at_end, adjust_map, forward_share
+from vslam_core.mapping.global_adjustment import adjust_at_end, adjust_map
 from vslam_core.mapping.localisation_refine import match_by_projection, refine_pose
 from vslam_core.mapping.map import Map
-from vslam_core.mapping.map_scale import for_scale
+from vslam_core.mapping.map_scale import for_scale, forward_share
 from vslam_core.mapping.pnp import project
 
 K = np.array([[700.0, 0.0, 610.0], [0.0, 700.0, 185.0], [0.0, 0.0, 1.0]])

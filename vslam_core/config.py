@@ -205,10 +205,16 @@ class MapConfig:
     adjust_at_end_rotation_prior_deg: float = 0.01
     # ... the steps' lengths at this fraction (0: free; at none_step_sigma's 0.003 TUM's gain was lost)
     adjust_at_end_step_sigma: float = 0.0
-    # ... not run for a camera moving along its axis more than this (median |cos| of step and optical axis; a car
-    # ~1, TUM 0.25-0.36): free, KITTI 05 0:200 / 0:300's steps lengthened (0.6-0.7 / 1.4-1.7 -> 1.5 / 3.1-3.3 m
-    # after Sim(3)); held at none_step_sigma, KITTI's t_err +0.07 %
-    adjust_at_end_forward_share: float = 0.7
+    # ... and only for a camera moving sideways (below): along its axis, free steps lengthened together (KITTI 05
+    # 0:200 / 0:300: 0.6-0.7 / 1.4-1.7 -> 1.5 / 3.1-3.3 m after Sim(3)); held at none_step_sigma, KITTI's t_err +0.07 %
+    # a camera moving sideways: the median |cos| of its keyframe steps with the optical axis is at most this (a car
+    # or a walk ~1, the hand-held TUM frames 0.25-0.36); measured over the first sideways_keyframes keyframes
+    sideways_forward_share: float = 0.7
+    sideways_keyframes: int = 5
+    # ... with a scale source, such a camera then takes --scale none's map settings (the scale still the source's):
+    # TUM with gt, seeds 0-3, final rotation fr1_desk 11.9-14.2 -> 2.5-3.2 deg (docs/map-backend.md); a car never
+    # moves so (KITTI unchanged), and on KITTI these settings cost accuracy (05 0:150:2 ATE 0.08 -> 0.11 m)
+    sideways_as_none: bool = True
     # sigma of the front end's chained rotation between keyframes with a scale source (0: none): at 0.05 deg
     # bundle adjustment let the keyframes' yaw drift 0.45 deg in KITTI 05's turn (docs/map-backend-history.md)
     rotation_prior_deg: float = 0.01

@@ -57,6 +57,9 @@ class RunResult:
     # the run ended (vslam_core/loop/closing.py `finish`); a loop they closed corrected `poses`
     # map backend: the map's adjustment as a whole once the run completed (`map.adjust_at_end`), or why it was not run
     adjusted_at_end: GlobalAdjusted | str | None = None
+    # map backend with a scale source: (run position, forward share) when the camera was found to move sideways
+    # and the map took --scale none's settings from there (`map_scale.sideways_camera`)
+    sideways: tuple[int, float] | None = None
 
     @property
     def frames(self) -> int:
@@ -79,6 +82,17 @@ class RunResult:
         return (f"the newest keyframes once the run ended: {done.free} of {done.keyframes} free, {done.landmarks} "
                 f"landmarks, reprojection {done.mean_error_before:.2f} -> {done.mean_error_after:.2f} px, "
                 f"{done.milliseconds / 1000:.1f} s")
+
+    def settings_summary(self, scale: ScaleSource) -> str | None:
+        """Whether the map changed its settings during the run, e.g. ``a camera moving sideways (median |cos| of
+        keyframe step and optical axis 0.31 by frame 24): the map's --scale none settings from there, the scale
+        still gt's``; None when it did not."""
+        if self.sideways is None:
+            return None
+        position, share = self.sideways
+        return (f"a camera moving sideways (median |cos| of keyframe step and optical axis {share:.2f} by frame "
+                f"{self.indices[position] if position < len(self.indices) else position}): the map's --scale none "
+                f"settings from there, the steps' lengths still from {scale}")
 
     def placed_summary(self, scale: ScaleSource) -> str | None:
         """Where the map backend's poses came from, e.g. ``281 by PnP against the map, 18 by two-view motion, 1
@@ -211,6 +225,7 @@ def run_odometry(
             run.poses[:] = engine.refined_poses(len(run.poses), adjust=completed)
             run.loops_at_end[:] = engine.loops_at_end
             run.adjusted_at_end = engine.adjusted_at_end
+            run.sideways = engine.sideways
         if completed and finish is not None:
             finish(engine)
         engine.close()

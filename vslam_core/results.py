@@ -73,6 +73,9 @@ class Reason(StrEnum):
 
 #: held for standing still, not for a failure: the pose held is the right answer (health warn, not fail)
 STANDING_STILL = frozenset({Reason.STATIONARY, Reason.LOW_PARALLAX})
+#: the front end's reasons to hold a frame, which the map backend overrules when it places the frame itself
+FRONT_END_HOLDS = frozenset({Reason.TOO_FEW_TRACKS, Reason.LOW_PARALLAX, Reason.STATIONARY, Reason.NO_ESSENTIAL,
+                             Reason.TOO_FEW_INLIERS, Reason.CHIRALITY})
 
 
 class HealthStatus(StrEnum):
@@ -93,6 +96,24 @@ class Health:
             return cls(HealthStatus.FAIL, (held, *warnings))
         reasons = ((held,) if held is not None else ()) + tuple(warnings)
         return cls(HealthStatus.WARN if reasons else HealthStatus.OK, reasons)
+
+    @classmethod
+    def under_map(cls, front_end: Reason | None, front_end_reasons: tuple[Reason, ...], placed: bool,
+                  warnings: list[Reason]) -> tuple[Reason | None, Health]:
+        """A map backend frame's (reason held, health) from the front end's (`front_end` reason, its reasons) and
+        the map's `warnings` (a gap's refused motion taken out of them as the reason). Placed by the map, it keeps
+        `stationary` (the image did not move at all: a parked car, a frozen camera) as a warning, as vo does; the
+        other reasons vo would have held it for are the map's to overrule. Not placed, it is held for the front
+        end's failure, or for `tracking_lost` where the front end would only have held it."""
+        if placed:
+            kept = [r for r in front_end_reasons if r not in FRONT_END_HOLDS or r == Reason.STATIONARY]
+            return None, cls.of(None, kept + warnings)
+        reason = front_end if front_end is not None else Reason.TRACKING_LOST
+        if front_end in FRONT_END_HOLDS and front_end not in STANDING_STILL:
+            reason = Reason.TRACKING_LOST
+        if Reason.GAP_MOTION_REJECTED in warnings:  # its two-view motion, measured across a gap, was refused
+            reason = warnings.pop(warnings.index(Reason.GAP_MOTION_REJECTED))
+        return reason, cls.of(reason, [r for r in front_end_reasons if r != front_end] + warnings)
 
 
 @dataclass(frozen=True)

@@ -23,6 +23,7 @@ from vslam_core.geometry import orthonormalise
 from vslam_core.mapping.bundle_adjustment import Problem, solve
 from vslam_core.mapping.local_mapping import distance_prior, rotation_priors
 from vslam_core.mapping.map import Map
+from vslam_core.mapping.map_scale import forward_share
 
 GLOBAL_ITERATIONS = 20  # Levenberg–Marquardt iterations
 MIN_KEYFRAME_OBSERVATIONS = 10  # a keyframe seeing fewer landmarks is held (a pose needs well over PnP's 3)
@@ -109,30 +110,19 @@ def adjust_at_end(map_: Map, K: np.ndarray, config: MapConfig, scale: ScaleSourc
     """A run's adjustment once it completed (`config.adjust_at_end`, `for_scale`'s: on with --scale none): the
     newest `adjust_at_end_keyframes` keyframes free, the front end's rotations at `adjust_at_end_rotation_prior_deg`,
     the steps' lengths at `adjust_at_end_step_sigma` (0: free). Only for a camera moving sideways: along the optical
-    axis (`forward_share` over `adjust_at_end_forward_share`, a car) a step's length and its landmarks' depths trade
+    axis (`forward_share` over `sideways_forward_share`, a car) a step's length and its landmarks' depths trade
     off, and free the steps lengthened together; held, it changed little (docs/map-backend.md). None when off; why,
     when not run."""
     if not config.adjust_at_end:
         return None
     if map_.loop_keyframes:  # no landmark links a loop's two ends: the reprojections would bend it open again
         return "not run: a loop was closed (no landmark links its two ends; the adjustment would bend it open again)"
-    if (share := forward_share(map_)) > config.adjust_at_end_forward_share:
+    if (share := forward_share(map_)) > config.sideways_forward_share:
         return (f"not run: the camera moves along its optical axis (median |cos| {share:.2f}; its steps would "
                 "lengthen together)")
     held = replace(config, rotation_prior_deg=config.adjust_at_end_rotation_prior_deg or config.rotation_prior_deg,
                    none_step_sigma=config.adjust_at_end_step_sigma)
     return adjust_map(map_, K, held, scale, max_keyframes=config.adjust_at_end_keyframes)
-
-
-def forward_share(map_: Map) -> float:
-    """Median over consecutive keyframes of |cos| between the step and the earlier keyframe's optical axis (z): ~1
-    for a car or a walk ahead, 0.25-0.36 for the hand-held TUM frames (measured on their ground truth); 0 with
-    fewer than two keyframes."""
-    poses = np.array([keyframe.T_world_cam for keyframe in map_.keyframes.values()]).reshape(-1, 4, 4)
-    steps = np.einsum("kji,kj->ki", poses[:-1, :3, :3], poses[1:, :3, 3] - poses[:-1, :3, 3])  # in the earlier camera
-    lengths = np.linalg.norm(steps, axis=1)
-    moving = lengths > 1e-9
-    return float(np.median(np.abs(steps[moving, 2]) / lengths[moving])) if moving.any() else 0.0
 
 
 def _ranges(map_: Map, index: dict[int, int], config: MapConfig, scale: ScaleSource) -> np.ndarray:

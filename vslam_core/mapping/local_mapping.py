@@ -63,6 +63,10 @@ class LocalMapping:
         # keyframes culled at the last insertion: id -> (the keyframe its frames now follow, (4, 4) T_anchor_culled)
         self.culled: dict[int, tuple[int, np.ndarray]] = {}
 
+    def use_settings(self, config: MapConfig) -> None:
+        """These settings from the next keyframe on (a camera found to move sideways: `map_scale.sideways_camera`)."""
+        self._config = config
+
     # -- bundle adjustment ---------------------------------------------------------------------------------
 
     def collect_bundle_adjustment(self) -> tuple[BundleAdjusted, np.ndarray] | None:

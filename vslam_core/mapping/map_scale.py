@@ -96,10 +96,34 @@ def for_scale(config: MapConfig, scale: ScaleSource) -> MapConfig:
                    adjust_at_end=config.none_adjust_at_end)
 
 
+def forward_share(map_: Map) -> float:
+    """Median over consecutive keyframes of |cos| between the step and the earlier keyframe's optical axis (z): ~1
+    for a car or a walk ahead, 0.25-0.36 for the hand-held TUM frames (measured on their ground truth); 0 with
+    fewer than two keyframes."""
+    poses = np.array([keyframe.T_world_cam for keyframe in map_.keyframes.values()]).reshape(-1, 4, 4)
+    steps = np.einsum("kji,kj->ki", poses[:-1, :3, :3], poses[1:, :3, 3] - poses[:-1, :3, 3])  # in the earlier camera
+    lengths = np.linalg.norm(steps, axis=1)
+    moving = lengths > 1e-9
+    return float(np.median(np.abs(steps[moving, 2]) / lengths[moving])) if moving.any() else 0.0
+
+
+def sideways_camera(map_: Map, config: MapConfig, scale: ScaleSource) -> float | None:
+    """With a scale source, once the map holds `sideways_keyframes` keyframes: their `forward_share` (decided
+    then, once). At most `sideways_forward_share` the camera moves sideways (a hand-held camera at a desk): each
+    step's one-frame baseline cannot tell a turn from a slide there, and the windows' bundle adjustment is what
+    recovers the turn (docs/method.md), so the map takes `--scale none`'s settings (`for_scale`: rotations held
+    loosely where ambiguous, landmarks from well-conditioned rays, converged windows, the map adjusted as a whole
+    at the end), its steps' lengths still the scale source's. None: not yet, or off (`sideways_as_none`)."""
+    if scale == "none" or not config.sideways_as_none or len(map_.keyframes) < config.sideways_keyframes:
+        return None
+    return forward_share(map_)
+
+
 def front_end_config(config: EngineConfig, map_config: MapConfig) -> EngineConfig:
     """The front end's settings under the map (`map_config`, `for_scale`'s): each frame's refined two-view
-    rotation comes with its covariance when bundle adjustment's rotation prior uses it."""
-    if map_config.rotation_prior_inflation <= 0:
+    rotation comes with its covariance when bundle adjustment's rotation prior uses it (or may: a camera moving
+    sideways takes `--scale none`'s prior, `sideways_camera`)."""
+    if map_config.rotation_prior_inflation <= 0 and not (config.scale != "none" and map_config.sideways_as_none):
         return config
     return replace(config, pose=replace(config.pose, rotation_covariance=True))
 

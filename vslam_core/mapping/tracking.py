@@ -36,6 +36,7 @@ from vslam_core.mapping.map_scale import (
     landmark_settings,
     metric_step,
     pnp_pose,
+    sideways_camera,
     slow_camera,
     translation_parallax,
 )
@@ -45,7 +46,6 @@ from vslam_core.mapping.refinding import MapRefinding, suspended_at_keyframe
 from vslam_core.mapping.relocalisation import relocalise_by_descriptors
 from vslam_core.mapping.worker_process import BackendWorker
 from vslam_core.results import (
-    STANDING_STILL,
     BundleAdjusted,
     FrameResult,
     FrameStatus,
@@ -66,8 +66,6 @@ from vslam_core.two_view import RotationChain
 
 UNUSABLE_IMAGE = {Reason.UNREADABLE_IMAGE, Reason.IMAGE_TOO_DARK, Reason.IMAGE_TOO_BRIGHT, Reason.IMAGE_BLURRED}
 COAST_DISAGREEMENT_DEG = 1.5  # a dead-reckoned rotation this far from the motion model's is not trusted
-HOLD_REASONS = {Reason.TOO_FEW_TRACKS, Reason.LOW_PARALLAX, Reason.STATIONARY, Reason.NO_ESSENTIAL,
-                Reason.TOO_FEW_INLIERS, Reason.CHIRALITY}
 
 
 class MapTracking:
@@ -101,6 +99,8 @@ class MapTracking:
         self.loop = LoopClosing(intrinsics, config, self._worker) if config.loop.enabled else None
         self.loops_at_end: list[LoopStep] = []  # what the loop searches collected when the run ended did
         self.adjusted_at_end: GlobalAdjusted | str | None = None  # the adjustment as the run completed, or why not
+        self.sideways: tuple[int, float] | None = None  # (run position, forward share): --scale none's settings since
+        self._motion_decided = config.scale == "none"  # (map_scale.sideways_camera, decided once)
         self._refound: dict[int, np.ndarray] = {}  # landmark id -> ideal pixel: re-found, for a keyframe now
         self._chain = RotationChain()  # the front end's rotations, a prior between keyframes in BA
         self._step_measured = False  # --scale none: this two-view step's length was measured on landmarks
@@ -429,6 +429,7 @@ class MapTracking:
             self._reference = keyframe.keyframe_id
             self._since_keyframe = 0
             self._start_map(keyframe, links)
+            self._decide_motion(vo.position)
             if self._speed is not None and self._initialised:
                 self._slow = slow_camera(self.mapping.map, keyframe.keyframe_id, self._speed.speed, self._cfg)
             if self.loop is not None:
@@ -457,6 +458,16 @@ class MapTracking:
                             MapFrame(mode, self._segment, two_view, at_raw_pixels(pnp, self._lens), keyframe, bundle,
                                      relocalisation, view, loop, search))
 
+    def _decide_motion(self, position: int) -> None:
+        """With a scale source, once the map has enough keyframes: a camera moving sideways takes --scale none's
+        map settings from here on (`map_scale.sideways_camera`)."""
+        if not self._motion_decided and (share := sideways_camera(self.mapping.map, self._cfg, self.config.scale)) \
+                is not None:
+            self._motion_decided = True
+            if share <= self._cfg.sideways_forward_share:
+                self.sideways, self._cfg = (position, share), for_scale(self._cfg, "none")
+                self.mapping.use_settings(self._cfg)
+
     def _start_map(self, keyframe: KeyframeInserted, links: dict[int, int]) -> None:
         """--scale none: did this keyframe start the segment's map? Then the frames tracked since the last
         keyframe are placed against its first landmarks (`FramesBeforeMap`)."""
@@ -476,21 +487,9 @@ class MapTracking:
         if two_view is not None and len(points_world):  # the front end's points, moved with the pose used
             moved = pose @ invert_pose(two_view)
             points_world = points_world @ moved[:3, :3].T + moved[:3, 3]
-        if held or mode == TrackingMode.COASTED:  # no pose of its own measured: flagged as held
-            reason = vo.reason if vo.reason is not None else Reason.TRACKING_LOST
-            if vo.reason in HOLD_REASONS and vo.reason not in STANDING_STILL:
-                reason = Reason.TRACKING_LOST
-            if Reason.GAP_MOTION_REJECTED in warnings:  # its two-view motion, measured across a gap, was refused
-                reason = warnings.pop(warnings.index(Reason.GAP_MOTION_REJECTED))
-            health = Health.of(reason, [r for r in vo.health.reasons if r != vo.reason] + warnings)
-            status = FrameStatus.HELD
-        else:
-            reason = None
-            # a frame the map placed keeps `stationary` (the image did not move at all: a parked car, a frozen
-            # camera) as a warning, as vo does; the other reasons vo would have held it for are the map's to overrule
-            health = Health.of(None, [r for r in vo.health.reasons if r not in HOLD_REASONS or r == Reason.STATIONARY]
-                               + warnings)
-            status = FrameStatus.INIT if mode == TrackingMode.INIT else FrameStatus.OK
+        placed = not held and mode != TrackingMode.COASTED  # else no pose of its own measured: flagged as held
+        reason, health = Health.under_map(vo.reason, vo.health.reasons, placed, warnings)
+        status = FrameStatus.HELD if not placed else FrameStatus.INIT if mode == TrackingMode.INIT else FrameStatus.OK
         return replace(vo, T_world_cam=pose, status=status, reason=reason, points_world=points_world, health=health,
                        mapping=mapping)
 

@@ -45,6 +45,8 @@ def print_summary(source: FrameSource, run: RunResult, config: EngineConfig, in_
     ]
     if (placed := run.placed_summary(config.scale)) is not None:
         lines.append(f"placed      {placed}")
+    if (settings := run.settings_summary(config.scale)) is not None:
+        lines.append(f"settings    {settings}")
     if (adjusted := run.adjusted_summary) is not None:
         lines.append(f"adjusted    {adjusted}")
     lines.append(f"camera      {camera_line(source.intrinsics)}")

@@ -231,6 +231,8 @@ class Recorder:
                      + (f" — {stopped}" if stopped else "")]
             if (placed := run.placed_summary(self._scale)) is not None:
                 lines += ["", f"Placed: {placed}."]
+            if (settings := run.settings_summary(self._scale)) is not None:
+                lines += ["", f"Settings: {settings}."]
             if (adjusted := run.adjusted_summary) is not None:
                 lines += ["", f"Adjusted: {adjusted}."]
             if self._gt is not None and run.frames > 2:
