@@ -3,6 +3,8 @@ re-found by projection, the pose refined on them), on scenes with exact ground t
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -11,7 +13,7 @@ from vslam_core.geometry import pose_matrix, rotation_angle, so3_exp
 from vslam_core.mapping.global_adjustment import adjust_at_end, adjust_map
 from vslam_core.mapping.localisation_refine import match_by_projection, refine_pose
 from vslam_core.mapping.map import Map
-from vslam_core.mapping.map_scale import for_scale, forward_share
+from vslam_core.mapping.map_scale import for_scale, forward_share, sideways_camera
 from vslam_core.mapping.pnp import project
 
 K = np.array([[700.0, 0.0, 610.0], [0.0, 700.0, 185.0], [0.0, 0.0, 1.0]])
@@ -110,6 +112,45 @@ def test_the_adjustment_at_the_end_is_off_for_a_camera_moving_ahead_or_after_a_l
     assert str(adjust_at_end(map_, K, config, "none")).startswith("not run: a loop was closed")
     for keyframe, pose in zip(map_.keyframes.values(), before, strict=True):
         np.testing.assert_array_equal(keyframe.T_world_cam, pose)
+
+
+def _moving_map(steps: np.ndarray, depth: float = 10.0) -> Map:
+    """Keyframes of an upright camera at the cumulative (K, 3) `steps` (world = camera axes), each seeing the same
+    100 landmarks `depth` ± 20 % ahead of the start."""
+    rng = np.random.default_rng(4)
+    points = depth * np.column_stack((rng.uniform(-0.4, 0.4, 100), rng.uniform(-0.2, 0.2, 100),
+                                      rng.uniform(0.8, 1.2, 100)))
+    map_ = Map()
+    for i, centre in enumerate(np.cumsum(steps, axis=0)):
+        map_.add_keyframe(i, 0, pose_matrix(np.eye(3), centre), np.zeros(0, np.int64), np.zeros((0, 2)), None)
+    for point in points:
+        map_.add_landmark(point, {i: np.zeros(2) for i in map_.keyframes})
+    return map_
+
+
+def test_a_camera_moving_sideways_is_told_from_a_car_and_a_standstill_counts_for_nothing() -> None:
+    """`map_scale.sideways_camera` (with a scale source, at each keyframe, the newest 5): keyframes stepping 3 cm
+    along the camera's x axis and a little along z, 1 m from the scene (a hand-held camera at a desk), move
+    sideways, 1 m steps ahead (a car) do not, and 1 mm steps in random directions 10 m from the landmarks (a car
+    waiting at a light) count for nothing (their directions are noise), so they decide nothing, alone or before
+    the car drives off."""
+    config = MapConfig()
+    rng = np.random.default_rng(8)
+    desk = _moving_map(np.array([[0.03, 0.0, 0.01]] * 6) * rng.choice([-1.0, 1.0], (6, 1)), depth=1.0)
+    car = _moving_map(np.array([[0.02, 0.0, 1.0]] * 6))
+    standstill = rng.normal(0.0, 1.0, (9, 3))
+    waiting = _moving_map(0.001 * standstill / np.linalg.norm(standstill, axis=1, keepdims=True))
+    share = sideways_camera(desk, config, "gt")
+    assert share is not None and share < 0.4 and share <= config.sideways_forward_share
+    assert sideways_camera(car, config, "gt") == pytest.approx(1.0, abs=1e-3)
+    assert forward_share(waiting, 5) == pytest.approx(0.44, abs=0.01)  # counted, the noise would call it sideways
+    assert sideways_camera(waiting, config, "gt") is None
+    drives_off = _moving_map(np.vstack((0.001 * standstill[:4] / np.linalg.norm(standstill[:4], axis=1, keepdims=True),
+                                        [[0.0, 0.0, 1.0]])))
+    assert sideways_camera(drives_off, config, "gt") == pytest.approx(1.0)
+    assert sideways_camera(desk, config, "none") is None  # --scale none has these settings already
+    assert sideways_camera(desk, replace(config, sideways_as_none=False), "gt") is None
+    assert sideways_camera(_moving_map(np.array([[0.03, 0.0, 0.0]] * 4), 1.0), config, "gt") is None  # 4 keyframes
 
 
 def test_global_adjustment_needs_two_keyframes() -> None:

@@ -191,8 +191,8 @@ def test_a_run_on_fr1_xyz_against_its_ground_truth(tum_root: Path, tmp_path: Pat
     """`vslam run` on fr1_xyz's first 60 frames (2 s, 0.73 m of hand-held path), the default engine with
     ground-truth scale: the TUM trajectory carries the frames' own stamps, and scored against the interpolated
     ground truth (measured: ATE 1.4 cm unaligned, 1.1 cm after Sim(3), 0.9° off at the last frame; with a car's
-    settings 2.4, 1.6 cm, 3.6°); the summary
-    and the recording's report say the map took `--scale none`'s settings for a camera moving sideways."""
+    settings 2.4, 1.6 cm, 3.6°); the summary and the recording's report say the map took `--scale none`'s settings
+    for a camera moving sideways."""
     folder = tum_root / "rgbd_dataset_freiburg1_xyz"
     trajectory, rrd = tmp_path / "xyz.txt", tmp_path / "xyz.rrd"
     result = vslam("run", folder, "--frames", "0:60", "--detail", "summary", "-o", rrd, "--trajectory-out",

@@ -176,6 +176,7 @@ RANGES: dict[str, Range] = {
     "map.adjust_at_end_step_sigma": closed(0.0, 10.0),
     "map.sideways_forward_share": closed(0.0, 1.0),
     "map.sideways_keyframes": closed(2, 10_000),
+    "map.sideways_min_step_depth": closed(0.0, 10.0),
     "map.rotation_prior_inflation": closed(0.0, 1e6),
     "map.none_rotation_prior_inflation": closed(0.0, 1e6),
     "map.rotation_prior_floor_deg": closed(0.0, 180.0),

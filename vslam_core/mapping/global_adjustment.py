@@ -117,7 +117,8 @@ def adjust_at_end(map_: Map, K: np.ndarray, config: MapConfig, scale: ScaleSourc
         return None
     if map_.loop_keyframes:  # no landmark links a loop's two ends: the reprojections would bend it open again
         return "not run: a loop was closed (no landmark links its two ends; the adjustment would bend it open again)"
-    if (share := forward_share(map_)) > config.sideways_forward_share:
+    share = forward_share(map_, min_step_depth=config.sideways_min_step_depth)
+    if share is not None and share > config.sideways_forward_share:
         return (f"not run: the camera moves along its optical axis (median |cos| {share:.2f}; its steps would "
                 "lengthen together)")
     held = replace(config, rotation_prior_deg=config.adjust_at_end_rotation_prior_deg or config.rotation_prior_deg,

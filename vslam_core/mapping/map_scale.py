@@ -96,27 +96,33 @@ def for_scale(config: MapConfig, scale: ScaleSource) -> MapConfig:
                    adjust_at_end=config.none_adjust_at_end)
 
 
-def forward_share(map_: Map) -> float:
-    """Median over consecutive keyframes of |cos| between the step and the earlier keyframe's optical axis (z): ~1
-    for a car or a walk ahead, 0.25-0.36 for the hand-held TUM frames (measured on their ground truth); 0 with
-    fewer than two keyframes."""
-    poses = np.array([keyframe.T_world_cam for keyframe in map_.keyframes.values()]).reshape(-1, 4, 4)
-    steps = np.einsum("kji,kj->ki", poses[:-1, :3, :3], poses[1:, :3, 3] - poses[:-1, :3, 3])  # in the earlier camera
-    lengths = np.linalg.norm(steps, axis=1)
-    moving = lengths > 1e-9
-    return float(np.median(np.abs(steps[moving, 2]) / lengths[moving])) if moving.any() else 0.0
+def forward_share(map_: Map, newest: int | None = None, min_step_depth: float = 0.0) -> float | None:
+    """Median over consecutive keyframes of a segment (the `newest` keyframes only, if given) of |cos| between the
+    step and the earlier keyframe's optical axis (z): ~1 for a car or a walk ahead, 0.25-0.39 for the hand-held
+    TUM frames. A step shorter than `min_step_depth` times the median depth of the earlier keyframe's landmarks (a
+    standstill: its direction is noise) does not count; None when no step counts."""
+    keyframes = list(map_.keyframes.values())[-(newest or 0):]
+    shares = []
+    for before, after in zip(keyframes, keyframes[1:], strict=False):
+        step = before.T_world_cam[:3, :3].T @ (after.T_world_cam[:3, 3] - before.T_world_cam[:3, 3])  # in `before`
+        length = float(np.linalg.norm(step))
+        depth = median_depth(map_, before) if min_step_depth > 0 else None
+        if before.segment == after.segment and length > 1e-9 and (depth is None or length >= min_step_depth * depth):
+            shares.append(abs(float(step[2])) / length)
+    return float(np.median(shares)) if shares else None
 
 
 def sideways_camera(map_: Map, config: MapConfig, scale: ScaleSource) -> float | None:
-    """With a scale source, once the map holds `sideways_keyframes` keyframes: their `forward_share` (decided
-    then, once). At most `sideways_forward_share` the camera moves sideways (a hand-held camera at a desk): each
-    step's one-frame baseline cannot tell a turn from a slide there, and the windows' bundle adjustment is what
-    recovers the turn (docs/method.md), so the map takes `--scale none`'s settings (`for_scale`: rotations held
-    loosely where ambiguous, landmarks from well-conditioned rays, converged windows, the map adjusted as a whole
-    at the end), its steps' lengths still the scale source's. None: not yet, or off (`sideways_as_none`)."""
+    """With a scale source, at each keyframe once the map holds `sideways_keyframes`: the `forward_share` of the
+    newest `sideways_keyframes` (a standstill's steps left out, `sideways_min_step_depth`). At most
+    `sideways_forward_share` the camera moves sideways (a hand-held camera at a desk): a one-frame baseline cannot
+    tell a turn from a slide there, and the windows' bundle adjustment is what recovers the turn (docs/method.md),
+    so the map takes `--scale none`'s settings from then on (`for_scale`: rotations held loosely where ambiguous,
+    landmarks from well-conditioned rays, converged windows, the map adjusted as a whole at the end), the steps'
+    lengths still the scale source's. None: not yet (or no step counted), or off (`sideways_as_none`)."""
     if scale == "none" or not config.sideways_as_none or len(map_.keyframes) < config.sideways_keyframes:
         return None
-    return forward_share(map_)
+    return forward_share(map_, config.sideways_keyframes, config.sideways_min_step_depth)
 
 
 def front_end_config(config: EngineConfig, map_config: MapConfig) -> EngineConfig:
@@ -203,12 +209,17 @@ def slow_camera(the_map: Map, keyframe_id: int, speed: float, config: MapConfig)
     meet at `none_min_triangulation_deg` (3.5°), and without new landmarks its map starves. Scale-free: depth
     and speed are both in the map's units."""
     keyframe = the_map.keyframes[keyframe_id]
+    depth = median_depth(the_map, keyframe)
+    return depth is not None and depth > config.slow_depth_frames * speed
+
+
+def median_depth(the_map: Map, keyframe: Keyframe) -> float | None:
+    """Median depth of the landmarks `keyframe` observes, in its camera; None when it observes none."""
     ids = np.array([i for i in keyframe.landmark_ids if i in the_map.landmarks], np.int64)
     if not len(ids):
-        return False
+        return None
     T_cam_world = invert_pose(keyframe.T_world_cam)  # noqa: N806
-    depths = the_map.positions(ids) @ T_cam_world[2, :3] + T_cam_world[2, 3]
-    return float(np.median(depths)) > config.slow_depth_frames * speed
+    return float(np.median(the_map.positions(ids) @ T_cam_world[2, :3] + T_cam_world[2, 3]))
 
 
 def landmark_settings(config: MapConfig, slow: bool, starving: bool = False) -> MapConfig:

@@ -99,8 +99,8 @@ class MapTracking:
         self.loop = LoopClosing(intrinsics, config, self._worker) if config.loop.enabled else None
         self.loops_at_end: list[LoopStep] = []  # what the loop searches collected when the run ended did
         self.adjusted_at_end: GlobalAdjusted | str | None = None  # the adjustment as the run completed, or why not
-        self.sideways: tuple[int, float] | None = None  # (run position, forward share): --scale none's settings since
-        self._motion_decided = config.scale == "none"  # (map_scale.sideways_camera, decided once)
+        # (run position, forward share): a camera moving sideways, --scale none's settings since (sideways_camera)
+        self.sideways: tuple[int, float] | None = None
         self._refound: dict[int, np.ndarray] = {}  # landmark id -> ideal pixel: re-found, for a keyframe now
         self._chain = RotationChain()  # the front end's rotations, a prior between keyframes in BA
         self._step_measured = False  # --scale none: this two-view step's length was measured on landmarks
@@ -461,12 +461,10 @@ class MapTracking:
     def _decide_motion(self, position: int) -> None:
         """With a scale source, once the map has enough keyframes: a camera moving sideways takes --scale none's
         map settings from here on (`map_scale.sideways_camera`)."""
-        if not self._motion_decided and (share := sideways_camera(self.mapping.map, self._cfg, self.config.scale)) \
-                is not None:
-            self._motion_decided = True
-            if share <= self._cfg.sideways_forward_share:
-                self.sideways, self._cfg = (position, share), for_scale(self._cfg, "none")
-                self.mapping.use_settings(self._cfg)
+        if self.sideways is None and (share := sideways_camera(self.mapping.map, self._cfg, self.config.scale)) \
+                is not None and share <= self._cfg.sideways_forward_share:
+            self.sideways, self._cfg = (position, share), for_scale(self._cfg, "none")
+            self.mapping.use_settings(self._cfg)
 
     def _start_map(self, keyframe: KeyframeInserted, links: dict[int, int]) -> None:
         """--scale none: did this keyframe start the segment's map? Then the frames tracked since the last
