@@ -194,10 +194,10 @@ class MapConfig:
     ba_huber_px: float = 1.5  # Huber threshold of the reprojection error (sigma 1 px)
     ba_max_landmarks: int = 400  # the window's landmarks with the most observations
     # when a run completes, the map's newest adjust_at_end_keyframes keyframes and their landmarks adjusted together
-    # once (global_adjustment.py), for a camera moving sideways and unless the run closed a loop. Off with a scale
-    # source, on with --scale none (none_adjust_at_end): on the matrix (docs/matrix.md) TUM's ATE after Sim(3)
-    # 3.8 -> 1.9 cm; with gt it changed KITTI by -0.003..0 m, with height it moved the metric scale (KITTI step 1
-    # t_err +1.4 %); after a loop it bent the loop open again (synthetic loop 0.04 -> 0.17 m)
+    # once (global_adjustment.py), unless the run closed a loop (it bent the synthetic loop open: 0.04 -> 0.17 m) and
+    # only for a camera moving sideways (along its axis free steps lengthened: KITTI 05 0:300 1.4-1.7 -> 3.1-3.3 m).
+    # Off with a scale source (gt changed KITTI by -0.003..0 m, height moved its metric scale), on with --scale none
+    # (none_adjust_at_end: TUM's ATE after Sim(3) 3.8 -> 1.9 cm on the matrix, docs/matrix.md)
     adjust_at_end: bool = False
     none_adjust_at_end: bool = True
     adjust_at_end_keyframes: int = 300
@@ -205,20 +205,16 @@ class MapConfig:
     adjust_at_end_rotation_prior_deg: float = 0.01
     # ... the steps' lengths at this fraction (0: free; at none_step_sigma's 0.003 TUM's gain was lost)
     adjust_at_end_step_sigma: float = 0.0
-    # ... and only for a camera moving sideways (below): along its axis, free steps lengthened together (KITTI 05
-    # 0:200 / 0:300: 0.6-0.7 / 1.4-1.7 -> 1.5 / 3.1-3.3 m after Sim(3)); held at none_step_sigma, KITTI's t_err +0.07 %
     # a camera moving sideways: the median |cos| of its keyframe steps with the optical axis is at most this (a car
     # or a walk ~1, the hand-held TUM frames 0.25-0.39); with a scale source measured at each keyframe over the newest
-    # sideways_keyframes from the map's sideways_keyframes-th on (deciding once at the 3rd left fr1_desk a car's
-    # settings in 2 of 4 runs; at the 8th its gain halved), a step shorter than sideways_min_step_depth of its
-    # landmarks' median depth (a standstill: its direction is noise) left out
+    # sideways_keyframes, from the map's sideways_keyframes-th on (at the 3rd fr1_desk had not turned sideways yet
+    # in 2 of 4 runs; at the 8th its gain halved), a step shorter than sideways_min_step_depth of its landmarks'
+    # median depth (a standstill: its direction is noise) left out
     sideways_forward_share: float = 0.7
     sideways_keyframes: int = 5
     sideways_min_step_depth: float = 0.005
-    # ... with a scale source, such a camera then takes --scale none's map settings for good (the steps' lengths
-    # still the source's): TUM with gt, seeds 0-3, fr1_desk final rotation 11.9-14.2 -> 1.9-3.4 deg
-    # (docs/map-backend.md); no car moves so (KITTI unchanged), and on KITTI these settings cost accuracy (05
-    # 0:150:2 ATE after Sim(3) 0.084 -> 0.106 m)
+    # ... with a scale source such a camera takes --scale none's map settings for good, its steps still the source's:
+    # fr1_desk gt final rotation 11.9-14.2 -> 1.9-3.4 deg; on KITTI they cost accuracy (docs/map-backend.md)
     sideways_as_none: bool = True
     # sigma of the front end's chained rotation between keyframes with a scale source (0: none): at 0.05 deg
     # bundle adjustment let the keyframes' yaw drift 0.45 deg in KITTI 05's turn (docs/map-backend-history.md)
