@@ -205,6 +205,12 @@ def test_a_run_on_fr1_xyz_against_its_ground_truth(tum_root: Path, tmp_path: Pat
                                            r"settings from there, the steps' lengths still from gt$", settings[0])
     report = read_entity(rrd, "/report", static=True)["TextDocument:text"].to_list()[-1][0]
     assert f"Settings: {settings[0].removeprefix('settings').strip()}." in report, report
+    events = [text for row in read_entity(rrd, "/events")["TextLog:text"].to_list() for text in row]
+    switched = [text for text in events if "a camera moving sideways" in text]  # on the timeline, where it happened
+    found = re.search(r"\|cos\| of keyframe step and optical axis (0\.\d\d) by frame (\d+)", settings[0])
+    assert found is not None and switched == [f"frame {found[2]}: a camera moving sideways (median |cos| of keyframe "
+                                              f"step and optical axis {found[1]}): the map's --scale none settings "
+                                              "from here on"], switched
     stamps, poses = read_tum_poses(trajectory)
     listed = [float(line.split()[0]) for line in (folder / "rgb.txt").read_text().splitlines()
               if not line.startswith("#")][:60]

@@ -338,6 +338,9 @@ class MapFrame:
     view: MapView | None = None  # at keyframes
     loop: LoopStep | None = None  # at keyframes, with loop closing on
     local_map: LocalMapSearch | None = None  # landmarks projected and searched for in this frame
+    # the camera was found moving sideways at this frame (its keyframe steps' median |cos| with the optical axis):
+    # the map takes --scale none's settings from here on, with a scale source (map_scale.sideways_camera)
+    sideways_share: float | None = None
 
 
 @dataclass(frozen=True)

@@ -456,7 +456,8 @@ class MapTracking:
         search = search_at_raw_pixels(self.refinding.search, self._lens)
         return self._result(vo, pose, held, mode, warnings, two_view,
                             MapFrame(mode, self._segment, two_view, at_raw_pixels(pnp, self._lens), keyframe, bundle,
-                                     relocalisation, view, loop, search))
+                                     relocalisation, view, loop, search,
+                                     self.sideways[1] if self.sideways and self.sideways[0] == vo.position else None))
 
     def _decide_motion(self, position: int) -> None:
         """With a scale source, once the map has enough keyframes: a camera moving sideways takes --scale none's

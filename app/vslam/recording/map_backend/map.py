@@ -339,6 +339,9 @@ class MapRecording:
             add_event(columns, frame, f"bundle adjustment over keyframes {span} ({len(ba.fixed_keyframe_ids)} "
                       f"fixed): mean error {ba.mean_error_before:.2f} → {ba.mean_error_after:.2f} px, "
                       f"{ba.culled} culled", "DEBUG")
+        if mapping.sideways_share is not None:
+            add_event(columns, frame, f"a camera moving sideways (median |cos| of keyframe step and optical axis "
+                      f"{mapping.sideways_share:.2f}): the map's --scale none settings from here on", "INFO")
         keyframe = mapping.keyframe
         if keyframe is not None:
             total = f", {mapping.view.landmarks_total} in the map" if mapping.view is not None else ""
