@@ -85,8 +85,8 @@ class RunResult:
 
     def settings_summary(self, scale: ScaleSource) -> str | None:
         """Whether the map changed its settings during the run, e.g. ``a camera moving sideways (median |cos| of
-        keyframe step and optical axis 0.31 by frame 24): the map's --scale none settings from there, the scale
-        still gt's``; None when it did not."""
+        keyframe step and optical axis 0.39 by frame 16): the map's --scale none settings from there, the steps'
+        lengths still from gt``; None when it did not."""
         if self.sideways is None:
             return None
         position, share = self.sideways
