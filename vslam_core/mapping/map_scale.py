@@ -15,7 +15,8 @@ to dead reckoning in place of `UnitScale`, and tells it every frame's pose (`obs
 
 With a scale source the map takes its steps' lengths from it (`pnp_pose`, `metric_step`: the BA's range priors),
 except with `--scale height` on a frame without a road plane, where it keeps its own scale, as without one
-(`height_unmeasured`).
+(`height_unmeasured`). The map's other settings follow the scale source (`for_scale`), and with one, the camera's
+motion too: a camera moving sideways takes `--scale none`'s (`sideways_camera`).
 """
 
 from __future__ import annotations
