@@ -196,8 +196,8 @@ class MapConfig:
     # when a run completes, the map's newest adjust_at_end_keyframes keyframes and their landmarks adjusted together
     # once (global_adjustment.py), unless the run closed a loop (it bent the synthetic loop open: 0.04 -> 0.17 m) and
     # only for a camera moving sideways (along its axis free steps lengthened: KITTI 05 0:300 1.4-1.7 -> 3.1-3.3 m).
-    # Off with a scale source (gt changed KITTI by -0.003..0 m, height moved its metric scale), on with --scale none
-    # (none_adjust_at_end: TUM's ATE after Sim(3) 3.8 -> 1.9 cm on the matrix, docs/matrix.md)
+    # Off with a scale source but for a camera moving sideways (sideways_as_none; for a car gt changed KITTI by
+    # -0.003..0 m, height moved its metric scale), on with --scale none (none_adjust_at_end: TUM 3.8 -> 1.9 cm)
     adjust_at_end: bool = False
     none_adjust_at_end: bool = True
     adjust_at_end_keyframes: int = 300

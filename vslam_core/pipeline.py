@@ -75,7 +75,7 @@ class RunResult:
     def adjusted_summary(self) -> str | None:
         """What the map's adjustment at the end did, e.g. ``the newest keyframes once the run ended: 60 of 71 free,
         6306 landmarks, reprojection 0.48 -> 0.42 px, 1.1 s``, or why it was not run; None when it is off (`vo`, a
-        scale source) or the run was interrupted."""
+        scale source for a camera not moving sideways) or the run was interrupted."""
         done = self.adjusted_at_end
         if done is None or isinstance(done, str):
             return done
