@@ -73,15 +73,15 @@ class MapTracking:
 
     def __init__(self, intrinsics: CameraIntrinsics, config: EngineConfig, scale: ScaleProvider) -> None:
         self._lens = intrinsics  # tracks are on raw pixels; the map's geometry on ideal ones (vslam_core/lens.py)
-        self.config, self._cfg, self._K = config, for_scale(config.map, config.scale), intrinsics.K
+        self.config, self.settings, self._K = config, for_scale(config.map, config.scale), intrinsics.K
         # --scale none: steps the map cannot place take their length from the map's speed, never unit steps
         self._speed = MapSpeed() if config.scale == "none" else None
         self._slow = False  # --scale none: a slow camera (map_scale.slow_camera), its landmarks at a smaller angle
         self._scale: ScaleProvider = self._speed if self._speed is not None else scale
         # coasting is done here, with the map; BA and the loop search in one worker process beside (2 threads)
-        self._odometry = Odometry(intrinsics, front_end_config(config, self._cfg), self._scale, coast=False)
+        self._odometry = Odometry(intrinsics, front_end_config(config, self.settings), self._scale, coast=False)
         self._worker = BackendWorker() if config.threads > 1 else None
-        self.mapping = LocalMapping(intrinsics, self._cfg, config.scale, self._worker)
+        self.mapping = LocalMapping(intrinsics, self.settings, config.scale, self._worker)
         self._links: dict[int, int] = {}  # live track id -> landmark id
         self._suspended: dict[int, int] = {}  # tracks PnP rejected -> their landmark (observed at keyframes only)
         self._segment = 0
@@ -99,12 +99,13 @@ class MapTracking:
         self.loop = LoopClosing(intrinsics, config, self._worker) if config.loop.enabled else None
         self.loops_at_end: list[LoopStep] = []  # what the loop searches collected when the run ended did
         self.adjusted_at_end: GlobalAdjusted | str | None = None  # the adjustment as the run completed, or why not
-        # (run position, forward share): a camera moving sideways, --scale none's settings since (sideways_camera)
+        # (run position, forward share): a camera moving sideways, --scale none's `settings` since (sideways_camera)
         self.sideways: tuple[int, float] | None = None
         self._refound: dict[int, np.ndarray] = {}  # landmark id -> ideal pixel: re-found, for a keyframe now
         self._chain = RotationChain()  # the front end's rotations, a prior between keyframes in BA
         self._step_measured = False  # --scale none: this two-view step's length was measured on landmarks
-        self.refinding = MapRefinding(intrinsics, self._cfg, LocalMapSearcher(intrinsics, self._cfg), config.tracker)
+        self.refinding = MapRefinding(intrinsics, self.settings, LocalMapSearcher(intrinsics, self.settings),
+                                      config.tracker)
 
     def close(self) -> None:
         if self._worker is not None:
@@ -123,7 +124,7 @@ class MapTracking:
             for step, correction in finished:  # the last loop searches' loops, if any, move the keyframes too
                 self._follow_loop(step, correction)
         if adjust and self.adjusted_at_end is None:
-            self.adjusted_at_end = adjust_at_end(self.mapping.map, self._K, self._cfg, self.config.scale)
+            self.adjusted_at_end = adjust_at_end(self.mapping.map, self._K, self.settings, self.config.scale)
         return interpolate_gaps([self.pose_of(position) for position in range(count)], self._held)
 
     def _follow_loop(self, step: LoopStep, correction: np.ndarray | None) -> None:
@@ -165,13 +166,13 @@ class MapTracking:
         pose, mode, why = None, TrackingMode.LOST, None
         if pnp is not None and pnp.rejected is None and pnp.T_world_cam is not None:
             mode = TrackingMode.MAP  # --scale none (or height without a plane): PnP's pose, in the map's scale
-            pose, flagged = pnp_pose(self.config, self._cfg, vo, pnp, two_view, self.pose_of(vo.keyframe_position))
+            pose, flagged = pnp_pose(self.config, self.settings, vo, pnp, two_view, self.pose_of(vo.keyframe_position))
             warnings += flagged
         elif self._has_map() and (lost_tracks or self._gap):
             clock = time.perf_counter()
             relocalisation, found = self.refinding.relocalise(self.mapping.map, self._reference, self._segment,
                                                               (self.config.pose.seed, vo.position)) \
-                if self._cfg.local_map_tracking else (None, None)
+                if self.settings.local_map_tracking else (None, None)
             if found is not None:
                 self._link_found(found)
             else:
@@ -195,14 +196,14 @@ class MapTracking:
             if pose is not None:
                 mode = TrackingMode.COASTED
                 warnings.append(Reason.COASTED)
-        if (self._cfg.local_map_tracking and pose is not None and mode in (TrackingMode.MAP, TrackingMode.TWO_VIEW)
+        if (self.settings.local_map_tracking and pose is not None and mode in (TrackingMode.MAP, TrackingMode.TWO_VIEW)
                 and self._has_map()):
             clock = time.perf_counter()
             refound = self.refinding.track(self.mapping, self._reference, self._segment, pose,
                                            set(self._links.values()) | set(self._suspended.values()))
             self._link_found(refound)
             error = np.linalg.norm(refound.observed - refound.projected, axis=1)  # off the pose: a keyframe
-            close = (error <= self._cfg.keyframe_observation_px) & ~refound.inlier_mask  # made now observes it
+            close = (error <= self.settings.keyframe_observation_px) & ~refound.inlier_mask  # made now observes it
             self._refound = dict(zip(refound.landmark_ids[close].tolist(), refound.observed[close], strict=True))
             timings["local_map"] = _lap(clock)
         if relocalisation is not None:
@@ -231,7 +232,7 @@ class MapTracking:
                    vo: FrameResult) -> PnPEstimate | None:
         """PnP on the landmarks the (N,) tracks at (N, 2) pixels are linked to, with its checks; None before
         the map has landmarks. Outlier tracks lose their link."""
-        cfg = self._cfg
+        cfg = self.settings
         landmarks = self.mapping.map.landmarks
         rows = [(n, self._links[t]) for n, t in enumerate(track_ids.tolist())
                 if t in self._links and self._links[t] in landmarks]
@@ -255,14 +256,14 @@ class MapTracking:
         outliers = set(landmark_ids[~inlier_mask[:len(landmark_ids)]].tolist())
         for track_id, landmark_id in [(t, m) for t, m in self._links.items() if m in outliers]:
             del self._links[track_id]
-            if self._cfg.local_map_tracking:
+            if self.settings.local_map_tracking:
                 self._suspended[track_id] = landmark_id
 
     def _search_map(self, vo: FrameResult, two_view: np.ndarray | None,
                     tracked: PnPEstimate | None) -> PnPEstimate | None:
         """PnP on the `tracked` landmarks failed: the local map searched by projection (map_search.py)."""
         predicted = two_view if two_view is not None else self.refinding.predicted_pose()
-        if predicted is None or not self._cfg.map_search:  # off: only the landmarks in view counted, if any tracked
+        if predicted is None or not self.settings.map_search:  # off: only the landmarks in view counted, if any tracked
             return self.refinding.in_view(self.mapping.map, self._reference, self._segment, predicted, tracked)
         ids, pixels = (tracked.landmark_ids, tracked.observed) if tracked else (np.zeros(0, np.int64), np.zeros((0, 2)))
         origin = self.pose_of(vo.keyframe_position) if two_view is not None else None
@@ -278,9 +279,10 @@ class MapTracking:
     def _fitted(self, two_view: np.ndarray, vo: FrameResult, pnp: PnPEstimate | None) -> np.ndarray:
         """--scale none: the two-view pose, its step's length measured on the landmarks the frame sees if
         enough agree (map_search.fitted_two_view)."""
-        fitted = fitted_two_view(self.mapping.map, self.pose_of(vo.keyframe_position), vo.T_key_cur, pnp, self._K,
-                                 self._cfg) if self._speed and self._initialised and pnp and vo.T_key_cur is not None \
-            else None
+        fitted = None
+        if self._speed and self._initialised and pnp and vo.T_key_cur is not None:
+            fitted = fitted_two_view(self.mapping.map, self.pose_of(vo.keyframe_position), vo.T_key_cur, pnp,
+                                     self._K, self.settings)
         self._step_measured = fitted is not None
         return two_view if fitted is None else fitted
 
@@ -297,13 +299,13 @@ class MapTracking:
         """Why a PnP pose is not trusted, if it is not; whether it outvoted the two-view rotation; the failure."""
         motion = (invert_pose(self.pose_of(vo.keyframe_position)) @ solution.T_world_cam
                   if solution.T_world_cam is not None and two_view is not None else None)
-        return check_pnp(solution, motion, vo.T_key_cur, self.refinding.predicted_pose, self._cfg)
+        return check_pnp(solution, motion, vo.T_key_cur, self.refinding.predicted_pose, self.settings)
 
     def relocalise(self, image: np.ndarray, position: int) -> tuple[Relocalisation, PnPEstimate | None]:
         """Unguided relocalisation against the segment's recent keyframes (`relocalise_by_descriptors`). Returns
         the attempt and, on success, the estimate (its matched corners start tracks linked to their landmarks)."""
         attempt, found, raw = relocalise_by_descriptors(self.mapping.map, self._segment, image, self.mapping.describer,
-                                                        self._lens, self._cfg, (self.config.pose.seed, position, 1))
+                                                        self._lens, self.settings, (self.config.pose.seed, position, 1))
         if found is not None:
             new_tracks = self._odometry.add_tracks(raw)
             self._links.update(zip(new_tracks.tolist(), found.landmark_ids[found.inlier_mask].tolist(), strict=True))
@@ -338,7 +340,7 @@ class MapTracking:
                          pose: np.ndarray) -> tuple[str | None, np.ndarray]:
         """What makes this tracked frame a keyframe, if anything, and the pose to insert it at: its own, or with
         --scale none the one the map's initialisation measured from the last keyframe."""
-        cfg = self._cfg
+        cfg = self.settings
         reference = self.mapping.map.keyframes[self._reference]
         alive = vo.track_fate >= TrackFate.NOT_USED
         _, in_reference, in_frame = np.intersect1d(reference.track_ids, vo.track_ids[alive], assume_unique=True,
@@ -411,14 +413,14 @@ class MapTracking:
             track_ids, raw = self._odometry.live_tracks()
             pixels = undistort_pixels(raw, self._lens)
             tied, relinked = suspended_at_keyframe(self.mapping.map, self._suspended, track_ids, pixels, pose, self._K,
-                                                   self._cfg)
+                                                   self.settings)
             self._links.update(relinked)
             keyframe, links, view = self.mapping.insert_keyframe(
                 vo.position, self._segment, pose, track_ids, pixels, frame.image,
                 metric_step(self.config.scale, self._scale, self.mapping.map.keyframes.get(self._reference),
                             vo.position, pose, vo),
                 why, {**self._links, **tied}, self._refound,
-                landmark_settings(self._cfg, self._slow, starving=why.startswith("map:")),
+                landmark_settings(self.settings, self._slow, starving=why.startswith("map:")),
                 self._chain.between(self.mapping.map.keyframes[self._reference].position, vo.position)
                 if self._reference >= 0 else None)
             reanchor(self._relative, self.mapping.culled)  # the frames of a culled keyframe follow another
@@ -431,7 +433,7 @@ class MapTracking:
             self._start_map(keyframe, links)
             self._decide_motion(vo.position)
             if self._speed is not None and self._initialised:
-                self._slow = slow_camera(self.mapping.map, keyframe.keyframe_id, self._speed.speed, self._cfg)
+                self._slow = slow_camera(self.mapping.map, keyframe.keyframe_id, self._speed.speed, self.settings)
             if self.loop is not None:
                 self.loop.forget(list(self.mapping.culled))
                 self.loop.submit(keyframe.keyframe_id, frame.image)
@@ -442,8 +444,8 @@ class MapTracking:
         self._last_pose = pose
         self._posed_position = self._posed_position if held else vo.position
         if self._speed is not None and not held:
-            self._speed.observe(vo.position, pose, mode in (TrackingMode.MAP, TrackingMode.RELOCALISED)
-                                or (mode == TrackingMode.TWO_VIEW and self._step_measured and self._cfg.step_fit_speed))
+            step_fitted = mode == TrackingMode.TWO_VIEW and self._step_measured and self.settings.step_fit_speed
+            self._speed.observe(vo.position, pose, mode in (TrackingMode.MAP, TrackingMode.RELOCALISED) or step_fitted)
             if not self._initialised and keyframe is None:
                 alive = vo.track_fate >= TrackFate.NOT_USED
                 pixels = undistort_pixels(vo.track_cur[alive], self._lens)
@@ -462,19 +464,19 @@ class MapTracking:
     def _decide_motion(self, position: int) -> None:
         """With a scale source, once the map has enough keyframes: a camera moving sideways takes --scale none's
         map settings from here on (`map_scale.sideways_camera`)."""
-        if self.sideways is None and (share := sideways_camera(self.mapping.map, self._cfg, self.config.scale)) \
-                is not None and share <= self._cfg.sideways_forward_share:
-            self.sideways, self._cfg = (position, share), for_scale(self._cfg, "none")
-            self.mapping.use_settings(self._cfg)
+        if self.sideways is None and (share := sideways_camera(self.mapping.map, self.settings, self.config.scale)) \
+                is not None and share <= self.settings.sideways_forward_share:
+            self.sideways, self.settings = (position, share), for_scale(self.settings, "none")
+            self.mapping.use_settings(self.settings)
 
     def _start_map(self, keyframe: KeyframeInserted, links: dict[int, int]) -> None:
         """--scale none: did this keyframe start the segment's map? Then the frames tracked since the last
         keyframe are placed against its first landmarks (`FramesBeforeMap`)."""
-        if self._initialised or not initialised(self._cfg, keyframe):
+        if self._initialised or not initialised(self.settings, keyframe):
             return self._before_map.clear()  # (a new attempt measures from this keyframe)
         self._initialised = True
         positions = {i: self.mapping.map.landmarks[i].position for i in links.values()}
-        placed = self._before_map.place(links, positions, self._K, self._cfg, self.config.pose.seed)
+        placed = self._before_map.place(links, positions, self._K, self.settings, self.config.pose.seed)
         for position, T_world_cam in placed.items():  # noqa: N806
             key = self.mapping.map.keyframes[self._relative[position][0]]
             self._relative[position] = (key.id, invert_pose(key.T_world_cam) @ T_world_cam)

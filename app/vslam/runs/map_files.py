@@ -36,7 +36,6 @@ def map_saver(path: Path, source: FrameSource, config: EngineConfig,
     output and the map agree), else one here unless `adjust` is False."""
     from vslam_core import __version__
     from vslam_core.mapping.global_adjustment import GlobalAdjusted, adjust_map
-    from vslam_core.mapping.map_scale import for_scale
     from vslam_core.mapping.storage import camera_dict, save_map, snapshot
     from vslam_core.mapping.tracking import MapTracking
     from vslam_core.sources.base import describe_indices
@@ -51,8 +50,7 @@ def map_saver(path: Path, source: FrameSource, config: EngineConfig,
                                   "frames": describe_indices(source.indices)}
         adjusted = engine.adjusted_at_end if isinstance(engine.adjusted_at_end, GlobalAdjusted) else None
         if adjusted is None and adjust:  # the run's own adjustment, when it made one as it ended, else one here
-            adjusted = adjust_map(engine.mapping.map, source.intrinsics.K, for_scale(config.map, config.scale),
-                                  config.scale)
+            adjusted = adjust_map(engine.mapping.map, source.intrinsics.K, engine.settings, config.scale)
         if adjusted is not None:
             header["global_adjustment"] = {
                 "keyframes": adjusted.keyframes, "landmarks": adjusted.landmarks,
