@@ -186,6 +186,7 @@ def test_interrupted_run_finalises_recording_and_trajectory(kitti_root: Path, tm
     poses = read_kitti_poses(trajectory)
     assert 1 <= len(poses) < 300
     assert f"after {len(poses)} frames" in stderr
+    assert read_entity(rrd, "/world/camera")["frame"].to_list() == list(range(len(poses)))  # every frame processed
 
 
 @pytest.mark.kitti

@@ -79,7 +79,9 @@ class _Rendered:
 
 
 def test_same_input_and_config_give_the_identical_trajectory() -> None:
-    source = _Rendered(SyntheticStreet(frames=FrameRange(0, 40)))
+    """At half the image size (the renderer is not the subject: a quarter of its time, and fewer corners a frame):
+    measured: the two runs bit-identical, seed 7's poses up to 0.35 m from seed 0's (full size: 0.03 m)."""
+    source = _Rendered(SyntheticStreet(frames=FrameRange(0, 40), resolution=0.5))
     first = run_odometry(source, EngineConfig()).pose_array()
     second = run_odometry(source, EngineConfig()).pose_array()
     assert np.array_equal(first, second)
