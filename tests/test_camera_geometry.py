@@ -5,7 +5,6 @@ to a 4000-px camera."""
 
 from __future__ import annotations
 
-import os
 import struct
 import zlib
 from pathlib import Path
@@ -30,7 +29,6 @@ from vslam_core.sources.open import open_source
 from vslam_core.sources.video import VideoSource
 
 KITTI_00 = "718.856,718.856,607.1928,185.2157"  # KITTI 00's P0, for its 1241x376 frames
-TUM_ROOT = Path(__file__).resolve().parents[2] / "shared" / "data" / "tum"
 
 
 def kitti_frames(root: Path, count: int, sequence: str = "00") -> list[np.ndarray]:
@@ -134,13 +132,8 @@ def test_a_manifest_row_may_resize_its_calibration(tmp_path: Path) -> None:
 
 
 @pytest.mark.kitti
-def test_tum_frames_at_half_size_with_their_640x480_calibration(tmp_path: Path) -> None:
-    rgb = TUM_ROOT / "rgbd_dataset_freiburg1_xyz" / "rgb"
-    if not rgb.is_dir():
-        message = f"TUM frames not found at {rgb}"
-        if "CI" in os.environ:
-            pytest.fail(message)
-        pytest.skip(message)
+def test_tum_frames_at_half_size_with_their_640x480_calibration(tum_root: Path, tmp_path: Path) -> None:
+    rgb = tum_root / "rgbd_dataset_freiburg1_xyz" / "rgb"
     files = sorted(rgb.iterdir())[:2]
     frames = [cv2.resize(cv2.imread(str(f), cv2.IMREAD_GRAYSCALE), (320, 240), interpolation=cv2.INTER_AREA)
               for f in files]
@@ -150,7 +143,7 @@ def test_tum_frames_at_half_size_with_their_640x480_calibration(tmp_path: Path) 
         open_source(str(folder), calib=calib)
     scaled = open_source(str(folder), calib=calib, calib_scale=0.5).intrinsics
     assert (scaled.width, scaled.height) == (320, 240) and scaled.fx == pytest.approx(258.653204)
-    full = open_source(str(TUM_ROOT / "rgbd_dataset_freiburg1_xyz"), frames=FrameRange(0, 2))
+    full = open_source(str(tum_root / "rgbd_dataset_freiburg1_xyz"), frames=FrameRange(0, 2))
     assert input_warnings(full, EngineConfig()) == []  # the real camera: centred, nothing to say
 
 

@@ -6,7 +6,6 @@ folder and the whole sequence's poses). Thresholds and figures: docs/own-data.md
 from __future__ import annotations
 
 import json
-import os
 import re
 from pathlib import Path
 from typing import Any
@@ -27,21 +26,14 @@ from vslam_core.trajectory.io import read_kitti_poses, write_tum_poses
 
 pytestmark = pytest.mark.kitti
 
-TUM_ROOT = Path(__file__).resolve().parents[2] / "shared" / "data" / "tum"
-XYZ = TUM_ROOT / "rgbd_dataset_freiburg1_xyz"
 TUM_FRAMES = FrameRange(0, 120)
 KITTI_FRAMES = FrameRange(0, 150)
 
 
 @pytest.fixture(scope="module")
-def tum_xyz() -> Path:
-    """The TUM fr1 xyz frames (fails instead of skipping under CI, as `kitti_root`)."""
-    if not (XYZ / "rgb.txt").is_file():
-        message = f"TUM RGB-D frames not found at {TUM_ROOT}"
-        if "CI" in os.environ:
-            pytest.fail(f"{message} (CI is set: tests that need the real data must not be skipped)")
-        pytest.skip(message)
-    return XYZ
+def tum_xyz(tum_root: Path) -> Path:
+    """The TUM fr1 xyz frames (`tum_root`: fails instead of skipping under CI)."""
+    return tum_root / "rgbd_dataset_freiburg1_xyz"
 
 
 def _results(source: FrameSource, scale: str) -> list[FrameResult]:
@@ -80,19 +72,19 @@ def _tum_rows(path: Path) -> list[list[str]]:
     return [line.split() for line in path.read_text().splitlines() if line.strip() and not line.startswith("#")]
 
 
-def write_wxyz(tmp_path: Path) -> Path:
+def write_wxyz(xyz: Path, tmp_path: Path) -> Path:
     """TUM fr1 xyz's ground truth with its quaternions written w x y z (read as x y z w)."""
     out = tmp_path / "wxyz.txt"
     out.write_text("".join(f"{r[0]} {r[1]} {r[2]} {r[3]} {r[7]} {r[4]} {r[5]} {r[6]}\n"
-                           for r in _tum_rows(XYZ / "groundtruth.txt")))
+                           for r in _tum_rows(xyz / "groundtruth.txt")))
     return out
 
 
-def write_shifted(tmp_path: Path, seconds: float) -> Path:
+def write_shifted(xyz: Path, tmp_path: Path, seconds: float) -> Path:
     """TUM fr1 xyz's ground truth with every stamp `seconds` later (its clock ahead of the frames')."""
     out = tmp_path / f"shifted{seconds}.txt"
     out.write_text("".join(f"{float(r[0]) + seconds:.4f} " + " ".join(r[1:]) + "\n"
-                           for r in _tum_rows(XYZ / "groundtruth.txt")))
+                           for r in _tum_rows(xyz / "groundtruth.txt")))
     return out
 
 
@@ -111,7 +103,7 @@ def test_agreeing_ground_truth_passes(tum_run: list[FrameResult], kitti_run: lis
 
 def test_quaternions_in_the_wrong_order_are_far_off(tum_run: list[FrameResult], tum_xyz: Path, tmp_path: Path
                                                     ) -> None:
-    summary = _check(tum_run, open_source(str(tum_xyz), frames=TUM_FRAMES, ground_truth=write_wxyz(tmp_path)))
+    summary = _check(tum_run, open_source(str(tum_xyz), frames=TUM_FRAMES, ground_truth=write_wxyz(tum_xyz, tmp_path)))
     assert summary.far_off and summary.ratio > 2 * FAR_OFF_RATIO, summary.line()
     [warning] = summary.warnings()
     assert warning.startswith("the ground truth disagrees with the images") and "quaternion order" in warning
@@ -119,7 +111,7 @@ def test_quaternions_in_the_wrong_order_are_far_off(tum_run: list[FrameResult], 
 
 def test_a_clock_offset_is_found_and_applying_it_fixes_it(tum_run: list[FrameResult], tum_xyz: Path,
                                                           tmp_path: Path) -> None:
-    shifted = write_shifted(tmp_path, 0.1)
+    shifted = write_shifted(tum_xyz, tmp_path, 0.1)
     summary = _check(tum_run, open_source(str(tum_xyz), frames=TUM_FRAMES, ground_truth=shifted))
     assert summary.shift is not None and summary.shift.better and summary.shift.in_seconds
     assert summary.shift.offset == pytest.approx(0.1, abs=0.03)
@@ -220,7 +212,7 @@ def _run(tum_xyz: Path, tmp_path: Path, gt: Path, *extra: str) -> tuple[str, str
 
 
 def test_cli_warns_in_one_line_and_records_the_check(tum_xyz: Path, tmp_path: Path) -> None:
-    stdout, stderr, check = _run(tum_xyz, tmp_path, write_wxyz(tmp_path))
+    stdout, stderr, check = _run(tum_xyz, tmp_path, write_wxyz(tum_xyz, tmp_path))
     warnings = [line for line in stderr.splitlines() if "ground truth" in line]
     assert len(warnings) == 1 and "disagrees with the images" in warnings[0]
     assert "gt check    Sampson" in stdout
@@ -228,12 +220,12 @@ def test_cli_warns_in_one_line_and_records_the_check(tum_xyz: Path, tmp_path: Pa
     assert len(check["warnings"]) == 1 and "quaternion order" in check["warnings"][0]
     assert [(w["first"], w["last"]) for w in check["windows"]] == [(0, 49), (50, 59)]
 
-    stdout, stderr, check = _run(tum_xyz, tmp_path, write_shifted(tmp_path, 0.1))
+    stdout, stderr, check = _run(tum_xyz, tmp_path, write_shifted(tum_xyz, tmp_path, 0.1))
     warnings = [line for line in stderr.splitlines() if "ground truth" in line]
     assert len(warnings) == 1 and re.search(r"--gt-time-offset \+0\.(0[89]|1[01])\d$", warnings[0]), warnings
     assert len(check["warnings"]) == 1 and "--gt-time-offset +0." in check["warnings"][0]
 
-    stdout, stderr, check = _run(tum_xyz, tmp_path, write_shifted(tmp_path, 0.1), "--gt-time-offset", "0.1")
+    stdout, stderr, check = _run(tum_xyz, tmp_path, write_shifted(tum_xyz, tmp_path, 0.1), "--gt-time-offset", "0.1")
     assert "the ground truth's clock +0.100 s from the frames' (--gt-time-offset)" in stdout
     assert "ground truth" not in stderr and check["warnings"] == [] and check["far_off"] is False
 
@@ -254,7 +246,7 @@ def test_rows_a_few_frames_off_are_found(kitti_run: list[FrameResult], kitti_roo
 
 
 def test_eval_warns_about_the_ground_truth_it_scores_against(tum_xyz: Path, tmp_path: Path) -> None:
-    result = vslam("eval", tum_xyz, "--gt", write_wxyz(tmp_path), "--frames", "0:60", "--scale", "none")
+    result = vslam("eval", tum_xyz, "--gt", write_wxyz(tum_xyz, tmp_path), "--frames", "0:60", "--scale", "none")
     assert result.returncode == 0, result.stderr
     [warning] = [line for line in result.stderr.splitlines() if "ground truth" in line]
     assert warning.startswith("warning: tum-rgbd-rgbd_dataset_freiburg1_xyz: the ground truth disagrees")
