@@ -1,6 +1,6 @@
 """Drift attribution in the recording: each frame's own relative pose error against the ground truth.
 
-Per frame (`DriftRecording.frame_values`, O(1) on two 4×4 steps): ``/metrics/drift/{rotation_deg,
+Per frame (`DriftRecording.take_series`, the frames of each flush computed together): ``/metrics/drift/{rotation_deg,
 translation_m, translation_pct, scale_ratio}`` (`vslam_core.trajectory.drift`; frame i against frame i−1). With
 ``--scale none`` the estimate has unit steps, so the series are logged when the run ends, of the estimate
 after Sim(3) alignment onto the ground truth (as every other error of such a run).
@@ -28,9 +28,8 @@ import rerun as rr
 
 from vslam.recording.columns import EVENTS_AT_END, NO_IMAGE, ColumnBuffer, add_event
 from vslam.recording.metrics import HEALTH_LEVELS
-from vslam_core.geometry import invert_pose
 from vslam_core.sources.base import Frame
-from vslam_core.trajectory.drift import FrameErrors, frame_errors, step_errors, worst_frames
+from vslam_core.trajectory.drift import FrameErrors, frame_errors, worst_frames
 
 DRIFT_ENTITY = "/world/trajectory/drift"
 LINKS_ENTITY = "/world/trajectory/gt_links"
@@ -103,24 +102,41 @@ class DriftRecording:
     run_positions: list[int] = field(default_factory=list)
     rows: list[tuple[float, float, float, float]] = field(default_factory=list)  # online errors per frame
     errors: FrameErrors | None = None  # each frame's own error, known once `finish` ran
-    _previous: tuple[np.ndarray, int] | None = None
+    _previous: tuple[np.ndarray, int] | None = None  # the last frame taken: (4, 4) pose, run position
+    _pending: list[tuple[Frame, int, np.ndarray]] = field(default_factory=list)  # added, series not yet taken
 
-    def frame_values(self, position: int, pose: np.ndarray) -> dict[str, float]:
-        """Remember the frame's run position (its trail row is added by the owner); return its drift series (none
-        with ``online`` False). NaN values are left out (the recording's series hold none)."""
+    def add(self, frame: Frame, position: int, pose: np.ndarray) -> None:
+        """Remember the frame's run position (its trail row is added by the owner) and, with ``online``, its (4, 4)
+        pose for its drift series, which `take_series` computes with the other frames' since the last call."""
         self.run_positions.append(position)
-        if not self.online:
-            return {}
-        if self._previous is None:
-            row = (0.0, 0.0, 0.0, 1.0)
-        else:
-            before, previous_position = self._previous
-            gt_step = invert_pose(self.gt[previous_position]) @ self.gt[position]
-            values = step_errors(gt_step, invert_pose(before) @ pose)
-            row = (float(values[0]), float(values[1]), float(values[2]), float(values[3]))
-        self._previous = (pose.copy(), position)
-        self.rows.append(row)
-        return {name: value for name, value in zip(SERIES, row, strict=True) if np.isfinite(value)}
+        if self.online:
+            self._pending.append((Frame(frame.index, frame.timestamp, NO_IMAGE), position, np.array(pose, np.float64)))
+
+    def take_series(self) -> list[tuple[Frame, dict[str, float]]]:
+        """The drift series of the frames added since the last call, each against the frame before it (the first
+        frame of the run: no step), computed together (`frame_errors` on the stacked poses: the recorder calls this
+        at each flush, not a frame at a time). NaN values are left out (the recording's series hold none)."""
+        if not self._pending:
+            return []
+        frames = [frame for frame, _, _ in self._pending]
+        positions = [position for _, position, _ in self._pending]
+        poses = [pose for _, _, pose in self._pending]
+        if self._previous is not None:  # the step into the first of them
+            poses.insert(0, self._previous[0])
+            positions.insert(0, self._previous[1])
+        errors = frame_errors(self.gt[np.array(positions)], np.stack(poses))
+        table = np.stack([errors.rotation_deg, errors.translation_m, errors.translation_pct, errors.scale_ratio], 1)
+        rows = [(float(r[0]), float(r[1]), float(r[2]), float(r[3])) for r in table[len(table) - len(frames):]]
+        self._previous, self._pending = (poses[-1], positions[-1]), []
+        self.rows.extend(rows)
+        return [(frame, {name: value for name, value in zip(SERIES, row, strict=True) if np.isfinite(value)})
+                for frame, row in zip(frames, rows, strict=True)]
+
+    def log_series(self, columns: ColumnBuffer) -> None:
+        """The ``/metrics/drift/*`` rows of the frames added since the last call (`take_series`)."""
+        for frame, values in self.take_series():
+            for name, value in values.items():
+                columns.add_scalar(f"/metrics/drift/{name}", frame, value)
 
     def finish(self, rec: rr.RecordingStream, columns: ColumnBuffer, aligned: np.ndarray | None) -> list[str]:
         """Log the coloured trajectory, the ground-truth links and the worst frames' events; with ``online``

@@ -126,8 +126,8 @@ def _log_row(columns: ColumnBuffer, drift: DriftRecording, run: ExternalRun, fra
     columns.add_scalar("/metrics/angle_error/heading_deg", frame,
                        float(np.degrees(rotation_angle(truth[:3, :3].T @ pose[:3, :3]))))
     drift.trail.add(frame, pose[:3, 3], NO_HEALTH, "")
-    for name, value in drift.frame_values(i, pose).items():
-        columns.add_scalar(f"/metrics/drift/{name}", frame, value)
+    drift.add(frame, i, pose)
+    drift.log_series(columns)
 
 
 def _log_image(columns: ColumnBuffer, frames: RunFrames, frame: Frame, index: int) -> None:

@@ -64,8 +64,10 @@ METRICS: dict[str, dict[str, tuple[str, tuple[int, int, int]]]] = {
 }
 
 
-def frame_metrics(result: FrameResult, ground_truth: np.ndarray | None) -> dict[str, float]:
-    """The per-frame series of one result (names as in `METRICS`); absent where a frame has no value."""
+def frame_metrics(result: FrameResult, ground_truth: np.ndarray | None,
+                  left_out: frozenset[str] = frozenset()) -> dict[str, float]:
+    """The per-frame series of one result (names as in `METRICS`); absent where a frame has no value, and those
+    `left_out` (not computed: a frame's Python is what a recording costs the engine, docs/recordings.md)."""
     counts = result.fate_counts()
     used = counts["ransac_outlier"] + counts["chirality_failed"] + counts["inlier"]
     values: dict[str, float] = {
@@ -91,13 +93,15 @@ def frame_metrics(result: FrameResult, ground_truth: np.ndarray | None) -> dict[
             values["camera_height_m"] = estimate.camera_height
     if ground_truth is not None:
         gt_pose = ground_truth[result.position]
-        values["position_m"] = float(np.linalg.norm(gt_pose[:3, 3] - result.T_world_cam[:3, 3]))
-        values["heading_deg"] = float(np.degrees(rotation_angle(gt_pose[:3, :3].T @ result.T_world_cam[:3, :3])))
+        if "position_m" not in left_out:
+            values["position_m"] = float(np.linalg.norm(gt_pose[:3, 3] - result.T_world_cam[:3, 3]))
+        if "heading_deg" not in left_out:
+            values["heading_deg"] = float(np.degrees(rotation_angle(gt_pose[:3, :3].T @ result.T_world_cam[:3, :3])))
         if result.T_key_cur is not None:
             gt_step = invert_pose(ground_truth[result.keyframe_position]) @ gt_pose
             values["translation_direction_deg"] = float(
                 np.degrees(angle_between(gt_step[:3, 3], result.T_key_cur[:3, 3])))
-    return values
+    return {name: value for name, value in values.items() if name not in left_out} if left_out else values
 
 
 def gt_check_metrics(pair: PairCheck) -> dict[str, float]:

@@ -132,6 +132,9 @@ class Recorder:
         # the map refines every pose after it was tracked: its errors are logged when the run ends, of the poses
         # it ended with (the ones scored: `vslam.recording.scored`)
         self._errors_at_end = config.backend == "map"
+        # ... and --scale none's position error (unit steps against metres: of the Sim(3)-aligned poses at the end)
+        self._errors_logged_at_end = frozenset(
+            {"position_m", "heading_deg"} if self._errors_at_end else {"position_m"} if config.scale == "none" else ())
         # each frame's own error against the ground truth (drift attribution)
         self._trail = FrameTrail()  # each frame's index, position and health: for the drift and the overview
         self._drift = (DriftRecording(source.ground_truth, online=config.scale != "none" and not self._errors_at_end,
@@ -190,6 +193,7 @@ class Recorder:
             if not self._failed:  # after a write error nothing more reaches the file
                 for video in self._videos.values():
                     video.flush(final=True)
+                self._log_drift()
                 self._columns.flush()
                 self._columns.wait()
                 self._check_written()
@@ -220,6 +224,7 @@ class Recorder:
         they are when the frame count was not known up front (the logging API, `vslam.log`)."""
         try:
             self._sync()
+            self._log_drift()  # its rows before `DriftRecording.finish` reads them
             if stopped is not None or self._properties.get("frame_count") != str(run.frames):
                 self._restate_frames(run, stopped)
             if self._map is not None and run.loops_at_end and run.indices:  # at the last frame's time
@@ -408,6 +413,7 @@ class Recorder:
 
     def _flush(self) -> None:
         self._flushed_at = time.monotonic()
+        self._log_drift()
         for video in self._videos.values():
             video.flush()
         self._columns.flush(then=self._check_written)
@@ -470,18 +476,18 @@ class Recorder:
         self._previous_position = position
 
     def _log_metrics(self, frame: Frame, result: FrameResult, unreported: frozenset[str]) -> None:
-        values = {name: value for name, value in frame_metrics(result, self._gt).items() if name not in unreported}
+        values = frame_metrics(result, self._gt, unreported | self._errors_logged_at_end)
         if self._gt_check is not None and (pair := self._gt_check.pairs.get(result.position)) is not None:
             values.update(gt_check_metrics(pair))
-        if self._scale == "none" or self._errors_at_end:  # logged at the end, of the scored poses
-            values.pop("position_m", None)  # --scale none: unit steps against metres (aligned at the end)
-        if self._errors_at_end:
-            values.pop("heading_deg", None)
         for group, series in METRICS.items():
             for name in series:
                 if name in values and group not in ("timing_ms", "drift"):  # drift: its own names
                     self._columns.add_scalar(f"/metrics/{group}/{name}", frame, values[name])
-        if self._drift is not None:  # this frame's own error against the ground truth
-            drift = self._drift.frame_values(result.position, result.T_world_cam)
-            for name, value in drift.items():
-                self._columns.add_scalar(f"/metrics/drift/{name}", frame, value)
+        if self._drift is not None:  # this frame's own error against the ground truth: at the flush (`_log_drift`)
+            self._drift.add(frame, result.position, result.T_world_cam)
+
+    def _log_drift(self) -> None:
+        """The drift series of the frames recorded since the last flush, computed together: one frame at a time,
+        on the recording thread, they were what a recording cost the engine most (docs/recordings.md)."""
+        if self._drift is not None:
+            self._drift.log_series(self._columns)
