@@ -12,10 +12,19 @@ from cli_helpers import VO, vslam
 from kitti_runs import link_images
 
 from vslam.recording.columns import EVENTS, EVENTS_AT_END
-from vslam.recording.drift import DRIFT_ENTITY, DRIFT_LIFT_M, DRIFT_RADIUS_M, LINKS_ENTITY, drift_colours
+from vslam.recording.drift import (
+    DRIFT_ENTITY,
+    DRIFT_LIFT_M,
+    DRIFT_RADIUS_M,
+    LINKS_ENTITY,
+    SERIES,
+    DriftRecording,
+    FrameTrail,
+    drift_colours,
+)
 from vslam.rrd.inspect import format_report, inspect_recording
 from vslam.rrd.read import read_entity, read_events
-from vslam_core.sources.base import rebase_poses
+from vslam_core.sources.base import Frame, rebase_poses
 from vslam_core.trajectory.drift import frame_errors, worst_frames
 from vslam_core.trajectory.io import read_kitti_poses
 from vslam_core.trajectory.metrics import position_errors, sim3_aligned
@@ -80,6 +89,28 @@ def test_a_perfect_estimate_contributes_nothing(gt: np.ndarray) -> None:
     unit[:, :3, 3] *= 0.37
     aligned = frame_errors(gt, sim3_aligned(gt, unit))
     assert np.allclose(aligned.translation_m, 0, atol=1e-6) and np.allclose(aligned.scale_ratio, 1)
+
+
+def test_series_taken_in_batches_are_the_whole_runs_frame_errors(gt: np.ndarray) -> None:
+    """The recorder takes each frame's drift series at its flushes (`DriftRecording.take_series`), for however many
+    frames came since the last: whatever the batches, each frame's values are its step from the frame before it."""
+    estimate = faulty_estimate(gt)
+    drift = DriftRecording(gt, online=True, trail=FrameTrail())
+    taken: list[tuple[int, dict[str, float]]] = []
+    position = 0
+    for batch in (1, 3, 1, 7, 28, 32, 28):  # 100 frames; batches starting at the kink (40) and in the burst (72)
+        for _ in range(batch):
+            drift.add(Frame(position + 5, None, np.zeros((0, 0), np.uint8)), position, estimate[position])
+            position += 1
+        taken += [(frame.index, values) for frame, values in drift.take_series()]
+    assert drift.take_series() == [] and [index for index, _ in taken] == list(range(5, 105))
+    whole = frame_errors(gt, estimate)
+    for name in SERIES:
+        expected = getattr(whole, name)
+        recorded = np.array([values.get(name, np.nan) for _, values in taken])
+        assert np.allclose(recorded, expected, rtol=0, atol=1e-12, equal_nan=True), name
+    assert np.array(drift.rows).shape == (100, 4)
+    assert taken[KINK_FRAME][1]["rotation_deg"] == pytest.approx(KINK_DEG, abs=1e-6)
 
 
 def test_worst_frames_skips_nan_and_names_source_frames() -> None:
