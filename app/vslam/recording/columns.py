@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
@@ -74,6 +74,42 @@ class ColumnBuffer:
                 lengths.append(len(next(iter(values.values()))))
         if rows.nbytes >= FLUSH_BYTES:
             self._submit(self._send, entity, self._rows.pop(entity))
+
+    def add_rows(self, entity: str, frames: Sequence[Frame], *parts: Part, lengths: Sequence[Sequence[int]]) -> None:
+        """The rows of several frames at once (a batch entity: `add(..., batch=True)` a frame at a time): each
+        part's values the rows' instances concatenated, `lengths[p][i]` of part p's in the row of `frames[i]`."""
+        if not frames:
+            return
+        rows = self._rows.get(entity)
+        if rows is None:
+            rows = self._rows[entity] = _Rows([columns for columns, _ in parts], True,
+                                              values=[{name: [] for name in v} for _, v in parts],
+                                              lengths=[[] for _ in parts])
+        rows.frames.extend(frame.index for frame in frames)
+        rows.times.extend(frame.timestamp for frame in frames)
+        for buffered, counts, (_, values), part_lengths in zip(rows.values, rows.lengths, parts, lengths, strict=True):
+            for name, value in values.items():
+                buffered[name].append(value)  # concatenated with the others when sent
+                rows.nbytes += _size(value)
+            counts.extend(part_lengths)
+
+    def add_scalars(self, entity: str, frames: Sequence[Frame], values: Sequence[float]) -> None:
+        """`add_scalar` of several frames at once (`values[i]` at `frames[i]`)."""
+        self.add_values(entity, frames, rr.Scalars.columns, scalars=values)
+
+    def add_values(self, entity: str, frames: Sequence[Frame], make: Callable[..., Any],
+                   **values: Sequence[Any]) -> None:
+        """The rows of several frames at once, one value per component in each (`values[name][i]` at `frames[i]`;
+        `add` a frame at a time)."""
+        if not frames:
+            return
+        rows = self._rows.get(entity)
+        if rows is None:
+            rows = self._rows[entity] = _Rows([make], False, values=[{name: [] for name in values}], lengths=[[]])
+        rows.frames.extend(frame.index for frame in frames)
+        rows.times.extend(frame.timestamp for frame in frames)
+        for name, column in values.items():
+            rows.values[0][name].extend(column)
 
     def add_instance(self, entity: str, frame: Frame, make: Callable[..., Any], **values: Any) -> None:
         """One more instance (one value per component) of `entity` at `frame`: appended to the frame's row while

@@ -1,14 +1,15 @@
-"""The front end's per-frame entities that are pure functions of one frame's result: the tracks, the four
-candidate poses, the road under the camera (``--scale height``, and the outline of its plane: `road_outline`)
-and the frame's events (`Recorder.log_frame` calls them)."""
+"""The front end's per-frame entities, pure functions of the frames' results: the tracks and the four candidate
+poses (drawn for the frames since the recorder's last flush together), the road under the camera (``--scale
+height``, and the outline of its plane: `road_outline`) and the frame's events (`Recorder.log_frame` calls them)."""
 
 from __future__ import annotations
+
+from collections.abc import Sequence
 
 import numpy as np
 import rerun as rr
 
 from vslam.recording.columns import ColumnBuffer, Part, add_event
-from vslam_core.geometry import invert_pose
 from vslam_core.lens import distort_pixels
 from vslam_core.results import FrameResult, FrameStatus, HealthStatus, Reason, TrackFate
 from vslam_core.sources.base import CameraIntrinsics, Frame
@@ -19,55 +20,80 @@ from vslam_core.sources.base import CameraIntrinsics, Frame
 FLOW_STEPS = 2
 
 
-def log_tracks(columns: ColumnBuffer, frame: Frame, result: FrameResult, full: bool) -> None:
-    """The frame's new corners and the flow of every track that reached it, coloured by its fate; `full`
-    (--detail full): also each track's id and age."""
-    corners: list[Part] = [(rr.Points2D.columns, {"positions": result.new_corners})]
+def log_tracks(columns: ColumnBuffer, frames: Sequence[Frame], results: Sequence[FrameResult], full: bool) -> None:
+    """The frames' new corners and the flow of every track that reached each, coloured by its fate; `full`
+    (--detail full): also each track's id and age. Built for the frames of a flush together (a frame at a time
+    this was ~0.1 ms of the recording thread's Python a frame, which holds the engine back: docs/recordings.md)."""
+    if not results:
+        return
+    corners: list[Part] = [(rr.Points2D.columns, {"positions": _joined([r.new_corners for r in results])})]
     if full:
-        corners.append((rr.AnyValues.columns, {"track_id": result.new_corner_ids.astype(np.uint32)}))
-    columns.add("/world/camera/image/corners", frame, *corners, batch=True)
-    reached = result.track_fate != TrackFate.LOST
+        corners.append((rr.AnyValues.columns, {
+            "track_id": _joined([r.new_corner_ids for r in results]).astype(np.uint32)}))
+    corner_counts = [len(r.new_corners) for r in results]
+    columns.add_rows("/world/camera/image/corners", frames, *corners, lengths=[corner_counts] * len(corners))
+    fate = _joined([r.track_fate for r in results])
+    reached = fate != TrackFate.LOST
     # both ends to 1/2 px (`FLOW_STEPS`): LZ4 packs the coarser values tighter
-    prev = np.round(result.track_prev[reached] * FLOW_STEPS) / FLOW_STEPS
-    cur = np.round(result.track_cur[reached] * FLOW_STEPS) / FLOW_STEPS
+    prev = np.round(_joined([r.track_prev for r in results])[reached] * FLOW_STEPS) / FLOW_STEPS
+    cur = np.round(_joined([r.track_cur for r in results])[reached] * FLOW_STEPS) / FLOW_STEPS
     flow: list[Part] = [(rr.Arrows2D.columns, {
         "origins": prev.astype(np.float32),
         "vectors": (cur - prev).astype(np.float32),
-        "class_ids": result.track_fate[reached].astype(np.uint16),
+        "class_ids": fate[reached].astype(np.uint16),
     })]
     if full:
-        flow.append((rr.AnyValues.columns, {"track_id": result.track_ids[reached].astype(np.uint32),
-                                            "age": result.track_age[reached].astype(np.uint16)}))
-    columns.add("/world/camera/image/flow", frame, *flow, batch=True)
+        flow.append((rr.AnyValues.columns, {
+            "track_id": _joined([r.track_ids for r in results])[reached].astype(np.uint32),
+            "age": _joined([r.track_age for r in results])[reached].astype(np.uint16)}))
+    frame_of = np.repeat(np.arange(len(results)), [len(r.track_fate) for r in results])
+    arrows = np.bincount(frame_of[reached], minlength=len(results)).tolist()
+    columns.add_rows("/world/camera/image/flow", frames, *flow, lengths=[arrows] * len(flow))
 
 
-def log_candidates(columns: ColumnBuffer, frame: Frame, result: FrameResult) -> None:
-    """The four candidate poses, each at the keyframe pose moved by its (R, t): a point (the chosen one
+def log_candidates(columns: ColumnBuffer, frames: Sequence[Frame], results: Sequence[FrameResult]) -> None:
+    """Each frame's four candidate poses, each at the keyframe pose moved by its (R, t): a point (the chosen one
     larger, its label listing every chirality count) and the candidate camera's axes. A frame without
-    candidates logs an empty row, so the previous frame's do not linger."""
-    candidates = result.candidate_poses if result.T_key_cur is not None else ()
-    centres, axes = np.zeros((len(candidates), 3)), np.zeros((3 * len(candidates), 3))
-    chosen = np.arange(len(candidates)) == result.chosen_candidate
-    labels = [""] * len(candidates)
-    if candidates:
-        assert result.T_key_cur is not None
-        T_w_key = result.T_world_cam @ invert_pose(result.T_key_cur)  # noqa: N806
-        length = max(float(np.linalg.norm(result.T_key_cur[:3, 3])), 0.5)
-        counts = ", ".join(f"#{i}: {c.in_front}" for i, c in enumerate(candidates))
-        # all four at once (a frame's Python is what a recording costs the engine: docs/recordings.md)
-        centres = (length * np.array([c.translation for c in candidates])) @ T_w_key[:3, :3].T + T_w_key[:3, 3]
-        axes = ((T_w_key[:3, :3] @ np.array([c.rotation for c in candidates])).transpose(0, 2, 1)
-                * np.where(chosen, 0.8, 0.4)[:, None, None]).reshape(-1, 3)
-        # (R1, t) and (R2, t) share a centre: one label, on the chosen candidate, lists every count
-        labels = [f"chosen #{i} — in front {counts}" if chosen[i] else "" for i in range(len(candidates))]
-    columns.add(
-        "/world/candidates", frame,
+    candidates logs an empty row, so the previous frame's do not linger. Built for the frames of a flush together
+    (`log_tracks`)."""
+    if not results:
+        return
+    placed = [r for r in results if r.T_key_cur is not None and r.candidate_poses]
+    counts = [len(r.candidate_poses) if r.T_key_cur is not None else 0 for r in results]
+    centres, axes = np.zeros((0, 3)), np.zeros((0, 3))
+    chosen = np.concatenate([np.arange(n) == r.chosen_candidate for n, r in zip(counts, results, strict=True)])
+    labels: list[str] = []
+    if placed:
+        T_key_cur = np.array([r.T_key_cur for r in placed])  # noqa: N806  (P, 4, 4)
+        T_cur_key = np.broadcast_to(np.eye(4), T_key_cur.shape).copy()  # noqa: N806  (`invert_pose`, stacked)
+        T_cur_key[:, :3, :3] = T_key_cur[:, :3, :3].transpose(0, 2, 1)
+        T_cur_key[:, :3, 3] = -(T_cur_key[:, :3, :3] @ T_key_cur[:, :3, 3:])[:, :, 0]
+        T_w_key = np.array([r.T_world_cam for r in placed]) @ T_cur_key  # noqa: N806
+        length = np.maximum(np.linalg.norm(T_key_cur[:, :3, 3], axis=1), 0.5)
+        translations = np.array([[c.translation for c in r.candidate_poses] for r in placed])  # (P, 4, 3)
+        rotations = np.array([[c.rotation for c in r.candidate_poses] for r in placed])  # (P, 4, 3, 3)
+        centres = ((length[:, None, None] * translations) @ T_w_key[:, :3, :3].transpose(0, 2, 1)
+                   + T_w_key[:, None, :3, 3]).reshape(-1, 3)
+        scaled = np.where(chosen, 0.8, 0.4).reshape(len(placed), -1)[:, :, None, None]
+        axes = ((T_w_key[:, None, :3, :3] @ rotations).transpose(0, 1, 3, 2) * scaled).reshape(-1, 3)
+        for r in placed:
+            # (R1, t) and (R2, t) share a centre: one label, on the chosen candidate, lists every count
+            listed = ", ".join(f"#{i}: {c.in_front}" for i, c in enumerate(r.candidate_poses))
+            labels += [f"chosen #{i} — in front {listed}" if i == r.chosen_candidate else ""
+                       for i in range(len(r.candidate_poses))]
+    in_front = np.array([c.in_front for r in placed for c in r.candidate_poses], np.int64)
+    columns.add_rows(
+        "/world/candidates", frames,
         (rr.Points3D.columns, {"positions": centres, "radii": np.where(chosen, 0.15, 0.08), "labels": labels}),
         (rr.Arrows3D.columns, {"origins": np.repeat(centres, 3, axis=0), "vectors": axes}),
-        (rr.AnyValues.columns, {"in_front": np.array([c.in_front for c in candidates], np.int64),
-                                "chosen": chosen}),
-        batch=True,
+        (rr.AnyValues.columns, {"in_front": in_front, "chosen": chosen}),
+        lengths=[counts, [3 * n for n in counts], counts],
     )
+
+
+def _joined(arrays: list[np.ndarray]) -> np.ndarray:
+    """The frames' arrays, one after the other."""
+    return np.concatenate(arrays) if len(arrays) > 1 else arrays[0]
 
 
 def log_road(columns: ColumnBuffer, frame: Frame, result: FrameResult, intrinsics: CameraIntrinsics,

@@ -6,12 +6,16 @@ are logged only by the map backend (`vslam inspect` and `vslam compare` read the
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import Any
+
 import numpy as np
 
+from vslam.recording.columns import ColumnBuffer
 from vslam.recording.styles import ESTIMATE_COLOUR, NEW_CORNER_COLOUR, ROAD_COLOUR
-from vslam_core.geometry import angle_between, invert_pose, rotation_angle
-from vslam_core.results import BundleAdjusted, FrameResult, HealthStatus, MapFrame, TrackingMode
-from vslam_core.trajectory.gt_check import PairCheck
+from vslam_core.results import BundleAdjusted, FrameResult, HealthStatus, MapFrame, TrackFate, TrackingMode
+from vslam_core.sources.base import Frame
+from vslam_core.trajectory.gt_check import GroundTruthCheck, PairCheck
 
 HEALTH_LEVELS = {HealthStatus.OK: 0, HealthStatus.WARN: 1, HealthStatus.FAIL: 2}
 STAGES = ("decode", "track", "essential", "chirality", "detect", "record")
@@ -68,40 +72,101 @@ def frame_metrics(result: FrameResult, ground_truth: np.ndarray | None,
                   left_out: frozenset[str] = frozenset()) -> dict[str, float]:
     """The per-frame series of one result (names as in `METRICS`); absent where a frame has no value, and those
     `left_out` (not computed: a frame's Python is what a recording costs the engine, docs/recordings.md)."""
-    counts = result.fate_counts()
-    used = counts["ransac_outlier"] + counts["chirality_failed"] + counts["inlier"]
-    values: dict[str, float] = {
-        "status": HEALTH_LEVELS[result.health.status],
-        "alive": result.live_tracks,
-        "new_corners": len(result.new_corners),
-        "fb_rejected": counts["fb_rejected"],
-        "inliers": counts["inlier"],
-    }
-    if used:
-        values["inlier_ratio"] = counts["inlier"] / used
-    if len(result.candidate_poses) == 4:
-        in_front = sorted((c.in_front for c in result.candidate_poses), reverse=True)
-        values["chirality_margin"] = in_front[0] - in_front[1]
-    if result.T_key_cur is not None:
-        values["rotation_deg"] = float(np.degrees(rotation_angle(result.T_key_cur[:3, :3])))
-        values["scale"] = result.scale or 0.0
-    estimate = result.scale_estimate
-    if estimate is not None:
-        values["road_points"] = len(estimate.road_points)
-        if estimate.measured_step is not None and estimate.camera_height is not None:
-            values["measured_step"] = estimate.measured_step
-            values["camera_height_m"] = estimate.camera_height
-    if ground_truth is not None:
-        gt_pose = ground_truth[result.position]
+    return {name: float(values[0]) for name, (_, values) in series_metrics([result], ground_truth, left_out).items()}
+
+
+def series_metrics(results: Sequence[FrameResult], ground_truth: np.ndarray | None,
+                   left_out: frozenset[str] = frozenset()) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """The per-frame series of several results (names as in `METRICS`, but those `left_out`): per name, the (K,)
+    positions in `results` of the frames that have a value and their (K,) values. Computed for the frames of a
+    flush together: a frame at a time they were ~0.05 ms of the recording thread's Python a frame, which holds
+    the engine back (docs/recordings.md)."""
+    count = len(results)
+    every = np.arange(count)
+    series: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+
+    def put(name: str, values: Any, where: np.ndarray | None = None) -> None:
+        if name not in left_out and (where is None or where.any()):
+            series[name] = (every if where is None else every[where], np.asarray(values, np.float64))
+
+    fates = len(TrackFate)
+    frame_of = np.repeat(every, [len(r.track_fate) for r in results])
+    fate = np.concatenate([r.track_fate for r in results]).astype(np.int64) if count else np.zeros(0, np.int64)
+    counts = np.bincount(frame_of * fates + fate, minlength=count * fates).reshape(count, fates)
+    inliers = counts[:, TrackFate.INLIER]
+    used = counts[:, TrackFate.RANSAC_OUTLIER] + counts[:, TrackFate.CHIRALITY_FAILED] + inliers
+    put("status", [HEALTH_LEVELS[r.health.status] for r in results])
+    put("alive", [r.live_tracks for r in results])
+    put("new_corners", [len(r.new_corners) for r in results])
+    put("fb_rejected", counts[:, TrackFate.FB_REJECTED])
+    put("inliers", inliers)
+    put("inlier_ratio", inliers[used > 0] / used[used > 0], used > 0)
+    four = np.array([len(r.candidate_poses) == 4 for r in results], bool)
+    in_front = np.sort([[c.in_front for c in r.candidate_poses] for r in results if len(r.candidate_poses) == 4])
+    put("chirality_margin", (in_front[:, 3] - in_front[:, 2]) if len(in_front) else [], four)
+    stepped = np.array([r.T_key_cur is not None for r in results], bool)
+    T_key_cur = np.array([r.T_key_cur for r in results if r.T_key_cur is not None]).reshape(-1, 4, 4)  # noqa: N806
+    put("rotation_deg", np.degrees(_angles(T_key_cur[:, :3, :3])), stepped)
+    put("scale", [r.scale or 0.0 for r in results if r.T_key_cur is not None], stepped)
+    road = [r.scale_estimate for r in results]
+    put("road_points", [len(e.road_points) for e in road if e is not None], np.array([e is not None for e in road]))
+    heights = [(e.measured_step, e.camera_height) if e is not None and e.measured_step is not None
+               and e.camera_height is not None else None for e in road]
+    measured = np.array([h is not None for h in heights], bool)
+    put("measured_step", [h[0] for h in heights if h is not None], measured)
+    put("camera_height_m", [h[1] for h in heights if h is not None], measured)
+    if ground_truth is not None and count:
+        gt = ground_truth[[r.position for r in results]]
+        poses = np.array([r.T_world_cam for r in results])
         if "position_m" not in left_out:
-            values["position_m"] = float(np.linalg.norm(gt_pose[:3, 3] - result.T_world_cam[:3, 3]))
+            put("position_m", np.linalg.norm(gt[:, :3, 3] - poses[:, :3, 3], axis=1))
         if "heading_deg" not in left_out:
-            values["heading_deg"] = float(np.degrees(rotation_angle(gt_pose[:3, :3].T @ result.T_world_cam[:3, :3])))
-        if result.T_key_cur is not None:
-            gt_step = invert_pose(ground_truth[result.keyframe_position]) @ gt_pose
-            values["translation_direction_deg"] = float(
-                np.degrees(angle_between(gt_step[:3, 3], result.T_key_cur[:3, 3])))
-    return {name: value for name, value in values.items() if name not in left_out} if left_out else values
+            put("heading_deg", np.degrees(_angles(gt[:, :3, :3].transpose(0, 2, 1) @ poses[:, :3, :3])))
+        if stepped.any():
+            keyframes = ground_truth[[r.keyframe_position for r in results if r.T_key_cur is not None]]
+            T_key_world = np.zeros_like(keyframes)  # noqa: N806  (`invert_pose`, stacked)
+            T_key_world[:, :3, :3] = keyframes[:, :3, :3].transpose(0, 2, 1)
+            T_key_world[:, :3, 3] = -(T_key_world[:, :3, :3] @ keyframes[:, :3, 3:])[:, :, 0]
+            T_key_world[:, 3, 3] = 1.0
+            gt_steps = (T_key_world @ gt[stepped])[:, :3, 3]
+            put("translation_direction_deg", np.degrees(_directions(gt_steps, T_key_cur[:, :3, 3])), stepped)
+    return series
+
+
+def _angles(rotations: np.ndarray) -> np.ndarray:
+    """`rotation_angle` of (N, 3, 3) rotations: (N,) radians."""
+    return np.arccos(np.clip((np.trace(rotations, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0))
+
+
+def _directions(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """`angle_between` of (N, 3) vectors a and b row by row: (N,) radians, 0 where either is zero."""
+    lengths = np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1)
+    cosines = np.einsum("ij,ij->i", a, b) / np.where(lengths > 0, lengths, 1.0)
+    return np.where(lengths > 0, np.arccos(np.clip(cosines, -1.0, 1.0)), 0.0)
+
+
+def log_series(columns: ColumnBuffer, frames: list[Frame], results: list[FrameResult], left_out: list[frozenset[str]],
+               ground_truth: np.ndarray | None, gt_check: GroundTruthCheck | None) -> None:
+    """The `METRICS` series of these frames (but timings and drift: their own), each leaving out the series
+    `left_out` names (`series_metrics`), with the ground-truth check's of the frames it scored."""
+    start = 0
+    while start < len(frames):  # frames that leave the same series out (all of them, but from `vslam.log`)
+        end = start + 1
+        while end < len(frames) and left_out[end] == left_out[start]:
+            end += 1
+        series = series_metrics(results[start:end], ground_truth, left_out[start])
+        if gt_check is not None:
+            checked = [(i, pair) for i, r in enumerate(results[start:end]) if (pair := gt_check.pairs.get(r.position))]
+            for name in METRICS["gt_check"] if checked else ():
+                series[name] = (np.array([i for i, _ in checked]),
+                                np.array([gt_check_metrics(pair)[name] for _, pair in checked], np.float64))
+        for group, names in METRICS.items():
+            for name in names:
+                if name in series and group not in ("timing_ms", "drift"):  # drift: its own names
+                    where, values = series[name]
+                    columns.add_scalars(f"/metrics/{group}/{name}", [frames[start + i] for i in where.tolist()],
+                                        values.tolist())
+        start = end
 
 
 def gt_check_metrics(pair: PairCheck) -> dict[str, float]:

@@ -31,8 +31,7 @@ from vslam.recording.metrics import (
     METRICS,
     SENSOR_METRICS,
     STAGES,
-    frame_metrics,
-    gt_check_metrics,
+    log_series,
 )
 from vslam.recording.overview import DriveOverview
 from vslam.recording.schema import SCHEMA_VERSION
@@ -140,6 +139,8 @@ class Recorder:
         self._drift = (DriftRecording(source.ground_truth, online=config.scale != "none" and not self._errors_at_end,
                                       trail=self._trail) if source.ground_truth is not None else None)
         self._previous_position: np.ndarray | None = None
+        # frames (without their image), results and the series each leaves out: drawn at the next flush
+        self._pending_rows: list[tuple[Frame, FrameResult, frozenset[str]]] = []
         self._overview = DriveOverview(self._trail)
         self._frames = 0
         self._failed = False  # Rerun's writer stopped (full disk): reported once
@@ -193,7 +194,7 @@ class Recorder:
             if not self._failed:  # after a write error nothing more reaches the file
                 for video in self._videos.values():
                     video.flush(final=True)
-                self._log_drift()
+                self._log_pending()
                 self._columns.flush()
                 self._columns.wait()
                 self._check_written()
@@ -224,7 +225,7 @@ class Recorder:
         they are when the frame count was not known up front (the logging API, `vslam.log`)."""
         try:
             self._sync()
-            self._log_drift()  # its rows before `DriftRecording.finish` reads them
+            self._log_pending()  # its rows before `DriftRecording.finish` reads them
             if stopped is not None or self._properties.get("frame_count") != str(run.frames):
                 self._restate_frames(run, stopped)
             if self._map is not None and run.loops_at_end and run.indices:  # at the last frame's time
@@ -368,8 +369,7 @@ class Recorder:
         columns.add(CAMERA, frame, (rr.Transform3D.columns, {"translation": pose[:3, 3],
                                                                       "mat3x3": pose[:3, :3]}))
         if self.detail in (Detail.FULL, Detail.STANDARD):
-            self._log_image_and_tracks(frame, result)
-            log_candidates(self._columns, frame, result)
+            self._log_images(frame)
         if self.detail == Detail.FULL or (self._external and self.detail == Detail.STANDARD
                                           and len(result.points_world)):
             points = result.points_world.astype(np.float32)
@@ -378,7 +378,13 @@ class Recorder:
             log_road(self._columns, frame, result, self._intrinsics,
                      image=self.detail in (Detail.FULL, Detail.STANDARD))
         self._log_trajectories(frame, result)
-        self._log_metrics(frame, result, unreported)
+        # the series, tracks and candidate poses of the frames since the last flush are drawn together (`_log_pending`)
+        light = Frame(frame.index, frame.timestamp, NO_IMAGE)  # kept till then: not its image
+        self._pending_rows.append((light, result, unreported | self._errors_logged_at_end))
+        if self._external:  # another pipeline may reuse its arrays once `log_frame` returns
+            self._log_pending(drift=False)
+        if self._drift is not None:  # this frame's own error against the ground truth: at the flush (`_log_pending`)
+            self._drift.add(frame, result.position, result.T_world_cam)
         if (gravity := self._gravity.get(frame.index)) is not None:
             for axis, value in zip(SENSOR_METRICS["accelerometer"], gravity, strict=True):
                 columns.add_scalar(f"/metrics/accelerometer/{axis}", frame, float(value))
@@ -387,7 +393,7 @@ class Recorder:
             if self._map is None:
                 self._map = MapRecording(self._rec, columns, self._intrinsics, self.detail, self._gt,
                                          self._jpeg_quality)
-            self._map.log_frame(frame, result, result.mapping)
+            self._map.log_frame(light, result, result.mapping)
         self._trail.add(frame, pose[:3, 3], *(("not reported", "") if "status" in unreported else
                                               (str(result.health.status), ",".join(result.health.reasons))))
         if "status" not in unreported:
@@ -413,7 +419,7 @@ class Recorder:
 
     def _flush(self) -> None:
         self._flushed_at = time.monotonic()
-        self._log_drift()
+        self._log_pending()
         for video in self._videos.values():
             video.flush()
         self._columns.flush(then=self._check_written)
@@ -447,7 +453,7 @@ class Recorder:
         if self._drift is not None:
             self._drift.gt = self._gt
 
-    def _log_image_and_tracks(self, frame: Frame, result: FrameResult) -> None:
+    def _log_images(self, frame: Frame) -> None:
         columns = self._columns
         images = {"/world/camera/image": frame.image} if frame.image.size else {}
         if self._undistort is not None and frame.image.size:
@@ -460,7 +466,6 @@ class Recorder:
             jpeg: bytes | Future[bytes] = (self._encoder.submit(encode_jpeg, *encoding) if self._encoder is not None
                                            else encode_jpeg(*encoding))
             columns.add(entity, frame, (rr.EncodedImage.columns, {"blob": jpeg, "media_type": "image/jpeg"}))
-        log_tracks(columns, frame, result, full=self.detail == Detail.FULL)
 
     def _log_trajectories(self, frame: Frame, result: FrameResult) -> None:
         """One segment per frame for the estimate and the ground truth (never the whole path again)."""
@@ -475,19 +480,19 @@ class Recorder:
                               (rr.LineStrips3D.columns, {"strips": np.array([gt[max(i - 1, 0)], gt[i]])}))
         self._previous_position = position
 
-    def _log_metrics(self, frame: Frame, result: FrameResult, unreported: frozenset[str]) -> None:
-        values = frame_metrics(result, self._gt, unreported | self._errors_logged_at_end)
-        if self._gt_check is not None and (pair := self._gt_check.pairs.get(result.position)) is not None:
-            values.update(gt_check_metrics(pair))
-        for group, series in METRICS.items():
-            for name in series:
-                if name in values and group not in ("timing_ms", "drift"):  # drift: its own names
-                    self._columns.add_scalar(f"/metrics/{group}/{name}", frame, values[name])
-        if self._drift is not None:  # this frame's own error against the ground truth: at the flush (`_log_drift`)
-            self._drift.add(frame, result.position, result.T_world_cam)
-
-    def _log_drift(self) -> None:
-        """The drift series of the frames recorded since the last flush, computed together (a frame at a time they
-        were ~0.1 ms of the recording thread's Python a frame, which holds the engine back: docs/recordings.md)."""
-        if self._drift is not None:
+    def _log_pending(self, drift: bool = True) -> None:
+        """What is drawn for the frames recorded since the last flush, together (a frame at a time it was ~0.6 ms
+        of the recording thread's Python a frame, which holds the engine back: docs/recordings.md): the map's rows
+        (`MapRecording.log_pending`), the series (`METRICS`), tracks and candidate poses, and the drift series."""
+        if self._map is not None:
+            self._map.log_pending()
+        if self._pending_rows:
+            frames, results, left_out = (list(column) for column in zip(*self._pending_rows, strict=True))
+            self._pending_rows = []
+            if self.detail in (Detail.FULL, Detail.STANDARD):
+                log_tracks(self._columns, frames, results, full=self.detail == Detail.FULL)
+                log_candidates(self._columns, frames, results)
+            log_series(self._columns, frames, results, left_out, self._gt, self._gt_check)
+        if self._drift is not None and drift:
             self._drift.log_series(self._columns)
+

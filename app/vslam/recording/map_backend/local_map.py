@@ -50,39 +50,42 @@ def log_static(rec: rr.RecordingStream, detail: Detail) -> None:
     rec.log(IMAGE_ENTITIES[2], classes, rr.LineStrips2D.from_fields(radii=0.8, show_labels=False), static=True)
 
 
-def log_search(columns: ColumnBuffer, frame: Frame, search: LocalMapSearch | None, detail: Detail) -> None:
-    """The frame's search (empty rows without one)."""
-    found = search.found_mask if search is not None else np.zeros(0, bool)
-    columns.add("/local_map", frame, (rr.AnyValues.columns, {
-        "search": search.purpose if search is not None else "",
-        "keyframes": len(search.keyframe_ids) if search is not None else 0,
-        "projected": len(search.landmark_ids) if search is not None else 0,
-        "refound": int(found.sum()),
-        "linked": int(search.accepted.sum()) if search is not None else 0,
-        "radius_px": float(search.radius_px.max()) if search is not None and len(search.radius_px) else 0.0,
-    }))
+def log_searches(columns: ColumnBuffer, frames: list[Frame], searches: list[LocalMapSearch | None],
+                 detail: Detail) -> None:
+    """The frames' searches (empty rows for a frame without one), recorded together."""
+    if not frames:
+        return
+    done = [s for s in searches if s is not None]
+    found = np.concatenate([np.zeros(0, bool)] + [s.found_mask for s in done])
+    columns.add_values("/local_map", frames, rr.AnyValues.columns,
+                       search=[s.purpose if s is not None else "" for s in searches],
+                       keyframes=[len(s.keyframe_ids) if s is not None else 0 for s in searches],
+                       projected=[len(s.landmark_ids) if s is not None else 0 for s in searches],
+                       refound=[int(s.found_mask.sum()) if s is not None else 0 for s in searches],
+                       linked=[int(s.accepted.sum()) if s is not None else 0 for s in searches],
+                       radius_px=[float(s.radius_px.max()) if s is not None and len(s.radius_px) else 0.0
+                                  for s in searches])
     if detail == Detail.SUMMARY:
         return
-    projected = np.zeros((0, 2), np.float32)
-    radius = np.zeros(0, np.float32)
-    pixels = np.zeros((0, 2), np.float32)
-    ids, distance = np.zeros(0, np.uint32), np.zeros(0, np.int32)
-    if search is not None:
-        projected = search.projected.astype(np.float32).reshape(-1, 2)
-        radius = search.radius_px.astype(np.float32)
-        pixels = search.found_pixels.astype(np.float32).reshape(-1, 2)
-        ids, distance = search.landmark_ids.astype(np.uint32), search.distance.astype(np.int32)
-    accepted = search.accepted if search is not None else np.zeros(0, bool)
+    counts = [len(s.landmark_ids) if s is not None else 0 for s in searches]
+    projected = np.concatenate([np.zeros((0, 2))] + [s.projected.reshape(-1, 2) for s in done]).astype(np.float32)
+    radius = np.concatenate([np.zeros(0)] + [s.radius_px for s in done]).astype(np.float32)
+    pixels = np.concatenate([np.zeros((0, 2))] + [s.found_pixels.reshape(-1, 2) for s in done]).astype(np.float32)
+    accepted = np.concatenate([np.zeros(0, bool)] + [s.accepted for s in done])
     classes = np.where(accepted, LINKED, np.where(found, REFOUND, NOT_REFOUND)).astype(np.uint16)
     points: list[Part] = [(rr.Points2D.columns, {"positions": projected, "class_ids": classes})]
     if detail == Detail.FULL:
+        ids = np.concatenate([np.zeros(0, np.int64)] + [s.landmark_ids for s in done]).astype(np.uint32)
+        distance = np.concatenate([np.zeros(0, np.int64)] + [s.distance for s in done]).astype(np.int32)
         points.append((rr.AnyValues.columns, {"landmark_id": ids, "distance": distance}))
-    columns.add(IMAGE_ENTITIES[0], frame, *points, batch=True)
-    columns.add(IMAGE_ENTITIES[1], frame, (rr.Boxes2D.columns, {
-        "centers": projected, "half_sizes": np.repeat(radius[:, None], 2, axis=1), "class_ids": classes}), batch=True)
+    columns.add_rows(IMAGE_ENTITIES[0], frames, *points, lengths=[counts] * len(points))
+    columns.add_rows(IMAGE_ENTITIES[1], frames, (rr.Boxes2D.columns, {
+        "centers": projected, "half_sizes": np.repeat(radius[:, None], 2, axis=1), "class_ids": classes}),
+        lengths=[counts])
     strips = np.stack([projected[found], pixels[found]], axis=1)  # (n, 2, 2): ~100x faster than a list
-    columns.add(IMAGE_ENTITIES[2], frame, (rr.LineStrips2D.columns, {
-        "strips": strips, "class_ids": classes[found]}), batch=True)
+    lines = np.bincount(np.repeat(np.arange(len(frames)), counts)[found], minlength=len(frames)).tolist()
+    columns.add_rows(IMAGE_ENTITIES[2], frames, (rr.LineStrips2D.columns, {
+        "strips": strips, "class_ids": classes[found]}), lengths=[lines])
 
 
 def lifetime_histogram(landmark_keyframes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

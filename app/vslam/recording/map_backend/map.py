@@ -124,6 +124,7 @@ class MapRecording:
         self._detail = detail
         self._frustum = frustum_outline(intrinsics.K, intrinsics.width, intrinsics.height, FRUSTUM_DEPTH)
         self._segment: int | None = None
+        self._pending: list[tuple[Frame, FrameResult, MapFrame]] = []  # recorded at the next flush (`log_pending`)
         self._log_static(rec)
         self._loops = LoopRecording(rec, columns, detail, jpeg_quality)
 
@@ -154,37 +155,15 @@ class MapRecording:
             rec.log("/world/map/ba_residuals", rr.Points3D.from_fields(radii=0.08), static=True)
 
     def log_frame(self, frame: Frame, result: FrameResult, mapping: MapFrame) -> None:
-        columns = self._columns
-        pnp = mapping.pnp
-        columns.add("/tracking", frame, (rr.AnyValues.columns, {
-            "mode": str(mapping.mode),
-            "segment": mapping.segment,
-            "pnp_inliers": int(np.count_nonzero(pnp.inlier_mask)) if pnp is not None else 0,
-            "landmarks_tracked": len(pnp.landmark_ids) if pnp is not None else 0,
-            "pnp_rejected": (pnp.rejected or "") if pnp is not None else "no PnP",
-            "pnp_failure": str(pnp.failure) if pnp is not None and pnp.failure is not None else "",
-            "landmarks_in_view": pnp.in_view if pnp is not None else -1,
-            "landmarks_found": pnp.found if pnp is not None else 0,
-            "search_radius_px": pnp.search_radius_px if pnp is not None else 0.0,
-        }))
-        values = map_frame_metrics(mapping)
-        for group, series in MAP_METRICS.items():
-            for name in series:
-                if name in values:
-                    columns.add_scalar(f"/metrics/{group}/{name}", frame, values[name])
-        self._log_scale(frame, result, mapping)
-        for stage in MAP_STAGES:
-            if stage in result.timings_ms:
-                columns.add_scalar(f"/metrics/timing_ms/{stage}", frame, result.timings_ms[stage])
+        """What changes at this frame (keyframes, events, loops) now; its tracking row, series and image overlays
+        with the other frames' since the last flush (`log_pending`). `frame` without its image will do."""
+        self._pending.append((frame, result, mapping))
         new_segment = self._segment is not None and mapping.segment != self._segment
         self._segment = mapping.segment
         if mapping.view is not None:
             self._log_view(frame, mapping.view)
-        if self._detail != Detail.SUMMARY:
-            self._log_image(frame, pnp)
-        local_map.log_search(columns, frame, mapping.local_map, self._detail)
         if mapping.bundle_adjustment is not None:
-            local_map.log_lifetimes(columns, frame, mapping.bundle_adjustment)
+            local_map.log_lifetimes(self._columns, frame, mapping.bundle_adjustment)
         if self._detail == Detail.FULL:
             if mapping.bundle_adjustment is not None:
                 self._log_residuals(frame, mapping.bundle_adjustment)
@@ -192,6 +171,45 @@ class MapRecording:
                 self._log_residuals(frame, None)
         self._log_events(frame, mapping, new_segment)
         self._loops.log_frame(frame, result.position, mapping.loop)
+
+    def log_pending(self) -> None:
+        """The tracking rows, series, image overlays and local-map searches of the frames since the last call,
+        built together (a frame at a time they were ~0.3 ms of the recording thread's Python a frame, which holds
+        the engine back: docs/recordings.md)."""
+        if not self._pending:
+            return
+        pending, self._pending = self._pending, []
+        frames = [frame for frame, _, _ in pending]
+        mappings = [mapping for _, _, mapping in pending]
+        pnps = [mapping.pnp for mapping in mappings]
+        self._columns.add_values("/tracking", frames, rr.AnyValues.columns,
+                                 mode=[str(m.mode) for m in mappings], segment=[m.segment for m in mappings],
+                                 pnp_inliers=[int(np.count_nonzero(p.inlier_mask)) if p is not None else 0
+                                              for p in pnps],
+                                 landmarks_tracked=[len(p.landmark_ids) if p is not None else 0 for p in pnps],
+                                 pnp_rejected=[(p.rejected or "") if p is not None else "no PnP" for p in pnps],
+                                 pnp_failure=[str(p.failure) if p is not None and p.failure is not None else ""
+                                              for p in pnps],
+                                 landmarks_in_view=[p.in_view if p is not None else -1 for p in pnps],
+                                 landmarks_found=[p.found if p is not None else 0 for p in pnps],
+                                 search_radius_px=[p.search_radius_px if p is not None else 0.0 for p in pnps])
+        series: dict[str, tuple[list[Frame], list[float]]] = {}
+        for frame, mapping in zip(frames, mappings, strict=True):
+            for name, value in map_frame_metrics(mapping).items():
+                at, values = series.setdefault(name, ([], []))
+                at.append(frame)
+                values.append(value)
+        for group, names in MAP_METRICS.items():
+            for name in names:
+                if name in series:
+                    self._columns.add_scalars(f"/metrics/{group}/{name}", *series[name])
+        self._log_scale(pending)
+        for stage in MAP_STAGES:
+            timed = [(frame, result.timings_ms[stage]) for frame, result, _ in pending if stage in result.timings_ms]
+            self._columns.add_scalars(f"/metrics/timing_ms/{stage}", [f for f, _ in timed], [t for _, t in timed])
+        if self._detail != Detail.SUMMARY:
+            self._log_images(frames, pnps)
+        local_map.log_searches(self._columns, frames, [m.local_map for m in mappings], self._detail)
 
     @property
     def closed_loops(self) -> list[tuple[int, int]]:
@@ -203,20 +221,27 @@ class MapRecording:
         for step in steps:
             self._loops.log_frame(frame, position, step, at_end=True)
 
-    def _log_scale(self, frame: Frame, result: FrameResult, mapping: MapFrame) -> None:
-        """The map's scale: this frame's step in map units, and over the ground truth's step when known."""
-        if mapping.mode == TrackingMode.LOST:
-            return
-        centre = result.T_world_cam[:3, 3]
-        previous, self._previous = self._previous, (result.position, centre.copy())
-        if previous is None or mapping.mode == TrackingMode.INIT:
-            return
-        step = float(np.linalg.norm(centre - previous[1]))
-        self._columns.add_scalar("/metrics/map_scale/step", frame, step)
-        if self._truth is not None and result.position < len(self._truth):
-            truth = float(np.linalg.norm(self._truth[result.position] - self._truth[previous[0]]))
-            if truth >= MIN_TRUTH_STEP_M:
-                self._columns.add_scalar("/metrics/map_scale/step_over_truth", frame, step / truth)
+    def _log_scale(self, pending: list[tuple[Frame, FrameResult, MapFrame]]) -> None:
+        """The map's scale: each frame's step in map units, and over the ground truth's step when known."""
+        steps: tuple[list[Frame], list[float]] = ([], [])
+        ratios: tuple[list[Frame], list[float]] = ([], [])
+        for frame, result, mapping in pending:
+            if mapping.mode == TrackingMode.LOST:
+                continue
+            centre = result.T_world_cam[:3, 3]
+            previous, self._previous = self._previous, (result.position, centre.copy())
+            if previous is None or mapping.mode == TrackingMode.INIT:
+                continue
+            step = float(np.linalg.norm(centre - previous[1]))
+            steps[0].append(frame)
+            steps[1].append(step)
+            if self._truth is not None and result.position < len(self._truth):
+                truth = float(np.linalg.norm(self._truth[result.position] - self._truth[previous[0]]))
+                if truth >= MIN_TRUTH_STEP_M:
+                    ratios[0].append(frame)
+                    ratios[1].append(step / truth)
+        self._columns.add_scalars("/metrics/map_scale/step", *steps)
+        self._columns.add_scalars("/metrics/map_scale/step_over_truth", *ratios)
 
     def _log_view(self, frame: Frame, view: MapView) -> None:
         """Window and fixed keyframes, what retired, the landmarks and the keyframe path (at a keyframe)."""
@@ -286,27 +311,30 @@ class MapRecording:
         strips = [self._frustum @ pose[:3, :3].T + pose[:3, 3] for pose in poses]
         return np.array(strips, np.float32).reshape(len(strips), *self._frustum.shape)
 
-    def _log_image(self, frame: Frame, pnp: PnPEstimate | None) -> None:
-        """Tracked landmarks at their pixel, and a line from each projection to it (empty rows without PnP)."""
-        observed, projected = np.zeros((0, 2), np.float32), np.zeros((0, 2), np.float32)
-        classes, ids = np.zeros(0, np.uint16), np.zeros(0, np.uint32)
-        if pnp is not None:
-            observed = pnp.observed.astype(np.float32).reshape(-1, 2)
-            projected = pnp.projected.astype(np.float32).reshape(-1, 2)
-            classes = np.where(pnp.inlier_mask, PNP_INLIER, PNP_OUTLIER).astype(np.uint16)
-            ids = pnp.landmark_ids.astype(np.uint32)
+    def _log_images(self, frames: list[Frame], pnps: list[PnPEstimate | None]) -> None:
+        """Each frame's tracked landmarks at their pixel, and a line from each projection to it (empty rows without
+        PnP)."""
+        tried = [p for p in pnps if p is not None]
+        counts = [len(p.landmark_ids) if p is not None else 0 for p in pnps]
+        observed = np.concatenate([np.zeros((0, 2))] + [p.observed.reshape(-1, 2) for p in tried]).astype(np.float32)
+        projected = np.concatenate([np.zeros((0, 2))] + [p.projected.reshape(-1, 2) for p in tried]).astype(np.float32)
+        inlier = np.concatenate([np.zeros(0, bool)] + [p.inlier_mask for p in tried])
+        classes = np.where(inlier, PNP_INLIER, PNP_OUTLIER).astype(np.uint16)
         points: list[Part] = [(rr.Points2D.columns, {"positions": quantised(observed, DOT_STEPS),
                                                      "class_ids": classes})]
         if self._detail == Detail.FULL:
+            ids = np.concatenate([np.zeros(0, np.int64)] + [p.landmark_ids for p in tried]).astype(np.uint32)
             points.append((rr.AnyValues.columns, {"landmark_id": ids}))
-        self._columns.add("/world/camera/image/landmarks", frame, *points, batch=True)
+        self._columns.add_rows("/world/camera/image/landmarks", frames, *points, lengths=[counts] * len(points))
         drawn = np.isfinite(projected).all(axis=1)
         if self._detail != Detail.FULL:
             drawn &= np.linalg.norm(projected - observed, axis=1) > HIDDEN_LINE_PX
         # (n, 2, 2), not a list of strips: Rerun converts an array ~100x faster
         strips = quantised(np.stack([projected[drawn], observed[drawn]], axis=1), LINE_STEPS)
-        self._columns.add("/world/camera/image/reprojection", frame,
-                          (rr.LineStrips2D.columns, {"strips": strips, "class_ids": classes[drawn]}), batch=True)
+        lines = np.bincount(np.repeat(np.arange(len(frames)), counts)[drawn], minlength=len(frames)).tolist()
+        self._columns.add_rows("/world/camera/image/reprojection", frames,
+                               (rr.LineStrips2D.columns, {"strips": strips, "class_ids": classes[drawn]}),
+                               lengths=[lines])
 
     def _log_residuals(self, frame: Frame, ba: BundleAdjusted | None) -> None:
         """The last BA's landmarks with a finite residual, at their refined positions (None: an empty row)."""
