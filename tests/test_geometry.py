@@ -139,6 +139,15 @@ def test_relative_pose_round_trip_through_chaining() -> None:
     assert np.allclose(invert_pose(a) @ a, np.eye(4), atol=1e-12)
 
 
+def test_a_stack_of_poses_inverts_pose_by_pose() -> None:
+    poses = np.array([pose_matrix(rot(10, 2, -1), [3.0, 0.2, 7.0]), pose_matrix(rot(-25, 1, 2), [5.0, 0.1, -12.0])])
+    inverses = invert_pose(poses)
+    assert inverses.shape == (2, 4, 4)
+    for pose, inverse in zip(poses, inverses, strict=True):
+        assert np.allclose(inverse, invert_pose(pose), atol=1e-15)
+        assert np.allclose(inverse @ pose, np.eye(4), atol=1e-12)
+
+
 def test_triangulation_returns_points_in_the_current_frame_up_to_baseline() -> None:
     T_prev_cur = MOTIONS["turning_with_pitch_and_roll"]  # noqa: N806
     p_cur, p_prev, truth = two_view(T_prev_cur, n=50)

@@ -38,7 +38,13 @@ def chain(T_w_prev: np.ndarray, T_prev_cur: np.ndarray) -> np.ndarray:  # noqa: 
 
 
 def invert_pose(pose: np.ndarray) -> np.ndarray:
-    """Inverse of a (4, 4) rigid transform, using Rᵀ instead of a general inverse."""
+    """Inverse of a (4, 4) rigid transform, or of each of an (N, 4, 4) stack, using Rᵀ instead of a general
+    inverse."""
+    if pose.ndim == 3:
+        stacked = np.broadcast_to(np.eye(4), pose.shape).copy()
+        stacked[:, :3, :3] = pose[:, :3, :3].transpose(0, 2, 1)
+        stacked[:, :3, 3] = -(stacked[:, :3, :3] @ pose[:, :3, 3:])[:, :, 0]
+        return stacked
     inverse = np.eye(4)
     inverse[:3, :3] = pose[:3, :3].T
     inverse[:3, 3] = -pose[:3, :3].T @ pose[:3, 3]

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 import pyarrow as pa
 import rerun as rr
 
@@ -201,6 +202,13 @@ class ColumnBuffer:
             else:
                 columns += make(**{name: _stacked(v) for name, v in values.items()})
         self._rec.send_columns(entity, indexes=indexes, columns=columns)
+
+
+def kept_per_row(lengths: Sequence[int], kept: npt.ArrayLike) -> list[int]:
+    """How many of each row's instances the (sum(lengths),) mask `kept` keeps (rows of `lengths` instances, one
+    after the other): the `lengths` of `ColumnBuffer.add_rows` for the kept instances."""
+    rows = np.repeat(np.arange(len(lengths)), lengths)
+    return np.bincount(rows[np.asarray(kept, bool)], minlength=len(lengths)).tolist()
 
 
 def _size(value: Any) -> int:

@@ -9,7 +9,8 @@ from collections.abc import Sequence
 import numpy as np
 import rerun as rr
 
-from vslam.recording.columns import ColumnBuffer, Part, add_event
+from vslam.recording.columns import ColumnBuffer, Part, add_event, kept_per_row
+from vslam_core.geometry import invert_pose
 from vslam_core.lens import distort_pixels
 from vslam_core.results import FrameResult, FrameStatus, HealthStatus, Reason, TrackFate
 from vslam_core.sources.base import CameraIntrinsics, Frame
@@ -46,8 +47,7 @@ def log_tracks(columns: ColumnBuffer, frames: Sequence[Frame], results: Sequence
         flow.append((rr.AnyValues.columns, {
             "track_id": _joined([r.track_ids for r in results])[reached].astype(np.uint32),
             "age": _joined([r.track_age for r in results])[reached].astype(np.uint16)}))
-    frame_of = np.repeat(np.arange(len(results)), [len(r.track_fate) for r in results])
-    arrows = np.bincount(frame_of[reached], minlength=len(results)).tolist()
+    arrows = kept_per_row([len(r.track_fate) for r in results], reached)
     columns.add_rows("/world/camera/image/flow", frames, *flow, lengths=[arrows] * len(flow))
 
 
@@ -65,10 +65,7 @@ def log_candidates(columns: ColumnBuffer, frames: Sequence[Frame], results: Sequ
     labels: list[str] = []
     if placed:
         T_key_cur = np.array([r.T_key_cur for r in placed])  # noqa: N806  (P, 4, 4)
-        T_cur_key = np.broadcast_to(np.eye(4), T_key_cur.shape).copy()  # noqa: N806  (`invert_pose`, stacked)
-        T_cur_key[:, :3, :3] = T_key_cur[:, :3, :3].transpose(0, 2, 1)
-        T_cur_key[:, :3, 3] = -(T_cur_key[:, :3, :3] @ T_key_cur[:, :3, 3:])[:, :, 0]
-        T_w_key = np.array([r.T_world_cam for r in placed]) @ T_cur_key  # noqa: N806
+        T_w_key = np.array([r.T_world_cam for r in placed]) @ invert_pose(T_key_cur)  # noqa: N806
         length = np.maximum(np.linalg.norm(T_key_cur[:, :3, 3], axis=1), 0.5)
         translations = np.array([[c.translation for c in r.candidate_poses] for r in placed])  # (P, 4, 3)
         rotations = np.array([[c.rotation for c in r.candidate_poses] for r in placed])  # (P, 4, 3, 3)

@@ -13,6 +13,7 @@ import numpy as np
 
 from vslam.recording.columns import ColumnBuffer
 from vslam.recording.styles import ESTIMATE_COLOUR, NEW_CORNER_COLOUR, ROAD_COLOUR
+from vslam_core.geometry import invert_pose
 from vslam_core.results import BundleAdjusted, FrameResult, HealthStatus, MapFrame, TrackFate, TrackingMode
 from vslam_core.sources.base import Frame
 from vslam_core.trajectory.gt_check import GroundTruthCheck, PairCheck
@@ -124,11 +125,7 @@ def series_metrics(results: Sequence[FrameResult], ground_truth: np.ndarray | No
             put("heading_deg", np.degrees(_angles(gt[:, :3, :3].transpose(0, 2, 1) @ poses[:, :3, :3])))
         if stepped.any():
             keyframes = ground_truth[[r.keyframe_position for r in results if r.T_key_cur is not None]]
-            T_key_world = np.zeros_like(keyframes)  # noqa: N806  (`invert_pose`, stacked)
-            T_key_world[:, :3, :3] = keyframes[:, :3, :3].transpose(0, 2, 1)
-            T_key_world[:, :3, 3] = -(T_key_world[:, :3, :3] @ keyframes[:, :3, 3:])[:, :, 0]
-            T_key_world[:, 3, 3] = 1.0
-            gt_steps = (T_key_world @ gt[stepped])[:, :3, 3]
+            gt_steps = (invert_pose(keyframes) @ gt[stepped])[:, :3, 3]
             put("translation_direction_deg", np.degrees(_directions(gt_steps, T_key_cur[:, :3, 3])), stepped)
     return series
 

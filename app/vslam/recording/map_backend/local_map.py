@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 import rerun as rr
 
-from vslam.recording.columns import ColumnBuffer, Part
+from vslam.recording.columns import ColumnBuffer, Part, kept_per_row
 from vslam.recording.levels import Detail
 from vslam_core.results import BundleAdjusted, LocalMapSearch
 from vslam_core.sources.base import Frame
@@ -83,7 +83,7 @@ def log_searches(columns: ColumnBuffer, frames: list[Frame], searches: list[Loca
         "centers": projected, "half_sizes": np.repeat(radius[:, None], 2, axis=1), "class_ids": classes}),
         lengths=[counts])
     strips = np.stack([projected[found], pixels[found]], axis=1)  # (n, 2, 2): ~100x faster than a list
-    lines = np.bincount(np.repeat(np.arange(len(frames)), counts)[found], minlength=len(frames)).tolist()
+    lines = kept_per_row(counts, found)
     columns.add_rows(IMAGE_ENTITIES[2], frames, (rr.LineStrips2D.columns, {
         "strips": strips, "class_ids": classes[found]}), lengths=[lines])
 

@@ -63,7 +63,7 @@ from __future__ import annotations
 import numpy as np
 import rerun as rr
 
-from vslam.recording.columns import ColumnBuffer, Part, add_event
+from vslam.recording.columns import ColumnBuffer, Part, add_event, kept_per_row
 from vslam.recording.levels import JPEG_QUALITY, Detail
 from vslam.recording.map_backend import local_map
 from vslam.recording.map_backend.loops import LoopRecording
@@ -331,7 +331,7 @@ class MapRecording:
             drawn &= np.linalg.norm(projected - observed, axis=1) > HIDDEN_LINE_PX
         # (n, 2, 2), not a list of strips: Rerun converts an array ~100x faster
         strips = quantised(np.stack([projected[drawn], observed[drawn]], axis=1), LINE_STEPS)
-        lines = np.bincount(np.repeat(np.arange(len(frames)), counts)[drawn], minlength=len(frames)).tolist()
+        lines = kept_per_row(counts, drawn)
         self._columns.add_rows("/world/camera/image/reprojection", frames,
                                (rr.LineStrips2D.columns, {"strips": strips, "class_ids": classes[drawn]}),
                                lengths=[lines])
