@@ -299,19 +299,19 @@ class MapConfig:
     search_band_px: float = 0.0
     # ... and its ratio test compares the best corner with the best one more than this many px from it (0: with any)
     search_rival_px: float = 0.0
-    # map_search with --scale none. Off: on the KITTI rows of the matrix (map, none, seeds 0-1; measured before
-    # tracker.retry_failed_share) all rows went
-    # 2.14 -> 3.33 % with square windows, 2.93 % with search_band_px = 4, 3.06 % adding search_rival_px = 3: it
-    # helps 00 0:150:3 (4.1 -> 2.7-3.1 %) but 00 150:300:3 seed 0 loses its map in the turn (6.8 -> 25-34 %)
-    # and 05 0:150:3 seed 1 gets worse (2.2 -> 3.1-4.5 %) (docs/map-backend.md)
+    # map_search with --scale none. Off: on the KITTI rows of the matrix (map, none, seeds 0-1) all rows went 2.14 ->
+    # 3.33 % with square windows, 2.93 % with search_band_px = 4, 3.06 % adding search_rival_px = 3: it helps 00
+    # 0:150:3 (4.1 -> 2.7-3.1 %) but 00 150:300:3 seed 0 loses its map in the turn (6.8 -> 25-34 %) (map-backend.md)
     none_map_search: bool = False
-    # --scale none: a frame placed by its two-view motion takes the step length that best reprojects the
-    # landmarks it still sees (vslam_core/mapping/step_scale.py) when at least this many agree within
-    # pnp_threshold_px (and half of those tried), the length within a factor step_fit_max_ratio of the map's
-    # speed; 0 turns it off (the step is the map's speed, as before)
+    # --scale none: a frame placed by its two-view motion takes the step length that best reprojects the landmarks
+    # it still sees when this many agree (map_search.fitted_two_view; 0: off), within this factor of the map's speed
     step_fit_min_inliers: int = 0
     step_fit_max_ratio: float = 2.0
     step_fit_speed: bool = False
+    # ... else its length from points the two frames before it triangulate when this many agree (the relative scale,
+    # map_scale.TwoViewLength), else the last step's; 0: the map's speed
+    relative_step_min_points: int = 20
+    relative_step_min_deg: float = 1.0  # ... points whose rays meet at this angle or more
     # a frame that sees too few of the map's landmarks (in view or tracked) is made a keyframe, so that landmarks
     # are triangulated while its tracks still overlap the last keyframe's (always so with map_search; with
     # --scale none none_starving_keyframes replaces it: on by default there, off with gt and height, where at

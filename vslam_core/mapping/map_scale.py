@@ -22,17 +22,21 @@ motion too: a camera moving sideways takes `--scale none`'s (`sideways_camera`).
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
 
 from vslam_core.config import EngineConfig, MapConfig, ScaleSource
 from vslam_core.geometry import invert_pose, normalise_points, pose_matrix, rotation_angle, triangulate
+from vslam_core.lens import undistort_pixels
 from vslam_core.mapping.local_mapping import well_triangulated
 from vslam_core.mapping.map import Keyframe, Map
+from vslam_core.mapping.map_search import fit_step_length, fitted_two_view, rescale_step
 from vslam_core.mapping.pnp import metric_pose, solve_pnp
-from vslam_core.results import FrameResult, KeyframeInserted, PnPEstimate, Reason, ScaleEstimate
+from vslam_core.results import FrameResult, KeyframeInserted, PnPEstimate, Reason, ScaleEstimate, TrackFate
 from vslam_core.scale import ScaleProvider, TwoView
+from vslam_core.sources.base import CameraIntrinsics
 from vslam_core.two_view import two_view_motion
 
 #: Why a keyframe was made when it starts a map (segment): it is the map's start only with enough landmarks.
@@ -75,6 +79,82 @@ class MapSpeed:
     def step_length(self, view: TwoView) -> tuple[float, ScaleEstimate | None]:
         """The length of the step keyframe → current frame: the speed times the frames between them."""
         return self.speed * max(view.cur_position - view.key_position, 1), None
+
+
+class TwoViewLength:
+    """--scale none: the length of a step the map could not place (PnP failed: a turn at a low frame rate), from
+    the images rather than `MapSpeed`'s constant speed, which a car leaving a turn outruns (KITTI 05 0:300:2: the
+    step over the truth's fell 1.05 → 0.64 over 10 frames placed at the map's last speed, and PnP kept that scale
+    to the end). In turn: the landmarks the frame still sees (`map_search.fitted_two_view`, off by default); the
+    relative scale of monocular odometry (Nistér et al., "Visual odometry", CVPR 2004, §4.2; Scaramuzza &
+    Fraundorfer, "Visual Odometry, Part I", 2011, §V): the tracks the two frames before it saw triangulate points
+    in the map's units, and the step's length is the one that reprojects them onto the frame
+    (`map_search.fit_step_length`: rotation and direction from the images, the length by one-point RANSAC); when
+    too few points agree, the last step's length (a constant velocity from the last two poses, as ORB-SLAM's
+    motion model) rather than the median of the last measured ones; else the map's speed (`two_view` as given)."""
+
+    def __init__(self, K: np.ndarray, lens: CameraIntrinsics) -> None:  # noqa: N803
+        self._K, self._lens = K, lens
+        self._previous: tuple[int, np.ndarray, np.ndarray] | None = None  # a frame's position, (M,) track ids and
+        # (M, 2) raw pixels in the frame before it
+
+    def place(self, two_view: np.ndarray, vo: FrameResult, pnp: PnPEstimate | None, world: Map,
+              pose_of: Callable[[int], np.ndarray], held: set[int], config: MapConfig) -> tuple[np.ndarray, bool]:
+        """(4, 4) T_world_cam of the frame `vo`, whose `two_view` pose is its motion from its keyframe
+        (`vo.T_key_cur`) at the map's speed, with its step's length measured as above; and whether that was on
+        landmarks. `pose_of`: an earlier frame's pose; `held`: the positions of frames that had none."""
+        if pnp is not None and vo.T_key_cur is not None and \
+                (fitted := fitted_two_view(world, pose_of(vo.keyframe_position), vo.T_key_cur, pnp, self._K,
+                                           config)) is not None:
+            return fitted, True
+        relative = self._relative(vo, pose_of, held, config)
+        return (two_view if relative is None else relative), False
+
+    def remember(self, vo: FrameResult) -> None:
+        self._previous = (vo.position, vo.track_ids, vo.track_prev)
+
+    def _relative(self, vo: FrameResult, pose_of: Callable[[int], np.ndarray], held: set[int],
+                  config: MapConfig) -> np.ndarray | None:
+        """The relative scale's pose, or the last step's; None unless both frames before it have a pose."""
+        previous, position = self._previous, vo.position
+        if config.relative_step_min_points <= 0 or vo.T_key_cur is None or previous is None or \
+                previous[0] != position - 1 or {position - 1, position - 2} & held:
+            return None
+        T_world_a, T_world_b, T_world_key = pose_of(position - 2), pose_of(position - 1), pose_of(vo.keyframe_position)  # noqa: N806
+        alive = vo.track_fate >= TrackFate.NOT_USED
+        row_at_a = {track: row for row, track in enumerate(previous[1].tolist())}
+        rows = np.array([(n, row_at_a[t]) for n, t in enumerate(vo.track_ids.tolist()) if alive[n] and t in row_at_a],
+                        np.int64).reshape(-1, 2)
+        a, b, cur = (undistort_pixels(pixels, self._lens) for pixels in
+                     (previous[2][rows[:, 1]], vo.track_prev[rows[:, 0]], vo.track_cur[rows[:, 0]]))
+        points = triangulated_points(T_world_a, T_world_b, normalise_points(a, self._K), normalise_points(b, self._K),
+                                     config.relative_step_min_deg)
+        fit = fit_step_length(T_world_key, vo.T_key_cur, points[0], cur[points[1]], self._K, config.pnp_threshold_px) \
+            if len(points[0]) >= config.relative_step_min_points else None
+        guess = float(np.linalg.norm(vo.T_key_cur[:3, 3]))  # the map's speed
+        if fit is not None and fit.inliers >= max(config.relative_step_min_points, fit.landmarks / 2) and \
+                guess / config.step_fit_max_ratio <= fit.length <= guess * config.step_fit_max_ratio:
+            return np.asarray(T_world_key @ rescale_step(vo.T_key_cur, fit.length))
+        last = float(np.linalg.norm(T_world_b[:3, 3] - T_world_a[:3, 3]))
+        return np.asarray(T_world_key @ rescale_step(vo.T_key_cur, last * (position - vo.keyframe_position)))
+
+
+def triangulated_points(T_world_a: np.ndarray, T_world_b: np.ndarray, a: np.ndarray, b: np.ndarray,  # noqa: N803
+                        min_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """The (P, 3) world points of the (N, 2) normalised correspondences `a`, `b` of two posed frames (midpoint
+    triangulation, `geometry.triangulate`) that lie in front of both and whose rays meet at `min_deg` or more,
+    and the (P,) rows of those correspondences."""
+    T_a_b = invert_pose(T_world_a) @ T_world_b  # noqa: N806
+    rotation, translation = T_a_b[:3, :3], T_a_b[:3, 3]
+    if len(a) == 0 or np.linalg.norm(translation) < 1e-12:
+        return np.zeros((0, 3)), np.zeros(0, np.int64)
+    in_b = triangulate(rotation, translation, b, a)
+    from_a = in_b + rotation.T @ translation  # the ray from a's centre, in b's frame
+    with np.errstate(invalid="ignore"):
+        cosine = np.einsum("ij,ij->i", in_b, from_a) / (np.linalg.norm(in_b, axis=1) * np.linalg.norm(from_a, axis=1))
+        kept = np.isfinite(cosine) & (in_b[:, 2] > 0) & ((from_a @ rotation.T)[:, 2] > 0)
+        kept &= cosine <= np.cos(np.radians(min_deg))
+    return in_b[kept] @ T_world_b[:3, :3].T + T_world_b[:3, 3], np.flatnonzero(kept)
 
 
 def for_scale(config: MapConfig, scale: ScaleSource) -> MapConfig:

@@ -4,7 +4,8 @@ Per frame: KLT tracks and the 5-point motion from the keyframe (vslam_core/engin
 to surviving tracks (and, with `map.local_map_tracking`, landmarks re-found by projection: refinding.py) →
 PnP in RANSAC refined on the inliers (`MAP`: with none its pose, in the map's own scale, map_scale.py; with
 gt or height the front end's motion it confirmed, pnp.metric_pose); failing that, the local map searched by
-projection (map_search.py; why it failed: `PnPEstimate.failure`) → else the two-view pose (`TWO_VIEW`) → tracks
+projection (map_search.py; why it failed: `PnPEstimate.failure`) → else the two-view pose (`TWO_VIEW`; with none
+its length from the tracks of the two frames before, map_scale.TwoViewLength) → tracks
 lost: relocalisation against recent keyframes (`RELOCALISED`), failing that a new map segment. Tracks live on
 raw pixels; PnP, landmarks and BA on ideal pinhole pixels (vslam_core/lens.py). A frame the health checks
 refuse is dead-reckoned (`COASTED`, vslam_core/coasting.py); one nothing can place keeps the last pose (`LOST`).
@@ -29,6 +30,7 @@ from vslam_core.mapping.local_mapping import LocalMapping, reanchor
 from vslam_core.mapping.map_scale import (
     FramesBeforeMap,
     MapSpeed,
+    TwoViewLength,
     for_scale,
     front_end_config,
     initialisation,
@@ -40,7 +42,6 @@ from vslam_core.mapping.map_scale import (
     slow_camera,
     translation_parallax,
 )
-from vslam_core.mapping.map_search import fitted_two_view
 from vslam_core.mapping.pnp import PnPSolution, at_raw_pixels, check_pnp, search_at_raw_pixels, solve_pnp
 from vslam_core.mapping.refinding import MapRefinding, suspended_at_keyframe
 from vslam_core.mapping.relocalisation import relocalise_by_descriptors
@@ -74,8 +75,10 @@ class MapTracking:
     def __init__(self, intrinsics: CameraIntrinsics, config: EngineConfig, scale: ScaleProvider) -> None:
         self._lens = intrinsics  # tracks are on raw pixels; the map's geometry on ideal ones (vslam_core/lens.py)
         self.config, self.settings, self._K = config, for_scale(config.map, config.scale), intrinsics.K
-        # --scale none: steps the map cannot place take their length from the map's speed, never unit steps
+        # --scale none: steps the map cannot place take their length from the images (TwoViewLength) or the map's
+        # speed, never unit steps
         self._speed = MapSpeed() if config.scale == "none" else None
+        self._two_view_length = TwoViewLength(self._K, self._lens)
         self._slow = False  # --scale none: a slow camera (map_scale.slow_camera), its landmarks at a smaller angle
         self._scale: ScaleProvider = self._speed if self._speed is not None else scale
         # coasting is done here, with the map; BA and the loop search in one worker process beside (2 threads)
@@ -187,7 +190,10 @@ class MapTracking:
             if reckoned is not None and not agrees(two_view[:3, :3], reckoned, vo.position - vo.keyframe_position):
                 warnings.append(Reason.GAP_MOTION_REJECTED)
         if pose is None and two_view is not None and Reason.GAP_MOTION_REJECTED not in warnings:
-            pose, mode = self._fitted(two_view, vo, pnp), TrackingMode.TWO_VIEW
+            mode, ready = TrackingMode.TWO_VIEW, self._speed is not None and self._initialised
+            pose, self._step_measured = self._two_view_length.place(
+                two_view, vo, pnp, self.mapping.map, self.pose_of, self._held, self.settings) \
+                if ready else (two_view, False)
             if pnp is not None and self._has_map():
                 warnings.append(Reason.PNP_REJECTED)
         if pose is None and (self._gap or missing):  # the first frame after a gap that nothing else could place
@@ -276,16 +282,6 @@ class MapTracking:
             self._link_found(replace(estimate, inlier_mask=estimate.inlier_mask & found))
         return estimate
 
-    def _fitted(self, two_view: np.ndarray, vo: FrameResult, pnp: PnPEstimate | None) -> np.ndarray:
-        """--scale none: the two-view pose, its step's length measured on the landmarks the frame sees if
-        enough agree (map_search.fitted_two_view)."""
-        fitted = None
-        if self._speed and self._initialised and pnp and vo.T_key_cur is not None:
-            fitted = fitted_two_view(self.mapping.map, self.pose_of(vo.keyframe_position), vo.T_key_cur, pnp,
-                                     self._K, self.settings)
-        self._step_measured = fitted is not None
-        return two_view if fitted is None else fitted
-
     def _link_found(self, found: PnPEstimate) -> None:
         """Start a track at each landmark re-found in this frame (PnP inliers when it has a pose) and link it,
         so the landmark is tracked on and observed by the next keyframe."""
@@ -322,17 +318,15 @@ class MapTracking:
         if motion is None:
             return None
         rotation, direction = self.refinding.trusted_motion(self._last_pose, *motion, COAST_DISAGREEMENT_DEG, checked)
-        empty = np.zeros((0, 3))
-        step, _ = self._scale.step_length(TwoView(position - 1, position, empty, empty[:, :2]))
+        step, _ = self._scale.step_length(TwoView(position - 1, position, np.zeros((0, 3)), np.zeros((0, 2))))
         return self._last_pose @ pose_matrix(rotation, step * direction)
 
     def _bridge(self, position: int) -> np.ndarray | None:
         """Dead reckoning across frames missing from the log (refinding.bridge); with `--scale gt` the step from
         the last frame with a pose has the ground truth's length (other sources: the motion model's)."""
-        empty = np.zeros((0, 3))
         known = self.config.scale == "gt" and self._posed_position >= 0
-        return self.refinding.bridge(self._scale.step_length(TwoView(self._posed_position, position, empty,
-                                                                     empty[:, :2]))[0] if known else None)
+        empty = TwoView(self._posed_position, position, np.zeros((0, 3)), np.zeros((0, 2)))
+        return self.refinding.bridge(self._scale.step_length(empty)[0] if known else None)
 
     # -- keyframes and the result ---------------------------------------------------------------------------
 
@@ -451,6 +445,7 @@ class MapTracking:
                 pixels = undistort_pixels(vo.track_cur[alive], self._lens)
                 self._before_map.add(vo.position, vo.track_ids[alive], pixels)
         self._previous_image = frame.image
+        self._two_view_length.remember(vo)
         self.refinding.end_frame(None if held else pose)
         if mode in (TrackingMode.COASTED, TrackingMode.RELOCALISED) and vo.reason not in UNUSABLE_IMAGE:
             self._odometry.rebase_keyframe()  # the front end measures the next frame from this one
