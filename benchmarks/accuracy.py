@@ -35,7 +35,8 @@ import numpy as np
 import polars as pl
 
 from benchmarks.paper_baseline import run_paper_configuration
-from vslam_core.config import Backend, EngineConfig, ScaleSource, load_config
+from vslam_core.config import Backend, EngineConfig, ScaleSource
+from vslam_core.config_file import load_config
 from vslam_core.pipeline import run_odometry
 from vslam_core.sources.base import FrameRange
 from vslam_core.sources.kitti import KittiSource

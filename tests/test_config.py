@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from vslam_core.config import EngineConfig, load_config
-from vslam_core.config_ranges import RANGES, check_config, flat_values
+from vslam_core.config import EngineConfig
+from vslam_core.config_file import RANGES, check_config, flat_values, load_config
 from vslam_core.errors import ConfigError
 
 

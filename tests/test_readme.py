@@ -88,7 +88,7 @@ def test_readme_picture_is_a_small_png_in_docs() -> None:
 
 def test_config_page_lists_every_key_with_its_default() -> None:
     from vslam_core.config import EngineConfig
-    from vslam_core.config_ranges import flat_values
+    from vslam_core.config_file import flat_values
 
     page = (ROOT / "docs" / "config.md").read_text()
     missing = []

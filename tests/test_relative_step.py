@@ -27,15 +27,17 @@ def pixels(points: np.ndarray, T_world_cam: np.ndarray) -> np.ndarray:  # noqa: 
     return (in_cam[:, :2] / in_cam[:, 2:]) * [CAMERA.fx, CAMERA.fy] + [CAMERA.cx, CAMERA.cy]
 
 
-def frame(position: int, ids: np.ndarray, before: np.ndarray, now: np.ndarray, T_key_cur=None) -> SimpleNamespace:  # noqa: ANN001, N803
+def frame(position: int, ids: np.ndarray, before: np.ndarray, now: np.ndarray, T_key_cur=None,  # noqa: ANN001, N803
+          hz: float = 5.0) -> SimpleNamespace:
     return SimpleNamespace(position=position, keyframe_position=position - 1, track_ids=ids, track_prev=before,
-                           track_cur=now, track_fate=np.full(len(ids), TrackFate.INLIER, np.uint8), T_key_cur=T_key_cur)
+                           track_cur=now, track_fate=np.full(len(ids), TrackFate.INLIER, np.uint8), T_key_cur=T_key_cur,
+                           timestamp=position / hz)
 
 
 @pytest.mark.parametrize("seed", range(5))
 def test_the_step_length_is_measured_on_points_the_two_frames_before_triangulate(seed: int) -> None:
-    """Exact data: a car accelerating through a turn (steps 1.0 then 1.6 map units), the frame's rotation and
-    direction given, its length guessed at the old speed: the length comes back to the digit."""
+    """Exact data at 5 Hz: a car accelerating through a turn (steps 1.0 then 1.6 map units), the frame's rotation
+    and direction given, its length guessed at the old speed: the length comes back to the digit."""
     rng = np.random.default_rng(seed)
     points = np.column_stack((rng.uniform(-15, 15, 300), rng.uniform(-2, 2, 300), rng.uniform(8, 60, 300)))
     poses = [pose_matrix(so3_exp(np.array([0.0, 0.05 * k, 0.0])), np.array([0.0, 0.0, z]))
@@ -48,8 +50,8 @@ def test_the_step_length_is_measured_on_points_the_two_frames_before_triangulate
     two_view = poses[1] @ guess
     length = TwoViewLength(CAMERA.K, CAMERA)
 
-    def place(held: set[int] = frozenset(), config: MapConfig = MapConfig()) -> np.ndarray:  # noqa: B008
-        pose, on_landmarks = length.place(two_view, frame(2, ids, seen[1], seen[2], guess), None, None,
+    def place(held: set[int] = frozenset(), config: MapConfig = MapConfig(), hz: float = 5.0) -> np.ndarray:  # noqa: B008
+        pose, on_landmarks = length.place(two_view, frame(2, ids, seen[1], seen[2], guess, hz), None, None,
                                           lambda p: poses[p], held, config)
         assert not on_landmarks
         return pose
@@ -58,8 +60,11 @@ def test_the_step_length_is_measured_on_points_the_two_frames_before_triangulate
     np.testing.assert_allclose(place(), poses[2], atol=1e-6)
     # the frame before it held (its pose a copy of an older one): nothing to triangulate from, the map's speed
     np.testing.assert_array_equal(place(held={1}), two_view)
-    # off: the map's speed, as before
+    # off: the map's speed, as before; and frames 0.1 s apart (10 Hz), over which the speed barely changes
     np.testing.assert_array_equal(place(config=MapConfig(relative_step_min_points=0)), two_view)
+    length.remember(frame(1, ids, seen[0], seen[1], hz=10.0))
+    np.testing.assert_array_equal(place(hz=10.0), two_view)
+    length.remember(frame(1, ids, seen[0], seen[1]))
     # too few tracks reach back two frames: the last step's length (1.0 unit a frame), not the map's speed
     length.remember(frame(1, ids[:5], seen[0][:5], seen[1][:5]))
     assert np.linalg.norm(place()[:3, 3] - poses[1][:3, 3]) == pytest.approx(1.0, rel=1e-6)

@@ -8,22 +8,16 @@ A TOML file mirrors the dataclasses: top-level keys of `EngineConfig` plus one t
     [pose]
     ransac_threshold_px = 0.5
 
-Unknown keys, wrong types and values out of their range (`vslam_core/config_ranges.py`) raise `ConfigError`
-naming the key.
+Reading one (`load_config`, `config_from_dict`): `vslam_core/config_file.py`, where unknown keys, wrong types and
+values out of their range raise `ConfigError` naming the key.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-import tomllib
-import types
-import typing
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Any, Literal, get_args, get_origin, get_type_hints
-
-from vslam_core.errors import ConfigError
+from typing import Any, Literal
 
 ScaleSource = Literal["gt", "none", "height"]
 RansacMethod = Literal["ransac", "magsac"]
@@ -312,6 +306,7 @@ class MapConfig:
     # map_scale.TwoViewLength), else the last step's; 0: the map's speed
     relative_step_min_points: int = 20
     relative_step_min_deg: float = 1.0  # ... points whose rays meet at this angle or more
+    relative_step_min_interval_s: float = 0.15  # ... frames at least this far apart in time (else the map's speed)
     # a frame that sees too few of the map's landmarks (in view or tracked) is made a keyframe, so that landmarks
     # are triangulated while its tracks still overlap the last keyframe's (always so with map_search; with
     # --scale none none_starving_keyframes replaces it: on by default there, off with gt and height, where at
@@ -418,83 +413,3 @@ def describe_pixel_scale(config: EngineConfig, width: int) -> str | None:
     return (f"{width} px wide, {factor:.2f}x KITTI's {REFERENCE_WIDTH_PX}: corner spacing "
             f"{scaled.detector.min_distance_px} px, KLT pyramid {scaled.tracker.max_level} levels, image checks "
             "measured 620 px wide")
-
-
-def _check_value(key: str, value: Any, annotation: Any) -> Any:
-    """Check one TOML value against a dataclass field's annotation; ints are accepted for floats."""
-    origin = get_origin(annotation)
-    if origin is Literal:
-        allowed = get_args(annotation)
-        if value not in allowed:
-            raise ConfigError(f"config key {key!r}: {value!r} is not one of {', '.join(map(repr, allowed))}")
-        return value
-    if origin in (typing.Union, types.UnionType):
-        for option in get_args(annotation):
-            try:
-                return _check_value(key, value, option)
-            except ConfigError:
-                continue
-        raise ConfigError(f"config key {key!r}: {value!r} has the wrong type")
-    if annotation is float:
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise ConfigError(f"config key {key!r}: expected a number, got {type(value).__name__}")
-        return float(value)
-    if annotation is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"config key {key!r}: expected an integer, got {type(value).__name__}")
-        return value
-    if annotation is bool:
-        if not isinstance(value, bool):
-            raise ConfigError(f"config key {key!r}: expected true or false, got {type(value).__name__}")
-        return value
-    if annotation is str:
-        if not isinstance(value, str):
-            raise ConfigError(f"config key {key!r}: expected a string, got {type(value).__name__}")
-        return value
-    raise ConfigError(f"config key {key!r}: unsupported type")  # pragma: no cover - all fields covered
-
-
-def _build(cls: type, data: dict[str, Any], prefix: str) -> Any:
-    """Build dataclass `cls` from a TOML table, recursing into nested dataclass fields."""
-    hints = get_type_hints(cls)
-    names = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(data) - names)
-    if unknown:
-        raise ConfigError(f"unknown config key {prefix + unknown[0]!r} (known: {', '.join(sorted(names))})")
-    values: dict[str, Any] = {}
-    for name, value in data.items():
-        annotation = hints[name]
-        if dataclasses.is_dataclass(annotation):
-            if not isinstance(value, dict):
-                raise ConfigError(f"config key {prefix + name!r}: expected a table [{prefix + name}]")
-            values[name] = _build(annotation, value, f"{prefix}{name}.")  # type: ignore[arg-type]
-        else:
-            values[name] = _check_value(prefix + name, value, annotation)
-    return cls(**values)
-
-
-def config_from_dict(data: dict[str, Any]) -> EngineConfig:
-    """Build an `EngineConfig` from nested dicts (as TOML gives them), checking every key, its type and its
-    range (and the rules between keys)."""
-    from vslam_core.config_ranges import check_config  # it names EngineConfig's fields: imported late
-
-    config: EngineConfig = _build(EngineConfig, data, "")
-    check_config(config)
-    return config
-
-
-def load_config(path: str | Path) -> EngineConfig:
-    """Read an `EngineConfig` from a TOML file; keys left out keep their defaults."""
-    path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8-sig"))  # a BOM (Windows editors) is not TOML
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: config file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{path}: cannot read config ({exc.__class__.__name__})") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML ({exc})") from None
-    try:
-        return config_from_dict(data)
-    except ConfigError as exc:
-        raise ConfigError(f"{path}: {exc}") from None

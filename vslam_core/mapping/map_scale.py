@@ -95,8 +95,8 @@ class TwoViewLength:
 
     def __init__(self, K: np.ndarray, lens: CameraIntrinsics) -> None:  # noqa: N803
         self._K, self._lens = K, lens
-        self._previous: tuple[int, np.ndarray, np.ndarray] | None = None  # a frame's position, (M,) track ids and
-        # (M, 2) raw pixels in the frame before it
+        # a frame's position, (M,) track ids, (M, 2) raw pixels in the frame before it, and its timestamp
+        self._previous: tuple[int, np.ndarray, np.ndarray, float | None] | None = None
 
     def place(self, two_view: np.ndarray, vo: FrameResult, pnp: PnPEstimate | None, world: Map,
               pose_of: Callable[[int], np.ndarray], held: set[int], config: MapConfig) -> tuple[np.ndarray, bool]:
@@ -111,7 +111,7 @@ class TwoViewLength:
         return (two_view if relative is None else relative), False
 
     def remember(self, vo: FrameResult) -> None:
-        self._previous = (vo.position, vo.track_ids, vo.track_prev)
+        self._previous = (vo.position, vo.track_ids, vo.track_prev, vo.timestamp)
 
     def _relative(self, vo: FrameResult, pose_of: Callable[[int], np.ndarray], held: set[int],
                   config: MapConfig) -> np.ndarray | None:
@@ -120,6 +120,9 @@ class TwoViewLength:
         if config.relative_step_min_points <= 0 or vo.T_key_cur is None or previous is None or \
                 previous[0] != position - 1 or {position - 1, position - 2} & held:
             return None
+        if vo.timestamp is not None and previous[3] is not None and \
+                vo.timestamp - previous[3] < config.relative_step_min_interval_s:
+            return None  # a constant speed holds over so short an interval: the map's
         T_world_a, T_world_b, T_world_key = pose_of(position - 2), pose_of(position - 1), pose_of(vo.keyframe_position)  # noqa: N806
         alive = vo.track_fate >= TrackFate.NOT_USED
         row_at_a = {track: row for row, track in enumerate(previous[1].tolist())}

@@ -197,7 +197,7 @@ def _spec(path: Path, label: str, index: int, row: dict[str, str]) -> LogSpec:
     if calib_scale is not None and not 0.01 <= calib_scale <= 100.0:
         raise bad(f"calib_scale {calib_scale:g} is outside [0.01, 100]")
     if "config" in paths:
-        from vslam_core.config import load_config
+        from vslam_core.config_file import load_config
 
         try:
             load_config(paths["config"])

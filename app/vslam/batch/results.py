@@ -21,7 +21,8 @@ import vslam_core
 from vslam.batch.run import LogResult
 from vslam.common import COLUMNS, mean_row
 from vslam.evaluation import Evaluation, write_report
-from vslam_core.config import EngineConfig, config_from_dict
+from vslam_core.config import EngineConfig
+from vslam_core.config_file import config_from_dict
 from vslam_core.errors import VslamError
 
 BATCH_FILE = "batch.json"

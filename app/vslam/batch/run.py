@@ -28,7 +28,8 @@ from vslam.batch.pool import CRASH, Terminated, run_on_pool
 from vslam.evaluation import evaluate_sources
 from vslam.recording import DEFAULT_DETAIL, Detail, ImageCodec
 from vslam.runs import input_warnings, with_camera_height
-from vslam_core.config import EngineConfig, load_config
+from vslam_core.config import EngineConfig
+from vslam_core.config_file import load_config
 from vslam_core.errors import VslamError
 from vslam_core.sources.base import FrameRange
 from vslam_core.sources.open import open_source

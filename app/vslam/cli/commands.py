@@ -166,7 +166,8 @@ def run(
         same_file_problem,
         with_camera_height,
     )
-    from vslam_core.config import EngineConfig, describe_pixel_scale, load_config
+    from vslam_core.config import EngineConfig, describe_pixel_scale
+    from vslam_core.config_file import load_config
     from vslam_core.sources.base import FrameRange, describe_indices, ground_truth_matching
     from vslam_core.sources.open import open_source
 

@@ -158,7 +158,8 @@ def eval_command(
         if gt_times is not None or match is not MatchMode.auto or time_offset is not None:
             fail("--gt-times, --match and --time-offset apply to --trajectory files only")
         from vslam.runs import input_warnings, with_camera_height
-        from vslam_core.config import EngineConfig, load_config
+        from vslam_core.config import EngineConfig
+        from vslam_core.config_file import load_config
         from vslam_core.sources.base import FrameRange
         from vslam_core.sources.open import open_source
 
@@ -213,7 +214,8 @@ def eval_command(
 def _eval_batch(options: dict[str, Any]) -> None:
     """`--manifest` and `--merge` (vslam/cli/batch.py); the options of single runs are refused there."""
     from vslam.cli.batch import BatchOptions, Gates, eval_manifest, eval_merge
-    from vslam_core.config import EngineConfig, load_config
+    from vslam_core.config import EngineConfig
+    from vslam_core.config_file import load_config
 
     o = options
     per_log = {"--sequences": o["sequences"], "--frames": o["frames"], "--camera-height": o["camera_height"],

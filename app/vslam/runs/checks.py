@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from vslam_core.config import EngineConfig
-from vslam_core.config_ranges import range_problem
+from vslam_core.config_file import range_problem
 from vslam_core.errors import ConfigError
 from vslam_core.results import STANDING_STILL
 from vslam_core.scale import default_camera_height

@@ -1,4 +1,5 @@
-"""The valid range of every numeric engine parameter, and the rules between parameters.
+"""A user's engine config: read from TOML (`load_config`) or nested dicts (`config_from_dict`), every key checked
+against its field's type, the valid range of every numeric parameter, and the rules between parameters.
 
 `check_config` is run on every config a user gives (a TOML file, or a CLI option that sets a value such as
 ``--camera-height``): a value out of range is one `ConfigError` line naming the key, the value and the range,
@@ -11,14 +12,16 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import tomllib
+import types
+import typing
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from pathlib import Path
+from typing import Any, Literal, get_args, get_origin, get_type_hints
 
+from vslam_core.config import EngineConfig
 from vslam_core.errors import ConfigError
-
-if TYPE_CHECKING:
-    from vslam_core.config import EngineConfig
 
 INF = math.inf
 
@@ -204,6 +207,9 @@ RANGES: dict[str, Range] = {
     "map.search_rival_px": closed(0.0, 10_000.0),
     "map.step_fit_min_inliers": closed(0, 10_000),
     "map.step_fit_max_ratio": closed(1.0, 100.0),
+    "map.relative_step_min_points": closed(0, 10_000),
+    "map.relative_step_min_deg": Range(0.0, 90.0, high_open=True),
+    "map.relative_step_min_interval_s": closed(0.0, 3600.0),
     "map.starving_min_triangulation_deg": Range(0.0, 90.0, high_open=True),
     "map.none_pnp_min_inlier_ratio": FRACTION,
     "map.low_ratio_pnp_min_ratio": FRACTION,
@@ -291,3 +297,81 @@ def check_config(config: EngineConfig) -> None:
         if not rule.holds(*(values[key] for key in rule.keys)):
             given = ", ".join(f"{key} = {values[key]!r}" for key in rule.keys)
             raise ConfigError(f"config keys {given}: {rule.text}")
+
+
+def _check_value(key: str, value: Any, annotation: Any) -> Any:
+    """Check one TOML value against a dataclass field's annotation; ints are accepted for floats."""
+    origin = get_origin(annotation)
+    if origin is Literal:
+        allowed = get_args(annotation)
+        if value not in allowed:
+            raise ConfigError(f"config key {key!r}: {value!r} is not one of {', '.join(map(repr, allowed))}")
+        return value
+    if origin in (typing.Union, types.UnionType):
+        for option in get_args(annotation):
+            try:
+                return _check_value(key, value, option)
+            except ConfigError:
+                continue
+        raise ConfigError(f"config key {key!r}: {value!r} has the wrong type")
+    if annotation is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ConfigError(f"config key {key!r}: expected a number, got {type(value).__name__}")
+        return float(value)
+    if annotation is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"config key {key!r}: expected an integer, got {type(value).__name__}")
+        return value
+    if annotation is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"config key {key!r}: expected true or false, got {type(value).__name__}")
+        return value
+    if annotation is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"config key {key!r}: expected a string, got {type(value).__name__}")
+        return value
+    raise ConfigError(f"config key {key!r}: unsupported type")  # pragma: no cover - all fields covered
+
+
+def _build(cls: type, data: dict[str, Any], prefix: str) -> Any:
+    """Build dataclass `cls` from a TOML table, recursing into nested dataclass fields."""
+    hints = get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise ConfigError(f"unknown config key {prefix + unknown[0]!r} (known: {', '.join(sorted(names))})")
+    values: dict[str, Any] = {}
+    for name, value in data.items():
+        annotation = hints[name]
+        if dataclasses.is_dataclass(annotation):
+            if not isinstance(value, dict):
+                raise ConfigError(f"config key {prefix + name!r}: expected a table [{prefix + name}]")
+            values[name] = _build(annotation, value, f"{prefix}{name}.")  # type: ignore[arg-type]
+        else:
+            values[name] = _check_value(prefix + name, value, annotation)
+    return cls(**values)
+
+
+def config_from_dict(data: dict[str, Any]) -> EngineConfig:
+    """Build an `EngineConfig` from nested dicts (as TOML gives them), checking every key, its type and its
+    range (and the rules between keys)."""
+    config: EngineConfig = _build(EngineConfig, data, "")
+    check_config(config)
+    return config
+
+
+def load_config(path: str | Path) -> EngineConfig:
+    """Read an `EngineConfig` from a TOML file; keys left out keep their defaults."""
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8-sig"))  # a BOM (Windows editors) is not TOML
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: config file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: cannot read config ({exc.__class__.__name__})") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML ({exc})") from None
+    try:
+        return config_from_dict(data)
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
