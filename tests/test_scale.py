@@ -102,6 +102,20 @@ def test_height_scale_holds_the_trend_without_a_plane() -> None:
     assert step == pytest.approx(2 * 1.2, rel=1e-6)
 
 
+def test_speeds_that_fall_past_zero_on_their_trend_give_their_median_not_a_zero_step() -> None:
+    """KITTI 05 0:300:3 with --scale height crashed (a zero step divided into the measured one): the car braking
+    into the turn at every 3rd frame, its trend line reached zero at the next frame."""
+    provider = HeightScale(1.65, K, CONFIG, seed=0)
+    rng = np.random.default_rng(7)
+    for position, true_step in enumerate((2.4, 1.8, 1.2, 0.6), start=1):
+        points, pixels, _ = road_scene(1.65 / true_step, rng)
+        provider.step_length(TwoView(position - 1, position, points, pixels))
+    assert provider.trend(6) == pytest.approx(1.5, rel=1e-3)  # the line is at -0.6: the median instead
+    points, pixels, _ = road_scene(1.65 / 0.5, rng)
+    step, estimate = provider.step_length(TwoView(5, 6, points, pixels))  # before: ZeroDivisionError
+    assert estimate is not None and step > 0
+
+
 def test_a_doubtful_road_plane_is_used_and_flagged() -> None:
     """A steady road, then a ramp ahead (its plane tilted 6°, the height above it 5 % off: used, flagged
     doubtful), then a plane whose step is 20 % off the trend (inside the 30 % outlier bound: used, flagged)."""

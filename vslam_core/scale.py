@@ -103,7 +103,9 @@ class HeightScale:
             fitted = design @ coefficients
             relative = (speeds - fitted) / np.maximum(np.abs(fitted), 1e-6)
             weights = 1.0 / (1.0 + (relative / _CAUCHY_RELATIVE) ** 2)
-        return float(max(coefficients[0], 0.0))  # the line at `position` (x = 0)
+        if coefficients[0] <= 0.0:  # the line reached zero past its data (speeds that fell fast): their median
+            return float(np.median(speeds))
+        return float(coefficients[0])  # the line at `position` (x = 0)
 
     def step_length(self, view: TwoView) -> tuple[float, ScaleEstimate | None]:
         cfg = self._config
