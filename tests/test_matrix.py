@@ -109,15 +109,15 @@ def test_jobs_cover_every_family_backend_scale_and_seed_and_resume_keeps_done_ro
     kitti = [j for j in jobs if j.kind == "kitti"]
     assert {j.family for j in kitti} == {"KITTI step 1", "KITTI step 2", "KITTI step 3"}
     assert {j.scale for j in kitti} == {"gt", "height", "none"}
-    assert {j.frames for j in kitti} >= {"0:150", "0:150:3", "150:300:2"}
+    assert {j.frames for j in kitti} >= {"0:150", "0:150:3", "150:300:2", "0:300", "0:300:2", "0:300:3"}
     assert {(j.backend, j.seed) for j in jobs} == {("vo", 0), ("vo", 1), ("map", 0), ("map", 1)}
     assert {j.scale for j in jobs if j.kind != "kitti"} == {"gt", "none"}
-    assert len({(j.family, j.case, j.backend, j.scale, j.seed) for j in jobs}) == len(jobs) == 208
+    assert len({(j.family, j.case, j.backend, j.scale, j.seed) for j in jobs}) == len(jobs) == 280
     quick = make_jobs(list(QUICK_FAMILIES), [0, 1], "kitti", "tum", {}, quick=True)
     assert len(quick) == 48 and {j.family for j in quick} == {"KITTI step 1", "KITTI step 2", "KITTI step 3",
                                                               "TUM hand-held", "synthetic street", "synthetic walk"}
     only = make_jobs(["kitti"], [0], "kitti", "tum", {}, quick=False, backends=("map",), scales_kept=("none",))
-    assert {(j.backend, j.scale) for j in only} == {("map", "none")} and len(only) == 12  # --backends, --scales
+    assert {(j.backend, j.scale) for j in only} == {("map", "none")} and len(only) == 18  # --backends, --scales
     # --resume: every row already in the CSV is kept (in the jobs' order), none is run again (no pool started)
     done = [_row(j.family, j.case, j.backend, j.seed, 0.1, scale=j.scale) for j in reversed(quick)]
     kept = run_matrix(quick, 2, None, done)
