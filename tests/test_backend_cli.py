@@ -60,8 +60,9 @@ def test_without_a_scale_source_the_summary_says_which_steps_took_the_maps_speed
     assert result.returncode == 0, result.stderr
     counts, line = placed(result.stdout)
     assert sum(counts.values()) == 20 and counts["by two-view motion"] > 0, line
-    assert line.endswith("(--scale none: a two-view step's length is the map's recent speed; the scale can drift "
-                         "there)"), line
+    two_view = counts["by two-view motion"]  # at 10 Hz every one at the map's speed (map_scale.TwoViewLength)
+    assert line.endswith(f"(--scale none: the two-view steps' lengths {two_view} the map's recent speed; the scale "
+                         "can drift there)"), line
     adjusted = [line for line in result.stdout.splitlines() if line.startswith("adjusted")]
     # a car: the map stays as the windows left it
     assert len(adjusted) == 1 and re.search(r"not run: the camera moves along its optical axis \(median \|cos\| "

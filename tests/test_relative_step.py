@@ -50,24 +50,24 @@ def test_the_step_length_is_measured_on_points_the_two_frames_before_triangulate
     two_view = poses[1] @ guess
     length = TwoViewLength(CAMERA.K, CAMERA)
 
-    def place(held: set[int] = frozenset(), config: MapConfig = MapConfig(), hz: float = 5.0) -> np.ndarray:  # noqa: B008
-        pose, on_landmarks = length.place(two_view, frame(2, ids, seen[1], seen[2], guess, hz), None, None,
-                                          lambda p: poses[p], held, config)
-        assert not on_landmarks
+    def place(source: str, held: set[int] = frozenset(), config: MapConfig = MapConfig(),  # noqa: B008
+              hz: float = 5.0) -> np.ndarray:
+        pose, said = length.place(two_view, frame(2, ids, seen[1], seen[2], guess, hz), None, None,
+                                  lambda p: poses[p], held, config)
+        assert said == source
         return pose
 
     length.remember(frame(1, ids, seen[0], seen[1]))
-    np.testing.assert_allclose(place(), poses[2], atol=1e-6)
+    np.testing.assert_allclose(place("tracks"), poses[2], atol=1e-6)
     # the frame before it held (its pose a copy of an older one): nothing to triangulate from, the map's speed
-    np.testing.assert_array_equal(place(held={1}), two_view)
+    np.testing.assert_array_equal(place("speed", held={1}), two_view)
     # off: the map's speed, as before; and frames 0.1 s apart (10 Hz), over which the speed barely changes
-    np.testing.assert_array_equal(place(config=MapConfig(relative_step_min_points=0)), two_view)
+    np.testing.assert_array_equal(place("speed", config=MapConfig(relative_step_min_points=0)), two_view)
     length.remember(frame(1, ids, seen[0], seen[1], hz=10.0))
-    np.testing.assert_array_equal(place(hz=10.0), two_view)
-    length.remember(frame(1, ids, seen[0], seen[1]))
+    np.testing.assert_array_equal(place("speed", hz=10.0), two_view)
     # too few tracks reach back two frames: the last step's length (1.0 unit a frame), not the map's speed
     length.remember(frame(1, ids[:5], seen[0][:5], seen[1][:5]))
-    assert np.linalg.norm(place()[:3, 3] - poses[1][:3, 3]) == pytest.approx(1.0, rel=1e-6)
+    assert np.linalg.norm(place("last step")[:3, 3] - poses[1][:3, 3]) == pytest.approx(1.0, rel=1e-6)
 
 def test_points_behind_a_camera_or_on_parallel_rays_are_not_used() -> None:
     T_world_a, T_world_b = np.eye(4), pose_matrix(np.eye(3), np.array([1.0, 0.0, 0.0]))  # noqa: N806
@@ -92,6 +92,8 @@ def test_a_car_accelerating_out_of_a_turn_at_half_the_frame_rate_keeps_its_scale
     source = KittiSource(kitti_root, sequence="05", frames=FrameRange.parse("116:200:2"))
     run = run_odometry(source, EngineConfig(scale="none"))
     assert source.ground_truth is not None
+    assert run.step_lengths.get("tracks", 0) >= 5  # and the summary says so
+    assert "measured on the tracks of the two frames before" in (run.placed_summary("none") or "")
     gt, poses = source.ground_truth, run.pose_array()
     assert ate(gt, poses, "sim3") < 0.5
     _, mean_abs, _ = scale_errors(gt, sim3_aligned(gt, poses))

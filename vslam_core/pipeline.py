@@ -35,6 +35,9 @@ T = TypeVar("T")
 PLACED = {TrackingMode.MAP: "by PnP against the map", TrackingMode.TWO_VIEW: "by two-view motion",
           TrackingMode.RELOCALISED: "relocalised", TrackingMode.COASTED: "dead-reckoned",
           TrackingMode.INIT: "starting a map", TrackingMode.LOST: "lost (the pose held)"}
+#: --scale none: where a two-view step's length came from (map_scale.TwoViewLength), as the summary says it
+STEP_LENGTHS = {"landmarks": "measured on landmarks", "tracks": "measured on the tracks of the two frames before",
+                "last step": "the last step's", "speed": "the map's recent speed"}
 
 
 @dataclass
@@ -53,6 +56,8 @@ class RunResult:
     held_reasons: dict[str, int] = field(default_factory=dict)  # why frames were held: reason -> frames
     seconds: float = 0.0  # wall time of the whole run, decoding and sinks included
     modes: dict[TrackingMode, int] = field(default_factory=dict)  # map backend: frames per tracking mode
+    # map backend, --scale none: two-view frames per source of their step's length (`MapFrame.step_length`)
+    step_lengths: dict[str, int] = field(default_factory=dict)
     loops_at_end: list[LoopStep] = field(default_factory=list)  # map backend: the loop searches collected when
     # the run ended (vslam_core/loop/closing.py `finish`); a loop they closed corrected `poses`
     # map backend: the map's adjustment as a whole once the run completed (`map.adjust_at_end`), or why it was not run
@@ -100,8 +105,10 @@ class RunResult:
         if not self.modes:
             return None
         text = ", ".join(f"{self.modes[mode]} {words}" for mode, words in PLACED.items() if self.modes.get(mode))
-        if scale == "none" and self.modes.get(TrackingMode.TWO_VIEW):
-            text += " (--scale none: a two-view step's length is the map's recent speed; the scale can drift there)"
+        if scale == "none" and self.step_lengths:
+            sources = ", ".join(f"{self.step_lengths[name]} {words}" for name, words in STEP_LENGTHS.items()
+                                if self.step_lengths.get(name))
+            text += f" (--scale none: the two-view steps' lengths {sources}; the scale can drift there)"
         return text
 
     @property
@@ -214,6 +221,8 @@ def run_odometry(
             if frame_result.mapping is not None:
                 mode = frame_result.mapping.mode
                 run.modes[mode] = run.modes.get(mode, 0) + 1
+                if (source := frame_result.mapping.step_length) is not None:
+                    run.step_lengths[source] = run.step_lengths.get(source, 0) + 1
             if frame_result.status == FrameStatus.HELD and reasons and not coasted:  # why the pose was held
                 run.held_reasons[reasons[0]] = run.held_reasons.get(reasons[0], 0) + 1
             for sink in sinks:

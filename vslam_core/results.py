@@ -341,6 +341,9 @@ class MapFrame:
     # the camera was found moving sideways at this frame (its keyframe steps' median |cos| with the optical axis):
     # the map takes --scale none's settings from here on, with a scale source (map_scale.sideways_camera)
     sideways_share: float | None = None
+    # --scale none, a frame placed by its two-view motion: where its step's length came from (map_scale.TwoViewLength:
+    # "landmarks", "tracks" of the two frames before, the "last step", the map's "speed"); None otherwise
+    step_length: str | None = None
 
 
 @dataclass(frozen=True)

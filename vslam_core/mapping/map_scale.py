@@ -99,22 +99,23 @@ class TwoViewLength:
         self._previous: tuple[int, np.ndarray, np.ndarray, float | None] | None = None
 
     def place(self, two_view: np.ndarray, vo: FrameResult, pnp: PnPEstimate | None, world: Map,
-              pose_of: Callable[[int], np.ndarray], held: set[int], config: MapConfig) -> tuple[np.ndarray, bool]:
+              pose_of: Callable[[int], np.ndarray], held: set[int], config: MapConfig) -> tuple[np.ndarray, str]:
         """(4, 4) T_world_cam of the frame `vo`, whose `two_view` pose is its motion from its keyframe
-        (`vo.T_key_cur`) at the map's speed, with its step's length measured as above; and whether that was on
-        landmarks. `pose_of`: an earlier frame's pose; `held`: the positions of frames that had none."""
+        (`vo.T_key_cur`) at the map's speed, with its step's length measured as above; and where that length came
+        from: "landmarks", "tracks", "last step" or "speed". `pose_of`: an earlier frame's pose; `held`: the
+        positions of frames that had none."""
         if pnp is not None and vo.T_key_cur is not None and \
                 (fitted := fitted_two_view(world, pose_of(vo.keyframe_position), vo.T_key_cur, pnp, self._K,
                                            config)) is not None:
-            return fitted, True
+            return fitted, "landmarks"
         relative = self._relative(vo, pose_of, held, config)
-        return (two_view if relative is None else relative), False
+        return (two_view, "speed") if relative is None else relative
 
     def remember(self, vo: FrameResult) -> None:
         self._previous = (vo.position, vo.track_ids, vo.track_prev, vo.timestamp)
 
     def _relative(self, vo: FrameResult, pose_of: Callable[[int], np.ndarray], held: set[int],
-                  config: MapConfig) -> np.ndarray | None:
+                  config: MapConfig) -> tuple[np.ndarray, str] | None:
         """The relative scale's pose, or the last step's; None unless both frames before it have a pose."""
         previous, position = self._previous, vo.position
         if config.relative_step_min_points <= 0 or vo.T_key_cur is None or previous is None or \
@@ -137,9 +138,10 @@ class TwoViewLength:
         guess = float(np.linalg.norm(vo.T_key_cur[:3, 3]))  # the map's speed
         if fit is not None and fit.inliers >= max(config.relative_step_min_points, fit.landmarks / 2) and \
                 guess / config.step_fit_max_ratio <= fit.length <= guess * config.step_fit_max_ratio:
-            return np.asarray(T_world_key @ rescale_step(vo.T_key_cur, fit.length))
+            return np.asarray(T_world_key @ rescale_step(vo.T_key_cur, fit.length)), "tracks"
         last = float(np.linalg.norm(T_world_b[:3, 3] - T_world_a[:3, 3]))
-        return np.asarray(T_world_key @ rescale_step(vo.T_key_cur, last * (position - vo.keyframe_position)))
+        return np.asarray(T_world_key @ rescale_step(vo.T_key_cur, last * (position - vo.keyframe_position))), \
+            "last step"
 
 
 def triangulated_points(T_world_a: np.ndarray, T_world_b: np.ndarray, a: np.ndarray, b: np.ndarray,  # noqa: N803

@@ -107,6 +107,7 @@ class MapTracking:
         self._refound: dict[int, np.ndarray] = {}  # landmark id -> ideal pixel: re-found, for a keyframe now
         self._chain = RotationChain()  # the front end's rotations, a prior between keyframes in BA
         self._step_measured = False  # --scale none: this two-view step's length was measured on landmarks
+        self._step_length: str | None = None  # --scale none: where this two-view step's length came from
         self.refinding = MapRefinding(intrinsics, self.settings, LocalMapSearcher(intrinsics, self.settings),
                                       config.tracker)
 
@@ -191,9 +192,10 @@ class MapTracking:
                 warnings.append(Reason.GAP_MOTION_REJECTED)
         if pose is None and two_view is not None and Reason.GAP_MOTION_REJECTED not in warnings:
             mode, ready = TrackingMode.TWO_VIEW, self._speed is not None and self._initialised
-            pose, self._step_measured = self._two_view_length.place(
+            pose, self._step_length = self._two_view_length.place(
                 two_view, vo, pnp, self.mapping.map, self.pose_of, self._held, self.settings) \
-                if ready else (two_view, False)
+                if ready else (two_view, "speed")
+            self._step_measured = self._step_length == "landmarks"
             if pnp is not None and self._has_map():
                 warnings.append(Reason.PNP_REJECTED)
         if pose is None and (self._gap or missing):  # the first frame after a gap that nothing else could place
@@ -454,7 +456,8 @@ class MapTracking:
         return self._result(vo, pose, held, mode, warnings, two_view,
                             MapFrame(mode, self._segment, two_view, at_raw_pixels(pnp, self._lens), keyframe, bundle,
                                      relocalisation, view, loop, search,
-                                     self.sideways[1] if self.sideways and self.sideways[0] == vo.position else None))
+                                     self.sideways[1] if self.sideways and self.sideways[0] == vo.position else None,
+                                     self._step_length if mode == TrackingMode.TWO_VIEW and self._speed else None))
 
     def _decide_motion(self, position: int) -> None:
         """With a scale source, once the map has enough keyframes: a camera moving sideways takes --scale none's
