@@ -221,8 +221,8 @@ def run_odometry(
             if frame_result.mapping is not None:
                 mode = frame_result.mapping.mode
                 run.modes[mode] = run.modes.get(mode, 0) + 1
-                if (source := frame_result.mapping.step_length) is not None:
-                    run.step_lengths[source] = run.step_lengths.get(source, 0) + 1
+                if (length_from := frame_result.mapping.step_length) is not None:
+                    run.step_lengths[length_from] = run.step_lengths.get(length_from, 0) + 1
             if frame_result.status == FrameStatus.HELD and reasons and not coasted:  # why the pose was held
                 run.held_reasons[reasons[0]] = run.held_reasons.get(reasons[0], 0) + 1
             for sink in sinks:
