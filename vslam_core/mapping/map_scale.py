@@ -116,7 +116,8 @@ class TwoViewLength:
 
     def _relative(self, vo: FrameResult, pose_of: Callable[[int], np.ndarray], held: set[int],
                   config: MapConfig) -> tuple[np.ndarray, str] | None:
-        """The relative scale's pose, or the last step's; None unless both frames before it have a pose."""
+        """The relative scale's pose, or the last step's, and which; None (the map's speed) when off, when the frame
+        is under `relative_step_min_interval_s` after the one before, or when either frame before it had no pose."""
         previous, position = self._previous, vo.position
         if config.relative_step_min_points <= 0 or vo.T_key_cur is None or previous is None or \
                 previous[0] != position - 1 or {position - 1, position - 2} & held:
