@@ -192,7 +192,8 @@ class MapRecording:
                                               for p in pnps],
                                  landmarks_in_view=[p.in_view if p is not None else -1 for p in pnps],
                                  landmarks_found=[p.found if p is not None else 0 for p in pnps],
-                                 search_radius_px=[p.search_radius_px if p is not None else 0.0 for p in pnps])
+                                 search_radius_px=[p.search_radius_px if p is not None else 0.0 for p in pnps],
+                                 step_length=[m.step_length or "" for m in mappings])
         series: dict[str, tuple[list[Frame], list[float]]] = {}
         for frame, mapping in zip(frames, mappings, strict=True):
             for name, value in map_frame_metrics(mapping).items():
