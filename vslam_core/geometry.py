@@ -215,6 +215,18 @@ def in_front_mask(
         )
 
 
+def in_front_with_parallax(points_cur: np.ndarray, points_prev: np.ndarray, translation: np.ndarray,
+                           min_deg: float) -> np.ndarray:
+    """(N,) bool: the points, (N, 3) in the current camera and (N, 3) in the previous one (X_prev = R·X_cur + t,
+    `translation` t as (3,) or one per point (N, 3)), lie in front of both cameras and the two rays to each meet
+    at `min_deg` or more (a landmark's depth is conditioned by that angle; NaN points are never kept)."""
+    ray_cur = points_prev - translation  # from the current camera's centre, in the previous camera's frame
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cosine = np.einsum("ij,ij->i", points_prev, ray_cur) / (
+            np.linalg.norm(points_prev, axis=1) * np.linalg.norm(ray_cur, axis=1))
+        return np.asarray((points_cur[:, 2] > 0) & (points_prev[:, 2] > 0) & (cosine < np.cos(np.radians(min_deg))))
+
+
 @dataclass(frozen=True)
 class CandidatePose:
     """One of the four decompositions of E, with its chirality count."""

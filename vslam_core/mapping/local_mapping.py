@@ -20,7 +20,13 @@ import cv2
 import numpy as np
 
 from vslam_core.config import MapConfig, ScaleSource
-from vslam_core.geometry import invert_pose, normalise_points, orthonormalise, triangulate_each
+from vslam_core.geometry import (
+    in_front_with_parallax,
+    invert_pose,
+    normalise_points,
+    orthonormalise,
+    triangulate_each,
+)
 from vslam_core.lens import distort_pixels
 from vslam_core.mapping.bundle_adjustment import BundleAdjuster, Problem, Solution
 from vslam_core.mapping.map import COVERED_ANGLE_DEG, COVERED_SPACINGS, Keyframe, Map, covering, redundant
@@ -441,16 +447,11 @@ def well_triangulated(points_cur: np.ndarray, T_first_cur: np.ndarray, p_cur: np
     `min_triangulation_deg` or more, and reprojecting within `max_reprojection_px` into both keyframes.
     `T_first_cur` (N, 4, 4): each point's pair of cameras."""
     points_first = np.einsum("nij,nj->ni", T_first_cur[:, :3, :3], points_cur) + T_first_cur[:, :3, 3]
-    ray_first = points_first
-    ray_cur = points_first - T_first_cur[:, :3, 3]  # from the current camera's centre, in the first's frame
     with np.errstate(invalid="ignore", divide="ignore"):
-        cosine = np.einsum("ij,ij->i", ray_first, ray_cur) / (
-            np.linalg.norm(ray_first, axis=1) * np.linalg.norm(ray_cur, axis=1))
         error_cur = _project_error(points_cur, p_cur, K)
         error_first = _project_error(points_first, p_first, K)
         return np.asarray(
-            (points_cur[:, 2] > 0) & (points_first[:, 2] > 0)
-            & (cosine < np.cos(np.radians(config.min_triangulation_deg)))
+            in_front_with_parallax(points_cur, points_first, T_first_cur[:, :3, 3], config.min_triangulation_deg)
             & (error_cur <= config.max_reprojection_px) & (error_first <= config.max_reprojection_px)
         )
 

@@ -28,11 +28,18 @@ from dataclasses import replace
 import numpy as np
 
 from vslam_core.config import EngineConfig, MapConfig, ScaleSource
-from vslam_core.geometry import invert_pose, normalise_points, pose_matrix, rotation_angle, triangulate
+from vslam_core.geometry import (
+    in_front_with_parallax,
+    invert_pose,
+    normalise_points,
+    pose_matrix,
+    rotation_angle,
+    triangulate,
+)
 from vslam_core.lens import undistort_pixels
 from vslam_core.mapping.local_mapping import well_triangulated
 from vslam_core.mapping.map import Keyframe, Map
-from vslam_core.mapping.map_search import fit_step_length, fitted_two_view, rescale_step
+from vslam_core.mapping.map_search import fitted_step, fitted_two_view, rescale_step
 from vslam_core.mapping.pnp import metric_pose, solve_pnp
 from vslam_core.results import FrameResult, KeyframeInserted, PnPEstimate, Reason, ScaleEstimate, TrackFate
 from vslam_core.scale import ScaleProvider, TwoView
@@ -126,20 +133,16 @@ class TwoViewLength:
                 vo.timestamp - previous[3] < config.relative_step_min_interval_s:
             return None  # a constant speed holds over so short an interval: the map's
         T_world_a, T_world_b, T_world_key = pose_of(position - 2), pose_of(position - 1), pose_of(vo.keyframe_position)  # noqa: N806
-        alive = vo.track_fate >= TrackFate.NOT_USED
-        row_at_a = {track: row for row, track in enumerate(previous[1].tolist())}
-        rows = np.array([(n, row_at_a[t]) for n, t in enumerate(vo.track_ids.tolist()) if alive[n] and t in row_at_a],
-                        np.int64).reshape(-1, 2)
+        alive = np.flatnonzero(vo.track_fate >= TrackFate.NOT_USED)
+        _, mine, theirs = np.intersect1d(vo.track_ids[alive], previous[1], assume_unique=True, return_indices=True)
         a, b, cur = (undistort_pixels(pixels, self._lens) for pixels in
-                     (previous[2][rows[:, 1]], vo.track_prev[rows[:, 0]], vo.track_cur[rows[:, 0]]))
-        points = triangulated_points(T_world_a, T_world_b, normalise_points(a, self._K), normalise_points(b, self._K),
-                                     config.relative_step_min_deg)
-        fit = fit_step_length(T_world_key, vo.T_key_cur, points[0], cur[points[1]], self._K, config.pnp_threshold_px) \
-            if len(points[0]) >= config.relative_step_min_points else None
-        guess = float(np.linalg.norm(vo.T_key_cur[:3, 3]))  # the map's speed
-        if fit is not None and fit.inliers >= max(config.relative_step_min_points, fit.landmarks / 2) and \
-                guess / config.step_fit_max_ratio <= fit.length <= guess * config.step_fit_max_ratio:
-            return np.asarray(T_world_key @ rescale_step(vo.T_key_cur, fit.length)), "tracks"
+                     (previous[2][theirs], vo.track_prev[alive[mine]], vo.track_cur[alive[mine]]))
+        points, rows = triangulated_points(T_world_a, T_world_b, normalise_points(a, self._K),
+                                           normalise_points(b, self._K), config.relative_step_min_deg)
+        enough = config.relative_step_min_points
+        if len(points) >= enough and (fitted := fitted_step(T_world_key, vo.T_key_cur, points, cur[rows], self._K,
+                                                            config, enough)) is not None:
+            return fitted, "tracks"
         last = float(np.linalg.norm(T_world_b[:3, 3] - T_world_a[:3, 3]))
         return np.asarray(T_world_key @ rescale_step(vo.T_key_cur, last * (position - vo.keyframe_position))), \
             "last step"
@@ -155,11 +158,7 @@ def triangulated_points(T_world_a: np.ndarray, T_world_b: np.ndarray, a: np.ndar
     if len(a) == 0 or np.linalg.norm(translation) < 1e-12:
         return np.zeros((0, 3)), np.zeros(0, np.int64)
     in_b = triangulate(rotation, translation, b, a)
-    from_a = in_b + rotation.T @ translation  # the ray from a's centre, in b's frame
-    with np.errstate(invalid="ignore"):
-        cosine = np.einsum("ij,ij->i", in_b, from_a) / (np.linalg.norm(in_b, axis=1) * np.linalg.norm(from_a, axis=1))
-        kept = np.isfinite(cosine) & (in_b[:, 2] > 0) & ((from_a @ rotation.T)[:, 2] > 0)
-        kept &= cosine <= np.cos(np.radians(min_deg))
+    kept = in_front_with_parallax(in_b, in_b @ rotation.T + translation, translation, min_deg)
     return in_b[kept] @ T_world_b[:3, :3].T + T_world_b[:3, 3], np.flatnonzero(kept)
 
 

@@ -228,15 +228,22 @@ def rescale_step(T_key_cur: np.ndarray, length: float) -> np.ndarray:  # noqa: N
 
 def fitted_two_view(world: Map, T_world_key: np.ndarray, T_key_cur: np.ndarray, pnp: PnPEstimate,  # noqa: N803
                     K: np.ndarray, config: MapConfig) -> np.ndarray | None:  # noqa: N803
-    """--scale none: (4, 4) T_world_cam of the two-view motion `T_key_cur` from the keyframe at `T_world_key`
-    with its length measured on the landmarks `pnp` tried (`fit_step_length`), when `step_fit_min_inliers` and
-    half of them agree and the length is within `step_fit_max_ratio` of the map speed's guess; else None."""
+    """--scale none: `fitted_step` on the landmarks `pnp` tried, when `step_fit_min_inliers` of them agree."""
     if config.step_fit_min_inliers <= 0 or len(pnp.landmark_ids) == 0:
         return None
-    fit = fit_step_length(T_world_key, T_key_cur, world.positions(pnp.landmark_ids), pnp.observed, K,
-                          config.pnp_threshold_px)
+    return fitted_step(T_world_key, T_key_cur, world.positions(pnp.landmark_ids), pnp.observed, K, config,
+                       config.step_fit_min_inliers)
+
+
+def fitted_step(T_world_key: np.ndarray, T_key_cur: np.ndarray, positions: np.ndarray, pixels: np.ndarray,  # noqa: N803
+                K: np.ndarray, config: MapConfig, min_inliers: int) -> np.ndarray | None:  # noqa: N803
+    """--scale none: (4, 4) T_world_cam of the two-view motion `T_key_cur` from the keyframe at `T_world_key`
+    with its length measured on (L, 3) points seen at (L, 2) pixels (`fit_step_length`), when `min_inliers` and
+    half of them agree and the length is within `step_fit_max_ratio` of the map speed's guess (`T_key_cur`'s own
+    length); else None."""
+    fit = fit_step_length(T_world_key, T_key_cur, positions, pixels, K, config.pnp_threshold_px)
     guess = float(np.linalg.norm(T_key_cur[:3, 3]))
-    if fit is None or fit.inliers < max(config.step_fit_min_inliers, fit.landmarks / 2) or \
+    if fit is None or fit.inliers < max(min_inliers, fit.landmarks / 2) or \
             not guess / config.step_fit_max_ratio <= fit.length <= guess * config.step_fit_max_ratio:
         return None
     return np.asarray(T_world_key @ rescale_step(T_key_cur, fit.length))

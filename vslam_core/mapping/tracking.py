@@ -106,7 +106,6 @@ class MapTracking:
         self.sideways: tuple[int, float] | None = None
         self._refound: dict[int, np.ndarray] = {}  # landmark id -> ideal pixel: re-found, for a keyframe now
         self._chain = RotationChain()  # the front end's rotations, a prior between keyframes in BA
-        self._step_measured = False  # --scale none: this two-view step's length was measured on landmarks
         self._step_length: str | None = None  # --scale none: where this two-view step's length came from
         self.refinding = MapRefinding(intrinsics, self.settings, LocalMapSearcher(intrinsics, self.settings),
                                       config.tracker)
@@ -195,7 +194,6 @@ class MapTracking:
             pose, self._step_length = self._two_view_length.place(
                 two_view, vo, pnp, self.mapping.map, self.pose_of, self._held, self.settings) \
                 if ready else (two_view, "speed")
-            self._step_measured = self._step_length == "landmarks"
             if pnp is not None and self._has_map():
                 warnings.append(Reason.PNP_REJECTED)
         if pose is None and (self._gap or missing):  # the first frame after a gap that nothing else could place
@@ -440,7 +438,8 @@ class MapTracking:
         self._last_pose = pose
         self._posed_position = self._posed_position if held else vo.position
         if self._speed is not None and not held:
-            step_fitted = mode == TrackingMode.TWO_VIEW and self._step_measured and self.settings.step_fit_speed
+            step_fitted = (mode == TrackingMode.TWO_VIEW and self._step_length == "landmarks"
+                           and self.settings.step_fit_speed)
             self._speed.observe(vo.position, pose, mode in (TrackingMode.MAP, TrackingMode.RELOCALISED) or step_fitted)
             if not self._initialised and keyframe is None:
                 alive = vo.track_fate >= TrackFate.NOT_USED
