@@ -22,7 +22,7 @@ Mur-Artal et al. 2015 §V-D, done when it is needed):
 
 When all fails, the frame takes its two-view motion: its rotation and direction are measured from the images, its
 length (--scale none) from the tracks of the two frames before it or the map's recent speed (map_scale.TwoViewLength,
-which calls the two functions below). With `step_fit_min_inliers` > 0 (off by default) the length
+which measures it with `fitted_step` below). With `step_fit_min_inliers` > 0 (off by default) the length
 is measured on the few landmarks the frame still sees (`fitted_two_view`): with the rotation R and unit direction
 d given, a landmark at X_k (keyframe frame) seen along the ideal ray x constrains the length s by
 x × (Rᵀ(X_k − s·d)) = 0, linear in s; one-point RANSAC over the landmarks' own s, refined by least squares on
