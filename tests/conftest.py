@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import shutil
 import signal
@@ -19,6 +20,7 @@ from ray_cluster import (
     ray_cluster,  # noqa: F401  (the fixture: a real one-node Ray head, see ray_cluster.py)
 )
 
+from vslam_core.config import EngineConfig
 from vslam_core.mapping.worker_process import reuse_workers
 from vslam_core.sources import image_files
 from vslam_core.sources import kitti as kitti_source
@@ -95,6 +97,20 @@ class _DecodedKitti:
 
 DECODED = _DecodedKitti()
 image_files.decode_image = kitti_source.decode_image = DECODED  # type: ignore[assignment]
+
+
+def _one_thread_by_default() -> None:
+    """Runs in a test process take ``threads = 1`` unless they name a number: the two xdist workers already keep
+    the 2 cores busy, and a run's second thread (background decoding, OpenCV's pool) and the map's worker process
+    only add switching and pickling there (test_engine, test_scale and test_map_scale: 9 % less CPU). Trajectories
+    do not depend on it (test_mapping's determinism test runs 1 and 2); `vslam` processes (``process=True``), the
+    batch workers and every test that names ``threads`` keep their own."""
+    defaults = list(EngineConfig.__init__.__defaults__ or ())
+    defaults[[f.name for f in dataclasses.fields(EngineConfig)].index("threads")] = 1
+    EngineConfig.__init__.__defaults__ = tuple(defaults)
+
+
+_one_thread_by_default()
 
 
 def pytest_configure(config: pytest.Config) -> None:
