@@ -358,7 +358,7 @@ def test_full_disk_under_the_recording_stops_the_run_in_one_line(kitti_root: Pat
         rrd, trajectory = small / "x.rrd", tmp_path / "x.txt"
         # its own process: when Rerun's flush never answers (its 0.41 race as the file sink dies), the CLI ends
         # the process with os._exit (vslam.cli.entry._exit), which in the test's process killed the xdist worker
-        result = vslam("run", kitti_root, "--sequence", "00", "-o", rrd, "--trajectory-out", trajectory,
+        result = vslam("run", *VO, kitti_root, "--sequence", "00", "-o", rrd, "--trajectory-out", trajectory,
                        process=True)
         assert_stopped_on_full_disk(result, rrd, small)
         stopped_at = int(result.stderr.split("stopped at frame ")[1].split(",")[0])
