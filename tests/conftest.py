@@ -104,7 +104,8 @@ def _one_thread_by_default() -> None:
     the 2 cores busy, and a run's second thread (background decoding, OpenCV's pool) and the map's worker process
     only add switching and pickling there (test_engine, test_scale and test_map_scale: 9 % less CPU). Trajectories
     do not depend on it (test_mapping's determinism test runs 1 and 2); `vslam` processes (``process=True``), the
-    batch workers and every test that names ``threads`` keep their own."""
+    batch workers and every test that names ``threads`` keep their own: the recorder's own tests
+    (test_recording.py, test_recording_map.py) name 2, so that it draws and sends beside the engine as in a run."""
     defaults = list(EngineConfig.__init__.__defaults__ or ())
     defaults[[f.name for f in dataclasses.fields(EngineConfig)].index("threads")] = 1
     EngineConfig.__init__.__defaults__ = tuple(defaults)

@@ -39,7 +39,9 @@ def strict_rerun() -> None:
 def record(kitti_root: Path, path: Path, detail: Detail, frames: int = FRAMES) -> list[FrameResult]:
     source = KittiSource(kitti_root, sequence="00", frames=FrameRange(0, frames))
     results: list[FrameResult] = []
-    config = EngineConfig(backend="vo")  # the recorder's own entities; the map's are tests/test_recording_map.py's
+    # the recorder's own entities (the map's are tests/test_recording_map.py's), drawn and sent beside the engine
+    # as in a `vslam run` (2 threads; conftest gives test runs one)
+    config = EngineConfig(backend="vo", threads=2)
     with Recorder(path, source, config, {"name": "test run", "source": source.name}, detail=detail) as rec:
         run_odometry(source, config, sinks=(rec.log_frame, lambda _f, r: results.append(r)))
     return results
@@ -117,7 +119,7 @@ def test_recording_carries_properties_static_conventions_and_blueprint(full: tup
     config = read_entity(path, "/__properties/config", static=True)
     assert {c for c in config.columns if not c.startswith("rerun.")} == {"key", "value"}
     stored = read_config(path)
-    assert stored == flatten(EngineConfig(backend="vo").to_dict())  # every key, with its type (JSON)
+    assert stored == flatten(EngineConfig(backend="vo", threads=2).to_dict())  # every key, with its type (JSON)
     assert stored["pose.ransac_threshold_px"] == EngineConfig().pose.ransac_threshold_px
     name = read_entity(path, "/__properties", static=True)
     assert name["RecordingInfo:name"][0].to_list() == ["test run"]
@@ -174,6 +176,18 @@ def test_two_runs_of_the_same_input_compare_equal(kitti_root: Path, tmp_path: Pa
         assert vslam("run", kitti_root, "--sequence", "05", "--frames", "0:15", "-o", path).returncode == 0
         paths.append(path)
     cli_helpers.assert_same_recording(*paths, tmp_path)
+
+
+@pytest.mark.kitti
+def test_finish_inside_the_with_block_closes_the_recording_once(kitti_root: Path, tmp_path: Path) -> None:
+    """`finish` closes the recorder and so does leaving its ``with`` block: the second close does nothing, and the
+    file is whole, with the run's report."""
+    source = KittiSource(kitti_root, sequence="00", frames=FrameRange(0, 5))
+    config, path = EngineConfig(backend="vo", threads=2), tmp_path / "f.rrd"  # 2: the recorder has its threads
+    with Recorder(path, source, config, {"name": "finished"}, detail=Detail.STANDARD) as rec:
+        rec.finish(run_odometry(source, config, sinks=(rec.log_frame,)), None)
+    verify(path)
+    assert read_entity(path, "/report", static=True)["TextDocument:text"].to_list()[-1][0].startswith("# finished")
 
 
 @pytest.mark.kitti

@@ -51,7 +51,7 @@ def record(kitti_root: Path, path: Path, backend: str, frames: int, local_map: b
            **map_settings: Any) -> list[FrameResult]:
     """A run as `record_run` does it (the recorder's sink, then `finish`), keeping the engine's results."""
     source = KittiSource(kitti_root, sequence="00", frames=FrameRange(0, frames))
-    config = EngineConfig(backend=backend)  # type: ignore[arg-type]
+    config = EngineConfig(backend=backend, threads=2)  # type: ignore[arg-type]  # the recorder's threads too
     config = dataclasses.replace(config, map=dataclasses.replace(config.map, local_map_tracking=local_map,
                                                                  **map_settings))
     results: list[FrameResult] = []

@@ -13,14 +13,7 @@ import cv2
 import numpy as np
 import rerun as rr
 
-from vslam.common import (
-    OutputError,
-    config_columns,
-    has_footer,
-    markdown_table,
-    metrics_row,
-    write_failure,
-)
+from vslam.common import OutputError, config_columns, has_footer, markdown_table, metrics_row, write_failure
 from vslam.recording.columns import FLUSH_FRAMES, FLUSH_SECONDS, NO_IMAGE, ColumnBuffer
 from vslam.recording.drift import DriftRecording, FrameTrail
 from vslam.recording.front_end import log_candidates, log_events, log_road, log_tracks
@@ -145,6 +138,7 @@ class Recorder:
         self._frames = 0
         self._failed = False  # Rerun's writer stopped (full disk): reported once
         self._stuck = False  # …and a flush of it never returned: the stream must not be touched again
+        self._closed = False  # `close` (or `finish`) ran: a second call does nothing
         self._flushed_at = time.monotonic()
         undistorted = source.intrinsics.distorted and detail == Detail.FULL
         layout = blueprint(map_backend=config.backend == "map", image=detail in (Detail.FULL, Detail.STANDARD),
@@ -187,7 +181,11 @@ class Recorder:
 
     def close(self) -> None:
         """Send the buffered columns, flush and write the footer; the file is valid afterwards. Raises
-        `OutputError` if the file could not be written (full disk): it keeps what was written."""
+        `OutputError` if the file could not be written (full disk): it keeps what was written. Once only (`finish`
+        closes it, and so does leaving its ``with`` block)."""
+        if self._closed:
+            return
+        self._closed = True
         try:
             self._sync()
             self._columns.wait()  # a write error of a flush in the background is raised here
