@@ -100,8 +100,8 @@ image_files.decode_image = kitti_source.decode_image = DECODED  # type: ignore[a
 
 
 def _one_thread_by_default() -> None:
-    """Runs in a test process take ``threads = 1`` unless they name a number: the xdist workers already keep
-    the cores busy, and a run's second thread (background decoding, OpenCV's pool) and the map's worker process
+    """Runs in a test process take ``threads = 1`` unless they name a number: the two xdist workers already keep
+    the 2 cores busy, and a run's second thread (background decoding, OpenCV's pool) and the map's worker process
     only add switching and pickling there (test_engine, test_scale and test_map_scale: 9 % less CPU). Trajectories
     do not depend on it (test_mapping's determinism test runs 1 and 2); `vslam` processes (``process=True``), the
     batch workers and every test that names ``threads`` keep their own: the recorder's own tests
@@ -132,7 +132,7 @@ def pytest_configure(config: pytest.Config) -> None:
 #: Test files by cost, the costliest `SAME_WORKER` group or file first, a group's files together (seconds in a full
 #: run; refresh from `--durations=0` when they change).
 #: Files are handed to the xdist workers whole in this order (`--no-loadscope-reorder`; xdist's own order is by
-#: number of tests): the longest jobs first, so the workers finish together. test_types.py by its cost with a cold
+#: number of tests): the longest jobs first, so the two workers finish together. test_types.py by its cost with a cold
 #: mypy cache (~25 s alone, as on a fresh CI machine; ~0.5 s with the cache of an earlier run).
 SLOWEST_FILES = (
     "test_logs_cli.py", "test_mapping.py", "test_scale.py", "test_engine.py", "test_map_scale.py", "test_batch.py",
@@ -157,14 +157,6 @@ SAME_WORKER = {
     # no fixture, the same 600 real frames (KITTI 00 and 05 0:300, two runs in each file): decoded once (DECODED)
     "test_scale.py": "kitti-0-300", "test_engine.py": "kitti-0-300",
 }
-
-
-def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
-    """`-n auto` (pyproject's addopts): one worker more than the cores this process may use. The tests spend part
-    of their time waiting on other processes (a viewer starting, a Ray head, `vslam` processes stopped on a timer,
-    a live run's ports): with 2 workers on 2 cores the cores idled ~8 % of the suite; a third took it from
-    329 to 308-311 s on this 2-core host (the same CPU time; pyproject's --maxprocesses caps it)."""
-    return len(os.sched_getaffinity(0)) + 1 if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1) + 1
 
 
 @pytest.hookimpl(tryfirst=True)  # before the runner tears the fixtures down
