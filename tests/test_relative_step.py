@@ -103,8 +103,8 @@ def test_a_car_accelerating_out_of_a_turn_at_half_the_frame_rate_keeps_its_scale
     assert source.ground_truth is not None
     assert run.step_lengths.get("tracks", 0) >= 5  # and the summary and the recording say so, frame by frame
     assert "measured on the tracks of the two frames before" in (run.placed_summary("none") or "")
-    recorded = dict(zip(read_entity(path, "/tracking")["frame"].to_list(),
-                        read_entity(path, "/tracking")["step_length"].to_list(), strict=True))
+    tracking = read_entity(path, "/tracking")
+    recorded = dict(zip(tracking["frame"].to_list(), tracking["step_length"].to_list(), strict=True))
     assert [recorded[r.index] for r in results if r.mapping is not None] == \
         [[r.mapping.step_length or ""] for r in results if r.mapping is not None]
     gt, poses = source.ground_truth, run.pose_array()
