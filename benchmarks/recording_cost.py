@@ -18,9 +18,10 @@ recording adds to it what it holds the tracking thread back by: the GIL, the cor
 file's KB per frame; peak RSS, and RSS after the first third and at the end of the run (flat memory = the
 recording does not accumulate in memory).
 Timings on a shared machine are noisy: the table keeps the fastest repeat of each (`added` compares fastest
-with fastest). `--pace HZ` feeds the frames no faster than HZ a second, as a live drive does: the file's size
-then is a live recording's (rows are written every 1.5 s, so KB per frame follow the frame rate); its times
-are not the run's cost.
+with fastest), and its last column each level's added time against the run without a recording of the same round
+(run just before it), the median over the rounds and their range. `--pace HZ` feeds the frames no faster than HZ
+a second, as a live drive does: the file's size then is a live recording's (rows are written every 1.5 s, so KB
+per frame follow the frame rate); its times are not the run's cost.
 """
 
 from __future__ import annotations
@@ -128,15 +129,16 @@ def main() -> None:
         levels.insert(0, "off")  # the baseline every cost is against
     rows = []
     context = multiprocessing.get_context("spawn")
-    for _ in range(args.repeats):
+    for repeat in range(args.repeats):
         for backend in args.backends.split(","):
             for level in levels:
                 # not a multiprocessing.Pool: its workers are daemons, and the map backend starts a process
                 with ProcessPoolExecutor(1, mp_context=context) as pool:
-                    rows.append(pool.submit(_measure, (str(args.root), args.sequence, args.frames, level, backend,
-                                                       args.image_codec, args.jpeg_quality, args.pace,
-                                                       str(args.keep or ""))).result())
+                    rows.append({"round": repeat, **pool.submit(
+                        _measure, (str(args.root), args.sequence, args.frames, level, backend, args.image_codec,
+                                   args.jpeg_quality, args.pace, str(args.keep or ""))).result()})
     every = pl.DataFrame(rows)
+    paired = paired_cost(every)
     table = every.group_by("backend", "detail", maintain_order=True).agg(
         pl.col("ms_per_frame").min(), pl.col("ms_per_frame").max().alias("ms_max"), pl.col("cpu_ms_per_frame").min(),
         pl.col("record_ms_per_frame").min(), pl.col("kb_per_frame").mean(), pl.col("steady_ms_per_frame").min(),
@@ -149,7 +151,8 @@ def main() -> None:
         (100 * (pl.col("ms_per_frame") / pl.col("off_ms") - 1)).alias("added_pct"),
         (100 * (pl.col("cpu_ms_per_frame") / pl.col("off_cpu") - 1)).alias("added_cpu_pct"),
         (100 * (pl.col("steady_ms_per_frame") / pl.col("off_steady") - 1)).alias("steady_added_pct"),
-        (100 * (pl.col("steady_cpu_ms_per_frame") / pl.col("off_steady_cpu") - 1)).alias("steady_added_cpu_pct"))
+        (100 * (pl.col("steady_cpu_ms_per_frame") / pl.col("off_steady_cpu") - 1)).alias("steady_added_cpu_pct")
+    ).join(paired, on=["backend", "detail"])
     if args.csv:
         table.write_csv(args.csv)
     name = "synthetic street" if args.root == "synthetic" else "KITTI " + args.sequence
@@ -160,15 +163,28 @@ def main() -> None:
           + (f", paced at {args.pace:g} Hz" if args.pace else ""))
     print("| backend | detail | ms/frame (slowest) | added vs off | CPU ms/frame | CPU added | after 1/3: ms/frame "
           "| added | CPU added | recorder ms/frame (caller thread) | tracking thread waits ms/frame (median) "
-          "| KB/frame | RSS at 1/3 → end MB | peak RSS MB |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "| KB/frame | RSS at 1/3 → end MB | peak RSS MB | added, round by round: median (range) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in table.iter_rows(named=True):
         print(f"| {r['backend']} | {r['detail']} | {r['ms_per_frame']:.1f} ({r['ms_max']:.1f}) "
               f"| {r['added_pct']:+.1f} % | {r['cpu_ms_per_frame']:.1f} | {r['added_cpu_pct']:+.1f} % "
               f"| {r['steady_ms_per_frame']:.1f} | {r['steady_added_pct']:+.1f} % | {r['steady_added_cpu_pct']:+.1f} % "
               f"| {r['record_ms_per_frame']:.2f} | {r['wait_ms_per_frame']:.2f} | {r['kb_per_frame']:.1f} "
               f"| {r['rss_third_mb']:.0f} → "
-              f"{r['rss_end_mb']:.0f} | {r['peak_rss_mb']:.0f} |")
+              f"{r['rss_end_mb']:.0f} | {r['peak_rss_mb']:.0f} | {r['paired_added_pct']:+.1f} % "
+              f"({r['paired_min_pct']:+.1f} to {r['paired_max_pct']:+.1f}) |")
+
+
+def paired_cost(every: pl.DataFrame) -> pl.DataFrame:
+    """Each level's added wall time against the run without a recording of the same round (the two ran one
+    after the other, so a slow spell of the machine hits both): the median over the rounds and its range, per
+    (backend, detail). Steadier than fastest against fastest when the machine's speed drifts between rounds."""
+    off = every.filter(pl.col("detail") == "off").select("round", "backend", pl.col("ms_per_frame").alias("off"))
+    added = every.join(off, on=["round", "backend"]).with_columns(
+        (100 * (pl.col("ms_per_frame") / pl.col("off") - 1)).alias("pct"))
+    return added.group_by("backend", "detail", maintain_order=True).agg(
+        pl.col("pct").median().alias("paired_added_pct"), pl.col("pct").min().alias("paired_min_pct"),
+        pl.col("pct").max().alias("paired_max_pct"))
 
 
 if __name__ == "__main__":
