@@ -16,7 +16,7 @@ from vslam.rrd.read import read_entity
 from vslam_core.config import EngineConfig
 from vslam_core.sources.base import rebase_poses
 from vslam_core.trajectory.io import read_kitti_poses
-from vslam_core.trajectory.metrics import kitti_errors, paper_rms_error, sim3_aligned
+from vslam_core.trajectory.metrics import ate, kitti_errors, paper_rms_error, sim3_aligned
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -43,6 +43,9 @@ def test_run_summary_prints_the_aligned_errors_and_says_so(unit_run: tuple[Path,
     assert "after Sim(3) alignment: --scale none has no metric scale" in stdout
     rms = float(re.search(r"paper RMS\s+([\d.]+) m \(x–z, after Sim\(3\) alignment\)", stdout).group(1))  # type: ignore[union-attr]
     assert rms == pytest.approx(paper_rms_error(gt, sim3_aligned(gt, poses)), abs=0.006)
+    ate_line = re.search(r"^ATE +([\d.]+) m after Sim\(3\) \(3-D RMSE over 150 frames\)$", stdout, re.MULTILINE)
+    assert ate_line is not None, stdout  # and no unaligned figure: without a scale it would be meaningless
+    assert float(ate_line.group(1)) == pytest.approx(ate(gt, poses, "sim3"), abs=0.0006)
 
 
 @pytest.mark.kitti

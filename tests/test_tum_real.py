@@ -219,3 +219,7 @@ def test_a_run_on_fr1_xyz_against_its_ground_truth(tum_root: Path, tmp_path: Pat
     assert truth is not None
     assert ate(truth, poses, "none") < 0.025 and ate(truth, poses, "sim3") < 0.02
     assert math.degrees(rotation_angle(truth[-1, :3, :3].T @ poses[-1, :3, :3])) < 5.0
+    # the summary scores what the trajectory file holds, with a hand-held camera's measure (no 100 m KITTI segment)
+    assert re.search(r"^KITTI +t_err — +r_err — +\(path < 100 m: no segment\)$", result.stdout, re.MULTILINE)
+    assert re.search(rf"^ATE +{ate(truth, poses, 'none'):.3f} m without alignment, {ate(truth, poses, 'sim3'):.3f} m "
+                     r"after Sim\(3\) \(3-D RMSE over 60 frames\)$", result.stdout, re.MULTILINE), result.stdout
