@@ -96,7 +96,7 @@ def test_frames_move_with_their_keyframes_scale() -> None:
     stored relative to them are that much closer to them; a frame of a keyframe outside the graph stays."""
     step = pose_matrix(np.eye(3), np.array([0.1, 0.0, 2.0]))
     relative = {5: (1, step), 6: (2, step), 7: (9, step)}
-    rescale_relative(relative, _closed([0, 1, 2], [1.0, 0.9, 0.8]))
+    rescale_relative(_closed([0, 1, 2], [1.0, 0.9, 0.8]), relative)
     np.testing.assert_allclose([relative[p][1][:3, 3] for p in (5, 6, 7)],
                                [0.9 * step[:3, 3], 0.8 * step[:3, 3], step[:3, 3]])
     assert all(relative[p][0] == k for p, k in ((5, 1), (6, 2), (7, 9)))

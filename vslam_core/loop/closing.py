@@ -195,16 +195,17 @@ class LoopClosing:
         return closed, correction
 
 
-def rescale_relative(relative: dict[int, tuple[int, np.ndarray]], closed: LoopClosed) -> None:
+def rescale_relative(closed: LoopClosed, *relatives: dict[int, tuple[int, np.ndarray]]) -> None:
     """A Sim(3) correction made keyframe k's neighbourhood s_k times larger: the frames stored relative to it
-    (run position -> (keyframe id, (4, 4) T_key_frame), in place) move s_k times farther from it."""
+    (each of `relatives`: run position -> (keyframe id, (4, 4) T_key_frame), in place) move s_k times farther."""
     scale_of = dict(zip(closed.keyframe_ids.tolist(), closed.scales.tolist(), strict=True))
-    for position, (keyframe_id, T_key_frame) in relative.items():  # noqa: N806
-        scale = scale_of.get(keyframe_id, 1.0)
-        if scale != 1.0:
-            moved = T_key_frame.copy()
-            moved[:3, 3] *= scale
-            relative[position] = (keyframe_id, moved)
+    for relative in relatives:
+        for position, (keyframe_id, T_key_frame) in relative.items():  # noqa: N806
+            scale = scale_of.get(keyframe_id, 1.0)
+            if scale != 1.0:
+                moved = T_key_frame.copy()
+                moved[:3, 3] *= scale
+                relative[position] = (keyframe_id, moved)
 
 
 def _similarity(before: np.ndarray, after: np.ndarray, scale: float) -> np.ndarray:

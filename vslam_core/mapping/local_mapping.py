@@ -471,13 +471,14 @@ def _mean_per_landmark(errors: np.ndarray, point_index: np.ndarray, count: int) 
         return np.where(seen > 0, total / np.maximum(seen, 1), np.nan)
 
 
-def reanchor(relative: dict[int, tuple[int, np.ndarray]], culled: dict[int, tuple[int, np.ndarray]]) -> None:
-    """Frames stored relative to culled keyframes (run position -> (keyframe id, (4, 4) T_key_frame), in place)
-    follow the keyframe each culled one names (`LocalMapping.culled`: (anchor id, T_anchor_culled)); their poses
-    are unchanged by it."""
+def reanchor(culled: dict[int, tuple[int, np.ndarray]], *relatives: dict[int, tuple[int, np.ndarray]]) -> None:
+    """Frames stored relative to culled keyframes (each of `relatives`: run position -> (keyframe id, (4, 4)
+    T_key_frame), in place) follow the keyframe each culled one names (`LocalMapping.culled`: (anchor id,
+    T_anchor_culled)); their poses are unchanged by it."""
     if not culled:
         return
-    for position, (keyframe_id, T_key_frame) in relative.items():  # noqa: N806
-        if keyframe_id in culled:
-            anchor, T_anchor_culled = culled[keyframe_id]  # noqa: N806
-            relative[position] = (anchor, T_anchor_culled @ T_key_frame)
+    for relative in relatives:
+        for position, (keyframe_id, T_key_frame) in relative.items():  # noqa: N806
+            if keyframe_id in culled:
+                anchor, T_anchor_culled = culled[keyframe_id]  # noqa: N806
+                relative[position] = (anchor, T_anchor_culled @ T_key_frame)

@@ -27,6 +27,7 @@ from vslam_core.loop.closing import LoopClosing, rescale_relative
 from vslam_core.mapping.global_adjustment import GlobalAdjusted, adjust_at_end
 from vslam_core.mapping.local_map import LocalMapSearcher
 from vslam_core.mapping.local_mapping import LocalMapping, reanchor
+from vslam_core.mapping.map import NextKeyframeAnchors
 from vslam_core.mapping.map_scale import (
     FramesBeforeMap,
     MapSpeed,
@@ -90,6 +91,7 @@ class MapTracking:
         self._segment = 0
         self._reference = -1  # newest keyframe id
         self._relative: dict[int, tuple[int, np.ndarray]] = {}  # run position -> (keyframe id, T_key_frame)
+        self._next_anchors = NextKeyframeAnchors()  # ... and to the keyframe after, for the output poses
         self._last_pose = np.eye(4)
         self._since_keyframe = 0
         self._gap = False  # unusable frames since the last one with a pose
@@ -128,13 +130,14 @@ class MapTracking:
                 self._follow_loop(step, correction)
         if adjust and self.adjusted_at_end is None:
             self.adjusted_at_end = adjust_at_end(self.mapping.map, self._K, self.settings, self.config.scale)
-        return interpolate_gaps([self.pose_of(position) for position in range(count)], self._held)
+        return interpolate_gaps([self._next_anchors.pose(self.mapping.map, p, self._relative.get(p), self.pose_of(p))
+                                 for p in range(count)], self._held)
 
     def _follow_loop(self, step: LoopStep, correction: np.ndarray | None) -> None:
         """The loop `step` closed, if any (its (4, 4) correction of the newest keyframe given): with --scale none
         the frames stored relative to their keyframes and the map's speed follow the keyframes' new scales."""
         if correction is not None and step.closed is not None:
-            rescale_relative(self._relative, step.closed)
+            rescale_relative(step.closed, self._relative, self._next_anchors.anchors)
             if self._speed is not None:
                 self._speed.move(correction)
 
@@ -417,11 +420,11 @@ class MapTracking:
                 landmark_settings(self.settings, self._slow, starving=why.startswith("map:")),
                 self._chain.between(self.mapping.map.keyframes[self._reference].position, vo.position)
                 if self._reference >= 0 else None)
-            reanchor(self._relative, self.mapping.culled)  # the frames of a culled keyframe follow another
-            live = set(track_ids.tolist())
-            landmarks = self.mapping.map.landmarks
+            reanchor(self.mapping.culled, self._relative, self._next_anchors.anchors)  # (a culled keyframe's frames)
+            live, landmarks = set(track_ids.tolist()), self.mapping.map.landmarks
             self._links = {t: m for t, m in {**self._links, **links}.items() if t in live and m in landmarks}
             self._suspended = {t: m for t, m in tied.items() if t not in self._links and m in landmarks}
+            self._next_anchors.keyframe_made(self.mapping.map, self._reference, keyframe.keyframe_id)
             self._reference = keyframe.keyframe_id
             self._since_keyframe = 0
             self._start_map(keyframe, links)
