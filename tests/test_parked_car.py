@@ -3,6 +3,7 @@ the pose is held, and `run` and `eval` both succeed."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -46,5 +47,7 @@ def test_eval_and_run_agree_on_a_parked_car(parked: dict[str, Path]) -> None:
     rrd = parked["base"] / "run.rrd"
     run = vslam("run", parked["folder"], "--calib", parked["calib"], "--gt", parked["gt"], "-o", rrd)
     assert run.returncode == 0, run.stderr
+    assert re.search(r"^ATE +0\.000 m without alignment, — after Sim\(3\) \(the estimate does not move\) "
+                     r"\(3-D RMSE over 12 frames\)$", run.stdout, re.MULTILINE), run.stdout
     inspected = vslam("inspect", rrd, "--json")
     assert inspected.returncode == 0 and "stationary" in inspected.stdout

@@ -73,8 +73,10 @@ def print_summary(source: FrameSource, run: RunResult, config: EngineConfig, in_
                                       f"t_err {t_err:.2f} %   r_err {r_err:.2f} °/100 m")
                      + ("   (after Sim(3) alignment: --scale none has no metric scale)" if aligned else ""))
         poses = run.pose_array()  # ATE: 3-D RMSE of the positions (Sturm et al. 2012), a hand-held camera's measure
+        still = bool(np.all(poses[:, :3, 3] == poses[0, :3, 3]))  # (a parked car) no Sim(3): as `evaluate`
         lines.append("ATE         " + ("" if aligned else f"{ate(gt, poses, 'none'):.3f} m without alignment, ")
-                     + f"{ate(gt, poses, 'sim3'):.3f} m after Sim(3) (3-D RMSE over {len(gt)} frames)")
+                     + ("— after Sim(3) (the estimate does not move)" if still else
+                        f"{ate(gt, poses, 'sim3'):.3f} m after Sim(3)") + f" (3-D RMSE over {len(gt)} frames)")
         lines.append(f"paper RMS   {paper_rms_error(gt, scored):.2f} m (x–z, "
                      + ("after Sim(3) alignment)" if aligned else "no alignment)"))
         lines.append("scored      " + ("the map's refined poses (after bundle adjustment and loop closing), as "
