@@ -118,10 +118,12 @@ def test_image_folder_refuses_a_sequence(image_folder: Path) -> None:
 
 
 @pytest.mark.kitti
-def test_a_run_that_tracks_no_frame_exits_3_and_keeps_its_outputs(kitti_root: Path, tmp_path: Path) -> None:
+@pytest.mark.parametrize("scale", ["gt", "none"])  # none: the scoring's Sim(3) of an estimate that never moved
+def test_a_run_that_tracks_no_frame_exits_3_and_keeps_its_outputs(kitti_root: Path, tmp_path: Path,
+                                                                   scale: str) -> None:
     rrd, trajectory = tmp_path / "dark.rrd", tmp_path / "dark.txt"
     result = vslam("run", kitti_root, "--sequence", "00", "--frames", "0:40", "--inject", "dark@0:39",
-                   "--detail", "summary", "-o", rrd, "--trajectory-out", trajectory)
+                   "--scale", scale, "--detail", "summary", "-o", rrd, "--trajectory-out", trajectory)
     line = assert_one_line_error(result, "no frame could be tracked", "40 of 40 frames", "image_too_dark",
                                  code=3)
     assert "outputs were written" in line

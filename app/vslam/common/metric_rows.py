@@ -53,8 +53,9 @@ def metrics_row(name: str, gt: np.ndarray, poses: np.ndarray, scale: str, backen
 
 def scored_estimate(gt: np.ndarray, poses: np.ndarray, scale: str) -> np.ndarray:
     """The estimate as it is scored, printed and plotted: with ``scale == "none"`` (unit steps, no metric
-    scale) Sim(3)-aligned onto the ground truth, else as it is."""
-    return sim3_aligned(gt, poses) if scale == "none" and len(poses) > 2 else poses
+    scale) Sim(3)-aligned onto the ground truth, else as it is (also when it does not move: no Sim(3) exists)."""
+    moves = len(poses) > 2 and not np.all(poses[:, :3, 3] == poses[0, :3, 3])
+    return sim3_aligned(gt, poses) if scale == "none" and moves else poses
 
 
 def mean_row(rows: list[dict[str, Any]]) -> dict[str, Any]:
