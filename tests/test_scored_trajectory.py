@@ -4,6 +4,7 @@ that `--trajectory-out` holds (not the tracking-time ones of `/world/camera`), a
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +14,7 @@ from cli_helpers import vslam
 from vslam.rrd import inspect_recording
 from vslam.rrd.read import read_entity
 from vslam_core.trajectory.io import read_kitti_poses
-from vslam_core.trajectory.metrics import paper_rms_error, position_errors
+from vslam_core.trajectory.metrics import ate, paper_rms_error, position_errors
 
 FRAMES = 40
 
@@ -40,6 +41,9 @@ def test_inspect_scores_the_refined_trajectory_file_and_says_so(map_run: tuple[P
     assert accuracy["paper_rms_m"] == pytest.approx(paper_rms_error(gt, refined), abs=1e-4)
     assert accuracy["final_position_error_m"] == pytest.approx(errors[-1], abs=1e-4)
     assert accuracy["max_position_error_m"] == pytest.approx(errors.max(), abs=1e-4)
+    assert accuracy["ate_m"] == pytest.approx(ate(gt, refined, "none"), abs=1e-4)  # as the summary's ATE line
+    printed = re.search(r"^ATE +([\d.]+) m without alignment", summary, re.MULTILINE)
+    assert printed is not None and float(printed.group(1)) == pytest.approx(accuracy["ate_m"], abs=6e-4)
     # the tracking-time poses (kept in /world/camera) differ: the test would see the wrong ones
     camera = read_entity(rrd, "/world/camera")
     tracked = np.array([t[0] if isinstance(t[0], list) else t for t in camera["Transform3D:translation"].to_list()],

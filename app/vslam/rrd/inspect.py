@@ -118,6 +118,7 @@ def _accuracy(path: Path, prefix: str = "") -> dict[str, float] | None:
     return {
         "final_position_error_m": position[max(position)],
         "mean_position_error_m": float(errors.mean()),
+        "ate_m": float(np.sqrt(np.mean(errors**2))),  # the RMS: the ATE of the recorded estimate (run's summary)
         "max_position_error_m": float(errors.max()),
         "paper_rms_m": _paper_rms(path, prefix),
         "final_heading_error_deg": heading[max(heading)] if heading else math.nan,
@@ -406,7 +407,8 @@ def _format_run(report: dict[str, Any]) -> list[str]:
         heading, rms = _finite(accuracy["final_heading_error_deg"]), _finite(accuracy["paper_rms_m"])
         lines.append(
             f"accuracy    position error final {accuracy['final_position_error_m']:.2f} m, mean "
-            f"{accuracy['mean_position_error_m']:.2f} m, max {accuracy['max_position_error_m']:.2f} m"
+            f"{accuracy['mean_position_error_m']:.2f} m, max {accuracy['max_position_error_m']:.2f} m, RMS (ATE) "
+            f"{accuracy['ate_m']:.3f} m"
             + (f"; paper RMS (x–z) {rms:.2f} m" if rms is not None else "; no ground-truth trajectory for the paper "
                "RMS")
             + (f"; heading error final {heading:.2f}°" if heading is not None else "")
