@@ -218,8 +218,7 @@ class NextKeyframeAnchors:
     def pose(self, map_: Map, position: int, anchor: tuple[int, np.ndarray] | None, pose: np.ndarray) -> np.ndarray:
         """(4, 4) the refined pose of the frame at run `position`: `pose`, the one its own `anchor` (keyframe id,
         T_key_frame) gives, blended with the next keyframe's when the frame lies between the two."""
-        link = self.anchors.get(anchor[0]) if anchor is not None else None
-        if anchor is None or link is None:
+        if anchor is None or (link := self.anchors.get(anchor[0])) is None:
             return pose
         first, second = map_.keyframes.get(anchor[0]), map_.keyframes.get(link[0])
         if first is None or second is None or not first.position <= position <= second.position \

@@ -261,6 +261,13 @@ def align_positions(gt: np.ndarray, est: np.ndarray, align: Alignment) -> np.nda
     return scale * p_est @ rotation.T + translation
 
 
+def stands_still(est: np.ndarray) -> bool:
+    """Whether every position of the (N, 4, 4) estimate is the same (a parked car, a run that tracked no frame):
+    then no Sim(3) aligns it (Umeyama's scale is undefined)."""
+    positions = np.asarray(est)[:, :3, 3]
+    return bool(np.all(positions == positions[0]))
+
+
 def ate(gt: np.ndarray, est: np.ndarray, align: Alignment = "sim3") -> float:
     """Absolute trajectory error (metres): RMSE of ‖p_gt,i - p_est,i‖ after aligning the estimate.
 
@@ -395,9 +402,7 @@ def evaluate(gt: np.ndarray, est: np.ndarray) -> TrajectoryMetrics:
     """Compute every metric of ``est`` (N, 4, 4) against ``gt`` (N, 4, 4); see `TrajectoryMetrics`."""
     g, e = _check_pair(gt, est)
     t_err, r_err = kitti_errors(g, e)
-    p_est = e[:, :3, 3]
-    degenerate = bool(np.all(p_est == p_est[0]))
-    ate_sim3 = float("nan") if degenerate else ate(g, e, "sim3")
+    ate_sim3 = float("nan") if stands_still(e) else ate(g, e, "sim3")
     rpe_trans, rpe_rot = rpe(g, e, 1)
     return TrajectoryMetrics(
         t_err=t_err,

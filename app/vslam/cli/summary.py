@@ -32,7 +32,7 @@ def print_summary(source: FrameSource, run: RunResult, config: EngineConfig, in_
     from vslam_core.scale import default_camera_height
     from vslam_core.sources.base import ground_truth_matching
     from vslam_core.sources.calibration import camera_line
-    from vslam_core.trajectory.metrics import ate, kitti_errors, paper_rms_error, scale_errors
+    from vslam_core.trajectory.metrics import ate, kitti_errors, paper_rms_error, scale_errors, stands_still
 
     fps = run.frames / run.seconds if run.seconds > 0 else float("nan")
     lines = [
@@ -61,21 +61,20 @@ def print_summary(source: FrameSource, run: RunResult, config: EngineConfig, in_
     if gt_check is not None:
         lines.append(f"gt check    {gt_check.line()}")
     if gt is not None and run.frames > 1:
-        gt = gt[: run.frames]
+        gt, poses = gt[: run.frames], run.pose_array()
         if config.scale == "height":
-            median, _, path = scale_errors(gt, run.pose_array())
+            median, _, path = scale_errors(gt, poses)
             lines.append(f"step length {median:+.1f} % median error per frame, path length {path:+.1f} % vs ground "
                          "truth")
-        scored = scored_estimate(gt, run.pose_array(), config.scale)  # --scale none: Sim(3)-aligned, as eval
+        scored = scored_estimate(gt, poses, config.scale)  # --scale none: Sim(3)-aligned, as eval
         aligned = config.scale == "none"
         t_err, r_err = kitti_errors(gt, scored)
         lines.append("KITTI       " + ("t_err —   r_err —   (path < 100 m: no segment)" if np.isnan(t_err) else
                                       f"t_err {t_err:.2f} %   r_err {r_err:.2f} °/100 m")
                      + ("   (after Sim(3) alignment: --scale none has no metric scale)" if aligned else ""))
-        poses = run.pose_array()  # ATE: 3-D RMSE of the positions (Sturm et al. 2012), a hand-held camera's measure
-        still = bool(np.all(poses[:, :3, 3] == poses[0, :3, 3]))  # (a parked car) no Sim(3): as `evaluate`
+        # ATE: 3-D RMSE of the positions (Sturm et al. 2012), a hand-held camera's measure
         lines.append("ATE         " + ("" if aligned else f"{ate(gt, poses, 'none'):.3f} m without alignment, ")
-                     + ("— after Sim(3) (the estimate does not move)" if still else
+                     + ("— after Sim(3) (the estimate does not move)" if stands_still(poses) else
                         f"{ate(gt, poses, 'sim3'):.3f} m after Sim(3)") + f" (3-D RMSE over {len(gt)} frames)")
         lines.append(f"paper RMS   {paper_rms_error(gt, scored):.2f} m (x–z, "
                      + ("after Sim(3) alignment)" if aligned else "no alignment)"))

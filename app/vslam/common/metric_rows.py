@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from vslam_core.trajectory.metrics import evaluate, rpe_by_distance, scale_errors, sim3_aligned
+from vslam_core.trajectory.metrics import evaluate, rpe_by_distance, scale_errors, sim3_aligned, stands_still
 
 # key -> (column header, format); the keys are also the JSON keys of `vslam eval --json`.
 COLUMNS: dict[str, tuple[str, str]] = {
@@ -54,8 +54,7 @@ def metrics_row(name: str, gt: np.ndarray, poses: np.ndarray, scale: str, backen
 def scored_estimate(gt: np.ndarray, poses: np.ndarray, scale: str) -> np.ndarray:
     """The estimate as it is scored, printed and plotted: with ``scale == "none"`` (unit steps, no metric
     scale) Sim(3)-aligned onto the ground truth, else as it is (also when it does not move: no Sim(3) exists)."""
-    moves = len(poses) > 2 and not np.all(poses[:, :3, 3] == poses[0, :3, 3])
-    return sim3_aligned(gt, poses) if scale == "none" and moves else poses
+    return sim3_aligned(gt, poses) if scale == "none" and len(poses) > 2 and not stands_still(poses) else poses
 
 
 def mean_row(rows: list[dict[str, Any]]) -> dict[str, Any]:
