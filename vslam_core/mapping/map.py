@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vslam_core.geometry import interpolate_pose
+from vslam_core.geometry import interpolate_pose, invert_pose
 
 # a keyframe within this many of the map's keyframe spacings of an older one, looking the same way within
 # COVERED_ANGLE_DEG, is at a place the map knows (`covering`: keyframe culling; the loop search's covered places)
@@ -213,7 +213,7 @@ class NextKeyframeAnchors:
             del self.anchors[culled]
         previous, keyframe = map_.keyframes.get(previous_id), map_.keyframes[keyframe_id]
         if previous is not None and previous.segment == keyframe.segment:
-            self.anchors[previous_id] = (keyframe_id, np.linalg.inv(keyframe.T_world_cam) @ previous.T_world_cam)
+            self.anchors[previous_id] = (keyframe_id, invert_pose(keyframe.T_world_cam) @ previous.T_world_cam)
 
     def pose(self, map_: Map, position: int, anchor: tuple[int, np.ndarray] | None, pose: np.ndarray) -> np.ndarray:
         """(4, 4) the refined pose of the frame at run `position`: `pose`, the one its own `anchor` (keyframe id,
