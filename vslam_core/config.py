@@ -229,6 +229,9 @@ class MapConfig:
     init_parallax_px: float = 20.0
     init_min_landmarks: int = 50  # ... and must triangulate this many landmarks, else it is tried again
     init_wait_frames: int = 10  # ... or, after this many frames without that parallax, on the landmarks alone
+    # once one starts the map, an earlier attempt's keyframe is placed against its landmarks when its rays to them
+    # meet the first keyframe's at this median angle or more (map_scale.place_attempts)
+    attempt_min_ray_angle_deg: float = 2.0
     none_min_triangulation_deg: float = 3.5
     # ... except for a slow camera: its landmarks' median depth is more than this many frames of its travel (a
     # hand-held camera; KITTI and the synthetic street 10-47, the synthetic walk 70-390), whose rays rarely meet

@@ -165,6 +165,7 @@ RANGES: dict[str, Range] = {
     "map.ba_huber_px": PIXEL_SIZE,
     "map.init_parallax_px": positive(10_000.0),
     "map.init_wait_frames": closed(0, 1_000_000),
+    "map.attempt_min_ray_angle_deg": closed(0, 180),
     "map.init_min_landmarks": closed(1, 100_000),
     "map.none_min_triangulation_deg": Range(0.0, 90.0, high_open=True),
     "map.slow_depth_frames": positive(1e9),

@@ -32,7 +32,7 @@ from vslam_core.geometry import (
 )
 from vslam_core.lens import inside_mask, undistort_pixels, valid_pixel_mask
 from vslam_core.quality import ImageStats, image_stats
-from vslam_core.results import FrameResult, FrameStatus, Health, Reason, ScaleEstimate, TrackFate
+from vslam_core.results import FrameResult, FrameStatus, Health, Reason, ScaleEstimate, TrackFate, elapsed_ms
 from vslam_core.road import RoadBand
 from vslam_core.scale import ScaleProvider, TwoView
 from vslam_core.sources.base import CameraIntrinsics, Frame
@@ -121,7 +121,7 @@ class Odometry:
             used = survived & ~np.isnan(tracks.key_points[:, 0])
             fate[ok & ~survived] = TrackFate.FB_REJECTED
             fate[survived] = TrackFate.NOT_USED  # until the two-view step classifies the used ones
-            timings["track"] = _lap(clock)
+            timings["track"] = elapsed_ms(clock)
 
             motion, parallax = self._estimate_motion(self._ideal(tracked[used]), self._ideal(tracks.key_points[used]),
                                                      timings)
@@ -279,7 +279,7 @@ class Odometry:
         p_key, p_cur = match_features(self._key_image, image)
         keep = inside_mask(p_key, self._usable) & inside_mask(p_cur, self._usable)
         p_key, p_cur = self._ideal(p_key[keep]), self._ideal(p_cur[keep])
-        timings["match"] = _lap(clock)
+        timings["match"] = elapsed_ms(clock)
         if len(p_cur) < self.config.pose.min_tracks:
             return Motion(reason=Reason.TOO_FEW_TRACKS), 0.0
         parallax = float(np.median(np.linalg.norm(p_cur - p_key, axis=1)))
@@ -435,9 +435,5 @@ class Odometry:
         if not len(corners):
             return np.zeros(0, np.int64), corners
         ids = self._append_tracks(corners, at_keyframe=self._key_position == self._position)
-        timings["detect"] = _lap(clock)
+        timings["detect"] = elapsed_ms(clock)
         return ids, corners
-
-
-def _lap(start: float) -> float:
-    return (time.perf_counter() - start) * 1000.0

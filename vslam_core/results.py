@@ -6,6 +6,7 @@ P = triangulated points. Pixel coordinates are (x right, y down). Poses are 4x4 
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from enum import IntEnum, StrEnum
 
@@ -390,3 +391,8 @@ class FrameResult:
     def fate_counts(self) -> dict[str, int]:
         counts = np.bincount(self.track_fate, minlength=len(TrackFate))  # one pass, not one per fate
         return {fate.name.lower(): int(counts[fate]) for fate in TrackFate}
+
+
+def elapsed_ms(start: float) -> float:
+    """Milliseconds since `start` (a `time.perf_counter()` reading): an entry of a result's `timings_ms`."""
+    return (time.perf_counter() - start) * 1000.0

@@ -25,7 +25,7 @@ from vslam_core.loop.pose_graph import LoopEdge, optimise
 from vslam_core.loop.verification import Verification, verify
 from vslam_core.mapping.local_mapping import DESCRIPTOR_PATCH
 from vslam_core.mapping.map import at_place, median_spacing  # covered: not kept as a place
-from vslam_core.results import LoopCandidate
+from vslam_core.results import LoopCandidate, elapsed_ms
 from vslam_core.sources.base import CameraIntrinsics
 
 CONSISTENT_KEYFRAMES = 5  # verified candidates of consecutive queries are this close (keyframe ids) to agree
@@ -108,16 +108,16 @@ class LoopSearch:
         if job.refreshed is not None and job.refreshed[0] in self.database.places:
             self.database.places[job.refreshed[0]].points_cam = job.refreshed[1]
         query = self._place(job)
-        timings["describe"] = _lap(clock)
+        timings["describe"] = elapsed_ms(clock)
         clock = time.perf_counter()
         self.database.add(query)  # its words first (the search never returns the query: min separation)
         found = self.database.candidates(query)
-        timings["query"] = _lap(clock)
+        timings["query"] = elapsed_ms(clock)
         clock = time.perf_counter()
         checked = [(candidate, score, verify(query, self._with_neighbours(candidate), self._camera, self._config,
                                              (self._seed, query.position, candidate, 2), self._metric))
                    for candidate, score in found]
-        timings["verify"] = _lap(clock)
+        timings["verify"] = elapsed_ms(clock)
         best = max((c for c in checked if c[2].rejected is None), key=lambda c: (c[2].inliers, -c[0]), default=None)
         if best is not None or self._near_stored_place(job):  # the query need not be kept as a place
             self.database.cover(query.keyframe_id)
@@ -131,7 +131,7 @@ class LoopSearch:
         if accepted and best is not None:
             clock = time.perf_counter()
             graph = self._optimise(job, query, best[0], best[2])
-            timings["optimise"] = _lap(clock)
+            timings["optimise"] = elapsed_ms(clock)
         pixels, descriptors = query.pixels, query.descriptors
         self.database.compact(query.keyframe_id)  # after its verification: its features go back with the result
         self.database.prune(query.keyframe_id)
@@ -256,7 +256,3 @@ def _rescaled(T: np.ndarray, scale: float) -> np.ndarray:  # noqa: N803
     moved = T.copy()
     moved[:3, 3] *= scale
     return moved
-
-
-def _lap(start: float) -> float:
-    return (time.perf_counter() - start) * 1000.0

@@ -13,6 +13,7 @@ the time; ORB-SLAM's rule (most of its landmarks seen well by three other keyfra
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -189,11 +190,13 @@ class LocalMapping:
         pixels: np.ndarray, image: np.ndarray, metric_step: float | None, why: str,
         track_landmarks: dict[int, int], refound: dict[int, np.ndarray] | None = None,
         landmark_config: MapConfig | None = None, chained_rotation: tuple[np.ndarray, np.ndarray] | None = None,
+        triangulated: Callable[[Map, Keyframe, dict[int, int]], None] | None = None,
     ) -> tuple[KeyframeInserted, dict[int, int], MapView]:
         """Add a keyframe seeing (N,) tracks at (N, 2) pixels; `track_landmarks` links live tracks to
         landmarks; `refound` maps landmarks re-found in this frame without a track to their (2,) pixel (they
-        are observed too; `landmark_config`: other settings for its new landmarks). Returns the event, the new
-        track → landmark links, and what to draw of the map."""
+        are observed too; `landmark_config`: other settings for its new landmarks); `triangulated` is called with
+        the new track → landmark links before bundle adjustment is submitted (`map_scale.place_attempts`). Returns
+        the event, the new track → landmark links, and what to draw of the map."""
         assert self._submitted is None, "collect the pending bundle adjustment first"
         keyframe = self.map.add_keyframe(position, segment, T_world_cam, track_ids, pixels, metric_step,
                                          chained_rotation)
@@ -214,6 +217,8 @@ class LocalMapping:
                            if t in alive and self.map.keyframes[s[0][0]].segment == segment}
         settings = landmark_config or self._config
         links = self._triangulate(keyframe, settings)
+        if triangulated is not None:
+            triangulated(self.map, keyframe, links)
         self._describe(keyframe, image)
         self.keyframe_images[keyframe.id] = image
         self.keyframe_images.pop(keyframe.id - KEYFRAME_IMAGES, None)

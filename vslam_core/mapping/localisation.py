@@ -30,7 +30,16 @@ from vslam_core.loop.vocabulary import BinaryVocabulary, similarity
 from vslam_core.mapping.local_mapping import DESCRIPTOR_PATCH
 from vslam_core.mapping.localisation_refine import RADIUS_PX, match_by_projection, refine_pose
 from vslam_core.mapping.pnp import at_raw_pixels, project, solve_pnp
-from vslam_core.results import FrameResult, FrameStatus, Health, MapFrame, PnPEstimate, Reason, TrackingMode
+from vslam_core.results import (
+    FrameResult,
+    FrameStatus,
+    Health,
+    MapFrame,
+    PnPEstimate,
+    Reason,
+    TrackingMode,
+    elapsed_ms,
+)
 from vslam_core.sources.base import CameraIntrinsics, Frame
 
 if TYPE_CHECKING:
@@ -79,7 +88,7 @@ class MapLocalisation:
         pixels = undistort_pixels(raw, self._lens)
         usable = np.isfinite(pixels).all(axis=1)  # outside a strong lens's usable field: no ideal pixel
         pixels, descriptors = pixels[usable], descriptors[usable]
-        timings = {"describe": _lap(clock)}
+        timings = {"describe": elapsed_ms(clock)}
         clock = time.perf_counter()
         estimate, mode = None, TrackingMode.LOST
         predicted = None
@@ -99,7 +108,7 @@ class MapLocalisation:
                 estimate = self._checked(self._guided(pixels, descriptors, self._in_view(estimate.T_world_cam),
                                                       estimate.T_world_cam, self.config.map.reloc_min_inliers, 3),
                                          predicted)
-        timings["pnp"] = _lap(clock)
+        timings["pnp"] = elapsed_ms(clock)
         found = estimate is not None and estimate.rejected is None and estimate.T_world_cam is not None
         if found:
             assert estimate is not None and estimate.T_world_cam is not None
@@ -233,7 +242,3 @@ class MapLocalisation:
             timings_ms=timings,
             mapping=MapFrame(mode, 0, None, at_raw_pixels(estimate, self._lens)),
         )
-
-
-def _lap(start: float) -> float:
-    return (time.perf_counter() - start) * 1000.0

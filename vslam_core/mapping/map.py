@@ -215,6 +215,13 @@ class NextKeyframeAnchors:
         if previous is not None and previous.segment == keyframe.segment:
             self.anchors[previous_id] = (keyframe_id, invert_pose(keyframe.T_world_cam) @ previous.T_world_cam)
 
+    def segment_started(self, map_: Map, segment: int) -> None:
+        """The keyframes of `segment` anchored again, each to the next, at their poses now: its map's start moved
+        them (`map_scale.place_attempts`)."""
+        ids = [k.id for k in map_.keyframes.values() if k.segment == segment]
+        for previous, later in zip(ids, ids[1:], strict=False):
+            self.keyframe_made(map_, previous, later)
+
     def pose(self, map_: Map, position: int, anchor: tuple[int, np.ndarray] | None, pose: np.ndarray) -> np.ndarray:
         """(4, 4) the refined pose of the frame at run `position`: `pose`, the one its own `anchor` (keyframe id,
         T_key_frame) gives, blended with the next keyframe's when the frame lies between the two."""

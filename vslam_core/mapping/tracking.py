@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import replace
+from functools import partial
 
 import numpy as np
 
@@ -38,6 +39,7 @@ from vslam_core.mapping.map_scale import (
     initialised,
     landmark_settings,
     metric_step,
+    place_attempts,
     pnp_pose,
     sideways_camera,
     slow_camera,
@@ -61,6 +63,7 @@ from vslam_core.results import (
     Relocalisation,
     TrackFate,
     TrackingMode,
+    elapsed_ms,
 )
 from vslam_core.scale import ScaleProvider, TwoView
 from vslam_core.sources.base import CameraIntrinsics, Frame
@@ -166,7 +169,7 @@ class MapTracking:
         lost_tracks = vo.reason == Reason.TOO_FEW_TRACKS or Reason.RECOVERED in vo.health.reasons or missing
         if (pnp is None or pnp.failure is not None) and not (lost_tracks or self._gap) and self._has_map():
             pnp = self._search_map(vo, two_view, pnp)
-        timings["pnp"] = _lap(clock)
+        timings["pnp"] = elapsed_ms(clock)
         warnings: list[Reason] = []
         relocalisation = None
         pose, mode, why = None, TrackingMode.LOST, None
@@ -183,7 +186,7 @@ class MapTracking:
                 self._link_found(found)
             else:
                 relocalisation, found = self.relocalise(frame.image, vo.position)
-            timings["relocalise"] = _lap(clock)
+            timings["relocalise"] = elapsed_ms(clock)
             if found is not None:
                 pnp, pose, mode, why = found, found.T_world_cam, TrackingMode.RELOCALISED, "relocalised"
                 warnings.append(Reason.RELOCALISED)
@@ -214,7 +217,7 @@ class MapTracking:
             error = np.linalg.norm(refound.observed - refound.projected, axis=1)  # off the pose: a keyframe
             close = (error <= self.settings.keyframe_observation_px) & ~refound.inlier_mask  # made now observes it
             self._refound = dict(zip(refound.landmark_ids[close].tolist(), refound.observed[close], strict=True))
-            timings["local_map"] = _lap(clock)
+            timings["local_map"] = elapsed_ms(clock)
         if relocalisation is not None:
             self._segment_lost = not relocalisation.success
             if self._segment_lost:
@@ -419,7 +422,8 @@ class MapTracking:
                 why, {**self._links, **tied}, self._refound,
                 landmark_settings(self.settings, self._slow, starving=why.startswith("map:")),
                 self._chain.between(self.mapping.map.keyframes[self._reference].position, vo.position)
-                if self._reference >= 0 else None)
+                if self._reference >= 0 else None, None if self._speed is None or self._initialised else
+                partial(place_attempts, K=self._K, config=self.settings, seed=self.config.pose.seed))
             reanchor(self.mapping.culled, self._relative, self._next_anchors.anchors)  # (a culled keyframe's frames)
             live, landmarks = set(track_ids.tolist()), self.mapping.map.landmarks
             self._links = {t: m for t, m in {**self._links, **links}.items() if t in live and m in landmarks}
@@ -434,7 +438,7 @@ class MapTracking:
             if self.loop is not None:
                 self.loop.forget(list(self.mapping.culled))
                 self.loop.submit(keyframe.keyframe_id, frame.image)
-            vo.timings_ms["mapping"] = _lap(clock)
+            vo.timings_ms["mapping"] = elapsed_ms(clock)
         if self._reference >= 0:
             self._relative[vo.position] = (self._reference,
                                            invert_pose(self.mapping.map.keyframes[self._reference].T_world_cam) @ pose)
@@ -470,16 +474,15 @@ class MapTracking:
             self.mapping.use_settings(self.settings)
 
     def _start_map(self, keyframe: KeyframeInserted, links: dict[int, int]) -> None:
-        """--scale none: did this keyframe start the segment's map? Then the frames tracked since the last
-        keyframe are placed against its first landmarks (`FramesBeforeMap`)."""
+        """--scale none: did this keyframe start the segment's map? Then the frames tracked since the segment's
+        first keyframe (the attempts' too) are placed against its first landmarks (`FramesBeforeMap`)."""
         if self._initialised or not initialised(self.settings, keyframe):
-            return self._before_map.clear()  # (a new attempt measures from this keyframe)
+            if not keyframe.why.startswith("initialisation"):  # an attempt's frames wait for the map's start
+                self._before_map.clear()
+            return
         self._initialised = True
-        positions = {i: self.mapping.map.landmarks[i].position for i in links.values()}
-        placed = self._before_map.place(links, positions, self._K, self.settings, self.config.pose.seed)
-        for position, T_world_cam in placed.items():  # noqa: N806
-            key = self.mapping.map.keyframes[self._relative[position][0]]
-            self._relative[position] = (key.id, invert_pose(key.T_world_cam) @ T_world_cam)
+        self._next_anchors.segment_started(self.mapping.map, self._segment)  # (attempts moved: `place_attempts`)
+        self._before_map.place(links, self.mapping.map, self._relative, self._K, self.settings, self.config.pose.seed)
 
     def _result(self, vo: FrameResult, pose: np.ndarray, held: bool, mode: TrackingMode, warnings: list[Reason],
                 two_view: np.ndarray | None, mapping: MapFrame) -> FrameResult:
@@ -493,7 +496,3 @@ class MapTracking:
         status = FrameStatus.HELD if not placed else FrameStatus.INIT if mode == TrackingMode.INIT else FrameStatus.OK
         return replace(vo, T_world_cam=pose, status=status, reason=reason, points_world=points_world, health=health,
                        mapping=mapping)
-
-
-def _lap(start: float) -> float:
-    return (time.perf_counter() - start) * 1000.0
