@@ -342,8 +342,12 @@ class FramesBeforeMap:
     def __init__(self) -> None:
         self._frames: list[tuple[int, np.ndarray, np.ndarray]] = []  # (run position, (T,) track ids, (T, 2) px)
 
-    def add(self, position: int, track_ids: np.ndarray, pixels: np.ndarray) -> None:
-        """A frame with a pose before the map started: its live tracks at their (T, 2) ideal pixels."""
+    def add(self, position: int, track_ids: np.ndarray, pixels: np.ndarray, min_shared: int) -> None:
+        """A frame with a pose before the map started: its live tracks at their (T, 2) ideal pixels. The frames
+        kept that share fewer than `min_shared` (`pnp_min_landmarks`) of these tracks are forgotten: tracks only
+        die, so `place` could never link them to that many landmarks (memory follows the tracks, however long
+        the map waits)."""
+        self._frames = [f for f in self._frames if np.isin(f[1], track_ids).sum() >= min_shared]
         self._frames.append((position, track_ids.copy(), pixels.copy()))
 
     def clear(self) -> None:

@@ -451,7 +451,7 @@ class MapTracking:
             if not self._initialised and keyframe is None:
                 alive = vo.track_fate >= TrackFate.NOT_USED
                 pixels = undistort_pixels(vo.track_cur[alive], self._lens)
-                self._before_map.add(vo.position, vo.track_ids[alive], pixels)
+                self._before_map.add(vo.position, vo.track_ids[alive], pixels, self.settings.pnp_min_landmarks)
         self._previous_image = frame.image
         self._two_view_length.remember(vo)
         self.refinding.end_frame(None if held else pose)
