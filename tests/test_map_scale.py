@@ -14,7 +14,15 @@ from cli_helpers import vslam
 
 from vslam.rrd.read import read_entity
 from vslam_core.config import EngineConfig, PoseConfig
-from vslam_core.mapping.map_scale import INITIAL_SPEED, STARTING_REASONS, MapSpeed, translation_parallax
+from vslam_core.mapping.map import Map
+from vslam_core.mapping.map_scale import (
+    INITIAL_SPEED,
+    STARTING_REASONS,
+    MapSpeed,
+    median_ray_angle,
+    retriangulate,
+    translation_parallax,
+)
 from vslam_core.mapping.tracking import MapTracking
 from vslam_core.pipeline import run_odometry
 from vslam_core.results import FrameResult, KeyframeInserted, TrackingMode
@@ -265,6 +273,31 @@ def test_a_car_pulling_away_starts_its_map_where_its_landmarks_say(kitti_root: P
                        for p in (run.pose_array(), source.ground_truth))
     ratio = estimate / truth / (estimate[7] / truth[7])  # over the map's own scale at its start (frame 8)
     assert abs(ratio[0] - 1) < 0.1 and np.all(np.abs(ratio[1:] - 1) < 0.03), ratio.round(3)
+
+
+def test_a_moved_keyframes_landmarks_are_triangulated_again() -> None:
+    """`retriangulate`: the landmarks of a keyframe placed anew lie where the rays of their first and last keyframes
+    meet at the poses now, not where the chained pose had put them; `median_ray_angle` is the angle of such rays
+    (two cameras 1 m apart, a point 1 m ahead of their midpoint: 2·atan(0.5) = 53.13°)."""
+    K = np.array([[700.0, 0, 600], [0, 700, 180], [0, 0, 1]])  # noqa: N806
+    truth = np.array([[0.3, -0.2, 8.0], [-1.0, 0.5, 12.0]])
+    second = np.eye(4)
+    second[:3, 3] = [0.1, 0.0, 1.5]  # where the second keyframe really is
+    chained = second.copy()
+    chained[:3, 3] = [0.1, 0.0, 2.5]  # where the chain had put it
+    the_map = Map()
+    for pose in (np.eye(4), chained):
+        the_map.add_keyframe(len(the_map.keyframes), 0, pose, np.zeros(0, np.int64), np.zeros((0, 2)), None)
+    for point in truth:
+        pixels = [K @ (point - pose[:3, 3]) for pose in (np.eye(4), second)]
+        the_map.add_landmark(np.zeros(3), {k: p[:2] / p[2] for k, p in enumerate(pixels)})
+    the_map.keyframes[1].T_world_cam = second  # placed anew
+    retriangulate(the_map, {1}, K, EngineConfig().map)
+    np.testing.assert_allclose(the_map.positions([0, 1]), truth, atol=1e-9)
+    right = np.eye(4)
+    right[0, 3] = 1.0
+    assert median_ray_angle(np.array([[0.5, 0.0, 1.0]]), np.eye(4), right) == pytest.approx(53.1301, abs=1e-3)
+
 
 def assert_started_once(made: list[KeyframeInserted], bar: int) -> None:
     """Keyframes of one map segment, in order: attempts (starting reasons) until the first initialisation that
