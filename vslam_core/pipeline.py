@@ -19,7 +19,7 @@ from vslam_core.engine import Odometry
 from vslam_core.mapping.global_adjustment import GlobalAdjusted
 from vslam_core.mapping.localisation import MapLocalisation
 from vslam_core.mapping.tracking import MapTracking
-from vslam_core.results import FrameResult, FrameStatus, LoopStep, Reason, TrackingMode
+from vslam_core.results import FrameResult, FrameStatus, LoopStep, Reason, TrackingMode, elapsed_ms
 from vslam_core.scale import make_scale_provider
 from vslam_core.sources.base import Frame, FrameSource
 
@@ -134,7 +134,7 @@ def iterate_timed(source: FrameSource) -> Iterator[tuple[Frame, float]]:
             frame = next(iterator)
         except StopIteration:
             return
-        yield frame, (time.perf_counter() - start) * 1000.0
+        yield frame, elapsed_ms(start)
 
 
 def prefetched(items: Iterator[T], depth: int = 2) -> Iterator[T]:

@@ -26,7 +26,7 @@ from vslam_core.geometry import (
     rotation_angle,
     triangulate,
 )
-from vslam_core.results import Reason, TrackFate
+from vslam_core.results import Reason, TrackFate, elapsed_ms
 
 # a prior within 0.5° of rotation and 5° of translation direction of RANSAC's pose lies in its basin of the cost
 PRIOR_SAME_BASIN = (math.radians(0.5), math.radians(5.0))
@@ -78,7 +78,7 @@ def two_view_motion(
     cfg = config.pose
     clock = time.perf_counter()
     essential, shuffled_mask = find_essential(p_cur[order], p_key[order], K, config)
-    timings["essential"] = _lap(clock)
+    timings["essential"] = elapsed_ms(clock)
     clock = time.perf_counter()
     if essential is None or shuffled_mask is None:
         return Motion(reason=Reason.NO_ESSENTIAL)
@@ -95,7 +95,7 @@ def two_view_motion(
                                            cfg.chirality_far_depth)
     rotation, translation = candidates[best].rotation, candidates[best].translation
     if candidates[best].in_front < cfg.min_inliers:
-        timings["chirality"] = _lap(clock)
+        timings["chirality"] = elapsed_ms(clock)
         return Motion(essential=essential, inlier_mask=inlier_mask, candidates=tuple(candidates),
                        chosen=best, reason=Reason.CHIRALITY)
     covariance = None
@@ -121,7 +121,7 @@ def two_view_motion(
     if (flipped_in_front & inlier_mask).sum() > (in_front & inlier_mask).sum():
         translation, points, in_front = -translation, flipped, flipped_in_front
     near = in_front_mask(rotation, translation, points, cfg.chirality_max_depth)
-    timings["chirality"] = _lap(clock)
+    timings["chirality"] = elapsed_ms(clock)
     return Motion(
         essential=essential,
         inlier_mask=inlier_mask,
@@ -265,7 +265,3 @@ def derotated_parallax(rotation: np.ndarray, p_cur: np.ndarray, p_key: np.ndarra
     moved = homogeneous @ (K @ rotation @ np.linalg.inv(K)).T
     predicted = moved[:, :2] / moved[:, 2:3]
     return float(np.median(np.linalg.norm(predicted - p_key, axis=1))) if len(p_cur) else 0.0
-
-
-def _lap(start: float) -> float:
-    return (time.perf_counter() - start) * 1000.0

@@ -26,7 +26,7 @@ from vslam_core.loop.search import GraphSolution, SearchJob, SearchResult
 from vslam_core.loop.worker import LoopWorker
 from vslam_core.mapping.map import Map
 from vslam_core.mapping.worker_process import BackendWorker
-from vslam_core.results import LoopClosed, LoopStep
+from vslam_core.results import LoopClosed, LoopStep, elapsed_ms
 from vslam_core.sources.base import CameraIntrinsics
 
 NO_IMAGE = np.zeros((0, 0), np.uint8)
@@ -67,7 +67,7 @@ class LoopClosing:
         clock = time.perf_counter()
         self._start(map_)
         if collected is not None:  # the snapshot and hand-over, in the tracking thread
-            collected[0].timings_ms["submit"] = _lap(clock)
+            collected[0].timings_ms["submit"] = elapsed_ms(clock)
         return collected
 
     def finish(self, map_: Map) -> list[tuple[LoopStep, np.ndarray | None]]:
@@ -91,7 +91,7 @@ class LoopClosing:
             return LoopStep(result.candidates, None, timings), None
         clock = time.perf_counter()
         closed, correction = self._apply(map_, result.graph, result.timings_ms.get("optimise", 0.0))
-        timings["apply"] = _lap(clock)
+        timings["apply"] = elapsed_ms(clock)
         self.loops_closed += 1
         return LoopStep(result.candidates, closed, timings), correction
 
@@ -191,7 +191,7 @@ class LoopClosing:
             correction_m=np.linalg.norm(after[:, :3, 3] - before[:, :3, 3], axis=1),
             correction_deg=np.degrees([rotation_angle(a[:3, :3] @ b[:3, :3].T) for a, b in zip(after, before,
                                                                                                  strict=True)]),
-            scales=scales, landmarks_moved=moved, milliseconds=optimise_ms + _lap(start))
+            scales=scales, landmarks_moved=moved, milliseconds=optimise_ms + elapsed_ms(start))
         return closed, correction
 
 
@@ -224,7 +224,3 @@ def _moved_pose(S: np.ndarray, pose: np.ndarray) -> np.ndarray:  # noqa: N803
     moved[:3, :3] = S[:3, :3] / scale @ pose[:3, :3]
     moved[:3, 3] = S[:3, :3] @ pose[:3, 3] + S[:3, 3]
     return moved
-
-
-def _lap(start: float) -> float:
-    return (time.perf_counter() - start) * 1000.0

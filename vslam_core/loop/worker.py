@@ -17,6 +17,7 @@ import cv2
 from vslam_core.config import EngineConfig
 from vslam_core.loop.search import LoopSearch, SearchJob, SearchResult
 from vslam_core.mapping.worker_process import BackendWorker, ServiceClient
+from vslam_core.results import elapsed_ms
 from vslam_core.sources.base import CameraIntrinsics
 
 
@@ -57,5 +58,5 @@ class LoopWorker:
         """The submitted job's result (waiting for it), or None if nothing was submitted."""
         start = time.perf_counter()
         collected = self._client.collect()
-        self.waited_ms = (time.perf_counter() - start) * 1000.0 if collected else 0.0  # in one thread: the search
+        self.waited_ms = elapsed_ms(start) if collected else 0.0  # in one thread: the search
         return collected[1] if collected else None

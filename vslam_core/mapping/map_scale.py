@@ -364,13 +364,10 @@ class FramesBeforeMap:
             if linked.sum() < config.pnp_min_landmarks:
                 continue
             points = np.array([positions[links[t]] for t in track_ids[linked].tolist()])
-            solution = solve_pnp(points, pixels[linked], K, config.pnp_threshold_px, config.pnp_iterations,
-                                 (seed, position, 4))
-            inliers = int(solution.inlier_mask.sum())
-            if solution.T_world_cam is not None and inliers >= max(config.pnp_min_inliers,
-                                                                   config.pnp_min_inlier_ratio * len(points)):
+            placed = placed_by_pnp(points, pixels[linked], K, config, (seed, position, 4))
+            if placed is not None:
                 key = the_map.keyframes[relative[position][0]]
-                relative[position] = (key.id, invert_pose(key.T_world_cam) @ solution.T_world_cam)
+                relative[position] = (key.id, invert_pose(key.T_world_cam) @ placed)
         self.clear()
 
 
@@ -403,14 +400,21 @@ def place_attempts(the_map: Map, keyframe: Keyframe, links: dict[int, int], K: n
         if median_ray_angle(points, earlier[0].T_world_cam, attempt.T_world_cam) < config.attempt_min_ray_angle_deg:
             continue  # too short a baseline from the first keyframe for PnP to measure (a hand-held start)
         pixels = np.array([the_map.landmarks[i].observations[attempt.id] for i in ids])
-        solution = solve_pnp(points, pixels, K, config.pnp_threshold_px, config.pnp_iterations,
-                             (seed, attempt.position, 5))
-        inliers = int(solution.inlier_mask.sum())
-        if solution.T_world_cam is not None and inliers >= max(config.pnp_min_inliers,
-                                                               config.pnp_min_inlier_ratio * len(ids)):
-            attempt.T_world_cam = solution.T_world_cam
+        placed = placed_by_pnp(points, pixels, K, config, (seed, attempt.position, 5))
+        if placed is not None:
+            attempt.T_world_cam = placed
             moved.add(attempt.id)
     retriangulate(the_map, moved, K, config)
+
+
+def placed_by_pnp(points: np.ndarray, pixels: np.ndarray, K: np.ndarray, config: MapConfig,  # noqa: N803
+                  seed: tuple[int, ...]) -> np.ndarray | None:
+    """(4, 4) T_world_cam PnP gives from (N, 3) landmarks seen at (N, 2) ideal pixels, when it keeps tracking's
+    `pnp_min_inliers` and `pnp_min_inlier_ratio` of them (a frame or keyframe placed when the map starts); else None."""
+    solution = solve_pnp(points, pixels, K, config.pnp_threshold_px, config.pnp_iterations, seed)
+    inliers = int(solution.inlier_mask.sum())
+    enough = inliers >= max(config.pnp_min_inliers, config.pnp_min_inlier_ratio * len(points))
+    return solution.T_world_cam if solution.T_world_cam is not None and enough else None
 
 
 def median_ray_angle(points: np.ndarray, T_world_a: np.ndarray, T_world_b: np.ndarray) -> float:  # noqa: N803

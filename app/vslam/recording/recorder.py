@@ -52,7 +52,7 @@ from vslam.recording.video import encode_jpeg
 from vslam_core.config import EngineConfig
 from vslam_core.lens import undistortion_maps
 from vslam_core.pipeline import RunResult
-from vslam_core.results import FrameResult
+from vslam_core.results import FrameResult, elapsed_ms
 from vslam_core.sources.base import (
     Frame,
     FrameSource,
@@ -397,7 +397,7 @@ class Recorder:
         if "status" not in unreported:
             columns.add("/health", frame, (rr.AnyValues.columns, {"status": str(result.health.status),
                                                                   "reasons": ",".join(result.health.reasons)}))
-        timings = dict(result.timings_ms, record=(time.perf_counter() - start) * 1000.0)
+        timings = dict(result.timings_ms, record=elapsed_ms(start))
         for stage in STAGES:
             if stage in timings and stage not in unreported:
                 columns.add_scalar(f"/metrics/timing_ms/{stage}", frame, timings[stage])
