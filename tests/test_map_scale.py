@@ -261,7 +261,8 @@ def test_a_car_pulling_away_starts_its_map_where_its_landmarks_say(kitti_root: P
     the frames before it were chained at the map's guessed speed while the car accelerated (each frame's distance
     from the first, over the truth's, 1.32 / 1.26 / 1.19 / 1.13 / 1.09 times the 8th frame's at frames 1-5), and
     the map carried it (t_err 1.95 % over 150:300:3, 0.90 % at every frame). Once the map starts they are placed
-    against its landmarks (`map_scale.place_attempts`, `FramesBeforeMap`): measured 0.94, then 1.00-1.01."""
+    against its landmarks (`map_scale.place_attempts`, `FramesBeforeMap`): measured 0.94, then 1.00-1.01. The
+    summary says so: 6 of the frames counted as two-view (their tracking-time mode) were placed again."""
     source = KittiSource(kitti_root, sequence="05", frames=FrameRange(150, 195, 3))
     results: list[FrameResult] = []
     run = run_odometry(source, EngineConfig(backend="map", scale="none", threads=1), (lambda _, r: results.append(r),))
@@ -273,6 +274,9 @@ def test_a_car_pulling_away_starts_its_map_where_its_landmarks_say(kitti_root: P
                        for p in (run.pose_array(), source.ground_truth))
     ratio = estimate / truth / (estimate[7] / truth[7])  # over the map's own scale at its start (frame 8)
     assert abs(ratio[0] - 1) < 0.1 and np.all(np.abs(ratio[1:] - 1) < 0.03), ratio.round(3)
+    assert 0 < run.placed_at_map_start <= run.modes[TrackingMode.TWO_VIEW]
+    assert f"; {run.placed_at_map_start} of them, tracked before the map started, placed again by PnP" in \
+        str(run.placed_summary("none"))
 
 
 def test_a_moved_keyframes_landmarks_are_triangulated_again() -> None:

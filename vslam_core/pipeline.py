@@ -58,6 +58,9 @@ class RunResult:
     modes: dict[TrackingMode, int] = field(default_factory=dict)  # map backend: frames per tracking mode
     # map backend, --scale none: two-view frames per source of their step's length (`MapFrame.step_length`)
     step_lengths: dict[str, int] = field(default_factory=dict)
+    # map backend, --scale none: frames tracked before the map started, placed again by PnP against its first
+    # landmarks once it did (`FramesBeforeMap`): their output poses, not their tracking-time mode, say so
+    placed_at_map_start: int = 0
     loops_at_end: list[LoopStep] = field(default_factory=list)  # map backend: the loop searches collected when
     # the run ended (vslam_core/loop/closing.py `finish`); a loop they closed corrected `poses`
     # map backend: the map's adjustment as a whole once the run completed (`map.adjust_at_end`), or why it was not run
@@ -108,7 +111,9 @@ class RunResult:
         if scale == "none" and self.step_lengths:
             sources = ", ".join(f"{self.step_lengths[name]} {words}" for name, words in STEP_LENGTHS.items()
                                 if self.step_lengths.get(name))
-            text += f" (--scale none: the two-view steps' lengths {sources}; the scale can drift there)"
+            again = (f"; {self.placed_at_map_start} of them, tracked before the map started, placed again by PnP "
+                     "against its first landmarks in the output poses" if self.placed_at_map_start else "")
+            text += f" (--scale none: the two-view steps' lengths {sources}; the scale can drift there{again})"
         return text
 
     @property
@@ -235,6 +240,7 @@ def run_odometry(
             run.loops_at_end[:] = engine.loops_at_end
             run.adjusted_at_end = engine.adjusted_at_end
             run.sideways = engine.sideways
+            run.placed_at_map_start = engine.before_map.placed
         if completed and finish is not None:
             finish(engine)
         engine.close()

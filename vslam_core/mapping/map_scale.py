@@ -341,6 +341,7 @@ class FramesBeforeMap:
 
     def __init__(self) -> None:
         self._frames: list[tuple[int, np.ndarray, np.ndarray]] = []  # (run position, (T,) track ids, (T, 2) px)
+        self.placed = 0  # frames `place` placed over the run (the summary's: their tracking-time mode says two-view)
 
     def add(self, position: int, track_ids: np.ndarray, pixels: np.ndarray, min_shared: int) -> None:
         """A frame with a pose before the map started: its live tracks at their (T, 2) ideal pixels. The frames
@@ -368,6 +369,7 @@ class FramesBeforeMap:
             if placed is not None:
                 key = the_map.keyframes[relative[position][0]]
                 relative[position] = (key.id, invert_pose(key.T_world_cam) @ placed)
+                self.placed += 1
         self.clear()
 
 

@@ -103,7 +103,7 @@ class MapTracking:
         self._held: set[int] = set()  # run positions whose pose was held (no tracking, no relocalisation)
         self._segment_lost = False  # relocalisation failed: a new segment starts at the next frame with a pose
         self._initialised = False  # --scale none: the segment's map was started by a well-conditioned two-view
-        self._before_map = FramesBeforeMap()  # --scale none: the frames tracked while it waits for that
+        self.before_map = FramesBeforeMap()  # --scale none: the frames tracked while it waits for that
         self.loop = LoopClosing(intrinsics, config, self._worker) if config.loop.enabled else None
         self.loops_at_end: list[LoopStep] = []  # what the loop searches collected when the run ended did
         self.adjusted_at_end: GlobalAdjusted | str | None = None  # the adjustment as the run completed, or why not
@@ -451,7 +451,7 @@ class MapTracking:
             if not self._initialised and keyframe is None:
                 alive = vo.track_fate >= TrackFate.NOT_USED
                 pixels = undistort_pixels(vo.track_cur[alive], self._lens)
-                self._before_map.add(vo.position, vo.track_ids[alive], pixels, self.settings.pnp_min_landmarks)
+                self.before_map.add(vo.position, vo.track_ids[alive], pixels, self.settings.pnp_min_landmarks)
         self._previous_image = frame.image
         self._two_view_length.remember(vo)
         self.refinding.end_frame(None if held else pose)
@@ -478,11 +478,11 @@ class MapTracking:
         first keyframe (the attempts' too) are placed against its first landmarks (`FramesBeforeMap`)."""
         if self._initialised or not initialised(self.settings, keyframe):
             if not keyframe.why.startswith("initialisation"):  # an attempt's frames wait for the map's start
-                self._before_map.clear()
+                self.before_map.clear()
             return
         self._initialised = True
         self._next_anchors.segment_started(self.mapping.map, self._segment)  # (attempts moved: `place_attempts`)
-        self._before_map.place(links, self.mapping.map, self._relative, self._K, self.settings, self.config.pose.seed)
+        self.before_map.place(links, self.mapping.map, self._relative, self._K, self.settings, self.config.pose.seed)
 
     def _result(self, vo: FrameResult, pose: np.ndarray, held: bool, mode: TrackingMode, warnings: list[Reason],
                 two_view: np.ndarray | None, mapping: MapFrame) -> FrameResult:
