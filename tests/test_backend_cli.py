@@ -65,7 +65,7 @@ def test_without_a_scale_source_the_summary_says_which_steps_took_the_maps_speed
     assert f"(--scale none: the two-view steps' lengths {two_view} the map's recent speed; the scale can drift there" \
         in line, line
     # the frames before the map's start: two-view when tracked, placed against its first landmarks in the output
-    again = re.search(r"; (\d+) of them, tracked before the map started, placed again by PnP against its first "
+    again = re.search(r"; (\d+) frames tracked before the map started placed again by PnP against its first "
                       r"landmarks in the output poses\)$", line)
     assert again and 0 < int(again[1]) <= two_view, line
     adjusted = [line for line in result.stdout.splitlines() if line.startswith("adjusted")]

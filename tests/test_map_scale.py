@@ -275,7 +275,7 @@ def test_a_car_pulling_away_starts_its_map_where_its_landmarks_say(kitti_root: P
     ratio = estimate / truth / (estimate[7] / truth[7])  # over the map's own scale at its start (frame 8)
     assert abs(ratio[0] - 1) < 0.1 and np.all(np.abs(ratio[1:] - 1) < 0.03), ratio.round(3)
     assert 0 < run.placed_at_map_start <= run.modes[TrackingMode.TWO_VIEW]
-    assert f"; {run.placed_at_map_start} of them, tracked before the map started, placed again by PnP" in \
+    assert f"; {run.placed_at_map_start} frames tracked before the map started placed again by PnP" in \
         str(run.placed_summary("none"))
 
 

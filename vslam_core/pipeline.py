@@ -111,7 +111,7 @@ class RunResult:
         if scale == "none" and self.step_lengths:
             sources = ", ".join(f"{self.step_lengths[name]} {words}" for name, words in STEP_LENGTHS.items()
                                 if self.step_lengths.get(name))
-            again = (f"; {self.placed_at_map_start} of them, tracked before the map started, placed again by PnP "
+            again = (f"; {self.placed_at_map_start} frames tracked before the map started placed again by PnP "
                      "against its first landmarks in the output poses" if self.placed_at_map_start else "")
             text += f" (--scale none: the two-view steps' lengths {sources}; the scale can drift there{again})"
         return text
