@@ -45,7 +45,7 @@ from vslam_core.mapping.pnp import metric_pose, solve_pnp
 from vslam_core.results import FrameResult, KeyframeInserted, PnPEstimate, Reason, ScaleEstimate, TrackFate
 from vslam_core.scale import ScaleProvider, TwoView
 from vslam_core.sources.base import CameraIntrinsics
-from vslam_core.two_view import two_view_motion
+from vslam_core.two_view import derotated_parallax, two_view_motion
 
 #: Why a keyframe was made when it starts a map (segment): it is the map's start only with enough landmarks.
 STARTING_REASONS = ("initialisation", "re-initialisation", "new map segment")
@@ -226,12 +226,7 @@ def translation_parallax(T_world_key: np.ndarray, T_world_cur: np.ndarray, pixel
     """Median distance (px) between (N, 2) keyframe pixels and the (N, 2) current pixels moved by the rotation
     between the two poses alone (a point at infinity: x_key ∝ K·R_key_cur·K⁻¹·x_cur): the parallax the
     translation caused, which is what conditions a triangulation. Pixels are ideal pinhole pixels."""
-    if not len(pixels_cur):
-        return 0.0
-    rotation = T_world_key[:3, :3].T @ T_world_cur[:3, :3]
-    homogeneous = np.column_stack((pixels_cur, np.ones(len(pixels_cur))))
-    moved = homogeneous @ (K @ rotation @ np.linalg.inv(K)).T
-    return float(np.median(np.linalg.norm(moved[:, :2] / moved[:, 2:3] - pixels_key, axis=1)))
+    return derotated_parallax(T_world_key[:3, :3].T @ T_world_cur[:3, :3], pixels_cur, pixels_key, K)
 
 
 def initialisation(config: EngineConfig, K: np.ndarray, T_world_key: np.ndarray,  # noqa: N803
