@@ -1,6 +1,6 @@
 """One development matrix: every kind of data the engine must hold on, both backends, with and without a scale source.
 
-    python -m benchmarks.matrix [--quick] [--groups kitti,tum,street,loop,walk,lens,handheld] [--seeds 0,1]
+    python -m benchmarks.matrix [--quick] [--groups kitti,tum,street,loop,walk,lens,handheld,small] [--seeds 0,1]
         [--jobs 2] [--csv matrix.csv] [--compare before.csv] [--kitti ../shared/data/kitti] [--tum ../shared/data/tum]
     python -m benchmarks.matrix --table matrix.csv [--compare before.csv]     # print a saved CSV (no runs)
 
@@ -12,6 +12,8 @@ Families (`--groups`):
   lens      KITTI 00 0:150 and 05 0:150 re-imaged through a strong radial–tangential lens (benchmarks/gaps.py
             --lens, tests/ros_logs.py), read as an image folder with its calibration YAML; gt and none
   handheld  KITTI 05 0:150 re-imaged through a swinging virtual camera (benchmarks/handheld.py); gt and none
+  small     KITTI 00 0:300 and 05 0:300 at half size (620x188 and 613x185 px: a camera with half the focal length
+            in pixels), read as an image folder with its calibration YAML; gt, height and none
 
 Every (family case, backend vo|map, scale, RANSAC seed) is one run of `run_odometry` with the default config but
 the backend, scale source and `pose.seed` (and threads = 1: pool workers are daemonic, and trajectories do not
@@ -22,8 +24,8 @@ order, so the output is deterministic (the CSV's ``seconds`` column aside). A ru
 not open, an engine error) is a row with its error, not a crash.
 
 `--quick` (for iterating): KITTI 00 0:150, 05 0:150:2 and 00 0:150:3 with gt and none, TUM fr1_xyz, the synthetic
-street 0:100 and walk 0:120; the loop, lens and hand-held families only when `--groups` names them (then the lens
-family's first case).
+street 0:100 and walk 0:120; the loop, lens, hand-held and half-size families only when `--groups` names them (then
+their first case).
 
 Per group (family, backend, scale): a mean row and the worst run (largest ATE after Sim(3)), with ATE after
 Sim(3) and without alignment, KITTI t_err (after Sim(3) with --scale none), the final rotation error, frames
@@ -56,7 +58,7 @@ from vslam_core.results import TrackingMode
 from vslam_core.sources.base import FrameRange, FrameSource
 from vslam_core.trajectory.metrics import ate, kitti_errors, sim3_aligned
 
-FAMILIES = ("kitti", "tum", "street", "loop", "walk", "lens", "handheld")
+FAMILIES = ("kitti", "tum", "street", "loop", "walk", "lens", "handheld", "small")
 #: --quick without --groups: the families that run in minutes (their cases trimmed in `make_jobs`)
 QUICK_FAMILIES = ("kitti", "tum", "street", "walk")
 KITTI_WINDOWS = ("0:150", "150:300", "0:300")  # two starts, and both together: drift over 300 frames
@@ -66,6 +68,8 @@ SCALES = ("gt", "height", "none")
 TUM_SEQUENCES = ("rgbd_dataset_freiburg1_xyz", "rgbd_dataset_freiburg1_desk")
 LENS_CASES = (("00", "0:150"), ("05", "0:150"))
 HANDHELD_CASE = ("05", "0:150")
+SMALL_CASES = (("00", "0:300"), ("05", "0:300"))
+KITTI_CAMERA_HEIGHT_M = 1.65  # the re-imaged KITTI folders' --camera-height (KittiSource's own)
 MODES = {"map": TrackingMode.MAP, "two_view": TrackingMode.TWO_VIEW, "relocalised": TrackingMode.RELOCALISED,
          "coasted": TrackingMode.COASTED, "init": TrackingMode.INIT, "lost": TrackingMode.LOST}
 
@@ -74,7 +78,7 @@ MODES = {"map": TrackingMode.MAP, "two_view": TrackingMode.TWO_VIEW, "relocalise
 class Job:
     family: str  # the table's group name, e.g. "KITTI step 2"
     case: str  # which data, e.g. "00 0:300:2"
-    kind: str  # kitti, tum, synthetic, folder (lens), clip (hand-held)
+    kind: str  # kitti, tum, synthetic, folder (lens, half size), clip (hand-held)
     path: str  # KITTI root, TUM sequence folder, synthetic route, or the prepared folder
     frames: str  # FrameRange text ("" for all)
     sequence: str
@@ -82,6 +86,7 @@ class Job:
     scale: str
     seed: int
     cost: float  # frames × the backend's relative cost: the pool starts the longest first
+    camera_height_m: float = 0.0  # --camera-height (0: the source's own): for KITTI frames read as a folder
 
 
 def open_job_source(job: Job) -> FrameSource:
@@ -95,7 +100,7 @@ def open_job_source(job: Job) -> FrameSource:
         from vslam_core.sources.synthetic import SyntheticStreet
 
         return SyntheticStreet(route=job.path, frames=frames)  # type: ignore[arg-type]
-    if job.kind == "folder":  # KITTI re-imaged through a lens: the folder and its calibration YAML beside it
+    if job.kind == "folder":  # KITTI re-imaged (a lens, half size): the folder and its calibration YAML beside it
         from vslam_core.sources.folder import ImageFolderSource
 
         return ImageFolderSource(job.path, calib=f"{job.path}.yaml", ground_truth=f"{job.path}/gt.txt", frames=frames)
@@ -124,6 +129,9 @@ def run_job(job: Job) -> Row:
         if gt is None:
             raise ValueError("no ground truth")
         config = benchmark_config(None, job.backend, job.scale, job.seed)  # type: ignore[arg-type]
+        if job.camera_height_m:
+            config = dataclasses.replace(config, height=dataclasses.replace(config.height,
+                                                                            camera_height_m=job.camera_height_m))
         run = run_odometry(source, config)
         poses = run.pose_array()
         gt = gt[: len(poses)]
@@ -177,15 +185,21 @@ def make_jobs(families: list[str], seeds: list[int], kitti: str, tum: str, folde
         a, b = (int(v) for v in window.split(":"))
         specs.append(("hand-held clip", f"{sequence} {window} swinging", "clip", folders["handheld"], "", sequence,
                       ("gt", "none"), b - a))
+    if "small" in families:
+        for sequence, window in SMALL_CASES[:1] if quick else SMALL_CASES:
+            a, b = (int(v) for v in window.split(":"))
+            specs.append(("KITTI at half size", f"{sequence} {window}", "folder", folders[f"small-{sequence}"],
+                          "", sequence, ("gt", "height", "none"), b - a))
     jobs = [Job(family, case, kind, path, frames, sequence, backend, scale, seed,
-                count * (3.5 if backend == "map" else 1.0))
+                count * (3.5 if backend == "map" else 1.0), KITTI_CAMERA_HEIGHT_M if kind == "folder" else 0.0)
             for family, case, kind, path, frames, sequence, scales, count in specs
             for backend in backends for scale in scales if scale in scales_kept for seed in seeds]
     return jobs
 
 
 def prepare_folders(families: list[str], kitti: str, quick: bool, scratch: Path) -> dict[str, str]:
-    """The re-imaged frames the lens and hand-held families run on (written once, before the pool starts)."""
+    """The re-imaged frames the lens, hand-held and half-size families run on (written once, before the pool
+    starts)."""
     folders: dict[str, str] = {}
     if "lens" in families:
         from benchmarks.gaps import write_lens_folder
@@ -198,7 +212,36 @@ def prepare_folders(families: list[str], kitti: str, quick: bool, scratch: Path)
         sequence, window = HANDHELD_CASE
         folders["handheld"] = str(write_clip(Path(kitti), sequence, FrameRange.parse(window), 1.0,
                                              scratch / "handheld"))
+    if "small" in families:
+        for sequence, window in SMALL_CASES[:1] if quick else SMALL_CASES:
+            folders[f"small-{sequence}"] = str(write_half_size_folder(Path(kitti), sequence, window, scratch))
     return folders
+
+
+def write_half_size_folder(kitti: Path, sequence: str, window: str, scratch: Path) -> Path:
+    """The window's KITTI frames at half size (``cv2.INTER_AREA``, each side rounded down) as an image folder with
+    ``times.txt``, ``gt.txt`` and the camera resized to them as ``FOLDER.yaml`` beside it (pixel centres at integers:
+    ``c' = (c + 0.5) · s − 0.5`` per axis, as `scale_calibration`)."""
+    import cv2
+
+    from tests.ros_logs import camera_info_yaml, kitti_clip
+    from vslam_core.sources.base import CameraIntrinsics
+
+    a, b = (int(v) for v in window.split(":"))
+    clip = kitti_clip(kitti, sequence, range(a, b))
+    camera = clip.camera
+    size = (camera.width // 2, camera.height // 2)
+    sx, sy = size[0] / camera.width, size[1] / camera.height
+    small = CameraIntrinsics(camera.fx * sx, camera.fy * sy, (camera.cx + 0.5) * sx - 0.5, (camera.cy + 0.5) * sy - 0.5,
+                             size[0], size[1], origin=f"KITTI {sequence} at half size")
+    folder = scratch / f"small-{sequence}"
+    folder.mkdir(parents=True)
+    for k, image in enumerate(clip.images()):
+        cv2.imwrite(str(folder / f"{k:06d}.png"), cv2.resize(image, size, interpolation=cv2.INTER_AREA))
+    (folder / "times.txt").write_text("".join(f"{(t - clip.stamps_ns[0]) / 1e9:.6f}\n" for t in clip.stamps_ns))
+    np.savetxt(folder / "gt.txt", clip.poses[:, :3, :].reshape(-1, 12))
+    (scratch / f"small-{sequence}.yaml").write_text(camera_info_yaml(small))
+    return folder
 
 
 def _split(text: str, allowed: tuple[str, ...], name: str, parser: argparse.ArgumentParser) -> list[str]:

@@ -104,15 +104,17 @@ def test_cli_prints_a_saved_csv_and_its_comparison(tmp_path: Path, capsys: pytes
 
 
 def test_jobs_cover_every_family_backend_scale_and_seed_and_resume_keeps_done_rows() -> None:
-    folders = {"lens-00": "l0", "lens-05": "l5", "handheld": "h"}
+    folders = {"lens-00": "l0", "lens-05": "l5", "handheld": "h", "small-00": "s0", "small-05": "s5"}
     jobs = make_jobs(list(FAMILIES), [0, 1], "kitti", "tum", folders, quick=False)
     kitti = [j for j in jobs if j.kind == "kitti"]
     assert {j.family for j in kitti} == {"KITTI step 1", "KITTI step 2", "KITTI step 3"}
     assert {j.scale for j in kitti} == {"gt", "height", "none"}
     assert {j.frames for j in kitti} >= {"0:150", "0:150:3", "150:300:2", "0:300", "0:300:2", "0:300:3"}
     assert {(j.backend, j.seed) for j in jobs} == {("vo", 0), ("vo", 1), ("map", 0), ("map", 1)}
-    assert {j.scale for j in jobs if j.kind != "kitti"} == {"gt", "none"}
-    assert len({(j.family, j.case, j.backend, j.scale, j.seed) for j in jobs}) == len(jobs) == 280
+    small = [j for j in jobs if j.family == "KITTI at half size"]  # a smaller camera: the road band in angles
+    assert {j.scale for j in small} == {"gt", "height", "none"} and {j.camera_height_m for j in small} == {1.65}
+    assert {j.scale for j in jobs if j.kind not in ("kitti", "folder")} == {"gt", "none"}
+    assert len({(j.family, j.case, j.backend, j.scale, j.seed) for j in jobs}) == len(jobs) == 304
     quick = make_jobs(list(QUICK_FAMILIES), [0, 1], "kitti", "tum", {}, quick=True)
     assert len(quick) == 48 and {j.family for j in quick} == {"KITTI step 1", "KITTI step 2", "KITTI step 3",
                                                               "TUM hand-held", "synthetic street", "synthetic walk"}

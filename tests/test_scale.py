@@ -19,7 +19,7 @@ from vslam_core.errors import ConfigError
 from vslam_core.geometry import so3_exp
 from vslam_core.pipeline import run_odometry
 from vslam_core.results import FrameResult, Reason
-from vslam_core.road import fit_road_plane, road_region
+from vslam_core.road import RoadBand, fit_road_plane, road_region
 from vslam_core.scale import HeightScale, TwoView, make_scale_provider
 from vslam_core.sources.base import FrameRange
 from vslam_core.sources.kitti import KittiSource
@@ -71,6 +71,21 @@ def test_road_region_keeps_the_lane_ahead_below_the_horizon() -> None:
     pixels = (points / points[:, 2:3] @ K.T)[:, :2]
     # on the road ahead | above the horizon | far to the side | near the horizon
     assert road_region(pixels, points, K, CONFIG).tolist() == [True, False, False, False]
+
+
+def test_road_band_is_the_same_stretch_of_road_for_any_focal_length() -> None:
+    """The band is angular: at KITTI's focal length it is the 80 px below and 100 px either side of the principal
+    point it was chosen as; a camera with half the focal length in pixels (half-size frames) sees the same road
+    points in it. In pixels it had only 14 rows left there, and half-size KITTI 05 0:300 with `--scale height`
+    came out 94 % long (benchmarks/matrix.py `--groups small`: 67.6 → 2.85 % t_err with the map, 2026-12-04)."""
+    band = RoadBand.of(K, CONFIG)
+    assert band.top - K[1, 2] == pytest.approx(80.0, abs=0.05) and band.half_width == pytest.approx(100.0, abs=0.05)
+    half = np.diag([0.5, 0.5, 1.0]) @ K
+    points = np.array([[0.0, 1.65, 8.0], [1.0, 1.65, 12.0], [-1.0, 1.65, 10.0], [0.0, 1.65, 30.0], [3.0, 1.65, 8.0]])
+    for camera in (K, half):
+        pixels = (points / points[:, 2:3] @ camera.T)[:, :2]
+        assert road_region(pixels, points, camera, CONFIG).tolist() == [True, True, True, False, False]
+    assert RoadBand.of(half, CONFIG).half_width == pytest.approx(band.half_width / 2)
 
 
 def test_height_scale_follows_an_accelerating_car_and_ignores_a_wrong_plane() -> None:

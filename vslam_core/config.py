@@ -102,8 +102,10 @@ class HeightScaleConfig:
     """`scale = "height"`: step lengths from the camera's known height above the road (vslam_core/road.py)."""
 
     camera_height_m: float = 0.0  # 0: the source's own (KITTI 1.65 m, the synthetic street's); else required
-    road_top_px: float = 80.0  # road points lie this far below the principal point or lower (the lane ahead)
-    road_half_width_px: float = 100.0  # ... and at most this far left or right of it
+    # the road band, as angles from the optical axis so that it is the same stretch of road whatever the camera's
+    # resolution and focal length (80 and 100 px at KITTI 00's 718.9 px focal length)
+    road_top_deg: float = 6.35  # road points lie this far below the principal point or lower (the lane ahead)
+    road_half_width_deg: float = 7.92  # ... and at most this far left or right of it
     road_tracks: int = 200  # keep this many tracks in that band (more road points than the whole-image spread)
     road_fast_threshold: int = 7  # FAST threshold there (asphalt has little contrast)
     max_tilt_deg: float = 10.0  # the plane's normal within this of the camera's down axis

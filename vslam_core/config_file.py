@@ -125,8 +125,8 @@ RANGES: dict[str, Range] = {
     "health.step_jump": closed(1.0, 1000.0),
     # height scale
     "height.camera_height_m": Range(0.1, 100.0, also=(0.0,), note="0: the source's own"),
-    "height.road_top_px": closed(0.0, 10_000.0),
-    "height.road_half_width_px": positive(10_000.0),
+    "height.road_top_deg": closed(0.0, 60.0),
+    "height.road_half_width_deg": positive(80.0),
     "height.road_tracks": closed(1, 100_000),
     "height.road_fast_threshold": FAST,
     "height.max_tilt_deg": positive(90.0),

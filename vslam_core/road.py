@@ -9,6 +9,7 @@ outlier rejection scheme"; the monocular variant is VISO2-M's).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,7 +35,8 @@ class RoadPlane:
 @dataclass(frozen=True)
 class RoadBand:
     """Where the lane ahead appears in the image: `top` px and below, within `half_width` px of `centre_x`
-    (the principal point's column), i.e. `road_top_px` below the principal point down to the image bottom."""
+    (the principal point's column), i.e. from `road_top_deg` below the optical axis down to the image bottom and
+    `road_half_width_deg` either side of it (a pinhole: ``f · tan(angle)`` pixels)."""
 
     centre_x: float
     half_width: float
@@ -42,7 +44,9 @@ class RoadBand:
 
     @classmethod
     def of(cls, K: np.ndarray, config: HeightScaleConfig) -> RoadBand:  # noqa: N803
-        return cls(float(K[0, 2]), config.road_half_width_px, float(K[1, 2] + config.road_top_px))
+        half_width = float(K[0, 0]) * math.tan(math.radians(config.road_half_width_deg))
+        top = float(K[1, 2]) + float(K[1, 1]) * math.tan(math.radians(config.road_top_deg))
+        return cls(float(K[0, 2]), half_width, top)
 
     def contains(self, pixels: np.ndarray) -> np.ndarray:
         """(N,) bool for (N, 2) pixel positions."""
