@@ -37,7 +37,7 @@ PLACED = {TrackingMode.MAP: "by PnP against the map", TrackingMode.TWO_VIEW: "by
           TrackingMode.INIT: "starting a map", TrackingMode.LOST: "lost (the pose held)"}
 #: --scale none: where a two-view step's length came from (map_scale.TwoViewLength), as the summary says it
 STEP_LENGTHS = {"landmarks": "measured on landmarks", "tracks": "measured on the tracks of the two frames before",
-                "last step": "the last step's", "speed": "the map's recent speed"}
+                "last step": "took the last step's", "speed": "took the map's recent speed"}
 
 
 @dataclass
@@ -113,7 +113,7 @@ class RunResult:
                                 if self.step_lengths.get(name))
             again = (f"; {self.placed_at_map_start} frames tracked before the map started placed again by PnP "
                      "against its first landmarks in the output poses" if self.placed_at_map_start else "")
-            text += f" (--scale none: the two-view steps' lengths {sources}; the scale can drift there{again})"
+            text += f" (--scale none: of the two-view steps' lengths, {sources}; the scale can drift there{again})"
         return text
 
     @property
