@@ -62,8 +62,8 @@ def test_without_a_scale_source_the_summary_says_which_steps_took_the_maps_speed
     counts, line = placed(result.stdout)
     assert sum(counts.values()) == 20 and counts["by two-view motion"] > 0, line
     two_view = counts["by two-view motion"]  # at 10 Hz every one at the map's speed (map_scale.TwoViewLength)
-    assert f"(--scale none: of the two-view steps' lengths, {two_view} took the map's recent speed; the scale can drift" \
-        in line, line
+    assert (f"(--scale none: of the two-view steps' lengths, {two_view} took the map's recent speed; the scale can "
+            "drift there") in line, line
     # the frames before the map's start: two-view when tracked, placed against its first landmarks in the output
     again = re.search(r"; (\d+) frames tracked before the map started placed again by PnP against its first "
                       r"landmarks in the output poses\)$", line)
