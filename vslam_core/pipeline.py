@@ -65,6 +65,9 @@ class RunResult:
     # the run ended (vslam_core/loop/closing.py `finish`); a loop they closed corrected `poses`
     # map backend: the map's adjustment as a whole once the run completed (`map.adjust_at_end`), or why it was not run
     adjusted_at_end: GlobalAdjusted | str | None = None
+    # --scale height: steps per outcome of their road-plane fit: "measured" (used), "doubtful" (used, flagged
+    # road_plane_doubtful), "held" (no plane, or one far off the trend: the trend's step or the map's scale instead)
+    road_planes: dict[str, int] = field(default_factory=dict)
     # map backend with a scale source: (run position, forward share) when the camera was found to move sideways
     # and the map took --scale none's settings from there (`map_scale.sideways_camera`)
     sideways: tuple[int, float] | None = None
@@ -115,6 +118,30 @@ class RunResult:
                      "against its first landmarks in the output poses" if self.placed_at_map_start else "")
             text += f" (--scale none: of the two-view steps' lengths, {sources}; the scale can drift there{again})"
         return text
+
+    @property
+    def road_summary(self) -> str | None:
+        """With --scale height, how many steps measured their length on the road plane, e.g. ``measured on 281 of
+        299 steps (35 of them doubtful); 18 took the trend (no plane, or one over max_jump off it)``; None
+        without such steps."""
+        if not self.road_planes:
+            return None
+        held, doubtful = self.road_planes.get("held", 0), self.road_planes.get("doubtful", 0)
+        total = sum(self.road_planes.values())
+        return (f"measured on {total - held} of {total} steps ({doubtful} of them doubtful); {held} took the trend "
+                "(no plane, or one over max_jump off it)")
+
+    @property
+    def road_warning(self) -> str | None:
+        """A warning when under half of 20 or more steps measured the road plane: the metric scale then rests on
+        few measurements (a road band that misses the road, a wrong --camera-height, a road hidden by traffic)."""
+        total = sum(self.road_planes.values())
+        measured = total - self.road_planes.get("held", 0)
+        if total < 20 or measured >= 0.5 * total:
+            return None
+        return (f"--scale height measured the road plane on only {measured} of {total} steps "
+                f"({100 * measured / total:.0f} %): the metric scale rests on few measurements (is the road in view "
+                "in the band [height] road_top_deg and road_half_width_deg describe, and --camera-height right?)")
 
     @property
     def held_summary(self) -> str:
@@ -228,6 +255,9 @@ def run_odometry(
                 run.modes[mode] = run.modes.get(mode, 0) + 1
                 if (length_from := frame_result.mapping.step_length) is not None:
                     run.step_lengths[length_from] = run.step_lengths.get(length_from, 0) + 1
+            if (road := frame_result.scale_estimate) is not None:
+                outcome = "held" if road.held else "doubtful" if road.doubtful else "measured"
+                run.road_planes[outcome] = run.road_planes.get(outcome, 0) + 1
             if frame_result.status == FrameStatus.HELD and reasons and not coasted:  # why the pose was held
                 run.held_reasons[reasons[0]] = run.held_reasons.get(reasons[0], 0) + 1
             for sink in sinks:

@@ -43,6 +43,8 @@ def print_summary(source: FrameSource, run: RunResult, config: EngineConfig, in_
         + (f" (camera {default_camera_height(source.camera_height, config):.2f} m above the road; no ground truth "
            "used)" if config.scale == "height" else ""),
     ]
+    if (road := run.road_summary) is not None:
+        lines.append(f"road plane  {road}")
     if (placed := run.placed_summary(config.scale)) is not None:
         lines.append(f"placed      {placed}")
     if (settings := run.settings_summary(config.scale)) is not None:

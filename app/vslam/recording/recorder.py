@@ -233,6 +233,8 @@ class Recorder:
             row: dict[str, Any] | None = None
             lines = [f"# {self._name}", "", f"{run.frames} frames, {run.held_summary}"
                      + (f" — {stopped}" if stopped else "")]
+            if (road := run.road_summary) is not None:
+                lines += ["", f"Road plane: {road}."]
             if (placed := run.placed_summary(self._scale)) is not None:
                 lines += ["", f"Placed: {placed}."]
             if (settings := run.settings_summary(self._scale)) is not None:
