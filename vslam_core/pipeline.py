@@ -122,14 +122,14 @@ class RunResult:
     @property
     def road_summary(self) -> str | None:
         """With --scale height, how many steps measured their length on the road plane, e.g. ``measured on 281 of
-        299 steps (35 of them doubtful); 18 took the trend (no plane, or one over max_jump off it)``; None
-        without such steps."""
+        299 steps (35 of them doubtful); 18 without (no plane, or one over max_jump off the trend: the trend's step or
+        the map's scale used)``; None without such steps."""
         if not self.road_planes:
             return None
         held, doubtful = self.road_planes.get("held", 0), self.road_planes.get("doubtful", 0)
         total = sum(self.road_planes.values())
-        return (f"measured on {total - held} of {total} steps ({doubtful} of them doubtful); {held} took the trend "
-                "(no plane, or one over max_jump off it)")
+        return (f"measured on {total - held} of {total} steps ({doubtful} of them doubtful); {held} without (no plane, "
+                "or one over max_jump off the trend: the trend's step or the map's scale used)")
 
     @property
     def road_warning(self) -> str | None:
