@@ -254,8 +254,9 @@ def test_cli_records_the_road_plane_and_reports_the_scale_source(kitti_root: Pat
 
 def test_a_road_band_that_misses_the_road_is_a_warning(kitti_root: Path, tmp_path: Path) -> None:
     """A band set below the image (`road_top_deg` 40°: no road point in it) leaves every step to the trend: the run
-    goes on (exit 0) but says so in one warning line, as a camera the band did not fit did before the band was set in
-    angles (half-size KITTI 05: 5 of 299 steps measured, t_err 93.9 %, and nothing said it)."""
+    goes on (exit 0) but says so in one warning line, `vslam eval` too (naming the sequence), as a camera the band did
+    not fit did before the band was set in angles (half-size KITTI 05: 5 of 299 steps measured, t_err 93.9 %, and
+    nothing said it)."""
     config = tmp_path / "band.toml"
     config.write_text("[height]\nroad_top_deg = 40.0\n")
     result = vslam("run", kitti_root, "--sequence", "05", "--frames", "0:25", "--scale", "height", "--config", config,
@@ -266,6 +267,11 @@ def test_a_road_band_that_misses_the_road_is_a_warning(kitti_root: Path, tmp_pat
     assert warnings == ["warning: --scale height measured the road plane on only 0 of 24 steps (0 %): the metric "
                         "scale rests on few measurements (is the road in view in the band [height] road_top_deg and "
                         "road_half_width_deg describe, and --camera-height right?)"], result.stderr
+    evaluated = vslam("eval", kitti_root, "--sequences", "05", "--frames", "0:25", "--scale", "height", "--config",
+                      config)
+    assert evaluated.returncode == 0, evaluated.stderr
+    assert [line for line in evaluated.stdout.splitlines() + evaluated.stderr.splitlines()
+            if line.startswith("warning:")] == ["warning: kitti-05: " + warnings[0].removeprefix("warning: ")]
 
 
 def test_cli_height_scale_errors(kitti_root: Path, tmp_path: Path) -> None:

@@ -113,8 +113,10 @@ def evaluate_sources(
         if run.failure is not None:
             raise run.failure
         check = run.gt_check.summary() if run.gt_check is not None else None
-        for warning in check.warnings() if check is not None else []:  # the scores against it are suspect
-            console.print(Text.assemble(("warning:", "bold yellow"), f" {source.name}: {warning}"), soft_wrap=True)
+        # the scores against a suspect ground truth are suspect; a height scale on few road planes rests on little
+        for warning in [*(check.warnings() if check is not None else []), run.result.road_warning]:
+            if warning is not None:
+                console.print(Text.assemble(("warning:", "bold yellow"), f" {source.name}: {warning}"), soft_wrap=True)
         scored = run.result.scored_trajectory
         if run.result.frames >= 3:
             row, lengths = _score(name, gt, run.result.pose_array(), config, report_dir)
