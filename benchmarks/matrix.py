@@ -55,7 +55,7 @@ from benchmarks.matrix_table import FIELDS, Row, compare, read_csv, table, write
 from vslam_core.geometry import invert_pose, rotation_angle
 from vslam_core.pipeline import run_odometry
 from vslam_core.results import TrackingMode
-from vslam_core.sources.base import FrameRange, FrameSource
+from vslam_core.sources.base import CameraIntrinsics, FrameRange, FrameSource
 from vslam_core.trajectory.metrics import ate, kitti_errors, sim3_aligned
 
 FAMILIES = ("kitti", "tum", "street", "loop", "walk", "lens", "handheld", "small")
@@ -218,14 +218,24 @@ def prepare_folders(families: list[str], kitti: str, quick: bool, scratch: Path)
     return folders
 
 
-def write_half_size_folder(kitti: Path, sequence: str, window: str, scratch: Path) -> Path:
-    """The window's KITTI frames at half size (``cv2.INTER_AREA``, each side rounded down) as an image folder with
-    ``times.txt``, ``gt.txt`` and the camera resized to them as ``FOLDER.yaml`` beside it (pixel centres at integers:
-    ``c' = (c + 0.5) · s − 0.5`` per axis, as `scale_calibration`)."""
-    import cv2
+@dataclasses.dataclass(frozen=True)
+class HalfSize:
+    """KITTI frames resized to `camera`'s size (``cv2.INTER_AREA``): a `tests.ros_logs.Reimaging`."""
 
-    from tests.ros_logs import camera_info_yaml, kitti_clip
-    from vslam_core.sources.base import CameraIntrinsics
+    camera: CameraIntrinsics
+
+    def __call__(self, kitti_image: np.ndarray) -> np.ndarray:
+        import cv2
+
+        return cv2.resize(kitti_image, (self.camera.width, self.camera.height), interpolation=cv2.INTER_AREA)
+
+
+def write_half_size_folder(kitti: Path, sequence: str, window: str, scratch: Path) -> Path:
+    """The window's KITTI frames at half size (each side rounded down) as an image folder with ``times.txt``,
+    ``gt.txt`` and the camera resized to them as ``FOLDER.yaml`` beside it (`tests.ros_logs.write_lens_folder`;
+    pixel centres at integers: ``c' = (c + 0.5) · s − 0.5`` per axis, as `scale_calibration`, which needs one factor
+    for both axes and 00's 1241 px do not halve)."""
+    from tests.ros_logs import kitti_clip, write_lens_folder
 
     a, b = (int(v) for v in window.split(":"))
     clip = kitti_clip(kitti, sequence, range(a, b))
@@ -235,12 +245,7 @@ def write_half_size_folder(kitti: Path, sequence: str, window: str, scratch: Pat
     small = CameraIntrinsics(camera.fx * sx, camera.fy * sy, (camera.cx + 0.5) * sx - 0.5, (camera.cy + 0.5) * sy - 0.5,
                              size[0], size[1], origin=f"KITTI {sequence} at half size")
     folder = scratch / f"small-{sequence}"
-    folder.mkdir(parents=True)
-    for k, image in enumerate(clip.images()):
-        cv2.imwrite(str(folder / f"{k:06d}.png"), cv2.resize(image, size, interpolation=cv2.INTER_AREA))
-    (folder / "times.txt").write_text("".join(f"{(t - clip.stamps_ns[0]) / 1e9:.6f}\n" for t in clip.stamps_ns))
-    np.savetxt(folder / "gt.txt", clip.poses[:, :3, :].reshape(-1, 12))
-    (scratch / f"small-{sequence}.yaml").write_text(camera_info_yaml(small))
+    write_lens_folder(clip, HalfSize(small), folder)
     return folder
 
 

@@ -21,7 +21,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Literal
+from typing import Any, Literal, Protocol
 
 import cv2
 import numpy as np
@@ -347,9 +347,18 @@ def camera_info_yaml(lens: CameraIntrinsics) -> str:
             f"  data: [{', '.join(map(str, lens.coefficients))}]\n")
 
 
-def write_lens_folder(clip: KittiClip, reimager: Reimager, folder: Path) -> Path:
-    """The clip re-imaged through the lens as an image folder (PNGs, ``times.txt``, ``gt.txt`` of KITTI poses) and
-    the lens as ``FOLDER.yaml`` beside it (returned): a distorted camera with exact ground truth."""
+class Reimaging(Protocol):
+    """What `write_lens_folder` needs: the camera of the frames it makes, and how it makes one from a KITTI frame
+    (`Reimager` through a lens; benchmarks/matrix.py resizes)."""
+
+    camera: CameraIntrinsics
+
+    def __call__(self, kitti_image: np.ndarray) -> np.ndarray: ...
+
+
+def write_lens_folder(clip: KittiClip, reimager: Reimaging, folder: Path) -> Path:
+    """The clip re-imaged (through the lens) as an image folder (PNGs, ``times.txt``, ``gt.txt`` of KITTI poses) and
+    its camera as ``FOLDER.yaml`` beside it (returned): a distorted camera with exact ground truth."""
     folder.mkdir(parents=True)
     for k, image in enumerate(clip.images()):
         cv2.imwrite(str(folder / f"{k:06d}.png"), reimager(image))

@@ -251,9 +251,8 @@ def _report_run(src: FrameSource, recorded: RecordedRun, config: EngineConfig, o
 
         check = recorded.gt_check.summary() if recorded.gt_check is not None else None
         print_summary(src, result, config, in_map=in_map, gt_check=check)
-        for warning in [*(check.warnings() if check is not None else []), result.road_warning]:
-            if warning is not None:
-                warn(warning)
+        for warning in recorded.warnings():
+            warn(warning)
     if where := describe_outputs(outputs, recorded.failure is not None):
         out.print(where, highlight=False)
     if recorded.failure is not None:

@@ -112,11 +112,8 @@ def evaluate_sources(
         run = record_run(source, config, rrd, props, console, detail, image_codec=image_codec)
         if run.failure is not None:
             raise run.failure
-        check = run.gt_check.summary() if run.gt_check is not None else None
-        # the scores against a suspect ground truth are suspect; a height scale on few road planes rests on little
-        for warning in [*(check.warnings() if check is not None else []), run.result.road_warning]:
-            if warning is not None:
-                console.print(Text.assemble(("warning:", "bold yellow"), f" {source.name}: {warning}"), soft_wrap=True)
+        for warning in run.warnings():  # the scores against a suspect ground truth are suspect
+            console.print(Text.assemble(("warning:", "bold yellow"), f" {source.name}: {warning}"), soft_wrap=True)
         scored = run.result.scored_trajectory
         if run.result.frames >= 3:
             row, lengths = _score(name, gt, run.result.pose_array(), config, report_dir)

@@ -45,6 +45,13 @@ class RecordedRun:
     failure: VslamError | None = None  # stopped by bad input (e.g. an unreadable image with on_bad_frame=fail)
     gt_check: GroundTruthCheck | None = None  # the ground truth against the images (a source with ground truth)
 
+    def warnings(self) -> list[str]:
+        """One line each, for the user: the ground truth disagrees with the images (`GroundTruthCheck`), or the
+        height scale rests on few road planes (`RunResult.road_warning`)."""
+        check = self.gt_check.summary() if self.gt_check is not None else None
+        road = self.result.road_warning
+        return [*(check.warnings() if check is not None else []), *([road] if road is not None else [])]
+
 
 class _StopRequest:
     """The first SIGINT or SIGTERM of a run, noted by the handler and acted on between frames: an exception
