@@ -16,11 +16,11 @@ from vslam.rrd.inspect import inspect_recording
 from vslam.rrd.provenance import read_config
 from vslam.rrd.read import read_entity
 from vslam_core.config import EngineConfig, HeightScaleConfig
-from vslam_core.errors import ConfigError
+from vslam_core.errors import ConfigError, GeometryError
 from vslam_core.geometry import so3_exp
 from vslam_core.pipeline import run_odometry
 from vslam_core.results import FrameResult, Reason
-from vslam_core.road import RoadBand, fit_road_plane, road_region
+from vslam_core.road import RoadBand, fit_road_plane, plane_homography, road_region
 from vslam_core.scale import HeightScale, TwoView, make_scale_provider
 from vslam_core.sources.base import FrameRange
 from vslam_core.sources.kitti import KittiSource
@@ -87,6 +87,42 @@ def test_road_band_is_the_same_stretch_of_road_for_any_focal_length() -> None:
         pixels = (points / points[:, 2:3] @ camera.T)[:, :2]
         assert road_region(pixels, points, camera, CONFIG).tolist() == [True, True, True, False, False]
     assert RoadBand.of(half, CONFIG).half_width == pytest.approx(band.half_width / 2)
+
+
+def test_plane_homography_takes_road_pixels_to_where_the_moved_camera_sees_them() -> None:
+    """Points on a tilted road seen from two poses (X_prev = R·X_cur + t, the front end's convention, t in the
+    plane's units): the homography maps each previous pixel onto its current one; a point lifted off the road
+    (a car's roof) lands elsewhere."""
+    points, pixels, normal = road_scene(1.65, np.random.default_rng(4), n=50, tilt_deg=2.0)
+    rotation, translation = so3_exp(np.radians([0.5, 3.0, -0.4])), np.array([0.1, -0.02, 3.0])
+    current = (points - translation) @ rotation  # Rᵀ·(X_prev − t), row by row
+    seen = (current / current[:, 2:3]) @ K.T
+    H = plane_homography(K, rotation, translation, normal, 1.65)  # noqa: N806
+    mapped = np.column_stack((pixels, np.ones(len(pixels)))) @ H.T
+    np.testing.assert_allclose(mapped[:, :2] / mapped[:, 2:], seen[:, :2], atol=1e-6)
+    roof = points[0] - np.array([0.0, 1.2, 0.0])
+    roof_now = K @ (rotation.T @ (roof - translation))
+    roof_mapped = H @ np.append((K @ roof)[:2] / roof[2], 1.0)
+    assert np.linalg.norm(roof_mapped[:2] / roof_mapped[2] - roof_now[:2] / roof_now[2]) > 5.0
+    with pytest.raises(GeometryError):
+        plane_homography(K, rotation, translation, normal, 0.0)
+
+
+@pytest.mark.kitti
+def test_the_road_is_tracked_at_every_third_frame(kitti_root: Path) -> None:
+    """At every 3rd frame (3 m apart) the lane's texture grows 30–130 % between frames; the road band's tracks
+    that fail are tracked again from the previous frame warped by the last road plane's homography. KITTI 05
+    150:300:3 with the map: the plane was found on 43 % of the steps and the path came out 2.75 % off (t_err);
+    with the warp 84 % and 0.99 % (2026-12-05)."""
+    source = KittiSource(kitti_root, sequence="05", frames=FrameRange(150, 300, 3))
+    results: list[FrameResult] = []
+    run = run_odometry(source, EngineConfig(scale="height", backend="map", threads=1).with_camera_height(1.65),
+                       sinks=(lambda _f, r: results.append(r),))
+    measured = [r.scale_estimate is not None and r.scale_estimate.measured_step is not None for r in results[1:]]
+    assert np.mean(measured) > 0.7, np.mean(measured)
+    assert source.ground_truth is not None
+    t_err, _ = kitti_errors(source.ground_truth, run.pose_array())
+    assert t_err < 2.0, t_err
 
 
 def test_height_scale_follows_an_accelerating_car_and_ignores_a_wrong_plane() -> None:

@@ -33,7 +33,7 @@ from vslam_core.geometry import (
 from vslam_core.lens import inside_mask, undistort_pixels, valid_pixel_mask
 from vslam_core.quality import ImageStats, image_stats
 from vslam_core.results import FrameResult, FrameStatus, Health, Reason, ScaleEstimate, TrackFate, elapsed_ms
-from vslam_core.road import RoadBand
+from vslam_core.road import RoadBand, plane_homography
 from vslam_core.scale import ScaleProvider, TwoView
 from vslam_core.sources.base import CameraIntrinsics, Frame
 from vslam_core.two_view import Motion, two_view_motion
@@ -58,6 +58,9 @@ class _Tracks:
         return len(self.ids)
 
 
+ROAD_PLANE_MAX_AGE = 10  # frames a road plane predicts the road's tracks for after it was found
+
+
 class Odometry:
     """Monocular visual odometry over a stream of frames from one camera."""
 
@@ -75,6 +78,9 @@ class Odometry:
         self._previous: np.ndarray | None = None  # last usable image
         # (position, R, unit t) of the last step measured from the frame before it
         self._last_motion: tuple[int, np.ndarray, np.ndarray] | None = None
+        # (position, (3,) unit normal, camera height) of the last road plane found, and the last step's length
+        self._last_plane: tuple[int, np.ndarray, float] | None = None
+        self._last_step_length = 0.0
         self._held_steps = (-2, 0)  # the last frame whose step direction was held, and how many in a row before it
         self._previous_position = -1  # its run position
         self._position = 0
@@ -116,6 +122,7 @@ class Odometry:
                 grid = (cfg.detector.grid_rows, cfg.detector.grid_cols)
                 predicted = tracks.points + fill_flow(tracks.flow, tracks.points, image.shape, grid)
             tracked, ok, fb_error = track_points(self._previous, image, tracks.points, cfg.tracker, predicted)
+            self._track_on_the_road(image, tracks.points, tracked, ok, fb_error)
             ok &= inside_mask(tracked, self._usable)  # a track entering a lens's unusable border ends there
             survived = ok & (fb_error <= cfg.tracker.fb_threshold_px)
             used = survived & ~np.isnan(tracks.key_points[:, 0])
@@ -162,6 +169,10 @@ class Odometry:
                 T_key_cur = pose_matrix(motion.rotation, scale * motion.translation)  # noqa: N806
                 self._last_motion = (self._position, motion.rotation, motion.translation) \
                     if self._key_position == self._position - 1 else None
+                self._last_step_length = scale
+                if scale_estimate is not None and scale_estimate.plane_normal is not None \
+                        and scale_estimate.camera_height is not None:
+                    self._last_plane = (self._position, scale_estimate.plane_normal, scale_estimate.camera_height)
                 T_w_cur = self._T_w_key @ T_key_cur  # noqa: N806
                 if motion.points_cur is not None:
                     points_world = (scale * motion.points_cur) @ T_w_cur[:3, :3].T + T_w_cur[:3, 3]
@@ -406,6 +417,39 @@ class Odometry:
         prior = last[1:] if last is not None and last[0] == self._position - 1 == self._key_position else None
         return two_view_motion(p_cur, p_key, self._K, self.config, order, timings, prior), parallax
 
+    def _track_on_the_road(self, image: np.ndarray, points: np.ndarray, tracked: np.ndarray, ok: np.ndarray,
+                           fb_error: np.ndarray) -> None:
+        """With --scale height: the road band's tracks that KLT lost or the forward–backward check rejected are
+        tracked again, in place, from the previous frame warped by the homography of the last road plane (found
+        at most `ROAD_PLANE_MAX_AGE` frames ago) under the last step's motion (constant velocity; pinhole cameras
+        only). At every 3rd KITTI frame the lane's texture grows 30–130 % between frames (the warp's magnification
+        in the band), which a translation-only window does not follow. A track that passed is left alone (warping
+        them all cost accuracy at every frame, docs/map-backend.md)."""
+        plane, last = self._last_plane, self._last_motion
+        if plane is None or last is None or self._position - plane[0] > ROAD_PLANE_MAX_AGE \
+                or last[0] != self._position - 1 or self._last_step_length <= 0 or self._previous is None \
+                or self._previous_position != self._position - 1 or self.intrinsics.distorted:
+            return
+        threshold = self.config.tracker.fb_threshold_px
+        again = RoadBand.of(self._K, self.config.height).contains(points) & ~(ok & (fb_error <= threshold))
+        if not again.any():
+            return
+        # the plane's height in the last step's baselines: the translation predicted for this step has length 1
+        H = plane_homography(self._K, last[1], last[2].reshape(3), plane[1],  # noqa: N806
+                             plane[2] / self._last_step_length)
+        start = cv2.perspectiveTransform(points[again].reshape(-1, 1, 2).astype(np.float64), H).reshape(-1, 2)
+        height, width = image.shape[:2]
+        inside = np.all(np.isfinite(start), axis=1) & (start[:, 0] >= 0) & (start[:, 0] < width) \
+            & (start[:, 1] >= 0) & (start[:, 1] < height)
+        if not inside.any():
+            return
+        start = start[inside].astype(np.float32)
+        warped = cv2.warpPerspective(self._previous, H, (width, height), flags=cv2.INTER_LINEAR)
+        moved, moved_ok, moved_fb = track_points(warped, image, start, self.config.tracker, start)
+        better = moved_ok & (moved_fb <= threshold)
+        rows = np.flatnonzero(again)[inside][better]
+        tracked[rows], ok[rows], fb_error[rows] = moved[better], True, moved_fb[better]
+
     def _road_corners(self, image: np.ndarray, existing: np.ndarray) -> np.ndarray:
         """With --scale height: FAST corners (a lower threshold) in the road band ahead while it holds fewer
         than `road_tracks` tracks, so every frame has road points for the plane fit."""
@@ -437,3 +481,4 @@ class Odometry:
         ids = self._append_tracks(corners, at_keyframe=self._key_position == self._position)
         timings["detect"] = elapsed_ms(clock)
         return ids, corners
+

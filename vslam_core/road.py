@@ -112,3 +112,14 @@ def _least_squares_plane(points: np.ndarray) -> tuple[np.ndarray, float]:
     if normal[1] < 0:
         normal = -normal
     return normal, float(normal @ centre)
+
+
+def plane_homography(K: np.ndarray, rotation: np.ndarray, translation: np.ndarray, normal: np.ndarray,  # noqa: N803
+                     height: float) -> np.ndarray:
+    """(3, 3) H taking a pixel of the previous frame that lies on the plane nᵀ·X = height (previous camera
+    frame) to its pixel in the current frame, for the motion X_prev = R·X_cur + t (`two_view`'s convention; t in
+    the plane's units). From X_cur = Rᵀ·(X_prev − t) and nᵀ·X_prev / height = 1 on the plane:
+    H = K·Rᵀ·(I − t·nᵀ / height)·K⁻¹ (Hartley & Zisserman 2004, result 13.1, the plane-induced homography)."""
+    if height <= 0:
+        raise GeometryError(f"plane_homography: the plane must lie below the camera (height {height})")
+    return K @ rotation.T @ (np.eye(3) - np.outer(translation, normal) / height) @ np.linalg.inv(K)
