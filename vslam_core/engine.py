@@ -424,11 +424,12 @@ class Odometry:
         at most `ROAD_PLANE_MAX_AGE` frames ago) under the last step's motion (constant velocity; pinhole cameras
         only). At every 3rd KITTI frame the lane's texture grows 30–130 % between frames (the warp's magnification
         in the band), which a translation-only window does not follow. A track that passed is left alone (warping
-        them all cost accuracy at every frame, docs/map-backend.md)."""
+        them all cost accuracy at every frame, docs/matrix.md)."""
         plane, last = self._last_plane, self._last_motion
-        if plane is None or last is None or self._position - plane[0] > ROAD_PLANE_MAX_AGE \
-                or last[0] != self._position - 1 or self._last_step_length <= 0 or self._previous is None \
-                or self._previous_position != self._position - 1 or self.intrinsics.distorted:
+        if plane is None or last is None or self._previous is None or self.intrinsics.distorted:
+            return
+        if self._position - plane[0] > ROAD_PLANE_MAX_AGE or last[0] != self._position - 1 \
+                or self._previous_position != self._position - 1 or self._last_step_length <= 0 or plane[2] <= 0:
             return
         threshold = self.config.tracker.fb_threshold_px
         again = RoadBand.of(self._K, self.config.height).contains(points) & ~(ok & (fb_error <= threshold))
