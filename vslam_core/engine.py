@@ -482,4 +482,3 @@ class Odometry:
         ids = self._append_tracks(corners, at_keyframe=self._key_position == self._position)
         timings["detect"] = elapsed_ms(clock)
         return ids, corners
-
