@@ -72,6 +72,7 @@ class Odometry:
         self.intrinsics = intrinsics
         self._K = intrinsics.K
         self._usable = valid_pixel_mask(intrinsics)  # None: every raw pixel can be undistorted
+        self._road_band = RoadBand.of(self._K, config.height)  # where --scale height looks for the road
         self._scale = scale
         self._tracks = _Tracks.empty()
         self._next_id = 0
@@ -432,7 +433,7 @@ class Odometry:
                 or self._previous_position != self._position - 1 or self._last_step_length <= 0 or plane[2] <= 0:
             return
         threshold = self.config.tracker.fb_threshold_px
-        again = RoadBand.of(self._K, self.config.height).contains(points) & ~(ok & (fb_error <= threshold))
+        again = self._road_band.contains(points) & ~(ok & (fb_error <= threshold))
         if not again.any():
             return
         # the plane's height in the last step's baselines: the translation predicted for this step has length 1
@@ -455,7 +456,7 @@ class Odometry:
         """With --scale height: FAST corners (a lower threshold) in the road band ahead while it holds fewer
         than `road_tracks` tracks, so every frame has road points for the plane fit."""
         cfg = self.config.height
-        x0, y0, x1, y1 = RoadBand.of(self._K, cfg).rectangle(image.shape)
+        x0, y0, x1, y1 = self._road_band.rectangle(image.shape)
         inside = (existing[:, 0] >= x0) & (existing[:, 0] < x1) & (existing[:, 1] >= y0)
         wanted = cfg.road_tracks - int(inside.sum())
         if wanted <= 0 or x1 <= x0 or y0 >= y1:
