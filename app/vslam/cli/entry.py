@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+import functools
 import os
 import sys
 from collections.abc import Callable
@@ -54,7 +55,7 @@ def one_line(text: object) -> str:
     return " ".join(str(text).split())
 
 
-def run(app: Callable[..., Any], report: Callable[[str], None]) -> None:
+def run(app: typer.Typer, report: Callable[[str], None]) -> None:
     """Run the Typer app and exit with its code. `report(message)` prints ``error: message`` on stderr."""
     silence_opencv()
     reconfigure = getattr(sys.stdout, "reconfigure", None)
@@ -62,7 +63,7 @@ def run(app: Callable[..., Any], report: Callable[[str], None]) -> None:
         reconfigure(errors="backslashreplace")
     try:
         with pandas_left_out():
-            code = app(standalone_mode=False)
+            code = _click_command(app)(standalone_mode=False)
     except VslamError as exc:
         report(one_line(exc))
         code = 2
@@ -81,6 +82,14 @@ def run(app: Callable[..., Any], report: Callable[[str], None]) -> None:
     except SystemExit as exc:  # typer.Exit in standalone_mode=False comes back as its code; sys.exit as this
         code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
     _exit(code if isinstance(code, int) else 0)
+
+
+@functools.cache
+def _click_command(app: typer.Typer) -> Callable[..., Any]:
+    """The app's Click command, built once per process (~25 ms of signature inspection each time): a process
+    that runs several commands (the tests run hundreds in theirs) reuses it. What `app(...)` does, less its
+    excepthook, which only prints tracebacks prettily, and the app turns that off."""
+    return typer.main.get_command(app)
 
 
 def _exit(code: int) -> None:
