@@ -438,6 +438,15 @@ def test_malformed_poses(tmp_path: Path, content: str) -> None:
     assert_names(exc, poses)
 
 
+def test_the_first_pose_that_is_no_rotation_is_named_by_its_line(tmp_path: Path) -> None:
+    good, mirrored = "1 0 0 0 0 1 0 0 0 0 1 0\n", "1 0 0 0 0 1 0 0 0 0 -1 0\n"  # det -1: a reflection
+    path = tmp_path / "poses.txt"
+    path.write_text("# comment\n" + good + good + mirrored + good + "2 0 0 0 0 1 0 0 0 0 1 0\n")
+    with pytest.raises(TrajectoryFormatError, match=r"poses\.txt:4: not a rotation matrix"):
+        read_kitti_poses(path)
+    assert len(read_kitti_poses(path, max_rows=2)) == 2  # the rows before it are fine
+
+
 def test_bad_times(tmp_path: Path) -> None:
     root = make_kitti(tmp_path, n=4)
     times = root / "sequences" / "00" / "times.txt"

@@ -70,11 +70,16 @@ def _rows(
     return rows
 
 
-def _check_rotation(path: Path, line: int, rotation: np.ndarray) -> None:
-    """A pose's 3x3 block must be a proper rotation (orthonormal, det +1) within a loose tolerance."""
-    error = np.abs(rotation.T @ rotation - np.eye(3)).max()
-    if error > _ROTATION_TOLERANCE or np.linalg.det(rotation) < 0:
-        raise TrajectoryFormatError(f"{path}:{line}: not a rotation matrix (|RᵀR - I| = {error:.2g})")
+def _check_rotations(path: Path, lines: list[int], rotations: np.ndarray) -> None:
+    """Each pose's (N, 3, 3) block must be a proper rotation (orthonormal, det +1) within a loose tolerance; the
+    first that is not is reported by its file line."""
+    if len(rotations) == 0:
+        return
+    errors = np.abs(np.swapaxes(rotations, 1, 2) @ rotations - np.eye(3)).max(axis=(1, 2))
+    bad = np.flatnonzero((errors > _ROTATION_TOLERANCE) | (np.linalg.det(rotations) < 0))
+    if len(bad):
+        raise TrajectoryFormatError(f"{path}:{lines[bad[0]]}: not a rotation matrix (|RᵀR - I| = "
+                                    f"{errors[bad[0]]:.2g})")
 
 
 def read_kitti_poses(path: str | Path, max_rows: int | None = None) -> np.ndarray:
@@ -82,9 +87,8 @@ def read_kitti_poses(path: str | Path, max_rows: int | None = None) -> np.ndarra
     path = Path(path)
     rows = _rows(path, 12, max_rows)
     poses = np.tile(np.eye(4), (len(rows), 1, 1))
-    for i, (line, values) in enumerate(rows):
-        poses[i, :3, :] = np.asarray(values).reshape(3, 4)
-        _check_rotation(path, line, poses[i, :3, :3])
+    poses[:, :3, :] = np.array([values for _, values in rows], dtype=np.float64).reshape(-1, 3, 4)
+    _check_rotations(path, [line for line, _ in rows], poses[:, :3, :3])
     return poses
 
 
