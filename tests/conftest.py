@@ -6,6 +6,7 @@ import dataclasses
 import os
 import shutil
 import signal
+import subprocess
 import sys
 import tempfile
 from collections.abc import Iterator
@@ -13,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import type_check
 from cli_helpers import InterruptedRun, interrupt_kitti_run
 from kitti_runs import MapRun, map_run_00
 from ray_cluster import (
@@ -127,24 +129,26 @@ def pytest_configure(config: pytest.Config) -> None:
     if not hasattr(config, "workerinput") and not os.environ.get(FRAME_CACHE):
         os.environ[FRAME_CACHE] = tempfile.mkdtemp(prefix="vslam-test-frames-")
         config.stash[_FRAME_CACHE_MADE] = os.environ[FRAME_CACHE]
+    config.stash[_TYPE_CHECK] = type_check.start(config)  # in the background, niced (tests/type_check.py)
 
 
 #: Test files by cost, the costliest `SAME_WORKER` group or file first, a group's files together (seconds in a full
 #: run; refresh from `--durations=0` when they change).
 #: Files are handed to the xdist workers whole in this order (`--no-loadscope-reorder`; xdist's own order is by
-#: number of tests): the longest jobs first, so the two workers finish together. test_types.py by its cost with a cold
-#: mypy cache (~25 s alone, as on a fresh CI machine; ~0.5 s with the cache of an earlier run).
+#: number of tests): the longest jobs first, so the two workers finish together. test_types.py last (`LAST_FILE`): it
+#: waits for the type check started with the session (tests/type_check.py), which has had the most idle CPU by then.
 SLOWEST_FILES = (
     "test_logs_cli.py", "test_mapping.py", "test_scale.py", "test_engine.py", "test_map_scale.py", "test_batch.py",
     "test_batch_ray.py", "test_outputs.py", "test_faults.py", "test_viewer.py", "test_tum_real.py",
     "test_compare.py", "test_cli.py", "test_provenance.py", "test_gt_check.py", "test_planted_bugs.py",
-    "test_local_map.py", "test_types.py", "test_contract.py", "test_loop_recording.py", "test_batch_workflow.py",
+    "test_local_map.py", "test_contract.py", "test_loop_recording.py", "test_batch_workflow.py",
     "test_eval_external.py", "test_map_storage.py", "test_live.py", "test_eval.py", "test_keyframe_culling.py",
     "test_cli_inputs.py", "test_rosbag_source.py", "test_recording_map.py", "test_example_orb_vo.py",
     "test_coasting.py", "test_synthetic.py", "test_overview.py", "test_tum_rgbd.py", "test_codec.py",
     "test_recording.py", "test_two_view.py", "test_backend_cli.py", "test_scale_none.py", "test_source_files.py",
     "test_map_steps.py", "test_properties.py",
 )
+LAST_FILE = "test_types.py"
 
 
 #: Files whose tests share a session fixture below (one engine run or one process serving tests of both): each
@@ -166,13 +170,14 @@ def pytest_runtest_teardown(item: pytest.Item, nextitem: pytest.Item | None) -> 
 
 @pytest.hookimpl(tryfirst=True)  # the marks before xdist's own hook reads them
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    rank = {name: position for position, name in enumerate(SLOWEST_FILES)}
-    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: file order kept within a file
+    rank = {name: position for position, name in enumerate(SLOWEST_FILES)} | {LAST_FILE: len(SLOWEST_FILES) + 1}
+    items.sort(key=lambda item: rank.get(item.path.name, len(SLOWEST_FILES)))  # stable: file order kept within a file
     for item in items:
         item.add_marker(pytest.mark.xdist_group(SAME_WORKER.get(item.path.name, item.path.name)))
 
 
 def pytest_unconfigure(config: pytest.Config) -> None:
+    type_check.stop(config.stash.get(_TYPE_CHECK, None))
     made = config.stash.get(_FRAME_CACHE_MADE, None)
     if made is not None:
         shutil.rmtree(made, ignore_errors=True)
@@ -180,6 +185,7 @@ def pytest_unconfigure(config: pytest.Config) -> None:
 
 
 _FRAME_CACHE_MADE = pytest.StashKey[str]()
+_TYPE_CHECK = pytest.StashKey[subprocess.Popen[bytes] | None]()
 
 
 def _render(street: SyntheticStreet, index: int) -> np.ndarray:

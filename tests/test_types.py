@@ -1,16 +1,13 @@
-"""The type check (mypy over `vslam_core` and `vslam`, configured in pyproject.toml) as a test: in the suite it
-runs on one xdist worker while the other runs tests, instead of alone before them with a core idle (~25 s)."""
+"""The type check (mypy over `vslam_core` and `vslam`, configured in pyproject.toml) as a test. In a whole session
+it runs in the background from the session's start at the lowest priority, on the CPU the workers leave idle
+(tests/type_check.py); this test waits for its result."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
-from pathlib import Path
-
-ROOT = Path(__file__).resolve().parents[1]
+from type_check import result
 
 
 def test_the_code_type_checks() -> None:
-    result = subprocess.run([sys.executable, "-m", "mypy"], cwd=ROOT, capture_output=True, text=True, timeout=600)
-    assert result.returncode == 0, result.stdout + result.stderr
-    assert result.stdout.startswith("Success: no issues found in "), result.stdout
+    check = result()
+    assert check.exit_code == 0, check.output
+    assert check.output.startswith("Success: no issues found in "), check.output
