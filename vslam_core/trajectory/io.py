@@ -73,8 +73,6 @@ def _rows(
 def _check_rotations(path: Path, lines: list[int], rotations: np.ndarray) -> None:
     """Each pose's (N, 3, 3) block must be a proper rotation (orthonormal, det +1) within a loose tolerance; the
     first that is not is reported by its file line."""
-    if len(rotations) == 0:
-        return
     errors = np.abs(np.swapaxes(rotations, 1, 2) @ rotations - np.eye(3)).max(axis=(1, 2))
     bad = np.flatnonzero((errors > _ROTATION_TOLERANCE) | (np.linalg.det(rotations) < 0))
     if len(bad):
