@@ -30,9 +30,6 @@ class TypeCheck:
 
 
 def _lowest_priority() -> None:
-    """Nice 19 among the session's processes. Its own process group (to be killed whole), not its own session: with
-    the kernel's autogroups (Linux's default) a new session is a scheduling group of its own, which would get as much
-    CPU as all the test workers together whatever its nice value."""
     os.nice(19)
 
 
@@ -48,6 +45,9 @@ def start(config: pytest.Config) -> subprocess.Popen[bytes] | None:
     folder = Path(tempfile.mkdtemp(prefix="vslam-type-check-"))
     script = f'"{sys.executable}" -m mypy > "{folder}/output" 2>&1; echo $? > "{folder}/exit_code.tmp" && ' \
              f'mv "{folder}/exit_code.tmp" "{folder}/exit_code"'
+    # nice 19 among the session's processes; its own process group (to be killed whole), not its own session: with
+    # the kernel's autogroups (Linux's default) a new session is a scheduling group of its own, which would get as
+    # much CPU as all the test workers together whatever its nice value
     process = subprocess.Popen(["sh", "-c", script], cwd=ROOT, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                                stderr=subprocess.DEVNULL, preexec_fn=_lowest_priority, process_group=0)
     os.environ[ENVIRONMENT] = str(folder)
